@@ -1,0 +1,46 @@
+//! `isochron`: the command-line tool people use to run and watch a site.
+
+mod common;
+mod launch;
+mod replay;
+mod tap;
+mod up;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+/// Learn where and when people are active from fixed cameras.
+#[derive(Parser)]
+#[command(name = "isochron", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Start the configured services as separate processes and keep them running.
+    Up(up::Args),
+    /// Attach to a stream and print one line per sample.
+    Tap(tap::Args),
+    /// Run the whole group on a video file and write what every stage produced.
+    Replay(replay::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    isochron_shared::logging::init("isochron");
+    let result = match cli.command {
+        Command::Up(args) => up::run(args),
+        Command::Tap(args) => tap::run(args),
+        Command::Replay(args) => replay::run(args),
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("isochron: {e:#}");
+            ExitCode::from(1)
+        }
+    }
+}

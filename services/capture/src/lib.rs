@@ -1,0 +1,141 @@
+//! isochron-capture: reads a camera or a video file and publishes its frames.
+//!
+//! * [`source`]: OpenCV sources, decoding straight into shared memory;
+//! * [`Stamper`]: capture times — the wall clock for live sources, `start + i/fps`
+//!   for files so recordings replay on a simulated clock;
+//! * [`Pacer`]: real-time (or `speed`×) pacing of file playback;
+//! * [`Backoff`]: exponential reconnect delays for sources that drop out.
+
+pub mod source;
+
+use std::time::{Duration, Instant};
+
+use isochron_shared::clock::{NS_PER_S, wall_now_ns};
+
+/// Assigns capture times to frames.
+#[derive(Debug, Clone)]
+pub enum Stamper {
+    /// Live sources: the UTC wall clock when the frame was read.
+    Wall,
+    /// File sources: `start_ns + index / fps`.
+    File {
+        /// Capture time of frame 0.
+        start_ns: i64,
+        /// Frames per second of the recording.
+        fps: f64,
+    },
+}
+
+impl Stamper {
+    /// Capture time of the frame with overall `index` (counting across loops).
+    pub fn stamp(&self, index: u64) -> i64 {
+        match self {
+            Stamper::Wall => wall_now_ns(),
+            Stamper::File { start_ns, fps } => {
+                start_ns + ((index as f64) * (NS_PER_S as f64) / fps).round() as i64
+            }
+        }
+    }
+}
+
+/// Paces file playback: frame `i` is due at `t0 + i / (fps × speed)`.
+#[derive(Debug, Clone)]
+pub struct Pacer {
+    t0: Instant,
+    period: Option<Duration>,
+}
+
+impl Pacer {
+    /// A pacer for `fps` at `speed` (`None` = as fast as possible).
+    pub fn new(fps: f64, speed: Option<f64>) -> Self {
+        Pacer {
+            t0: Instant::now(),
+            period: speed.map(|s| Duration::from_secs_f64(1.0 / (fps * s))),
+        }
+    }
+
+    /// How long to wait before frame `index` is due (zero if late or unpaced).
+    pub fn wait_for(&self, index: u64) -> Duration {
+        match self.period {
+            None => Duration::ZERO,
+            Some(p) => {
+                (self.t0 + p.mul_f64(index as f64)).saturating_duration_since(Instant::now())
+            }
+        }
+    }
+}
+
+/// Exponential backoff: `initial`, doubling, capped at `max`; reset on success.
+#[derive(Debug, Clone)]
+pub struct Backoff {
+    initial: Duration,
+    max: Duration,
+    next: Duration,
+    attempts: u32,
+}
+
+impl Backoff {
+    /// A backoff from `initial` up to `max`.
+    pub fn new(initial: Duration, max: Duration) -> Self {
+        Backoff {
+            initial,
+            max,
+            next: initial,
+            attempts: 0,
+        }
+    }
+
+    /// The delay before the next attempt, and the attempt's number (1-based).
+    pub fn next_delay(&mut self) -> (Duration, u32) {
+        let delay = self.next;
+        self.next = (self.next * 2).min(self.max);
+        self.attempts += 1;
+        (delay, self.attempts)
+    }
+
+    /// Back to the initial delay after a success.
+    pub fn reset(&mut self) {
+        self.next = self.initial;
+        self.attempts = 0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn file_stamps_are_start_plus_index_over_fps() {
+        let s = Stamper::File {
+            start_ns: 1_000,
+            fps: 10.0,
+        };
+        assert_eq!(s.stamp(0), 1_000);
+        assert_eq!(s.stamp(1), 1_000 + NS_PER_S / 10);
+        assert_eq!(s.stamp(795), 1_000 + 79_500_000_000);
+        // 30000/1001 fps does not drift: stamps are computed, not accumulated.
+        let ntsc = Stamper::File {
+            start_ns: 0,
+            fps: 30000.0 / 1001.0,
+        };
+        assert_eq!(ntsc.stamp(30000), 1001 * NS_PER_S);
+    }
+
+    #[test]
+    fn backoff_doubles_to_the_cap_and_resets() {
+        let mut b = Backoff::new(Duration::from_millis(500), Duration::from_secs(3));
+        let delays: Vec<_> = (0..5).map(|_| b.next_delay().0.as_millis()).collect();
+        assert_eq!(delays, [500, 1000, 2000, 3000, 3000]);
+        assert_eq!(b.next_delay().1, 6);
+        b.reset();
+        assert_eq!(b.next_delay(), (Duration::from_millis(500), 1));
+    }
+
+    #[test]
+    fn unpaced_never_waits_and_paced_waits_for_future_frames() {
+        assert_eq!(Pacer::new(10.0, None).wait_for(1000), Duration::ZERO);
+        let p = Pacer::new(10.0, Some(1.0));
+        assert!(p.wait_for(10) > Duration::from_millis(900));
+        assert_eq!(p.wait_for(0), Duration::ZERO);
+    }
+}

@@ -1,0 +1,296 @@
+//! isochron-capture: config → source → node → `frames` publisher → read/publish loop.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use clap::Parser;
+use isochron_capture::source::{ReadOutcome, SourceError, VideoSource};
+use isochron_capture::{Backoff, Pacer, Stamper};
+use isochron_shared::clock::{format_rfc3339, parse_rfc3339, wall_now_ns};
+use isochron_shared::config::{SourceKind, Speed};
+use isochron_shared::health::{Health, exit, notify_ready};
+use isochron_shared::ipc::{Frames, Ipc, StreamPublisher};
+use isochron_shared::service::{Fatal, ServiceContext, finish, start};
+use isochron_shared::wire::{
+    CameraId, FLAG_DISCONTINUITY, FLAG_END_OF_STREAM, FrameHeader, Preamble, Stream,
+};
+
+/// Reads one camera or video file and publishes its frames on `<prefix>/<camera>/frames`.
+#[derive(Parser)]
+#[command(version)]
+struct Args {
+    /// Site configuration file.
+    #[arg(long)]
+    config: PathBuf,
+    /// Camera id (a `[[camera]]` of the config).
+    #[arg(long)]
+    camera: String,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    let result = start("capture", &args.config, Some(&args.camera)).and_then(run);
+    finish("capture", result)
+}
+
+fn run(ctx: ServiceContext) -> Result<(), Fatal> {
+    let cam = ctx.camera().clone();
+    let kind = cam.source_kind(&ctx.config.base_dir());
+    let mut backoff = Backoff::new(
+        Duration::from_secs_f64(cam.reconnect_initial_s),
+        Duration::from_secs_f64(cam.reconnect_max_s),
+    );
+    let Some(mut source) = open_source(&kind, &mut backoff, &ctx.ipc)? else {
+        return Ok(());
+    };
+
+    let (width, height) = match (cam.width, cam.height) {
+        (Some(w), Some(h)) => (w, h),
+        _ => source.native_size().map_err(source_fatal)?.ok_or_else(|| {
+            Fatal::new(
+                exit::CONFIG,
+                format!(
+                    "camera '{}': the source does not report its frame size; set width and height in the config",
+                    cam.id
+                ),
+            )
+        })?,
+    };
+    let format = cam.format();
+    let frame_bytes = width as usize * height as usize * format.channels();
+    let camera_id = CameraId::new(&cam.id).expect("validated camera id");
+
+    let is_file = kind.is_file();
+    let fps = cam.fps.unwrap_or_else(|| source.stated_fps());
+    if is_file && (fps.is_nan() || fps <= 0.0) {
+        return Err(Fatal::new(
+            exit::CONFIG,
+            format!(
+                "camera '{}': the file states no frame rate; set fps in the config",
+                cam.id
+            ),
+        ));
+    }
+    let stamper = if is_file {
+        let start_ns = match &cam.start {
+            Some(s) => parse_rfc3339(s).expect("validated start time"),
+            None => wall_now_ns(),
+        };
+        Stamper::File { start_ns, fps }
+    } else {
+        Stamper::Wall
+    };
+    let pacer = Pacer::new(
+        fps.max(1.0),
+        match cam.speed {
+            Speed::Max => None,
+            Speed::Factor(f) => Some(f),
+        },
+    );
+
+    let mut publisher = ctx
+        .ipc
+        .publisher::<Frames>(&cam.id, frame_bytes)
+        .map_err(|e| Fatal::new(exit::UNAVAILABLE, e.to_string()))?;
+    let mut health = Health::new("capture", &cam.id, Some(&ctx.ipc));
+    tracing::info!(
+        camera = %cam.id,
+        source = %cam.source,
+        "publishing {width}x{height} {format:?} frames at {fps:.2} fps (speed {}, {})",
+        cam.speed,
+        match &stamper {
+            Stamper::File { start_ns, .. } => format!("file clock from {}", format_rfc3339(*start_ns)),
+            Stamper::Wall => "wall clock".into(),
+        }
+    );
+    notify_ready(&format!("capturing {}", cam.id));
+
+    let mut index: u64 = 0; // frames published: the file clock's tick
+    let mut flags = 0u32;
+    let mut reconnects = 0u64;
+    let mut loops = 0u64;
+    let detail = |reconnects: u64, loops: u64, fps_src: f64| {
+        format!("reconnects={reconnects} loops={loops} source_fps={fps_src:.2}")
+    };
+    while !ctx.ipc.should_stop() {
+        health.tick(|| detail(reconnects, loops, fps));
+        if is_file {
+            let wait = pacer.wait_for(index);
+            if !wait.is_zero() {
+                sleep_unless_stopped(&ctx.ipc, wait);
+                continue;
+            }
+        }
+        let mut sample = match publisher.loan(frame_bytes) {
+            Ok(s) => s,
+            Err(e) => {
+                // Every sample is held by subscribers: drop this frame, don't block.
+                tracing::debug!("frame dropped: {e}");
+                health.dropped(1);
+                std::thread::sleep(Duration::from_millis(5));
+                continue;
+            }
+        };
+        let source_index = source.frames_read();
+        // SAFETY: the loan holds exactly `frame_bytes` bytes.
+        let outcome = unsafe {
+            source.read_into(
+                sample.payload_mut().as_mut_ptr().cast(),
+                width,
+                height,
+                format,
+            )
+        };
+        match outcome {
+            Ok(ReadOutcome::Frame) => {
+                health.read_one();
+                let capture_time_ns = stamper.stamp(index);
+                let mut preamble = Preamble::new::<u8>(
+                    Stream::Frames,
+                    camera_id,
+                    publisher.next_sequence(),
+                    frame_bytes,
+                );
+                preamble.capture_time_ns = capture_time_ns;
+                preamble.origin_wall_ns = wall_now_ns();
+                preamble.flags = std::mem::take(&mut flags);
+                *sample.user_header_mut() = FrameHeader {
+                    preamble,
+                    width,
+                    height,
+                    stride: width * format.channels() as u32,
+                    pixel_format: format as u32,
+                    source_index,
+                };
+                // SAFETY: read_into wrote every byte of the frame.
+                let sample = unsafe { sample.assume_init() };
+                publisher
+                    .send(sample)
+                    .map_err(|e| Fatal::new(exit::UNAVAILABLE, e.to_string()))?;
+                health.sent(None, preamble.origin_wall_ns);
+                index += 1;
+            }
+            Ok(ReadOutcome::EndOfFile) => {
+                drop(sample);
+                check_complete(&source);
+                if cam.loop_file {
+                    loops += 1;
+                    source = VideoSource::open(&kind).map_err(source_fatal)?;
+                    continue;
+                }
+                send_end_of_stream(&mut publisher, camera_id, stamper.stamp(index))?;
+                health.report(detail(reconnects, loops, fps));
+                tracing::info!("end of file after {index} frames; end of stream signalled");
+                return Ok(());
+            }
+            Ok(ReadOutcome::Lost) | Err(_) if !is_file => {
+                drop(sample);
+                if let Err(e) = outcome {
+                    tracing::warn!("camera '{}' failed: {e}", cam.id);
+                }
+                tracing::warn!(
+                    "camera '{}' stopped delivering frames; reconnecting",
+                    cam.id
+                );
+                backoff.reset();
+                match open_source(&kind, &mut backoff, &ctx.ipc)? {
+                    Some(s) => source = s,
+                    None => break,
+                }
+                reconnects += 1;
+                flags |= FLAG_DISCONTINUITY;
+            }
+            Ok(ReadOutcome::Lost) => unreachable!("file sources end, they are not lost"),
+            Err(e) => {
+                // A file that breaks mid-way: publish what was decodable, then end.
+                drop(sample);
+                tracing::warn!("decoding failed after {} frames: {e}", source.frames_read());
+                send_end_of_stream(&mut publisher, camera_id, stamper.stamp(index))?;
+                return Ok(());
+            }
+        }
+    }
+    health.report(detail(reconnects, loops, fps));
+    Ok(())
+}
+
+/// Opens the source. A file that is missing or undecodable is a permanent error; a
+/// live source is retried with exponential backoff until it opens or we are asked to
+/// stop (`Ok(None)`).
+fn open_source(
+    kind: &SourceKind,
+    backoff: &mut Backoff,
+    ipc: &Ipc,
+) -> Result<Option<VideoSource>, Fatal> {
+    loop {
+        match VideoSource::open(kind) {
+            Ok(source) => return Ok(Some(source)),
+            Err(e) if kind.is_file() => return Err(source_fatal(e)),
+            Err(e) => {
+                let (delay, attempt) = backoff.next_delay();
+                tracing::warn!(
+                    "{e}; attempt {attempt} failed, retrying in {:.1} s",
+                    delay.as_secs_f64()
+                );
+                if !sleep_unless_stopped(ipc, delay) {
+                    return Ok(None);
+                }
+            }
+        }
+    }
+}
+
+fn source_fatal(e: SourceError) -> Fatal {
+    let code = match e {
+        SourceError::Missing(_) => exit::NO_INPUT,
+        SourceError::Undecodable(_) => exit::DATA,
+        _ => exit::UNAVAILABLE,
+    };
+    Fatal::new(code, e.to_string())
+}
+
+/// Warns when a file ended well before the frame count it states (truncated file).
+fn check_complete(source: &VideoSource) {
+    let stated = source.stated_frame_count();
+    let read = source.frames_read();
+    if stated > 0 && read + 1 < stated {
+        tracing::warn!(
+            "the file ended after {read} of the {stated} frames it states: it is truncated or damaged"
+        );
+    }
+}
+
+fn send_end_of_stream(
+    publisher: &mut StreamPublisher<Frames>,
+    camera: CameraId,
+    capture_time_ns: i64,
+) -> Result<(), Fatal> {
+    let mut preamble = Preamble::new::<u8>(Stream::Frames, camera, publisher.next_sequence(), 0);
+    preamble.capture_time_ns = capture_time_ns;
+    preamble.origin_wall_ns = wall_now_ns();
+    preamble.flags = FLAG_END_OF_STREAM;
+    let header = FrameHeader {
+        preamble,
+        ..Default::default()
+    };
+    publisher
+        .send_copy(header, &[])
+        .map(|_| ())
+        .map_err(|e| Fatal::new(exit::UNAVAILABLE, e.to_string()))
+}
+
+/// Sleeps `total`, waking early when asked to stop. Returns false if asked to stop.
+fn sleep_unless_stopped(ipc: &Ipc, total: Duration) -> bool {
+    let end = Instant::now() + total;
+    loop {
+        if ipc.should_stop() {
+            return false;
+        }
+        let left = end.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return true;
+        }
+        std::thread::sleep(left.min(Duration::from_millis(100)));
+    }
+}

@@ -1,0 +1,219 @@
+//! Video sources through OpenCV: files, V4L2 devices, network URLs, GStreamer.
+//!
+//! [`VideoSource::read_into`] decodes the next frame and converts it (colour, then
+//! size) straight into a caller's buffer — the loaned shared-memory sample — so the
+//! pixels are written once, where every consumer reads them.
+
+use std::path::PathBuf;
+
+use isochron_shared::config::SourceKind;
+use isochron_shared::wire::PixelFormat;
+use opencv::core::{Mat, Size};
+use opencv::prelude::*;
+use opencv::{imgproc, videoio};
+
+/// Why a source could not be opened or read.
+#[derive(Debug, thiserror::Error)]
+pub enum SourceError {
+    /// The file does not exist.
+    #[error("video file {0} does not exist")]
+    Missing(PathBuf),
+    /// The file exists but no OpenCV backend can decode it.
+    #[error(
+        "cannot decode video file {0}: it is corrupt or in a format the installed OpenCV backends (FFmpeg, GStreamer) cannot read"
+    )]
+    Undecodable(PathBuf),
+    /// A live source could not be opened (yet).
+    #[error("cannot open {0}")]
+    Unavailable(String),
+    /// OpenCV failed.
+    #[error("OpenCV: {0}")]
+    OpenCv(#[from] opencv::Error),
+}
+
+/// What a read produced.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReadOutcome {
+    /// A frame was written into the buffer.
+    Frame,
+    /// A file source has no more frames.
+    EndOfFile,
+    /// A live source stopped delivering.
+    Lost,
+}
+
+/// An opened video source.
+pub struct VideoSource {
+    capture: videoio::VideoCapture,
+    kind: SourceKind,
+    decoded: Mat,
+    scratch: Mat,
+    frames_read: u64,
+}
+
+impl VideoSource {
+    /// Opens `kind`.
+    pub fn open(kind: &SourceKind) -> Result<Self, SourceError> {
+        let capture = match kind {
+            SourceKind::File(path) => {
+                if !path.exists() {
+                    return Err(SourceError::Missing(path.clone()));
+                }
+                let cap = videoio::VideoCapture::from_file(path.as_os_str(), videoio::CAP_ANY)?;
+                if !cap.is_opened()? {
+                    return Err(SourceError::Undecodable(path.clone()));
+                }
+                cap
+            }
+            SourceKind::Device(index) => {
+                let cap = videoio::VideoCapture::new(*index, videoio::CAP_V4L2)?;
+                if !cap.is_opened()? {
+                    return Err(SourceError::Unavailable(format!("V4L2 device {index}")));
+                }
+                cap
+            }
+            SourceKind::Url(url) => {
+                let cap = videoio::VideoCapture::from_file(url, videoio::CAP_FFMPEG)?;
+                if !cap.is_opened()? {
+                    return Err(SourceError::Unavailable(url.clone()));
+                }
+                cap
+            }
+            SourceKind::GStreamer(pipeline) => {
+                let cap = videoio::VideoCapture::from_file(pipeline, videoio::CAP_GSTREAMER)?;
+                if !cap.is_opened()? {
+                    return Err(SourceError::Unavailable(format!(
+                        "GStreamer pipeline '{pipeline}'"
+                    )));
+                }
+                cap
+            }
+        };
+        let mut source = VideoSource {
+            capture,
+            kind: kind.clone(),
+            decoded: Mat::default(),
+            scratch: Mat::default(),
+            frames_read: 0,
+        };
+        // A file that opens but yields no first frame is as good as corrupt.
+        if let SourceKind::File(path) = kind
+            && source.native_size()?.is_none()
+        {
+            return Err(SourceError::Undecodable(path.clone()));
+        }
+        Ok(source)
+    }
+
+    /// Width and height the source decodes to, if it says.
+    pub fn native_size(&mut self) -> Result<Option<(u32, u32)>, SourceError> {
+        let w = self.capture.get(videoio::CAP_PROP_FRAME_WIDTH)?;
+        let h = self.capture.get(videoio::CAP_PROP_FRAME_HEIGHT)?;
+        Ok((w >= 1.0 && h >= 1.0).then_some((w as u32, h as u32)))
+    }
+
+    /// Frame rate the source states (0 if unknown).
+    pub fn stated_fps(&self) -> f64 {
+        self.capture
+            .get(videoio::CAP_PROP_FPS)
+            .unwrap_or(0.0)
+            .max(0.0)
+    }
+
+    /// Number of frames a file states it has (0 if unknown).
+    pub fn stated_frame_count(&self) -> u64 {
+        self.capture
+            .get(videoio::CAP_PROP_FRAME_COUNT)
+            .unwrap_or(0.0)
+            .max(0.0) as u64
+    }
+
+    /// Frames read since the source was opened.
+    pub fn frames_read(&self) -> u64 {
+        self.frames_read
+    }
+
+    /// The source kind.
+    pub fn kind(&self) -> &SourceKind {
+        &self.kind
+    }
+
+    /// Decodes the next frame into `dst` (`width × height` pixels of `format`,
+    /// packed rows), resizing and converting as needed.
+    ///
+    /// # Safety
+    /// `dst` must point to `width * height * format.channels()` writable bytes.
+    /// On [`ReadOutcome::Frame`] every one of them has been written.
+    pub unsafe fn read_into(
+        &mut self,
+        dst: *mut u8,
+        width: u32,
+        height: u32,
+        format: PixelFormat,
+    ) -> Result<ReadOutcome, SourceError> {
+        let ok = self.capture.read(&mut self.decoded).unwrap_or(false);
+        if !ok || self.decoded.empty() {
+            return Ok(if self.kind.is_file() {
+                ReadOutcome::EndOfFile
+            } else {
+                ReadOutcome::Lost
+            });
+        }
+        self.frames_read += 1;
+        let typ = match format {
+            PixelFormat::Gray8 => opencv::core::CV_8UC1,
+            PixelFormat::Bgr8 => opencv::core::CV_8UC3,
+        };
+        let step = width as usize * format.channels();
+        // SAFETY: the caller guarantees `dst` covers height * step bytes; the Mat
+        // does not outlive this call.
+        let mut out = unsafe {
+            Mat::new_rows_cols_with_data_unsafe(height as i32, width as i32, typ, dst.cast(), step)?
+        };
+        let size = Size::new(width as i32, height as i32);
+        let same_size = self.decoded.size()? == size;
+        let channels = self.decoded.channels();
+        match (format, channels, same_size) {
+            (PixelFormat::Gray8, 1, true) | (PixelFormat::Bgr8, 3, true) => {
+                self.decoded.copy_to(&mut out)?;
+            }
+            (PixelFormat::Gray8, 1, false) | (PixelFormat::Bgr8, 3, false) => {
+                imgproc::resize(&self.decoded, &mut out, size, 0.0, 0.0, imgproc::INTER_AREA)?;
+            }
+            (_, _, true) => {
+                imgproc::cvt_color(&self.decoded, &mut out, conversion(channels, format), 0)?;
+            }
+            (_, _, false) => {
+                // Convert at the source size (one channel for gray), then shrink
+                // into the sample.
+                imgproc::cvt_color(
+                    &self.decoded,
+                    &mut self.scratch,
+                    conversion(channels, format),
+                    0,
+                )?;
+                imgproc::resize(&self.scratch, &mut out, size, 0.0, 0.0, imgproc::INTER_AREA)?;
+            }
+        }
+        // OpenCV reallocates an output whose size or type does not fit instead of
+        // failing; make sure it wrote where we asked.
+        if out.data() != dst.cast_const() {
+            return Err(SourceError::OpenCv(opencv::Error::new(
+                opencv::core::StsInternal,
+                "OpenCV reallocated the output frame instead of writing into shared memory",
+            )));
+        }
+        Ok(ReadOutcome::Frame)
+    }
+}
+
+/// The colour conversion from `channels` decoded channels to `format`.
+fn conversion(channels: i32, format: PixelFormat) -> i32 {
+    match (channels, format) {
+        (3, PixelFormat::Gray8) => imgproc::COLOR_BGR2GRAY,
+        (4, PixelFormat::Gray8) => imgproc::COLOR_BGRA2GRAY,
+        (1, PixelFormat::Bgr8) => imgproc::COLOR_GRAY2BGR,
+        (4, PixelFormat::Bgr8) => imgproc::COLOR_BGRA2BGR,
+        _ => imgproc::COLOR_BGR2GRAY,
+    }
+}

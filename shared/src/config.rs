@@ -1,0 +1,756 @@
+//! Configuration: one TOML file describes a site (its cameras and every stage).
+//!
+//! [`Config::load`] parses and validates; every error names the file, the line, the
+//! key, and what was expected, e.g.
+//! `config/site.toml:12: camera[0].fps: expected a number > 0, found -3`.
+//! Each key is documented on its field with its default; units are in the names
+//! (`_s`, `_px`, `_days`).
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::names::is_valid_prefix;
+use crate::wire::{PixelFormat, is_valid_camera_id};
+
+/// A configuration error located in its file.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub struct ConfigError {
+    /// The file.
+    pub file: PathBuf,
+    /// 1-based line, when known.
+    pub line: Option<usize>,
+    /// Dotted key path (`camera[0].fps`), when known.
+    pub key: Option<String>,
+    /// What is wrong and what was expected.
+    pub message: String,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file.display())?;
+        if let Some(line) = self.line {
+            write!(f, ":{line}")?;
+        }
+        if let Some(key) = &self.key {
+            write!(f, ": key `{key}`")?;
+        }
+        write!(f, ": {}", self.message)
+    }
+}
+
+/// A semantic error found by validation, before it is located in the file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Invalid {
+    /// Dotted key path, e.g. `camera[0].fps`.
+    pub key: String,
+    /// What is wrong and what was expected.
+    pub message: String,
+}
+
+impl Invalid {
+    /// An error at `key`.
+    pub fn new(key: impl Into<String>, message: impl Into<String>) -> Self {
+        Invalid {
+            key: key.into(),
+            message: message.into(),
+        }
+    }
+}
+
+/// The whole configuration of one site.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// Site-wide settings.
+    pub site: SiteConfig,
+    /// Shared-memory transport settings.
+    pub ipc: IpcConfig,
+    /// The cameras (`[[camera]]` tables); at least one.
+    #[serde(rename = "camera")]
+    pub cameras: Vec<CameraConfig>,
+}
+
+/// `[site]`: settings for the whole site.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SiteConfig {
+    /// Name for people and logs. Default `"site"`.
+    pub name: String,
+    /// IANA time zone of the site, used for isochronal time t*. Default `"UTC"`.
+    pub time_zone: String,
+    /// Start of every iceoryx2 service name. Default `"isochron"`.
+    pub service_prefix: String,
+    /// Directory for state (the long-term store). Default `"/var/lib/isochron"`;
+    /// relative paths are relative to the config file.
+    pub state_dir: PathBuf,
+}
+
+impl Default for SiteConfig {
+    fn default() -> Self {
+        SiteConfig {
+            name: "site".into(),
+            time_zone: "UTC".into(),
+            service_prefix: crate::names::DEFAULT_PREFIX.into(),
+            state_dir: PathBuf::from("/var/lib/isochron"),
+        }
+    }
+}
+
+/// `[ipc]`: how streams use shared memory. Every process of a site must use the same
+/// values (they are part of each iceoryx2 service's identity).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct IpcConfig {
+    /// Most subscribers per stream (consumers + taps). Default 5.
+    pub max_subscribers: usize,
+    /// Frames a `frames` subscriber may have queued. Default 3.
+    pub frame_buffer: usize,
+    /// Samples a subscriber of the small streams may have queued. Default 16.
+    pub stream_buffer: usize,
+    /// Lossless delivery: a publisher waits for slow subscribers instead of
+    /// overwriting their oldest sample. Default `false` (live: never block a
+    /// producer); `isochron replay --speed max` turns it on.
+    pub lossless: bool,
+    /// In lossless mode, how long a publisher waits for a stalled subscriber before
+    /// it drops that subscriber's sample and logs it. Default 10.
+    pub lossless_timeout_s: f64,
+}
+
+impl Default for IpcConfig {
+    fn default() -> Self {
+        IpcConfig {
+            max_subscribers: 5,
+            frame_buffer: 3,
+            stream_buffer: 16,
+            lossless: false,
+            lossless_timeout_s: 10.0,
+        }
+    }
+}
+
+/// Playback speed of a file source.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Speed {
+    /// As fast as consumers keep up, without dropping a frame.
+    Max,
+    /// A multiple of the file's frame rate (1 = real time).
+    Factor(f64),
+}
+
+impl Speed {
+    /// Parses `max` or a positive number.
+    pub fn parse(s: &str) -> Option<Speed> {
+        if s.eq_ignore_ascii_case("max") {
+            return Some(Speed::Max);
+        }
+        s.parse::<f64>()
+            .ok()
+            .filter(|f| f.is_finite() && *f > 0.0)
+            .map(Speed::Factor)
+    }
+}
+
+impl fmt::Display for Speed {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Speed::Max => f.write_str("max"),
+            Speed::Factor(x) => write!(f, "{x}"),
+        }
+    }
+}
+
+impl Serialize for Speed {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            Speed::Max => s.serialize_str("max"),
+            Speed::Factor(x) => s.serialize_f64(*x),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for Speed {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            Number(f64),
+            Text(String),
+        }
+        let bad = || serde::de::Error::custom("expected \"max\" or a number > 0");
+        match Raw::deserialize(d)? {
+            Raw::Number(x) if x.is_finite() && x > 0.0 => Ok(Speed::Factor(x)),
+            Raw::Number(_) => Err(bad()),
+            Raw::Text(s) => Speed::parse(&s).ok_or_else(bad),
+        }
+    }
+}
+
+/// A polygon in frame pixel coordinates (analysis size), as `[[x, y], ...]`.
+pub type Polygon = Vec<[f64; 2]>;
+
+/// A named region of a camera's view.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ZoneConfig {
+    /// Zone name (at most 32 bytes), unique per camera.
+    pub name: String,
+    /// Outline in frame pixels, at least 3 points.
+    pub polygon: Polygon,
+}
+
+/// `[[camera]]`: one fixed camera.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraConfig {
+    /// Camera id: 1..=24 characters of `[A-Za-z0-9_-]`, unique on the site.
+    pub id: String,
+    /// Video source: a file path (relative to the config file), a V4L2 device
+    /// (`/dev/video0` or `v4l2:0`), an `rtsp://`/`http://`/`https://` URL, or a
+    /// GStreamer pipeline ending in `appsink` (`gst:...`).
+    pub source: String,
+    /// Analysis width in pixels; default: the source's width.
+    #[serde(default)]
+    pub width: Option<u32>,
+    /// Analysis height in pixels; default: the source's height.
+    #[serde(default)]
+    pub height: Option<u32>,
+    /// Published pixel format, `"gray8"` (default) or `"bgr8"`.
+    #[serde(default = "default_pixel_format")]
+    pub pixel_format: String,
+    /// Frame rate of a file source, overriding what the container states.
+    #[serde(default)]
+    pub fps: Option<f64>,
+    /// Capture time of a file's first frame (RFC 3339); default: when capture starts.
+    #[serde(default)]
+    pub start: Option<String>,
+    /// Playback speed of a file source: `"max"` or a factor. Default 1 (real time).
+    #[serde(default = "default_speed")]
+    pub speed: Speed,
+    /// Play a file source again from the start when it ends. Default `false`.
+    #[serde(default, rename = "loop")]
+    pub loop_file: bool,
+    /// First reconnect delay after a live source drops out, seconds. Default 0.5.
+    #[serde(default = "default_reconnect_initial_s")]
+    pub reconnect_initial_s: f64,
+    /// Longest reconnect delay (the backoff doubles up to it), seconds. Default 30.
+    #[serde(default = "default_reconnect_max_s")]
+    pub reconnect_max_s: f64,
+    /// Regions that never matter (polygons in frame pixels); their blocks report no
+    /// motion.
+    #[serde(default)]
+    pub mask: Vec<Polygon>,
+    /// Zones for events; default one zone `"all"` covering the whole view.
+    #[serde(default, rename = "zone")]
+    pub zones: Vec<ZoneConfig>,
+}
+
+fn default_pixel_format() -> String {
+    "gray8".into()
+}
+fn default_speed() -> Speed {
+    Speed::Factor(1.0)
+}
+fn default_reconnect_initial_s() -> f64 {
+    0.5
+}
+fn default_reconnect_max_s() -> f64 {
+    30.0
+}
+
+/// What kind of source a camera's `source` names.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SourceKind {
+    /// A video file.
+    File(PathBuf),
+    /// A V4L2 device index.
+    Device(i32),
+    /// A network URL (RTSP/HTTP).
+    Url(String),
+    /// A GStreamer pipeline.
+    GStreamer(String),
+}
+
+impl SourceKind {
+    /// True for sources that run out (files).
+    pub fn is_file(&self) -> bool {
+        matches!(self, SourceKind::File(_))
+    }
+}
+
+impl CameraConfig {
+    /// Classifies `source`; relative file paths are resolved against `base_dir`.
+    pub fn source_kind(&self, base_dir: &Path) -> SourceKind {
+        let s = self.source.trim();
+        if let Some(pipeline) = s.strip_prefix("gst:") {
+            return SourceKind::GStreamer(pipeline.trim().to_string());
+        }
+        if let Some(index) = s.strip_prefix("v4l2:")
+            && let Ok(i) = index.parse()
+        {
+            return SourceKind::Device(i);
+        }
+        if let Some(index) = s.strip_prefix("/dev/video")
+            && let Ok(i) = index.parse()
+        {
+            return SourceKind::Device(i);
+        }
+        if [
+            "rtsp://", "rtsps://", "http://", "https://", "udp://", "tcp://",
+        ]
+        .iter()
+        .any(|p| s.starts_with(p))
+        {
+            return SourceKind::Url(s.to_string());
+        }
+        let path = PathBuf::from(s);
+        SourceKind::File(if path.is_absolute() {
+            path
+        } else {
+            base_dir.join(path)
+        })
+    }
+
+    /// The configured pixel format (valid after validation).
+    pub fn format(&self) -> PixelFormat {
+        if self.pixel_format == "bgr8" {
+            PixelFormat::Bgr8
+        } else {
+            PixelFormat::Gray8
+        }
+    }
+
+    /// Zones, with the default whole-view zone when none are configured.
+    pub fn zones_or_default(&self, width: u32, height: u32) -> Vec<ZoneConfig> {
+        if !self.zones.is_empty() {
+            return self.zones.clone();
+        }
+        let (w, h) = (width as f64, height as f64);
+        vec![ZoneConfig {
+            name: "all".into(),
+            polygon: vec![[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]],
+        }]
+    }
+}
+
+/// A loaded configuration and where it came from.
+#[derive(Debug, Clone)]
+pub struct LoadedConfig {
+    /// The validated configuration.
+    pub config: Config,
+    /// The file it was read from.
+    pub path: PathBuf,
+}
+
+impl LoadedConfig {
+    /// Directory relative paths in the config are resolved against.
+    pub fn base_dir(&self) -> PathBuf {
+        self.path
+            .parent()
+            .map(Path::to_path_buf)
+            .unwrap_or_else(|| PathBuf::from("."))
+    }
+
+    /// The camera with `id`, or an error listing the configured ones.
+    pub fn camera(&self, id: &str) -> Result<&CameraConfig, String> {
+        self.config
+            .cameras
+            .iter()
+            .find(|c| c.id == id)
+            .ok_or_else(|| {
+                let ids: Vec<_> = self.config.cameras.iter().map(|c| c.id.as_str()).collect();
+                format!(
+                    "no camera '{id}' in {} (configured: {})",
+                    self.path.display(),
+                    ids.join(", ")
+                )
+            })
+    }
+
+    /// `site.state_dir`, resolved against the config file's directory.
+    pub fn state_dir(&self) -> PathBuf {
+        let dir = &self.config.site.state_dir;
+        if dir.is_absolute() {
+            dir.clone()
+        } else {
+            self.base_dir().join(dir)
+        }
+    }
+}
+
+impl Config {
+    /// Reads, parses and validates a config file.
+    pub fn load(path: &Path) -> Result<LoadedConfig, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+            file: path.to_path_buf(),
+            line: None,
+            key: None,
+            message: format!("cannot read the config file: {e}"),
+        })?;
+        let config = Config::parse(&text, path)?;
+        Ok(LoadedConfig {
+            config,
+            path: path.to_path_buf(),
+        })
+    }
+
+    /// Parses and validates TOML text; `path` is only used in errors.
+    pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
+        let located = |line: Option<usize>, key: Option<String>, message: String| ConfigError {
+            file: path.to_path_buf(),
+            line,
+            key,
+            message,
+        };
+        let deserializer = toml::Deserializer::parse(text).map_err(|e| {
+            located(
+                e.span().map(|s| line_at(text, s.start)),
+                None,
+                e.message().to_string(),
+            )
+        })?;
+        let config: Config = serde_path_to_error::deserialize(deserializer).map_err(|e| {
+            let key = e.path().to_string();
+            let inner = e.into_inner();
+            let line = inner
+                .span()
+                .map(|s| line_at(text, s.start))
+                .or_else(|| line_of_key(text, &key));
+            let key = (key != ".").then_some(key);
+            located(line, key, inner.message().to_string())
+        })?;
+        if let Err(invalid) = config.validate() {
+            let line = line_of_key(text, &invalid.key).or_else(|| {
+                // The key is absent (a default was invalid or a required section is
+                // missing): point at its table instead.
+                parent_key(&invalid.key).and_then(|p| line_of_key(text, p))
+            });
+            return Err(located(line, Some(invalid.key), invalid.message));
+        }
+        Ok(config)
+    }
+
+    /// Checks values that parse but make no sense.
+    pub fn validate(&self) -> Result<(), Invalid> {
+        let site = &self.site;
+        if jiff::tz::TimeZone::get(&site.time_zone).is_err() {
+            return Err(Invalid::new(
+                "site.time_zone",
+                format!(
+                    "expected an IANA time zone such as \"Europe/Berlin\" or \"UTC\", found \"{}\"",
+                    site.time_zone
+                ),
+            ));
+        }
+        if !is_valid_prefix(&site.service_prefix) {
+            return Err(Invalid::new(
+                "site.service_prefix",
+                format!(
+                    "expected letters, digits, '_', '-', '.', '/' (not at either end), found \"{}\"",
+                    site.service_prefix
+                ),
+            ));
+        }
+        let ipc = &self.ipc;
+        check_range("ipc.max_subscribers", ipc.max_subscribers as f64, 1.0, 64.0)?;
+        check_range("ipc.frame_buffer", ipc.frame_buffer as f64, 1.0, 64.0)?;
+        check_range("ipc.stream_buffer", ipc.stream_buffer as f64, 1.0, 1024.0)?;
+        check_positive("ipc.lossless_timeout_s", ipc.lossless_timeout_s)?;
+
+        if self.cameras.is_empty() {
+            return Err(Invalid::new(
+                "camera",
+                "expected at least one [[camera]] table with `id` and `source`",
+            ));
+        }
+        for (i, cam) in self.cameras.iter().enumerate() {
+            let key = |k: &str| format!("camera[{i}].{k}");
+            if !is_valid_camera_id(&cam.id) {
+                return Err(Invalid::new(
+                    key("id"),
+                    format!(
+                        "expected 1 to 24 characters of letters, digits, '_' or '-', found \"{}\"",
+                        cam.id
+                    ),
+                ));
+            }
+            if self.cameras[..i].iter().any(|c| c.id == cam.id) {
+                return Err(Invalid::new(
+                    key("id"),
+                    format!("camera id \"{}\" is used twice", cam.id),
+                ));
+            }
+            if cam.source.trim().is_empty() {
+                return Err(Invalid::new(
+                    key("source"),
+                    "expected a file path, device, URL or gst: pipeline",
+                ));
+            }
+            for (name, v) in [("width", cam.width), ("height", cam.height)] {
+                if let Some(v) = v {
+                    check_range(&key(name), v as f64, 16.0, 8192.0)?;
+                }
+            }
+            if cam.width.is_some() != cam.height.is_some() {
+                return Err(Invalid::new(
+                    key(if cam.width.is_some() {
+                        "height"
+                    } else {
+                        "width"
+                    }),
+                    "expected both width and height, or neither",
+                ));
+            }
+            if !matches!(cam.pixel_format.as_str(), "gray8" | "bgr8") {
+                return Err(Invalid::new(
+                    key("pixel_format"),
+                    format!(
+                        "expected \"gray8\" or \"bgr8\", found \"{}\"",
+                        cam.pixel_format
+                    ),
+                ));
+            }
+            if let Some(fps) = cam.fps {
+                check_range(&key("fps"), fps, 0.01, 1000.0)?;
+            }
+            if let Some(start) = &cam.start
+                && crate::clock::parse_rfc3339(start).is_err()
+            {
+                return Err(Invalid::new(
+                    key("start"),
+                    format!(
+                        "expected an RFC 3339 time such as \"2026-03-02T07:00:00Z\", found \"{start}\""
+                    ),
+                ));
+            }
+            check_positive(&key("reconnect_initial_s"), cam.reconnect_initial_s)?;
+            if cam.reconnect_max_s < cam.reconnect_initial_s {
+                return Err(Invalid::new(
+                    key("reconnect_max_s"),
+                    format!(
+                        "expected a number >= reconnect_initial_s ({}), found {}",
+                        cam.reconnect_initial_s, cam.reconnect_max_s
+                    ),
+                ));
+            }
+            for (j, poly) in cam.mask.iter().enumerate() {
+                check_polygon(&format!("camera[{i}].mask[{j}]"), poly)?;
+            }
+            for (j, zone) in cam.zones.iter().enumerate() {
+                let zkey = format!("camera[{i}].zone[{j}]");
+                if zone.name.is_empty() || zone.name.len() > crate::wire::ZONE_NAME_LEN {
+                    return Err(Invalid::new(
+                        format!("{zkey}.name"),
+                        "expected a name of 1 to 32 bytes",
+                    ));
+                }
+                if cam.zones[..j].iter().any(|z| z.name == zone.name) {
+                    return Err(Invalid::new(
+                        format!("{zkey}.name"),
+                        format!("zone name \"{}\" is used twice", zone.name),
+                    ));
+                }
+                check_polygon(&format!("{zkey}.polygon"), &zone.polygon)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Errors unless `lo <= v <= hi`.
+pub fn check_range(key: &str, v: f64, lo: f64, hi: f64) -> Result<(), Invalid> {
+    if v.is_finite() && v >= lo && v <= hi {
+        Ok(())
+    } else {
+        Err(Invalid::new(
+            key,
+            format!("expected a number from {lo} to {hi}, found {v}"),
+        ))
+    }
+}
+
+/// Errors unless `v > 0`.
+pub fn check_positive(key: &str, v: f64) -> Result<(), Invalid> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(Invalid::new(
+            key,
+            format!("expected a number > 0, found {v}"),
+        ))
+    }
+}
+
+fn check_polygon(key: &str, poly: &Polygon) -> Result<(), Invalid> {
+    if poly.len() < 3 {
+        return Err(Invalid::new(
+            key,
+            format!(
+                "expected a polygon of at least 3 [x, y] points, found {}",
+                poly.len()
+            ),
+        ));
+    }
+    if poly.iter().flatten().any(|v| !v.is_finite()) {
+        return Err(Invalid::new(key, "expected finite coordinates"));
+    }
+    Ok(())
+}
+
+/// 1-based line of byte `offset` in `text`.
+fn line_at(text: &str, offset: usize) -> usize {
+    text.as_bytes()[..offset.min(text.len())]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
+/// `a.b[2].c` → `a.b[2]`; `a` → `None`.
+fn parent_key(key: &str) -> Option<&str> {
+    let cut = key.rfind(['.', '['])?;
+    Some(&key[..cut])
+}
+
+/// The 1-based line where dotted key path `key` (`camera[0].fps`) is written, or of
+/// the deepest part of it that exists.
+pub fn line_of_key(text: &str, key: &str) -> Option<usize> {
+    use toml_edit::{Item, TableLike, Value};
+    let doc = toml_edit::Document::parse(text).ok()?;
+    let mut table: &dyn TableLike = doc.as_item().as_table_like()?;
+    let mut span = None;
+    let mut segments = key.split('.').peekable();
+    while let Some(segment) = segments.next() {
+        let (name, indices) = segment.split_at(segment.find('[').unwrap_or(segment.len()));
+        let (k, item) = table.get_key_value(name)?;
+        span = k.span().or_else(|| item.span()).or(span);
+        // Walk `[i]` indices: into arrays of tables or inline arrays.
+        let mut next_table = item.as_table_like();
+        let mut value: Option<&Value> = item.as_value();
+        for index in indices.split(['[', ']']).filter(|s| !s.is_empty()) {
+            let index: usize = index.parse().ok()?;
+            if let Item::ArrayOfTables(a) = item
+                && value.is_none()
+            {
+                let t = a.get(index)?;
+                span = t.span().or(span);
+                next_table = Some(t as &dyn TableLike);
+                continue;
+            }
+            let v = value?.as_array()?.get(index)?;
+            span = v.span().or(span);
+            next_table = v.as_inline_table().map(|t| t as &dyn TableLike);
+            value = Some(v);
+        }
+        if segments.peek().is_some() {
+            table = next_table?;
+        }
+    }
+    span.map(|s| line_at(text, s.start))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"
+[site]
+name = "test"
+time_zone = "Europe/Berlin"
+
+[[camera]]
+id = "cam01"
+source = "video.avi"
+fps = 10
+
+[[camera]]
+id = "cam02"
+source = "rtsp://127.0.0.1/stream"
+"#;
+
+    fn parse(text: &str) -> Result<Config, ConfigError> {
+        Config::parse(text, Path::new("site.toml"))
+    }
+
+    #[test]
+    fn good_config_parses_with_defaults() {
+        let c = parse(GOOD).unwrap();
+        assert_eq!(c.site.time_zone, "Europe/Berlin");
+        assert_eq!(c.site.service_prefix, "isochron");
+        assert_eq!(c.cameras.len(), 2);
+        assert_eq!(c.cameras[0].speed, Speed::Factor(1.0));
+        assert_eq!(c.ipc.max_subscribers, 5);
+        assert_eq!(
+            c.cameras[1].source_kind(Path::new("/etc")),
+            SourceKind::Url("rtsp://127.0.0.1/stream".into())
+        );
+        assert_eq!(
+            c.cameras[0].source_kind(Path::new("/etc")),
+            SourceKind::File("/etc/video.avi".into())
+        );
+    }
+
+    #[test]
+    fn syntax_error_names_the_line() {
+        let err = parse("[site]\nname = \"x\"\ntime_zone = = 3\n").unwrap_err();
+        assert_eq!(err.line, Some(3), "{err}");
+        assert!(err.to_string().starts_with("site.toml:3:"), "{err}");
+    }
+
+    #[test]
+    fn wrong_type_names_line_and_key() {
+        let text = GOOD.replace("fps = 10", "fps = \"fast\"");
+        let err = parse(&text).unwrap_err();
+        assert_eq!(err.key.as_deref(), Some("camera[0].fps"), "{err}");
+        assert_eq!(err.line, Some(9), "{err}");
+        assert!(err.message.contains("expected"), "{err}");
+    }
+
+    #[test]
+    fn unknown_key_is_rejected_with_its_line() {
+        let text = GOOD.replace("fps = 10", "fsp = 10");
+        let err = parse(&text).unwrap_err();
+        assert_eq!(err.line, Some(9), "{err}");
+        assert!(err.message.contains("fsp"), "{err}");
+    }
+
+    #[test]
+    fn invalid_values_name_line_key_and_expectation() {
+        let text = GOOD.replace("fps = 10", "fps = -3");
+        let err = parse(&text).unwrap_err();
+        assert_eq!(err.key.as_deref(), Some("camera[0].fps"));
+        assert_eq!(err.line, Some(9));
+        assert!(err.message.contains("expected a number"), "{err}");
+
+        let text = GOOD.replace("Europe/Berlin", "Mars/Olympus");
+        let err = parse(&text).unwrap_err();
+        assert_eq!(err.key.as_deref(), Some("site.time_zone"));
+        assert_eq!(err.line, Some(4));
+
+        let text = GOOD.replace("id = \"cam02\"", "id = \"cam01\"");
+        let err = parse(&text).unwrap_err();
+        assert_eq!(err.key.as_deref(), Some("camera[1].id"));
+        assert_eq!(err.line, Some(12));
+        assert!(err.message.contains("used twice"));
+    }
+
+    #[test]
+    fn missing_cameras_is_an_error() {
+        let err = parse("[site]\nname = \"x\"\n").unwrap_err();
+        assert_eq!(err.key.as_deref(), Some("camera"));
+        assert!(err.message.contains("[[camera]]"));
+    }
+
+    #[test]
+    fn speed_parses() {
+        assert_eq!(Speed::parse("max"), Some(Speed::Max));
+        assert_eq!(Speed::parse("2.5"), Some(Speed::Factor(2.5)));
+        assert_eq!(Speed::parse("-1"), None);
+        let text = GOOD.replace("fps = 10", "speed = \"max\"");
+        assert_eq!(parse(&text).unwrap().cameras[0].speed, Speed::Max);
+        let text = GOOD.replace("fps = 10", "speed = \"fast\"");
+        let err = parse(&text).unwrap_err();
+        assert_eq!(err.key.as_deref(), Some("camera[0].speed"));
+    }
+}

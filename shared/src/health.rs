@@ -1,0 +1,270 @@
+//! Service health: exit codes, systemd notifications (readiness, watchdog, status),
+//! and the periodic one-line status every stage logs and publishes.
+
+use std::time::{Duration, Instant};
+
+use crate::clock::wall_now_ns;
+use crate::ipc::{Ipc, StatusPublisher};
+use crate::wire::{
+    CameraId, LAYOUT_VERSION, MAGIC, STAGE_NAME_LEN, STATUS_DETAIL_LEN, StageStatus, to_fixed,
+};
+
+/// Exit codes (sysexits.h). A supervisor must not restart a service that exits with
+/// a permanent code: the same input would fail the same way (no crash loop).
+pub mod exit {
+    /// Bad command line.
+    pub const USAGE: i32 = 64;
+    /// Input data is malformed (an undecodable video).
+    pub const DATA: i32 = 65;
+    /// Input does not exist (a missing video file).
+    pub const NO_INPUT: i32 = 66;
+    /// A needed service is unavailable (shared memory, iceoryx2).
+    pub const UNAVAILABLE: i32 = 69;
+    /// Internal error.
+    pub const SOFTWARE: i32 = 70;
+    /// Configuration error.
+    pub const CONFIG: i32 = 78;
+
+    /// True for codes that restarting cannot fix.
+    pub fn is_permanent(code: i32) -> bool {
+        matches!(code, USAGE | DATA | NO_INPUT | CONFIG)
+    }
+}
+
+/// Tells systemd (if it started us with `Type=notify`) that the service is ready.
+pub fn notify_ready(status: &str) {
+    let _ = sd_notify::notify(&[
+        sd_notify::NotifyState::Ready,
+        sd_notify::NotifyState::Status(status),
+    ]);
+}
+
+/// Tells systemd the service is stopping.
+pub fn notify_stopping() {
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
+}
+
+/// Number of recent latencies kept for quantiles.
+const LATENCY_WINDOW: usize = 512;
+
+/// Counts a stage's work, feeds the watchdog, and every `report_every` logs one
+/// status line and publishes it as a [`StageStatus`].
+pub struct Health {
+    stage: &'static str,
+    camera: String,
+    status: StageStatus,
+    publisher: Option<StatusPublisher>,
+    report_every: Duration,
+    last_report: Instant,
+    last_counts: (u64, u64),
+    watchdog_every: Option<Duration>,
+    last_watchdog: Instant,
+    stage_latency_ms: Vec<f32>,
+    e2e_latency_ms: Vec<f32>,
+    latency_cursor: usize,
+    last_sequence: Option<u64>,
+}
+
+impl Health {
+    /// Health of `stage` for `camera`, publishing through `ipc` if given.
+    pub fn new(stage: &'static str, camera: &str, ipc: Option<&Ipc>) -> Self {
+        let publisher = ipc.and_then(|ipc| match ipc.status_publisher(camera, stage) {
+            Ok(p) => Some(p),
+            Err(e) => {
+                tracing::warn!("status will not be published: {e}");
+                None
+            }
+        });
+        let now = Instant::now();
+        Health {
+            stage,
+            camera: camera.to_string(),
+            status: StageStatus {
+                magic: MAGIC,
+                layout_version: LAYOUT_VERSION,
+                reserved: 0,
+                camera: CameraId::new(camera).unwrap_or(CameraId([0; 24])),
+                stage: to_fixed::<STAGE_NAME_LEN>(stage),
+                pid: std::process::id(),
+                rate_in: 0.0,
+                started_wall_ns: wall_now_ns(),
+                report_wall_ns: 0,
+                received: 0,
+                sent: 0,
+                dropped: 0,
+                rejected: 0,
+                rate_out: 0.0,
+                stage_latency_ms: 0.0,
+                e2e_latency_p50_ms: 0.0,
+                e2e_latency_p99_ms: 0.0,
+                detail: [0; STATUS_DETAIL_LEN],
+            },
+            publisher,
+            report_every: Duration::from_secs(5),
+            last_report: now,
+            last_counts: (0, 0),
+            // Ping at half the watchdog period, as systemd recommends.
+            watchdog_every: sd_notify::watchdog_enabled().map(|d| d / 2),
+            last_watchdog: now,
+            stage_latency_ms: Vec::with_capacity(LATENCY_WINDOW),
+            e2e_latency_ms: Vec::with_capacity(LATENCY_WINDOW),
+            latency_cursor: 0,
+            last_sequence: None,
+        }
+    }
+
+    /// Sets how often a status line is logged and published (default 5 s).
+    pub fn report_every(mut self, every: Duration) -> Self {
+        self.report_every = every;
+        self
+    }
+
+    /// Counts a received sample with `sequence`; a gap counts as dropped upstream.
+    /// A sequence that goes backwards means the publisher restarted.
+    pub fn received(&mut self, sequence: u64) {
+        self.status.received += 1;
+        if let Some(last) = self.last_sequence
+            && sequence > last + 1
+        {
+            self.status.dropped += sequence - last - 1;
+        }
+        self.last_sequence = Some(sequence);
+    }
+
+    /// Counts a read that did not come through a stream (capture's frames).
+    pub fn read_one(&mut self) {
+        self.status.received += 1;
+    }
+
+    /// Counts a sample dropped by this stage.
+    pub fn dropped(&mut self, n: u64) {
+        self.status.dropped += n;
+    }
+
+    /// Counts a malformed sample.
+    pub fn rejected(&mut self) {
+        self.status.rejected += 1;
+    }
+
+    /// Counts a published sample: `arrived` is when its input arrived here,
+    /// `origin_wall_ns` when capture published the frame it came from (0 if unknown).
+    pub fn sent(&mut self, arrived: Option<Instant>, origin_wall_ns: i64) {
+        self.status.sent += 1;
+        let stage = arrived.map(|t| t.elapsed().as_secs_f32() * 1e3);
+        let e2e = (origin_wall_ns > 0).then(|| (wall_now_ns() - origin_wall_ns) as f32 / 1e6);
+        if self.stage_latency_ms.len() < LATENCY_WINDOW {
+            self.stage_latency_ms.push(stage.unwrap_or(0.0));
+            self.e2e_latency_ms.push(e2e.unwrap_or(0.0));
+        } else {
+            let i = self.latency_cursor;
+            self.stage_latency_ms[i] = stage.unwrap_or(0.0);
+            self.e2e_latency_ms[i] = e2e.unwrap_or(0.0);
+            self.latency_cursor = (i + 1) % LATENCY_WINDOW;
+        }
+    }
+
+    /// Counters so far.
+    pub fn status(&self) -> &StageStatus {
+        &self.status
+    }
+
+    /// Call often from the main loop: feeds the watchdog and, when due, reports.
+    /// `detail` gives the stage-specific counters as text.
+    pub fn tick(&mut self, detail: impl FnOnce() -> String) {
+        let now = Instant::now();
+        if let Some(every) = self.watchdog_every
+            && now.duration_since(self.last_watchdog) >= every
+        {
+            let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+            self.last_watchdog = now;
+        }
+        if now.duration_since(self.last_report) >= self.report_every {
+            self.report(detail());
+        }
+    }
+
+    /// Logs and publishes the status now.
+    pub fn report(&mut self, detail: String) {
+        let now = Instant::now();
+        let secs = now.duration_since(self.last_report).as_secs_f32().max(1e-3);
+        let s = &mut self.status;
+        s.rate_in = (s.received - self.last_counts.0) as f32 / secs;
+        s.rate_out = (s.sent - self.last_counts.1) as f32 / secs;
+        self.last_counts = (s.received, s.sent);
+        s.stage_latency_ms = quantile(&self.stage_latency_ms, 0.5);
+        s.e2e_latency_p50_ms = quantile(&self.e2e_latency_ms, 0.5);
+        s.e2e_latency_p99_ms = quantile(&self.e2e_latency_ms, 0.99);
+        s.report_wall_ns = wall_now_ns();
+        s.detail = to_fixed::<STATUS_DETAIL_LEN>(&detail);
+        self.last_report = now;
+        tracing::info!(
+            stage = self.stage,
+            camera = %self.camera,
+            "in={} ({:.1}/s) out={} ({:.1}/s) dropped={} rejected={} latency_ms={:.2} e2e_ms(p50/p99)={:.1}/{:.1} {}",
+            s.received,
+            s.rate_in,
+            s.sent,
+            s.rate_out,
+            s.dropped,
+            s.rejected,
+            s.stage_latency_ms,
+            s.e2e_latency_p50_ms,
+            s.e2e_latency_p99_ms,
+            detail
+        );
+        let _ = sd_notify::notify(&[sd_notify::NotifyState::Status(&format!(
+            "in={} out={} dropped={} {detail}",
+            s.received, s.sent, s.dropped
+        ))]);
+        if let Some(p) = &self.publisher
+            && let Err(e) = p.publish(*s)
+        {
+            tracing::debug!("status publish failed: {e}");
+        }
+    }
+}
+
+/// The `q` quantile (0..=1) of `values` (0 if empty).
+pub fn quantile(values: &[f32], q: f64) -> f32 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(|a, b| a.total_cmp(b));
+    let i = ((v.len() - 1) as f64 * q).round() as usize;
+    v[i.min(v.len() - 1)]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sequence_gaps_count_as_dropped() {
+        let mut h = Health::new("motion", "cam01", None);
+        for s in [0, 1, 2, 5, 6] {
+            h.received(s);
+        }
+        assert_eq!(h.status().received, 5);
+        assert_eq!(h.status().dropped, 2);
+        // A restarted publisher starts again at 0: not a gap.
+        h.received(0);
+        assert_eq!(h.status().dropped, 2);
+    }
+
+    #[test]
+    fn quantiles() {
+        let v: Vec<f32> = (1..=100).map(|x| x as f32).collect();
+        assert_eq!(quantile(&v, 0.5), 51.0);
+        assert_eq!(quantile(&v, 0.99), 99.0);
+        assert_eq!(quantile(&[], 0.5), 0.0);
+    }
+
+    #[test]
+    fn permanent_exit_codes() {
+        assert!(exit::is_permanent(exit::CONFIG));
+        assert!(exit::is_permanent(exit::NO_INPUT));
+        assert!(!exit::is_permanent(1));
+        assert!(!exit::is_permanent(exit::UNAVAILABLE));
+    }
+}

@@ -1,0 +1,486 @@
+//! iceoryx2 setup: one node per process, one publish-subscribe service plus one
+//! event service (for wake-ups) per stream, sized deliberately.
+//!
+//! Every process opens a stream through [`Ipc::publisher`] or [`Ipc::subscriber`],
+//! so the service attributes (which iceoryx2 requires all openers to agree on) are
+//! decided here only.
+//!
+//! Shared memory per publisher is preallocated for
+//! `max_subscribers × (buffer + borrowed) + history + loaned` samples. For frames
+//! that is the dominant memory cost of a camera, so the frame buffer is small (3 by
+//! default) while the small streams buffer more.
+//!
+//! Delivery modes:
+//! * live (default): a full subscriber buffer overwrites its oldest sample, so a
+//!   stalled consumer (or a `tap` left in a pager) never blocks a producer;
+//! * lossless (`ipc.lossless`, used by `isochron replay --speed max`): a publisher
+//!   waits for room, up to `ipc.lossless_timeout_s` per stalled subscriber, so a
+//!   recording runs as fast as the slowest stage and loses nothing.
+
+use std::fmt::Debug;
+use std::mem::MaybeUninit;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use iceoryx2::port::BackpressureAction;
+use iceoryx2::port::backpressure_strategy::BackpressureStrategy;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::sample::Sample;
+use iceoryx2::sample_mut::SampleMut;
+use iceoryx2::sample_mut_uninit::SampleMutUninit;
+use iceoryx2::service::port_factory::PortFactory as _;
+use iceoryx2::service::port_factory::event::PortFactory as PortFactoryEvent;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
+
+use crate::config::IpcConfig;
+use crate::names::ServiceNames;
+use crate::wire::{
+    ActivityHeader, BlockActivity, BlockMotion, Detection, DetectionHeader, EventHeader,
+    FrameHeader, MotionHeader, StageStatus, Stream,
+};
+
+/// The iceoryx2 service flavour all isochron processes use: inter-process.
+pub type Ipc2 = ipc::Service;
+
+/// Samples a subscriber may hold at once. Motion holds the previous and the current
+/// frame; everything else holds one.
+const MAX_BORROWED: usize = 2;
+/// Samples a publisher may have loaned at once.
+const MAX_LOANED: usize = 2;
+
+/// An iceoryx2 failure, with what isochron was doing.
+#[derive(Debug, thiserror::Error)]
+#[error("iceoryx2: {context}: {detail}")]
+pub struct IpcError {
+    /// What was being done.
+    pub context: String,
+    /// iceoryx2's error.
+    pub detail: String,
+}
+
+fn err(context: impl Into<String>) -> impl FnOnce(&dyn Debug) -> IpcError {
+    let context = context.into();
+    move |e| IpcError {
+        context,
+        detail: format!("{e:?}"),
+    }
+}
+
+/// A stream's header and payload element types.
+pub trait StreamType {
+    /// The stream.
+    const STREAM: Stream;
+    /// The user header.
+    type Header: Debug + Default + ZeroCopySend + Copy + 'static;
+    /// One payload element.
+    type Element: Debug + ZeroCopySend + Copy + 'static;
+}
+
+/// `frames`: [`FrameHeader`] + bytes.
+pub struct Frames;
+impl StreamType for Frames {
+    const STREAM: Stream = Stream::Frames;
+    type Header = FrameHeader;
+    type Element = u8;
+}
+
+/// `motion`: [`MotionHeader`] + [`BlockMotion`]s.
+pub struct Motion;
+impl StreamType for Motion {
+    const STREAM: Stream = Stream::Motion;
+    type Header = MotionHeader;
+    type Element = BlockMotion;
+}
+
+/// `activity`: [`ActivityHeader`] + [`BlockActivity`]s.
+pub struct Activity;
+impl StreamType for Activity {
+    const STREAM: Stream = Stream::Activity;
+    type Header = ActivityHeader;
+    type Element = BlockActivity;
+}
+
+/// `events`: [`EventHeader`] + block indices.
+pub struct Events;
+impl StreamType for Events {
+    const STREAM: Stream = Stream::Events;
+    type Header = EventHeader;
+    type Element = u32;
+}
+
+/// `detections`: [`DetectionHeader`] + [`Detection`]s.
+pub struct Detections;
+impl StreamType for Detections {
+    const STREAM: Stream = Stream::Detections;
+    type Header = DetectionHeader;
+    type Element = Detection;
+}
+
+type Factory<S> = PortFactory<Ipc2, [<S as StreamType>::Element], <S as StreamType>::Header>;
+
+/// The process's iceoryx2 node and the site's naming and sizing.
+pub struct Ipc {
+    node: Node<Ipc2>,
+    names: ServiceNames,
+    config: IpcConfig,
+    stop_requested: AtomicBool,
+}
+
+impl Ipc {
+    /// Creates the node `name` (shown by `iox2 node list`). Creating a node also
+    /// removes the stale resources of dead isochron processes. iceoryx2 installs
+    /// SIGINT/SIGTERM handlers; see [`Ipc::should_stop`].
+    pub fn new(name: &str, names: ServiceNames, config: IpcConfig) -> Result<Self, IpcError> {
+        let node_name: NodeName = name
+            .try_into()
+            .map_err(|e| err(format!("invalid node name '{name}'"))(&e))?;
+        // iceoryx2 warns when it runs on its built-in defaults, which isochron does
+        // on purpose; keep its own log to errors unless IOX2_LOG_LEVEL says otherwise.
+        set_log_level_from_env_or(LogLevel::Error);
+        let node = NodeBuilder::new()
+            .name(&node_name)
+            .create::<Ipc2>()
+            .map_err(|e| err("creating the node")(&e))?;
+        Ok(Ipc {
+            node,
+            names,
+            config,
+            stop_requested: AtomicBool::new(false),
+        })
+    }
+
+    /// The node.
+    pub fn node(&self) -> &Node<Ipc2> {
+        &self.node
+    }
+
+    /// The site's service names.
+    pub fn names(&self) -> &ServiceNames {
+        &self.names
+    }
+
+    /// The transport settings.
+    pub fn config(&self) -> &IpcConfig {
+        &self.config
+    }
+
+    /// True once SIGINT or SIGTERM was received (and from then on: iceoryx2 reports
+    /// a signal only once, so the answer is kept).
+    pub fn should_stop(&self) -> bool {
+        if self.stop_requested.load(Ordering::Relaxed) {
+            return true;
+        }
+        let stop = self.node.wait(Duration::ZERO).is_err();
+        if stop {
+            self.stop_requested.store(true, Ordering::Relaxed);
+        }
+        stop
+    }
+
+    fn service_name(text: &str) -> Result<ServiceName, IpcError> {
+        text.try_into()
+            .map_err(|e| err(format!("invalid service name '{text}'"))(&e))
+    }
+
+    fn buffer_of(&self, stream: Stream) -> usize {
+        match stream {
+            Stream::Frames => self.config.frame_buffer,
+            _ => self.config.stream_buffer,
+        }
+    }
+
+    fn open_pubsub<S: StreamType>(&self, camera: &str) -> Result<Factory<S>, IpcError> {
+        let name = self.names.stream(camera, S::STREAM);
+        self.node
+            .service_builder(&Self::service_name(&name)?)
+            .publish_subscribe::<[S::Element]>()
+            .user_header::<S::Header>()
+            .max_publishers(1)
+            .max_subscribers(self.config.max_subscribers)
+            .subscriber_max_buffer_size(self.buffer_of(S::STREAM))
+            .subscriber_max_borrowed_samples(MAX_BORROWED)
+            .history_size(0)
+            .enable_safe_overflow(!self.config.lossless)
+            .open_or_create()
+            .map_err(|e| {
+                err(format!(
+                    "opening service '{name}' (another isochron version or other [ipc] settings may own it)"
+                ))(&e)
+            })
+    }
+
+    fn open_event(&self, camera: &str, stream: Stream) -> Result<PortFactoryEvent<Ipc2>, IpcError> {
+        let name = self.names.stream(camera, stream);
+        self.node
+            .service_builder(&Self::service_name(&name)?)
+            .event()
+            .open_or_create()
+            .map_err(|e| err(format!("opening event service '{name}'"))(&e))
+    }
+
+    /// The publisher of stream `S` of `camera`; `max_len` is the largest payload
+    /// (elements) it will ever send, fixed for its lifetime.
+    pub fn publisher<S: StreamType>(
+        &self,
+        camera: &str,
+        max_len: usize,
+    ) -> Result<StreamPublisher<S>, IpcError> {
+        let service = self.open_pubsub::<S>(camera)?;
+        let mut builder = service
+            .publisher_builder()
+            .initial_max_slice_len(max_len.max(1))
+            .max_loaned_samples(MAX_LOANED);
+        if self.config.lossless {
+            let timeout = Duration::from_secs_f64(self.config.lossless_timeout_s);
+            let stream = S::STREAM;
+            builder = builder
+                .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+                .set_backpressure_handler(move |info: &iceoryx2::port::BackpressureInfo| {
+                    if info.elapsed_time < timeout {
+                        BackpressureAction::Retry
+                    } else {
+                        tracing::warn!(
+                            %stream,
+                            waited_s = info.elapsed_time.as_secs_f64(),
+                            "a subscriber has not read for the lossless timeout; dropping its sample"
+                        );
+                        BackpressureAction::DiscardData
+                    }
+                });
+        } else {
+            builder = builder.backpressure_strategy(BackpressureStrategy::DiscardData);
+        }
+        let publisher = builder.create().map_err(|e| {
+            err(format!(
+                "creating the {} publisher of '{camera}'",
+                S::STREAM
+            ))(&e)
+        })?;
+        let notifier = self
+            .open_event(camera, S::STREAM)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| err("creating a notifier")(&e))?;
+        Ok(StreamPublisher {
+            publisher,
+            notifier,
+            service,
+            sequence: 0,
+        })
+    }
+
+    /// A subscriber of stream `S` of `camera`.
+    pub fn subscriber<S: StreamType>(&self, camera: &str) -> Result<StreamSubscriber<S>, IpcError> {
+        let service = self.open_pubsub::<S>(camera)?;
+        let subscriber = service.subscriber_builder().create().map_err(|e| {
+            err(format!(
+                "creating the {} subscriber of '{camera}'",
+                S::STREAM
+            ))(&e)
+        })?;
+        let listener = self
+            .open_event(camera, S::STREAM)?
+            .listener_builder()
+            .create()
+            .map_err(|e| err("creating a listener")(&e))?;
+        Ok(StreamSubscriber {
+            subscriber,
+            listener,
+            service,
+        })
+    }
+
+    /// Number of subscribers currently connected to stream `stream` of `camera`,
+    /// or `None` if the service does not exist.
+    pub fn subscriber_count(&self, camera: &str, stream: Stream) -> Option<usize> {
+        macro_rules! count {
+            ($s:ty) => {
+                self.open_pubsub::<$s>(camera)
+                    .ok()
+                    .map(|f| f.dynamic_config().number_of_subscribers())
+            };
+        }
+        match stream {
+            Stream::Frames => count!(Frames),
+            Stream::Motion => count!(Motion),
+            Stream::Activity => count!(Activity),
+            Stream::Events => count!(Events),
+            Stream::Detections => count!(Detections),
+        }
+    }
+}
+
+impl Ipc {
+    fn open_status(&self, camera: &str, stage: &str) -> Result<StatusFactory, IpcError> {
+        let name = self.names.status(camera, stage);
+        self.node
+            .service_builder(&Self::service_name(&name)?)
+            .publish_subscribe::<StageStatus>()
+            .max_publishers(1)
+            .max_subscribers(16)
+            .history_size(1)
+            .subscriber_max_buffer_size(1)
+            .subscriber_max_borrowed_samples(1)
+            .enable_safe_overflow(true)
+            .open_or_create()
+            .map_err(|e| err(format!("opening status service '{name}'"))(&e))
+    }
+
+    /// The publisher of `stage`'s status for `camera`.
+    pub fn status_publisher(&self, camera: &str, stage: &str) -> Result<StatusPublisher, IpcError> {
+        let publisher = self
+            .open_status(camera, stage)?
+            .publisher_builder()
+            .create()
+            .map_err(|e| err(format!("creating the status publisher of {stage}/{camera}"))(&e))?;
+        Ok(StatusPublisher { publisher })
+    }
+
+    /// Reads the latest status of `stage` for `camera`, waiting up to `timeout` for
+    /// it to arrive. `None` if no such stage reported.
+    pub fn read_status(&self, camera: &str, stage: &str, timeout: Duration) -> Option<StageStatus> {
+        let subscriber = self
+            .open_status(camera, stage)
+            .ok()?
+            .subscriber_builder()
+            .create()
+            .ok()?;
+        let deadline = std::time::Instant::now() + timeout;
+        loop {
+            if let Ok(Some(sample)) = subscriber.receive() {
+                return Some(*sample.payload());
+            }
+            if std::time::Instant::now() >= deadline {
+                return None;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+}
+
+type StatusFactory = PortFactory<Ipc2, StageStatus, ()>;
+
+/// Publishes a stage's [`StageStatus`] (the latest is kept for late readers).
+pub struct StatusPublisher {
+    publisher: Publisher<Ipc2, StageStatus, ()>,
+}
+
+impl StatusPublisher {
+    /// Publishes `status`.
+    pub fn publish(&self, status: StageStatus) -> Result<(), IpcError> {
+        self.publisher
+            .send_copy(status)
+            .map(|_| ())
+            .map_err(|e| err("publishing a status")(&e))
+    }
+}
+
+/// The publishing end of a stream: sends samples and wakes subscribers.
+pub struct StreamPublisher<S: StreamType> {
+    publisher: Publisher<Ipc2, [S::Element], S::Header>,
+    notifier: Notifier<Ipc2>,
+    service: Factory<S>,
+    sequence: u64,
+}
+
+/// A loaned, not yet initialised sample of stream `S`.
+pub type LoanedSample<S> =
+    SampleMutUninit<Ipc2, [MaybeUninit<<S as StreamType>::Element>], <S as StreamType>::Header>;
+
+/// An initialised sample of stream `S`, ready to send.
+pub type ReadySample<S> = SampleMut<Ipc2, [<S as StreamType>::Element], <S as StreamType>::Header>;
+
+/// A received sample of stream `S`.
+pub type ReceivedSample<S> = Sample<Ipc2, [<S as StreamType>::Element], <S as StreamType>::Header>;
+
+impl<S: StreamType> StreamPublisher<S> {
+    /// Loans shared memory for `len` payload elements. Write the payload in place,
+    /// then [`StreamPublisher::send`] it.
+    pub fn loan(&self, len: usize) -> Result<LoanedSample<S>, IpcError> {
+        self.publisher
+            .loan_slice_uninit(len)
+            .map_err(|e| err(format!("loaning a {} sample of {len} elements", S::STREAM))(&e))
+    }
+
+    /// The next sequence number (0, 1, 2, ...), incremented by each call.
+    pub fn next_sequence(&mut self) -> u64 {
+        let s = self.sequence;
+        self.sequence += 1;
+        s
+    }
+
+    /// Sends a sample and wakes the subscribers. Returns the number of receivers.
+    pub fn send(&self, sample: ReadySample<S>) -> Result<usize, IpcError> {
+        let n = sample
+            .send()
+            .map_err(|e| err(format!("sending a {} sample", S::STREAM))(&e))?;
+        self.notifier
+            .notify()
+            .map_err(|e| err(format!("notifying {} subscribers", S::STREAM))(&e))?;
+        Ok(n)
+    }
+
+    /// Copies `header` and `payload` into a sample and sends it (for small payloads).
+    pub fn send_copy(&self, header: S::Header, payload: &[S::Element]) -> Result<usize, IpcError> {
+        let mut sample = self.loan(payload.len())?;
+        *sample.user_header_mut() = header;
+        let sample = sample.write_from_slice(payload);
+        self.send(sample)
+    }
+
+    /// Subscribers currently connected.
+    pub fn subscriber_count(&self) -> usize {
+        self.service.dynamic_config().number_of_subscribers()
+    }
+}
+
+/// The receiving end of a stream. Attach it to a [`WaitSet`] to wake on new samples,
+/// then [`StreamSubscriber::drain_wakeups`] and [`StreamSubscriber::receive`] until
+/// `None`.
+pub struct StreamSubscriber<S: StreamType> {
+    subscriber: Subscriber<Ipc2, [S::Element], S::Header>,
+    listener: Listener<Ipc2>,
+    service: Factory<S>,
+}
+
+impl<S: StreamType> Debug for StreamSubscriber<S> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "StreamSubscriber({})", S::STREAM)
+    }
+}
+
+impl<S: StreamType> FileDescriptorBased for StreamSubscriber<S> {
+    fn file_descriptor(&self) -> &FileDescriptor {
+        self.listener.file_descriptor()
+    }
+}
+
+impl<S: StreamType> SynchronousMultiplexing for StreamSubscriber<S> {}
+
+impl<S: StreamType> StreamSubscriber<S> {
+    /// Takes the next sample, if any.
+    pub fn receive(&self) -> Result<Option<ReceivedSample<S>>, IpcError> {
+        self.subscriber
+            .receive()
+            .map_err(|e| err(format!("receiving a {} sample", S::STREAM))(&e))
+    }
+
+    /// Consumes pending wake-up notifications (call after the WaitSet woke up).
+    pub fn drain_wakeups(&self) {
+        let _ = self.listener.try_wait(|_| {});
+    }
+
+    /// Waits up to `timeout` for a wake-up (for simple loops without a WaitSet).
+    pub fn wait(&self, timeout: Duration) {
+        let _ = self.listener.timed_wait(|_| {}, timeout);
+    }
+
+    /// Publishers currently connected.
+    pub fn publisher_count(&self) -> usize {
+        self.service.dynamic_config().number_of_publishers()
+    }
+}

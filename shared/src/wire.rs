@@ -1,0 +1,892 @@
+//! Wire types: the fixed headers and payload elements of every isochron stream.
+//!
+//! Every sample on every stream carries, as its iceoryx2 user header, one of the
+//! `*Header` structs below. Each starts with the same [`Preamble`]: magic, layout
+//! version, stream kind, camera id, sequence number, capture time (UTC ns) and the
+//! payload's element count and size. A consumer calls the header's `validate` before
+//! it trusts a sample; a foreign or outdated producer then gets a clear
+//! [`WireError`] instead of being misread.
+//!
+//! All types are `#[repr(C)]`, `Copy`, and pinned by `#[type_name]` so that every
+//! process (and any foreign tool) agrees on them through iceoryx2's type check.
+
+use iceoryx2::prelude::ZeroCopySend;
+
+/// Magic at the start of every isochron header: the bytes `ISOC`.
+pub const MAGIC: u32 = u32::from_le_bytes(*b"ISOC");
+
+/// Version of the layout of all headers and payload elements in this file. Bump it on
+/// any change to a `#[repr(C)]` type here.
+pub const LAYOUT_VERSION: u16 = 1;
+
+/// Longest camera id, in bytes.
+pub const CAMERA_ID_LEN: usize = 24;
+
+/// Header flag: the last sample of a finite source (end of file). Carries no payload.
+pub const FLAG_END_OF_STREAM: u32 = 1 << 0;
+/// Header flag (motion): a global illumination change was detected and suppressed.
+pub const FLAG_ILLUMINATION: u32 = 1 << 1;
+/// Header flag (frames): the frame follows a source reconnect or a gap in capture.
+pub const FLAG_DISCONTINUITY: u32 = 1 << 2;
+
+/// The streams of one camera, as named in DESIGN.md section 1.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[repr(u16)]
+pub enum Stream {
+    /// Frame header + pixels, camera rate.
+    Frames = 1,
+    /// Motion header + one [`BlockMotion`] per block, camera rate.
+    Motion = 2,
+    /// Activity header + one [`BlockActivity`] per block, 1 Hz.
+    Activity = 3,
+    /// Event start/end records.
+    Events = 4,
+    /// Detector results for gated frames.
+    Detections = 5,
+}
+
+impl Stream {
+    /// All streams, in pipeline order.
+    pub const ALL: [Stream; 5] = [
+        Stream::Frames,
+        Stream::Motion,
+        Stream::Activity,
+        Stream::Events,
+        Stream::Detections,
+    ];
+
+    /// The stream's name as used in service names and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Stream::Frames => "frames",
+            Stream::Motion => "motion",
+            Stream::Activity => "activity",
+            Stream::Events => "events",
+            Stream::Detections => "detections",
+        }
+    }
+
+    /// Parses a stream name (`frames`, `motion`, ...).
+    pub fn from_name(name: &str) -> Option<Stream> {
+        Stream::ALL.into_iter().find(|s| s.name() == name)
+    }
+
+    fn from_u16(v: u16) -> Option<Stream> {
+        Stream::ALL.into_iter().find(|s| *s as u16 == v)
+    }
+}
+
+impl std::fmt::Display for Stream {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A camera id as it travels in headers: ASCII, zero-padded.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[type_name("isochron::CameraId")]
+#[repr(C)]
+pub struct CameraId(pub [u8; CAMERA_ID_LEN]);
+
+impl CameraId {
+    /// Builds a camera id; `None` if `id` is empty, too long, or not `[A-Za-z0-9_-]`.
+    pub fn new(id: &str) -> Option<CameraId> {
+        if !is_valid_camera_id(id) {
+            return None;
+        }
+        let mut bytes = [0u8; CAMERA_ID_LEN];
+        bytes[..id.len()].copy_from_slice(id.as_bytes());
+        Some(CameraId(bytes))
+    }
+
+    /// The id as text (lossy for bytes a foreign producer may have put there).
+    pub fn as_str(&self) -> std::borrow::Cow<'_, str> {
+        let end = self.0.iter().position(|&b| b == 0).unwrap_or(CAMERA_ID_LEN);
+        String::from_utf8_lossy(&self.0[..end])
+    }
+}
+
+/// True if `id` can name a camera: 1..=24 characters of `[A-Za-z0-9_-]`.
+pub fn is_valid_camera_id(id: &str) -> bool {
+    !id.is_empty()
+        && id.len() <= CAMERA_ID_LEN
+        && id
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+}
+
+/// The fields every header starts with.
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("isochron::Preamble")]
+#[repr(C)]
+pub struct Preamble {
+    /// Always [`MAGIC`].
+    pub magic: u32,
+    /// Always [`LAYOUT_VERSION`] of the producer.
+    pub layout_version: u16,
+    /// The [`Stream`] this sample belongs to, as `u16`.
+    pub stream: u16,
+    /// Camera that produced the data.
+    pub camera: CameraId,
+    /// Per-publisher sample counter, starting at 0, +1 per sample.
+    pub sequence: u64,
+    /// Capture time of the (last) frame this sample is about, UTC nanoseconds.
+    pub capture_time_ns: i64,
+    /// Wall-clock time (UTC ns) at which capture published the originating frame;
+    /// carried through every stage to measure end-to-end latency.
+    pub origin_wall_ns: i64,
+    /// Number of payload elements that follow.
+    pub payload_len: u32,
+    /// Size of one payload element in bytes.
+    pub element_size: u32,
+    /// `FLAG_*` bits.
+    pub flags: u32,
+    /// Zero.
+    pub reserved: u32,
+}
+
+impl Preamble {
+    /// A preamble for `stream` of `camera` with the payload description filled in.
+    pub fn new<T>(stream: Stream, camera: CameraId, sequence: u64, payload_len: usize) -> Self {
+        Preamble {
+            magic: MAGIC,
+            layout_version: LAYOUT_VERSION,
+            stream: stream as u16,
+            camera,
+            sequence,
+            capture_time_ns: 0,
+            origin_wall_ns: 0,
+            payload_len: payload_len as u32,
+            element_size: std::mem::size_of::<T>() as u32,
+            flags: 0,
+            reserved: 0,
+        }
+    }
+
+    /// True if the end-of-stream flag is set.
+    pub fn is_end_of_stream(&self) -> bool {
+        self.flags & FLAG_END_OF_STREAM != 0
+    }
+
+    /// Checks magic, version, stream, camera and that the payload the sample really
+    /// carries (`actual_len` elements of `T`) is what the header announces.
+    pub fn validate<T>(
+        &self,
+        stream: Stream,
+        camera: &CameraId,
+        actual_len: usize,
+    ) -> Result<(), WireError> {
+        if self.magic != MAGIC {
+            return Err(WireError::Magic { found: self.magic });
+        }
+        if self.layout_version != LAYOUT_VERSION {
+            return Err(WireError::Version {
+                found: self.layout_version,
+            });
+        }
+        if self.stream != stream as u16 {
+            return Err(WireError::Stream {
+                expected: stream,
+                found: Stream::from_u16(self.stream)
+                    .map(|s| s.name().to_string())
+                    .unwrap_or_else(|| format!("unknown kind {}", self.stream)),
+            });
+        }
+        if self.camera != *camera {
+            return Err(WireError::Camera {
+                expected: camera.as_str().into_owned(),
+                found: self.camera.as_str().into_owned(),
+            });
+        }
+        let element_size = std::mem::size_of::<T>() as u32;
+        if self.element_size != element_size || self.payload_len as usize != actual_len {
+            return Err(WireError::Size {
+                what: "payload",
+                expected: format!("{actual_len} elements of {element_size} bytes"),
+                found: format!(
+                    "{} elements of {} bytes",
+                    self.payload_len, self.element_size
+                ),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Why a received sample was rejected.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum WireError {
+    /// Not an isochron sample at all.
+    #[error(
+        "bad magic {found:#010x} (expected {MAGIC:#010x}, \"ISOC\"): the publisher is not an isochron service"
+    )]
+    Magic {
+        /// The magic found.
+        found: u32,
+    },
+    /// Produced by another version of isochron.
+    #[error(
+        "layout version {found} (this build reads {LAYOUT_VERSION}): the publisher is another isochron version; run the same version on both ends"
+    )]
+    Version {
+        /// The version found.
+        found: u16,
+    },
+    /// A sample of another stream on this service.
+    #[error("sample of stream '{found}' on a '{expected}' service")]
+    Stream {
+        /// The stream the consumer reads.
+        expected: Stream,
+        /// What the header says.
+        found: String,
+    },
+    /// A sample of another camera on this camera's service.
+    #[error("sample of camera '{found}' on camera '{expected}''s service")]
+    Camera {
+        /// Camera the consumer reads.
+        expected: String,
+        /// Camera in the header.
+        found: String,
+    },
+    /// Sizes in the header do not match the sample or each other.
+    #[error("{what} size mismatch: expected {expected}, found {found}")]
+    Size {
+        /// Which size.
+        what: &'static str,
+        /// What was expected.
+        expected: String,
+        /// What was found.
+        found: String,
+    },
+    /// A field holds a value outside its range.
+    #[error("invalid {field}: {reason}")]
+    Field {
+        /// The field.
+        field: &'static str,
+        /// Why it is invalid.
+        reason: String,
+    },
+}
+
+/// Pixel layout of a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum PixelFormat {
+    /// One byte per pixel, luminance.
+    Gray8 = 1,
+    /// Three bytes per pixel, blue-green-red (OpenCV's order).
+    Bgr8 = 2,
+}
+
+impl PixelFormat {
+    /// Bytes per pixel.
+    pub fn channels(self) -> usize {
+        match self {
+            PixelFormat::Gray8 => 1,
+            PixelFormat::Bgr8 => 3,
+        }
+    }
+
+    /// Parses the `u32` of a header.
+    pub fn from_u32(v: u32) -> Option<PixelFormat> {
+        match v {
+            1 => Some(PixelFormat::Gray8),
+            2 => Some(PixelFormat::Bgr8),
+            _ => None,
+        }
+    }
+}
+
+/// Header of a `frames` sample; the payload is `height * stride` bytes of pixels.
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("isochron::FrameHeader")]
+#[repr(C)]
+pub struct FrameHeader {
+    /// Common fields.
+    pub preamble: Preamble,
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Bytes per row (`width * channels`; rows are packed).
+    pub stride: u32,
+    /// A [`PixelFormat`] as `u32`.
+    pub pixel_format: u32,
+    /// Index of the frame in its source (0-based; for files, the frame number in the
+    /// file, restarting when a file loops).
+    pub source_index: u64,
+}
+
+impl FrameHeader {
+    /// Validates the header against the sample's real payload length (bytes).
+    pub fn validate(&self, camera: &CameraId, payload_bytes: usize) -> Result<(), WireError> {
+        self.preamble
+            .validate::<u8>(Stream::Frames, camera, payload_bytes)?;
+        if self.preamble.is_end_of_stream() {
+            return Ok(());
+        }
+        let format = PixelFormat::from_u32(self.pixel_format).ok_or(WireError::Field {
+            field: "pixel_format",
+            reason: format!("unknown value {}", self.pixel_format),
+        })?;
+        let expected = self.width as usize * format.channels();
+        if self.stride as usize != expected {
+            return Err(WireError::Size {
+                what: "row stride",
+                expected: expected.to_string(),
+                found: self.stride.to_string(),
+            });
+        }
+        let bytes = self.stride as usize * self.height as usize;
+        if bytes != payload_bytes {
+            return Err(WireError::Size {
+                what: "frame",
+                expected: format!(
+                    "{}x{}x{} = {bytes} bytes",
+                    self.width,
+                    self.height,
+                    format.channels()
+                ),
+                found: format!("{payload_bytes} bytes"),
+            });
+        }
+        Ok(())
+    }
+
+    /// The pixel format (valid after [`FrameHeader::validate`]).
+    pub fn format(&self) -> PixelFormat {
+        PixelFormat::from_u32(self.pixel_format).unwrap_or(PixelFormat::Gray8)
+    }
+}
+
+/// Direction label meaning "no coherent direction".
+pub const DIRECTION_NONE: u8 = 255;
+
+/// Motion features of one block.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("isochron::BlockMotion")]
+#[repr(C)]
+pub struct BlockMotion {
+    /// How much moves: motion pixels weighted by their gradient, normalised to the
+    /// block, 0..=1.
+    pub density: f32,
+    /// Flow vector, x (right), weighted by density: `density * coherence * unit`.
+    pub dx: f32,
+    /// Flow vector, y (down), weighted by density.
+    pub dy: f32,
+    /// 8-way direction label of (dx, dy), 0 = right, counter-clockwise on screen in
+    /// steps of 45° (2 = up, 4 = left, 6 = down), or [`DIRECTION_NONE`].
+    pub direction: u8,
+    /// Zero.
+    pub reserved: [u8; 3],
+}
+
+/// Header of a `motion` sample; the payload is `grid_w * grid_h` [`BlockMotion`]s,
+/// row-major.
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("isochron::MotionHeader")]
+#[repr(C)]
+pub struct MotionHeader {
+    /// Common fields.
+    pub preamble: Preamble,
+    /// Frame width the blocks cover.
+    pub frame_width: u32,
+    /// Frame height the blocks cover.
+    pub frame_height: u32,
+    /// Block edge in pixels (edge blocks may be smaller).
+    pub block_px: u32,
+    /// Blocks per row.
+    pub grid_w: u32,
+    /// Block rows.
+    pub grid_h: u32,
+    /// Fraction of blocks whose density was above threshold before suppression.
+    pub changed_fraction: f32,
+    /// Source frame index of the current frame.
+    pub source_index: u64,
+}
+
+/// Shared check of a block grid against a frame size.
+fn validate_grid(
+    frame_width: u32,
+    frame_height: u32,
+    block_px: u32,
+    grid_w: u32,
+    grid_h: u32,
+) -> Result<(), WireError> {
+    if block_px == 0 {
+        return Err(WireError::Field {
+            field: "block_px",
+            reason: "zero".into(),
+        });
+    }
+    let (w, h) = (
+        frame_width.div_ceil(block_px),
+        frame_height.div_ceil(block_px),
+    );
+    if (w, h) != (grid_w, grid_h) {
+        return Err(WireError::Size {
+            what: "block grid",
+            expected: format!("{w}x{h} blocks for {frame_width}x{frame_height} px / {block_px}"),
+            found: format!("{grid_w}x{grid_h}"),
+        });
+    }
+    Ok(())
+}
+
+impl MotionHeader {
+    /// Validates the header against the sample's real payload length (blocks).
+    pub fn validate(&self, camera: &CameraId, blocks: usize) -> Result<(), WireError> {
+        self.preamble
+            .validate::<BlockMotion>(Stream::Motion, camera, blocks)?;
+        if self.preamble.is_end_of_stream() {
+            return Ok(());
+        }
+        validate_grid(
+            self.frame_width,
+            self.frame_height,
+            self.block_px,
+            self.grid_w,
+            self.grid_h,
+        )?;
+        if (self.grid_w * self.grid_h) as usize != blocks {
+            return Err(WireError::Size {
+                what: "motion payload",
+                expected: format!("{} blocks", self.grid_w * self.grid_h),
+                found: format!("{blocks} blocks"),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Activity of one block over the last second, and the long-term model at t*.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("isochron::BlockActivity")]
+#[repr(C)]
+pub struct BlockActivity {
+    /// Short-term in-place activity (F_S1 output), density units.
+    pub s1: f32,
+    /// Short-term moving activity (band-pass F_S2 output, rectified).
+    pub s2: f32,
+    /// In-place flow vector, x.
+    pub s1_dx: f32,
+    /// In-place flow vector, y.
+    pub s1_dy: f32,
+    /// Moving flow vector, x.
+    pub s2_dx: f32,
+    /// Moving flow vector, y.
+    pub s2_dy: f32,
+    /// Long-term (isochronal) mean of M_L1 at the current t*.
+    pub lt_mean: f32,
+    /// Long-term standard deviation at the current t*.
+    pub lt_sigma: f32,
+}
+
+/// Header of an `activity` sample (1 Hz); payload `grid_w * grid_h` [`BlockActivity`].
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("isochron::ActivityHeader")]
+#[repr(C)]
+pub struct ActivityHeader {
+    /// Common fields; `capture_time_ns` is the end of the second this sample covers.
+    pub preamble: Preamble,
+    /// Blocks per row.
+    pub grid_w: u32,
+    /// Block rows.
+    pub grid_h: u32,
+    /// Block edge in pixels.
+    pub block_px: u32,
+    /// Frame width the blocks cover.
+    pub frame_width: u32,
+    /// Frame height the blocks cover.
+    pub frame_height: u32,
+    /// Isochronal time t*: minute of the cycle (0..1440, or 0..10080 weekly).
+    pub t_star: u32,
+    /// Days of data the long-term model has at this t* (0 = cold).
+    pub model_days: u32,
+    /// Frames that went into this second.
+    pub frames: u32,
+    /// Source index of the first frame of this second.
+    pub first_source_index: u64,
+    /// Source index of the last frame of this second.
+    pub last_source_index: u64,
+    /// Measured frame rate r (frames/s) used by F_L1.
+    pub frame_rate: f32,
+    /// Zero.
+    pub reserved: u32,
+}
+
+impl ActivityHeader {
+    /// Validates the header against the sample's real payload length (blocks).
+    pub fn validate(&self, camera: &CameraId, blocks: usize) -> Result<(), WireError> {
+        self.preamble
+            .validate::<BlockActivity>(Stream::Activity, camera, blocks)?;
+        if self.preamble.is_end_of_stream() {
+            return Ok(());
+        }
+        validate_grid(
+            self.frame_width,
+            self.frame_height,
+            self.block_px,
+            self.grid_w,
+            self.grid_h,
+        )?;
+        if (self.grid_w * self.grid_h) as usize != blocks {
+            return Err(WireError::Size {
+                what: "activity payload",
+                expected: format!("{} blocks", self.grid_w * self.grid_h),
+                found: format!("{blocks} blocks"),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Kind of activity an event was raised on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum ActivityKind {
+    /// In-place activity (S1).
+    InPlace = 1,
+    /// Moving activity (S2).
+    Moving = 2,
+}
+
+impl ActivityKind {
+    /// Name used in JSON and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            ActivityKind::InPlace => "in-place",
+            ActivityKind::Moving => "moving",
+        }
+    }
+
+    /// Parses the `u32` of a header.
+    pub fn from_u32(v: u32) -> Option<ActivityKind> {
+        match v {
+            1 => Some(ActivityKind::InPlace),
+            2 => Some(ActivityKind::Moving),
+            _ => None,
+        }
+    }
+}
+
+/// Phase of an event record.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum EventPhase {
+    /// The event started.
+    Start = 1,
+    /// The event ended.
+    End = 2,
+}
+
+/// Longest zone name, in bytes.
+pub const ZONE_NAME_LEN: usize = 32;
+
+/// Header of an `events` sample; the payload lists the indices (row-major) of the
+/// blocks involved, as `u32`.
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("isochron::EventHeader")]
+#[repr(C)]
+pub struct EventHeader {
+    /// Common fields; `capture_time_ns` is the time of the record.
+    pub preamble: Preamble,
+    /// Event number, per camera, from 0; start and end records share it.
+    pub event_id: u64,
+    /// Zone name, zero-padded.
+    pub zone: [u8; ZONE_NAME_LEN],
+    /// An [`ActivityKind`] as `u32`.
+    pub kind: u32,
+    /// An [`EventPhase`] as `u32`.
+    pub phase: u32,
+    /// Start time, UTC ns.
+    pub start_ns: i64,
+    /// End time, UTC ns (0 in a start record).
+    pub end_ns: i64,
+    /// Source index of the first frame of the event.
+    pub start_frame: u64,
+    /// Source index of the last frame of the event (0 in a start record).
+    pub end_frame: u64,
+    /// Highest zone activity seen so far.
+    pub peak: f32,
+    /// Threshold the activity crossed.
+    pub threshold: f32,
+}
+
+impl EventHeader {
+    /// Validates the header against the sample's real payload length.
+    pub fn validate(&self, camera: &CameraId, blocks: usize) -> Result<(), WireError> {
+        self.preamble
+            .validate::<u32>(Stream::Events, camera, blocks)?;
+        if self.preamble.is_end_of_stream() {
+            return Ok(());
+        }
+        if ActivityKind::from_u32(self.kind).is_none() {
+            return Err(WireError::Field {
+                field: "kind",
+                reason: format!("unknown value {}", self.kind),
+            });
+        }
+        if !matches!(self.phase, 1 | 2) {
+            return Err(WireError::Field {
+                field: "phase",
+                reason: format!("unknown value {}", self.phase),
+            });
+        }
+        Ok(())
+    }
+
+    /// The zone name as text.
+    pub fn zone_name(&self) -> String {
+        fixed_str(&self.zone)
+    }
+}
+
+/// Copies `s` into a zero-padded fixed buffer, truncating at a char boundary.
+pub fn to_fixed<const N: usize>(s: &str) -> [u8; N] {
+    let mut out = [0u8; N];
+    let mut end = s.len().min(N);
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    out[..end].copy_from_slice(&s.as_bytes()[..end]);
+    out
+}
+
+/// Reads a zero-padded fixed buffer as text.
+pub fn fixed_str(bytes: &[u8]) -> String {
+    let end = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
+    String::from_utf8_lossy(&bytes[..end]).into_owned()
+}
+
+/// One detected object (a person) in frame pixel coordinates.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("isochron::Detection")]
+#[repr(C)]
+pub struct Detection {
+    /// Left edge.
+    pub x: f32,
+    /// Top edge.
+    pub y: f32,
+    /// Width.
+    pub w: f32,
+    /// Height.
+    pub h: f32,
+    /// Detector confidence (HOG: SVM margin; DNN: class score).
+    pub score: f32,
+    /// Class id (0 = person).
+    pub class: u32,
+}
+
+/// Header of a `detections` sample; payload is the [`Detection`]s of one frame.
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("isochron::DetectionHeader")]
+#[repr(C)]
+pub struct DetectionHeader {
+    /// Common fields; `capture_time_ns` is the detected frame's capture time.
+    pub preamble: Preamble,
+    /// Event that gated this frame.
+    pub event_id: u64,
+    /// Source index of the detected frame.
+    pub source_index: u64,
+    /// Time the detector took, microseconds.
+    pub detector_us: u64,
+    /// Frames the gate has seen so far.
+    pub frames_seen: u64,
+    /// Frames the detector ran on so far (this one included).
+    pub frames_detected: u64,
+    /// Detection jobs dropped so far because the detector was busy.
+    pub jobs_dropped: u64,
+    /// Total detector time so far, microseconds.
+    pub detector_total_us: u64,
+}
+
+impl DetectionHeader {
+    /// Validates the header against the sample's real payload length.
+    pub fn validate(&self, camera: &CameraId, detections: usize) -> Result<(), WireError> {
+        self.preamble
+            .validate::<Detection>(Stream::Detections, camera, detections)
+    }
+}
+
+/// Longest stage name in a [`StageStatus`].
+pub const STAGE_NAME_LEN: usize = 16;
+/// Length of the free-text detail of a [`StageStatus`].
+pub const STATUS_DETAIL_LEN: usize = 160;
+
+/// Periodic health of one stage of one camera, published on
+/// `<prefix>/<camera>/status/<stage>` (history 1, so `isochron status` sees the
+/// latest at once).
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[type_name("isochron::StageStatus")]
+#[repr(C)]
+pub struct StageStatus {
+    /// Always [`MAGIC`].
+    pub magic: u32,
+    /// Always [`LAYOUT_VERSION`].
+    pub layout_version: u16,
+    /// Zero.
+    pub reserved: u16,
+    /// Camera.
+    pub camera: CameraId,
+    /// Stage name (`capture`, `motion`, ...), zero-padded.
+    pub stage: [u8; STAGE_NAME_LEN],
+    /// Process id.
+    pub pid: u32,
+    /// Samples per second received over the last report period.
+    pub rate_in: f32,
+    /// Wall clock (UTC ns) of the process start.
+    pub started_wall_ns: i64,
+    /// Wall clock (UTC ns) of this report.
+    pub report_wall_ns: i64,
+    /// Samples received (or frames read, for capture).
+    pub received: u64,
+    /// Samples published.
+    pub sent: u64,
+    /// Samples lost upstream (sequence gaps) or dropped here.
+    pub dropped: u64,
+    /// Samples rejected as malformed.
+    pub rejected: u64,
+    /// Samples per second published over the last report period.
+    pub rate_out: f32,
+    /// Median time from a sample's arrival to this stage's output, ms.
+    pub stage_latency_ms: f32,
+    /// Median end-to-end latency, capture publish → this stage's output, ms.
+    pub e2e_latency_p50_ms: f32,
+    /// 99th percentile of the end-to-end latency, ms.
+    pub e2e_latency_p99_ms: f32,
+    /// Stage-specific counters as text (`detected=3 detector_ms=410`).
+    pub detail: [u8; STATUS_DETAIL_LEN],
+}
+
+impl StageStatus {
+    /// Checks magic and version.
+    pub fn validate(&self) -> Result<(), WireError> {
+        if self.magic != MAGIC {
+            return Err(WireError::Magic { found: self.magic });
+        }
+        if self.layout_version != LAYOUT_VERSION {
+            return Err(WireError::Version {
+                found: self.layout_version,
+            });
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cam() -> CameraId {
+        CameraId::new("cam01").unwrap()
+    }
+
+    fn frame_header(w: u32, h: u32) -> FrameHeader {
+        let mut preamble = Preamble::new::<u8>(Stream::Frames, cam(), 0, (w * h) as usize);
+        preamble.capture_time_ns = 1;
+        FrameHeader {
+            preamble,
+            width: w,
+            height: h,
+            stride: w,
+            pixel_format: PixelFormat::Gray8 as u32,
+            source_index: 0,
+        }
+    }
+
+    #[test]
+    fn camera_ids() {
+        assert_eq!(CameraId::new("cam-01_a").unwrap().as_str(), "cam-01_a");
+        assert!(CameraId::new("").is_none());
+        assert!(CameraId::new("has space").is_none());
+        assert!(CameraId::new(&"x".repeat(25)).is_none());
+        assert!(CameraId::new(&"x".repeat(24)).is_some());
+    }
+
+    #[test]
+    fn good_frame_header_validates() {
+        assert_eq!(frame_header(64, 48).validate(&cam(), 64 * 48), Ok(()));
+    }
+
+    #[test]
+    fn wrong_magic_version_stream_camera_size_are_rejected() {
+        let mut h = frame_header(64, 48);
+        h.preamble.magic = 0xdead_beef;
+        let err = h.validate(&cam(), 64 * 48).unwrap_err();
+        assert!(matches!(err, WireError::Magic { .. }));
+        assert!(err.to_string().contains("not an isochron service"));
+
+        let mut h = frame_header(64, 48);
+        h.preamble.layout_version = 99;
+        assert!(matches!(
+            h.validate(&cam(), 64 * 48),
+            Err(WireError::Version { found: 99 })
+        ));
+
+        let mut h = frame_header(64, 48);
+        h.preamble.stream = Stream::Motion as u16;
+        assert!(matches!(
+            h.validate(&cam(), 64 * 48),
+            Err(WireError::Stream { .. })
+        ));
+
+        let h = frame_header(64, 48);
+        let other = CameraId::new("cam02").unwrap();
+        assert!(matches!(
+            h.validate(&other, 64 * 48),
+            Err(WireError::Camera { .. })
+        ));
+
+        // The header announces fewer bytes than the sample carries.
+        let h = frame_header(64, 48);
+        assert!(matches!(
+            h.validate(&cam(), 64 * 48 + 1),
+            Err(WireError::Size { .. })
+        ));
+
+        // Internally inconsistent: width*height does not fit the payload.
+        let mut h = frame_header(64, 48);
+        h.height = 50;
+        let err = h.validate(&cam(), 64 * 48).unwrap_err();
+        assert!(err.to_string().contains("frame size mismatch"), "{err}");
+    }
+
+    #[test]
+    fn motion_grid_must_follow_frame_size() {
+        let mut preamble = Preamble::new::<BlockMotion>(Stream::Motion, cam(), 0, 48 * 36);
+        preamble.capture_time_ns = 1;
+        let mut h = MotionHeader {
+            preamble,
+            frame_width: 768,
+            frame_height: 576,
+            block_px: 16,
+            grid_w: 48,
+            grid_h: 36,
+            changed_fraction: 0.0,
+            source_index: 0,
+        };
+        assert_eq!(h.validate(&cam(), 48 * 36), Ok(()));
+        h.grid_w = 47;
+        assert!(h.validate(&cam(), 48 * 36).is_err());
+    }
+
+    #[test]
+    fn end_of_stream_needs_no_payload() {
+        let mut h = frame_header(64, 48);
+        h.preamble.payload_len = 0;
+        h.preamble.flags = FLAG_END_OF_STREAM;
+        assert_eq!(h.validate(&cam(), 0), Ok(()));
+    }
+
+    #[test]
+    fn fixed_strings_round_trip() {
+        let z: [u8; ZONE_NAME_LEN] = to_fixed("entrance");
+        assert_eq!(fixed_str(&z), "entrance");
+        let long: [u8; 4] = to_fixed("héllo");
+        assert_eq!(fixed_str(&long), "hél");
+        // Never cut a character in half.
+        let cut: [u8; 2] = to_fixed("hé");
+        assert_eq!(fixed_str(&cut), "h");
+    }
+}
