@@ -1,0 +1,286 @@
+//! isochron-capture as a separate process, read through iceoryx2 by this test.
+
+use std::time::{Duration, Instant};
+
+use isochron_shared::clock::{NS_PER_S, parse_rfc3339};
+use isochron_shared::ipc::Frames;
+use isochron_shared::wire::{CameraId, FrameHeader, MAGIC, Preamble, Stream};
+use isochron_tests::{TestSite, VTEST_FRAMES, vtest, vtest_camera};
+use opencv::prelude::*;
+use opencv::{imgproc, videoio};
+
+const START: &str = "2026-03-02T07:00:00Z";
+
+/// CRC-32 of every frame of vtest.avi as OpenCV itself decodes and greys it.
+fn opencv_reference_checksums() -> Vec<u32> {
+    let mut cap =
+        videoio::VideoCapture::from_file(vtest().to_str().unwrap(), videoio::CAP_ANY).unwrap();
+    let (mut bgr, mut gray) = (opencv::core::Mat::default(), opencv::core::Mat::default());
+    let mut sums = Vec::new();
+    while cap.read(&mut bgr).unwrap() && !bgr.empty() {
+        imgproc::cvt_color(&bgr, &mut gray, imgproc::COLOR_BGR2GRAY, 0).unwrap();
+        sums.push(crc32fast::hash(gray.data_bytes().unwrap()));
+    }
+    sums
+}
+
+#[test]
+fn publishes_every_frame_with_file_clock_and_opencv_pixels() {
+    let site = TestSite::new(
+        "capture-all",
+        &format!("[ipc]\nlossless = true\n\n{}", vtest_camera("max", START)),
+    );
+    let ipc = site.ipc("subscriber");
+    // Subscribe before the producer starts: lossless delivery counts from here.
+    let frames = ipc.subscriber::<Frames>("cam01").unwrap();
+    let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
+
+    let camera = CameraId::new("cam01").unwrap();
+    let start_ns = parse_rfc3339(START).unwrap();
+    let mut checksums = Vec::new();
+    let mut ended = false;
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while !ended && Instant::now() < deadline {
+        frames.wait(Duration::from_millis(100));
+        while let Some(sample) = frames.receive().unwrap() {
+            let h: &FrameHeader = sample.user_header();
+            h.validate(&camera, sample.payload().len()).unwrap();
+            if h.preamble.is_end_of_stream() {
+                assert_eq!(h.preamble.sequence, checksums.len() as u64);
+                ended = true;
+                break;
+            }
+            let i = checksums.len() as u64;
+            assert_eq!(h.preamble.sequence, i, "sequence must be contiguous");
+            assert_eq!(h.source_index, i);
+            assert_eq!(
+                h.preamble.capture_time_ns,
+                start_ns + i as i64 * NS_PER_S / 10,
+                "frame {i}: capture time must be start + i/fps"
+            );
+            assert_eq!((h.width, h.height, h.stride), (768, 576, 768));
+            checksums.push(crc32fast::hash(sample.payload()));
+        }
+    }
+    assert!(ended, "no end of stream after {} frames", checksums.len());
+    assert_eq!(checksums.len() as u64, VTEST_FRAMES);
+    let reference = opencv_reference_checksums();
+    assert_eq!(reference.len() as u64, VTEST_FRAMES);
+    let mismatched: Vec<usize> = (0..reference.len())
+        .filter(|&i| reference[i] != checksums[i])
+        .collect();
+    assert!(
+        mismatched.is_empty(),
+        "pixels differ from OpenCV's decode at frames {mismatched:?}"
+    );
+    let status = capture
+        .wait(Duration::from_secs(10))
+        .expect("capture exits after the file");
+    assert!(status.success(), "{}", capture.stderr());
+}
+
+fn run_capture(site: &TestSite, timeout: Duration) -> (Option<i32>, String) {
+    let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
+    let status = capture.wait(timeout).expect("capture should exit");
+    (status.code(), capture.stderr())
+}
+
+#[test]
+fn missing_file_is_a_clear_permanent_error() {
+    let site = TestSite::new(
+        "missing",
+        "[[camera]]\nid = \"cam01\"\nsource = \"nope.avi\"\n",
+    );
+    let (code, stderr) = run_capture(&site, Duration::from_secs(20));
+    assert_eq!(code, Some(66), "{stderr}");
+    assert!(stderr.contains("nope.avi does not exist"), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
+#[test]
+fn corrupt_file_is_a_clear_permanent_error() {
+    let site = TestSite::new(
+        "corrupt",
+        "[[camera]]\nid = \"cam01\"\nsource = \"corrupt.avi\"\n",
+    );
+    // Deterministic noise, 1 MB.
+    let mut x: u32 = 12345;
+    let noise: Vec<u8> = (0..1 << 20)
+        .map(|_| {
+            x = x.wrapping_mul(1_103_515_245).wrapping_add(12345);
+            (x >> 16) as u8
+        })
+        .collect();
+    std::fs::write(site.path("corrupt.avi"), noise).unwrap();
+    let (code, stderr) = run_capture(&site, Duration::from_secs(30));
+    assert_eq!(code, Some(65), "{stderr}");
+    assert!(stderr.contains("cannot decode video file"), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
+#[test]
+fn truncated_file_publishes_what_it_can_then_ends() {
+    let site = TestSite::new(
+        "truncated",
+        &format!(
+            "[ipc]\nlossless = true\n\n[[camera]]\nid = \"cam01\"\nsource = \"cut.avi\"\nspeed = \"max\"\nstart = \"{START}\"\n"
+        ),
+    );
+    let bytes = std::fs::read(vtest()).unwrap();
+    std::fs::write(site.path("cut.avi"), &bytes[..bytes.len() * 2 / 5]).unwrap();
+    let ipc = site.ipc("subscriber");
+    let frames = ipc.subscriber::<Frames>("cam01").unwrap();
+    let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
+    let (mut n, mut ended) = (0u64, false);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !ended && Instant::now() < deadline {
+        frames.wait(Duration::from_millis(100));
+        while let Some(sample) = frames.receive().unwrap() {
+            if sample.user_header().preamble.is_end_of_stream() {
+                ended = true;
+            } else {
+                n += 1;
+            }
+        }
+    }
+    assert!(ended, "end of stream must be signalled");
+    assert!(
+        n > 100 && n < VTEST_FRAMES,
+        "{n} frames from 40 % of the file"
+    );
+    let status = capture.wait(Duration::from_secs(10)).unwrap();
+    assert!(status.success());
+    assert!(
+        capture.stderr().contains("truncated"),
+        "{}",
+        capture.stderr()
+    );
+}
+
+#[test]
+fn unopenable_device_reconnects_with_backoff_until_stopped() {
+    let site = TestSite::new(
+        "device",
+        "[[camera]]\nid = \"cam01\"\nsource = \"/dev/video99\"\nwidth = 640\nheight = 480\nreconnect_initial_s = 0.1\nreconnect_max_s = 0.4\n",
+    );
+    let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
+    assert!(
+        capture.wait_for_stderr(
+            "attempt 4 failed, retrying in 0.4 s",
+            Duration::from_secs(20)
+        ),
+        "{}",
+        capture.stderr()
+    );
+    let stderr = capture.stderr();
+    for delay in [
+        "retrying in 0.1 s",
+        "retrying in 0.2 s",
+        "retrying in 0.4 s",
+    ] {
+        assert!(stderr.contains(delay), "{stderr}");
+    }
+    capture.signal(libc::SIGTERM);
+    let status = capture
+        .wait(Duration::from_secs(5))
+        .expect("stops on SIGTERM");
+    assert!(status.success(), "{}", capture.stderr());
+    assert!(!capture.stderr().contains("panicked"));
+}
+
+#[test]
+fn malformed_and_invalid_config_name_line_and_key() {
+    let site = TestSite::new("badconfig", "[[camera]]\nid = \"cam01\"\nsource = = 3\n");
+    let (code, stderr) = run_capture(&site, Duration::from_secs(10));
+    assert_eq!(code, Some(78), "{stderr}");
+    assert!(stderr.contains("site.toml:8"), "{stderr}");
+
+    site.write_config("[[camera]]\nid = \"cam01\"\nsource = \"x.avi\"\nfps = -1\n");
+    let (code, stderr) = run_capture(&site, Duration::from_secs(10));
+    assert_eq!(code, Some(78), "{stderr}");
+    assert!(
+        stderr.contains("site.toml:9: key `camera[0].fps`"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("expected a number"), "{stderr}");
+
+    site.write_config("[[camera]]\nid = \"cam01\"\nsource = \"x.avi\"\nspeeed = 2\n");
+    let (code, stderr) = run_capture(&site, Duration::from_secs(10));
+    assert_eq!(code, Some(78), "{stderr}");
+    assert!(stderr.contains("site.toml:9"), "{stderr}");
+    assert!(stderr.contains("speeed"), "{stderr}");
+}
+
+#[test]
+fn samples_with_wrong_magic_version_or_size_are_rejected_clearly() {
+    // A buffer deep enough that the tap sees all four samples sent back to back.
+    let site = TestSite::new(
+        "foreign",
+        "[ipc]\nframe_buffer = 8\n\n[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\n",
+    );
+    let ipc = site.ipc("foreign-publisher");
+    let mut publisher = ipc.publisher::<Frames>("cam01", 64 * 48).unwrap();
+    let mut tap = isochron_tests::Proc::spawn(
+        &isochron_tests::bin("isochron"),
+        &[
+            "tap",
+            "cam01",
+            "frames",
+            "--config",
+            site.config_path().to_str().unwrap(),
+            "--count",
+            "1",
+            "--timeout",
+            "30",
+        ],
+    );
+    // The tap subscribes asynchronously: wait for it.
+    isochron_tests::eventually(Duration::from_secs(10), || {
+        (publisher.subscriber_count() > 0).then_some(())
+    })
+    .expect("tap subscribed");
+
+    let camera = CameraId::new("cam01").unwrap();
+    let good = |seq: u64| {
+        let mut preamble = Preamble::new::<u8>(Stream::Frames, camera, seq, 64 * 48);
+        preamble.capture_time_ns = 1;
+        FrameHeader {
+            preamble,
+            width: 64,
+            height: 48,
+            stride: 64,
+            pixel_format: 1,
+            source_index: seq,
+        }
+    };
+    let pixels = vec![7u8; 64 * 48];
+    let mut bad_magic = good(publisher.next_sequence());
+    bad_magic.preamble.magic = !MAGIC;
+    publisher.send_copy(bad_magic, &pixels).unwrap();
+    let mut bad_version = good(publisher.next_sequence());
+    bad_version.preamble.layout_version = 999;
+    publisher.send_copy(bad_version, &pixels).unwrap();
+    let mut bad_size = good(publisher.next_sequence());
+    bad_size.height = 47;
+    publisher.send_copy(bad_size, &pixels).unwrap();
+    let good_one = good(publisher.next_sequence());
+    publisher.send_copy(good_one, &pixels).unwrap();
+
+    let status = tap
+        .wait(Duration::from_secs(30))
+        .expect("tap exits after one good sample");
+    let (stdout, stderr) = (tap.stdout(), tap.stderr());
+    assert!(status.success(), "{stderr}");
+    assert!(stderr.contains("bad magic"), "{stderr}");
+    assert!(stderr.contains("layout version 999"), "{stderr}");
+    assert!(stderr.contains("frame size mismatch"), "{stderr}");
+    assert_eq!(
+        stdout.lines().count(),
+        1,
+        "only the good sample is printed: {stdout}"
+    );
+    assert!(
+        stdout.contains("seq=3") && stdout.contains("64x48"),
+        "{stdout}"
+    );
+}
