@@ -70,6 +70,90 @@ pub struct Config {
     /// The cameras (`[[camera]]` tables); at least one.
     #[serde(rename = "camera")]
     pub cameras: Vec<CameraConfig>,
+    /// The motion stage.
+    pub motion: MotionConfig,
+    /// The cascade filter and long-term store.
+    pub cascade: CascadeConfig,
+}
+
+/// Motion-feature backend.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MotionBackend {
+    /// The fused, vectorised motion-flow kernel (temporal difference + normal flow).
+    MotionFlow,
+    /// OpenCV DIS optical flow reduced to the same block features (slower).
+    Dis,
+}
+
+/// `[motion]`: motion features per block.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MotionConfig {
+    /// Block edge in pixels. Default 16.
+    pub block_px: u32,
+    /// A pixel moves when its temporal difference is at least this (grey levels).
+    /// Default 15.
+    pub diff_threshold: u8,
+    /// ... and its spatial gradient |Gx|+|Gy| is at least this. Default 8.
+    pub gradient_threshold: u16,
+    /// A block counts as moving when its density is at least this. Default 0.02.
+    pub density_threshold: f32,
+    /// A frame is an illumination change when at least this fraction of blocks
+    /// move at once with no coherent direction. Default 0.5.
+    pub illumination_fraction: f32,
+    /// Backend: `"motion-flow"` (default) or `"dis"`.
+    pub backend: MotionBackend,
+}
+
+impl Default for MotionConfig {
+    fn default() -> Self {
+        MotionConfig {
+            block_px: 16,
+            diff_threshold: 15,
+            gradient_threshold: 8,
+            density_threshold: 0.02,
+            illumination_fraction: 0.5,
+            backend: MotionBackend::MotionFlow,
+        }
+    }
+}
+
+/// `[cascade]`: the cascade of temporal filters (DESIGN.md section 3). Filters are
+/// configured by their 10 %-decay duration T and rate r; α = 0.1^(1/(r·T)).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CascadeConfig {
+    /// T of F_L1, the high-pass at frame rate, seconds. Default 1800 (30 min).
+    pub t_l1_s: f64,
+    /// T of F_L2, the isochronal low-pass, in cycles (days). Default 10.
+    pub t_l2_days: f64,
+    /// T of F_S1, the in-place low-pass at 1 Hz, seconds. Default 20.
+    pub t_s1_s: f64,
+    /// Frame rate r for F_L1 (frames/s); default: measured from header timestamps.
+    pub frame_rate: Option<f64>,
+    /// Isochronal cycle: `"daily"` (default) or `"weekly"`.
+    pub cycle: crate::clock::Cycle,
+    /// A minute updates F_L2 only if it got at least this fraction of the frames
+    /// expected at rate r (gaps teach nothing). Default 0.8.
+    pub min_coverage: f64,
+    /// Days of data a minute bin needs before the long-term model counts as warm.
+    /// Default 3.
+    pub warm_days: u32,
+}
+
+impl Default for CascadeConfig {
+    fn default() -> Self {
+        CascadeConfig {
+            t_l1_s: 1800.0,
+            t_l2_days: 10.0,
+            t_s1_s: 20.0,
+            frame_rate: None,
+            cycle: crate::clock::Cycle::Daily,
+            min_coverage: 0.8,
+            warm_days: 3,
+        }
+    }
 }
 
 /// `[site]`: settings for the whole site.
@@ -457,6 +541,22 @@ impl Config {
         check_range("ipc.frame_buffer", ipc.frame_buffer as f64, 1.0, 64.0)?;
         check_range("ipc.stream_buffer", ipc.stream_buffer as f64, 1.0, 1024.0)?;
         check_positive("ipc.lossless_timeout_s", ipc.lossless_timeout_s)?;
+
+        let m = &self.motion;
+        check_range("motion.block_px", m.block_px as f64, 4.0, 128.0)?;
+        check_range("motion.diff_threshold", m.diff_threshold as f64, 1.0, 255.0)?;
+        check_range("motion.gradient_threshold", m.gradient_threshold as f64, 0.0, 1020.0)?;
+        check_range("motion.density_threshold", m.density_threshold as f64, 0.0, 1.0)?;
+        check_range("motion.illumination_fraction", m.illumination_fraction as f64, 0.05, 1.0)?;
+
+        let c = &self.cascade;
+        check_positive("cascade.t_l1_s", c.t_l1_s)?;
+        check_positive("cascade.t_l2_days", c.t_l2_days)?;
+        check_positive("cascade.t_s1_s", c.t_s1_s)?;
+        if let Some(r) = c.frame_rate {
+            check_range("cascade.frame_rate", r, 0.01, 1000.0)?;
+        }
+        check_range("cascade.min_coverage", c.min_coverage, 0.0, 1.0)?;
 
         if self.cameras.is_empty() {
             return Err(Invalid::new(

@@ -1,1 +1,230 @@
-fn main() {}
+//! Developer tasks: `cargo xtask <setup|demo|test|bench NAME>`.
+//!
+//! * `setup`: installs the system packages isochron builds against (Debian/Ubuntu:
+//!   libopencv-dev, clang, libclang-dev) if they are missing, and fetches the sample
+//!   video (PETS 2009 `vtest.avi`, from Debian's opencv-doc package) into `data/`;
+//! * `demo`: setup, release build, `isochron replay` on the sample video with
+//!   `config/demo.toml`, and a report of what every stage did;
+//! * `test`: setup, format and lint checks, build, every test;
+//! * `bench NAME`: setup and one benchmark (motion, cascade, gate, ipc, group).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use anyhow::{Context, bail};
+
+const PACKAGES: [&str; 3] = ["libopencv-dev", "clang", "libclang-dev"];
+
+/// Benchmarks: name → (package, bench target).
+const BENCHES: [(&str, &str, &str); 5] = [
+    ("ipc", "isochron-shared", "ipc"),
+    ("motion", "isochron-motion", "motion"),
+    ("cascade", "isochron-cascade", "cascade"),
+    ("gate", "isochron-gate", "gate"),
+    ("group", "isochron-tests", "group"),
+];
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let root = repo_root();
+    std::env::set_current_dir(&root)?;
+    match args.first().map(String::as_str) {
+        Some("setup") => setup(&root),
+        Some("demo") => {
+            setup(&root)?;
+            demo(&root)
+        }
+        Some("test") => {
+            setup(&root)?;
+            test()
+        }
+        Some("bench") => {
+            let name = args.get(1).map(String::as_str).unwrap_or("");
+            let Some((_, package, target)) = BENCHES.iter().find(|(n, _, _)| *n == name) else {
+                bail!(
+                    "usage: cargo xtask bench <{}>",
+                    BENCHES.map(|b| b.0).join("|")
+                );
+            };
+            setup(&root)?;
+            bench(package, target, &args[2..])
+        }
+        _ => bail!("usage: cargo xtask <setup|demo|test|bench NAME>"),
+    }
+}
+
+fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("xtask lives in the repository")
+        .to_path_buf()
+}
+
+/// Runs a command, failing with its name if it fails.
+fn run(cmd: &mut Command) -> anyhow::Result<()> {
+    let shown = format!("{cmd:?}");
+    eprintln!("xtask: {shown}");
+    let status = cmd.status().with_context(|| format!("starting {shown}"))?;
+    if !status.success() {
+        bail!("{shown} failed ({status})");
+    }
+    Ok(())
+}
+
+fn is_root() -> bool {
+    Command::new("id")
+        .arg("-u")
+        .output()
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
+        .unwrap_or(false)
+}
+
+/// `apt-get ...`, through sudo when not root.
+fn apt_get(args: &[&str]) -> Command {
+    let mut cmd = if is_root() {
+        Command::new("apt-get")
+    } else {
+        let mut c = Command::new("sudo");
+        c.arg("apt-get");
+        c
+    };
+    cmd.args(args).env("DEBIAN_FRONTEND", "noninteractive");
+    cmd
+}
+
+fn missing_packages() -> Vec<&'static str> {
+    PACKAGES
+        .into_iter()
+        .filter(|p| {
+            !Command::new("dpkg-query")
+                .args(["-W", "-f=${Status}", p])
+                .output()
+                .map(|o| String::from_utf8_lossy(&o.stdout).contains("install ok installed"))
+                .unwrap_or(false)
+        })
+        .collect()
+}
+
+fn setup(root: &Path) -> anyhow::Result<()> {
+    let missing = missing_packages();
+    if !missing.is_empty() {
+        eprintln!("xtask: installing {}", missing.join(" "));
+        run(&mut apt_get(&["update", "-qq"]))?;
+        let mut args = vec!["install", "-y", "-qq", "--no-install-recommends"];
+        args.extend(&missing);
+        run(&mut apt_get(&args))?;
+    }
+    fetch_vtest(root)
+}
+
+/// Fetches `data/vtest.avi` from Debian's opencv-doc package (downloaded, not
+/// installed: only that one file is extracted).
+fn fetch_vtest(root: &Path) -> anyhow::Result<()> {
+    let target = root.join("data/vtest.avi");
+    if target.is_file() {
+        return Ok(());
+    }
+    std::fs::create_dir_all(root.join("data"))?;
+    let work = root.join("target/opencv-doc");
+    std::fs::create_dir_all(&work)?;
+    eprintln!("xtask: fetching vtest.avi from Debian's opencv-doc package");
+    if std::fs::read_dir(&work)?
+        .filter_map(Result::ok)
+        .all(|e| !e.file_name().to_string_lossy().ends_with(".deb"))
+    {
+        run(Command::new("apt-get")
+            .args(["download", "opencv-doc"])
+            .current_dir(&work))?;
+    }
+    let deb = std::fs::read_dir(&work)?
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .find(|p| p.extension().is_some_and(|e| e == "deb"))
+        .context("apt-get download opencv-doc produced no .deb")?;
+    let member = "./usr/share/doc/opencv-doc/examples/data/vtest.avi";
+    run(Command::new("sh").arg("-c").arg(format!(
+        "dpkg-deb --fsys-tarfile '{}' | tar -x -C '{}' '{member}'",
+        deb.display(),
+        work.display()
+    )))?;
+    std::fs::copy(work.join(member), &target)
+        .with_context(|| format!("copying vtest.avi to {}", target.display()))?;
+    eprintln!("xtask: {} ready", target.display());
+    Ok(())
+}
+
+fn cargo() -> Command {
+    Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
+}
+
+fn demo(root: &Path) -> anyhow::Result<()> {
+    run(cargo().args(["build", "--release", "--workspace", "--bins"]))?;
+    let out = root.join("out/demo");
+    let _ = std::fs::remove_dir_all(&out);
+    run(Command::new(root.join("target/release/isochron")).args([
+        "replay",
+        "data/vtest.avi",
+        "--out",
+        "out/demo",
+        "--config",
+        "config/demo.toml",
+    ]))?;
+    report(&out)
+}
+
+/// Prints what the replay produced; the last line is the demo's summary line.
+fn report(out: &Path) -> anyhow::Result<()> {
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("summary.json")).context("reading summary.json")?,
+    )?;
+    let count = |k: &str| summary["counts"][k].as_u64().unwrap_or(0);
+    println!();
+    println!(
+        "replayed {} frames in {:.1} s ({:.0} frames/s)",
+        count("frames"),
+        summary["wall_time_s"].as_f64().unwrap_or(0.0),
+        summary["frames_per_s"].as_f64().unwrap_or(0.0)
+    );
+    let events = std::fs::read_to_string(out.join("events.jsonl")).unwrap_or_default();
+    for line in events.lines().take(10) {
+        let e: serde_json::Value = serde_json::from_str(line)?;
+        println!(
+            "event {} {} {} {} → {} (frames {}..{}) peak {:.3}",
+            e["event_id"], e["zone"], e["kind"], e["start"], e["end"], e["start_frame"],
+            e["end_frame"], e["peak"].as_f64().unwrap_or(0.0)
+        );
+    }
+    let gate = &summary["gate"];
+    if let (Some(seen), Some(detected)) = (gate["frames_seen"].as_u64(), gate["frames_detected"].as_u64())
+        && seen > 0
+    {
+        println!(
+            "gate: detector ran on {detected} of {seen} frames ({:.1} %), {:.0} ms of detector time",
+            100.0 * detected as f64 / seen as f64,
+            gate["detector_total_ms"].as_f64().unwrap_or(0.0)
+        );
+    }
+    println!("outputs in {}", out.display());
+    println!(
+        "demo: frames={} motion={} activity={} events={} detections={}",
+        count("frames"),
+        count("motion"),
+        count("activity"),
+        count("events"),
+        count("detections")
+    );
+    Ok(())
+}
+
+fn test() -> anyhow::Result<()> {
+    run(cargo().args(["fmt", "--all", "--", "--check"]))?;
+    run(cargo().args(["clippy", "--workspace", "--all-targets", "--", "-D", "warnings"]))?;
+    run(cargo().args(["build", "--workspace", "--bins"]))?;
+    run(cargo().args(["test", "--workspace"]))
+}
+
+fn bench(package: &str, target: &str, extra: &[String]) -> anyhow::Result<()> {
+    run(cargo()
+        .args(["bench", "-p", package, "--bench", target, "--"])
+        .args(extra))
+}
