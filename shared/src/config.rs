@@ -74,6 +74,89 @@ pub struct Config {
     pub motion: MotionConfig,
     /// The cascade filter and long-term store.
     pub cascade: CascadeConfig,
+    /// The event gate and its detector.
+    pub gate: GateConfig,
+}
+
+/// `[gate]`: events from short-term activity, and the detector they gate.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GateConfig {
+    /// An event starts when a zone's S1 or S2 sum exceeds the long-term mean plus
+    /// this many standard deviations (once the model is warm). Default 3.
+    pub k_sigma: f32,
+    /// Threshold on a zone's activity sum while the long-term model is cold (fewer
+    /// than `cascade.warm_days` days at this t*). Default 0.5.
+    pub floor: f32,
+    /// Lowest threshold once the model is warm (a quiet night has sigma ≈ 0).
+    /// Default 0.2.
+    pub min_threshold: f32,
+    /// An event ends after its activity stayed below the threshold this long,
+    /// seconds. Default 3.
+    pub hold_s: f64,
+    /// Frames the detector runs on per event (the first when the event starts, then
+    /// one per later second). Default 1.
+    pub detect_per_event: u32,
+    /// Instead: one detection every this many seconds while an event lasts.
+    pub detect_every_s: Option<f64>,
+    /// Recent frames kept for the detector. Default 32.
+    pub ring_frames: usize,
+    /// The detector.
+    pub detector: DetectorConfig,
+}
+
+impl Default for GateConfig {
+    fn default() -> Self {
+        GateConfig {
+            k_sigma: 3.0,
+            floor: 0.5,
+            min_threshold: 0.2,
+            hold_s: 3.0,
+            detect_per_event: 1,
+            detect_every_s: None,
+            ring_frames: 32,
+            detector: DetectorConfig::default(),
+        }
+    }
+}
+
+/// `[gate.detector]`: OpenCV's HOG people detector (default, needs no download),
+/// or an ONNX model through OpenCV's dnn module when `model` is set.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DetectorConfig {
+    /// ONNX model file (a YOLOv5/YOLOv8 export; see the README); relative to the
+    /// config file. Default: none (HOG).
+    pub model: Option<PathBuf>,
+    /// Square input size of the ONNX model, pixels. Default 640.
+    pub input_px: u32,
+    /// Lowest score of a kept detection (ONNX: class score; HOG: SVM margin).
+    /// Default 0.4 (ONNX) — HOG uses `hog_hit_threshold`.
+    pub score_threshold: f32,
+    /// Overlap (IoU) above which the weaker of two boxes is suppressed. Default 0.45.
+    pub nms_threshold: f32,
+    /// HOG: upscale frames by this factor first (its window finds people ≥ ~100 px
+    /// tall). Default 1.0.
+    pub hog_upscale: f64,
+    /// HOG: SVM hit threshold. Default 0.
+    pub hog_hit_threshold: f64,
+    /// Detection jobs that may wait for the worker; more are dropped and counted.
+    /// Default 2.
+    pub queue: usize,
+}
+
+impl Default for DetectorConfig {
+    fn default() -> Self {
+        DetectorConfig {
+            model: None,
+            input_px: 640,
+            score_threshold: 0.4,
+            nms_threshold: 0.45,
+            hog_upscale: 1.0,
+            hog_hit_threshold: 0.0,
+            queue: 2,
+        }
+    }
 }
 
 /// Motion-feature backend.
@@ -545,9 +628,24 @@ impl Config {
         let m = &self.motion;
         check_range("motion.block_px", m.block_px as f64, 4.0, 128.0)?;
         check_range("motion.diff_threshold", m.diff_threshold as f64, 1.0, 255.0)?;
-        check_range("motion.gradient_threshold", m.gradient_threshold as f64, 0.0, 1020.0)?;
-        check_range("motion.density_threshold", m.density_threshold as f64, 0.0, 1.0)?;
-        check_range("motion.illumination_fraction", m.illumination_fraction as f64, 0.05, 1.0)?;
+        check_range(
+            "motion.gradient_threshold",
+            m.gradient_threshold as f64,
+            0.0,
+            1020.0,
+        )?;
+        check_range(
+            "motion.density_threshold",
+            m.density_threshold as f64,
+            0.0,
+            1.0,
+        )?;
+        check_range(
+            "motion.illumination_fraction",
+            m.illumination_fraction as f64,
+            0.05,
+            1.0,
+        )?;
 
         let c = &self.cascade;
         check_positive("cascade.t_l1_s", c.t_l1_s)?;
@@ -557,6 +655,33 @@ impl Config {
             check_range("cascade.frame_rate", r, 0.01, 1000.0)?;
         }
         check_range("cascade.min_coverage", c.min_coverage, 0.0, 1.0)?;
+
+        let g = &self.gate;
+        check_range("gate.k_sigma", g.k_sigma as f64, 0.0, 100.0)?;
+        check_positive("gate.floor", g.floor as f64)?;
+        check_positive("gate.min_threshold", g.min_threshold as f64)?;
+        check_range("gate.hold_s", g.hold_s, 0.0, 3600.0)?;
+        check_range("gate.detect_per_event", g.detect_per_event as f64, 0.0, 1e6)?;
+        if let Some(every) = g.detect_every_s {
+            check_positive("gate.detect_every_s", every)?;
+        }
+        check_range("gate.ring_frames", g.ring_frames as f64, 1.0, 4096.0)?;
+        let d = &g.detector;
+        check_range("gate.detector.input_px", d.input_px as f64, 32.0, 4096.0)?;
+        check_range(
+            "gate.detector.score_threshold",
+            d.score_threshold as f64,
+            0.0,
+            1.0,
+        )?;
+        check_range(
+            "gate.detector.nms_threshold",
+            d.nms_threshold as f64,
+            0.0,
+            1.0,
+        )?;
+        check_range("gate.detector.hog_upscale", d.hog_upscale, 0.25, 4.0)?;
+        check_range("gate.detector.queue", d.queue as f64, 1.0, 64.0)?;
 
         if self.cameras.is_empty() {
             return Err(Invalid::new(

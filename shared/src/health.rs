@@ -59,9 +59,8 @@ pub struct Health {
     last_counts: (u64, u64),
     watchdog_every: Option<Duration>,
     last_watchdog: Instant,
-    stage_latency_ms: Vec<f32>,
-    e2e_latency_ms: Vec<f32>,
-    latency_cursor: usize,
+    stage_latency_ms: Window,
+    e2e_latency_ms: Window,
     last_sequence: Option<u64>,
 }
 
@@ -106,9 +105,8 @@ impl Health {
             // Ping at half the watchdog period, as systemd recommends.
             watchdog_every: sd_notify::watchdog_enabled().map(|d| d / 2),
             last_watchdog: now,
-            stage_latency_ms: Vec::with_capacity(LATENCY_WINDOW),
-            e2e_latency_ms: Vec::with_capacity(LATENCY_WINDOW),
-            latency_cursor: 0,
+            stage_latency_ms: Window::default(),
+            e2e_latency_ms: Window::default(),
             last_sequence: None,
         }
     }
@@ -150,16 +148,12 @@ impl Health {
     /// `origin_wall_ns` when capture published the frame it came from (0 if unknown).
     pub fn sent(&mut self, arrived: Option<Instant>, origin_wall_ns: i64) {
         self.status.sent += 1;
-        let stage = arrived.map(|t| t.elapsed().as_secs_f32() * 1e3);
-        let e2e = (origin_wall_ns > 0).then(|| (wall_now_ns() - origin_wall_ns) as f32 / 1e6);
-        if self.stage_latency_ms.len() < LATENCY_WINDOW {
-            self.stage_latency_ms.push(stage.unwrap_or(0.0));
-            self.e2e_latency_ms.push(e2e.unwrap_or(0.0));
-        } else {
-            let i = self.latency_cursor;
-            self.stage_latency_ms[i] = stage.unwrap_or(0.0);
-            self.e2e_latency_ms[i] = e2e.unwrap_or(0.0);
-            self.latency_cursor = (i + 1) % LATENCY_WINDOW;
+        if let Some(t) = arrived {
+            self.stage_latency_ms.push(t.elapsed().as_secs_f32() * 1e3);
+        }
+        if origin_wall_ns > 0 {
+            self.e2e_latency_ms
+                .push((wall_now_ns() - origin_wall_ns) as f32 / 1e6);
         }
     }
 
@@ -191,9 +185,9 @@ impl Health {
         s.rate_in = (s.received - self.last_counts.0) as f32 / secs;
         s.rate_out = (s.sent - self.last_counts.1) as f32 / secs;
         self.last_counts = (s.received, s.sent);
-        s.stage_latency_ms = quantile(&self.stage_latency_ms, 0.5);
-        s.e2e_latency_p50_ms = quantile(&self.e2e_latency_ms, 0.5);
-        s.e2e_latency_p99_ms = quantile(&self.e2e_latency_ms, 0.99);
+        s.stage_latency_ms = quantile(&self.stage_latency_ms.values, 0.5);
+        s.e2e_latency_p50_ms = quantile(&self.e2e_latency_ms.values, 0.5);
+        s.e2e_latency_p99_ms = quantile(&self.e2e_latency_ms.values, 0.99);
         s.report_wall_ns = wall_now_ns();
         s.detail = to_fixed::<STATUS_DETAIL_LEN>(&detail);
         self.last_report = now;
@@ -220,6 +214,24 @@ impl Health {
             && let Err(e) = p.publish(*s)
         {
             tracing::debug!("status publish failed: {e}");
+        }
+    }
+}
+
+/// The most recent [`LATENCY_WINDOW`] values.
+#[derive(Debug, Default)]
+struct Window {
+    values: Vec<f32>,
+    cursor: usize,
+}
+
+impl Window {
+    fn push(&mut self, v: f32) {
+        if self.values.len() < LATENCY_WINDOW {
+            self.values.push(v);
+        } else {
+            self.values[self.cursor] = v;
+            self.cursor = (self.cursor + 1) % LATENCY_WINDOW;
         }
     }
 }

@@ -4,6 +4,7 @@
 //! * [`names`]: iceoryx2 service names, under a settable prefix;
 //! * [`config`]: the site configuration, with errors located by file, line and key;
 //! * [`clock`]: capture time and isochronal time t*;
+//! * [`geometry`]: polygons and the block grid over a frame;
 //! * [`ipc`]: iceoryx2 node, publishers and subscribers, sized deliberately;
 //! * [`health`]: exit codes, systemd notifications, periodic status;
 //! * [`logging`]: `tracing` to journald or stderr;
@@ -11,6 +12,7 @@
 
 pub mod clock;
 pub mod config;
+pub mod geometry;
 pub mod health;
 pub mod ipc;
 pub mod logging;

@@ -190,13 +190,21 @@ fn report(out: &Path) -> anyhow::Result<()> {
         let e: serde_json::Value = serde_json::from_str(line)?;
         println!(
             "event {} {} {} {} → {} (frames {}..{}) peak {:.3}",
-            e["event_id"], e["zone"], e["kind"], e["start"], e["end"], e["start_frame"],
-            e["end_frame"], e["peak"].as_f64().unwrap_or(0.0)
+            e["event_id"],
+            e["zone"],
+            e["kind"],
+            e["start"],
+            e["end"],
+            e["start_frame"],
+            e["end_frame"],
+            e["peak"].as_f64().unwrap_or(0.0)
         );
     }
     let gate = &summary["gate"];
-    if let (Some(seen), Some(detected)) = (gate["frames_seen"].as_u64(), gate["frames_detected"].as_u64())
-        && seen > 0
+    if let (Some(seen), Some(detected)) = (
+        gate["frames_seen"].as_u64(),
+        gate["frames_detected"].as_u64(),
+    ) && seen > 0
     {
         println!(
             "gate: detector ran on {detected} of {seen} frames ({:.1} %), {:.0} ms of detector time",
@@ -218,7 +226,14 @@ fn report(out: &Path) -> anyhow::Result<()> {
 
 fn test() -> anyhow::Result<()> {
     run(cargo().args(["fmt", "--all", "--", "--check"]))?;
-    run(cargo().args(["clippy", "--workspace", "--all-targets", "--", "-D", "warnings"]))?;
+    run(cargo().args([
+        "clippy",
+        "--workspace",
+        "--all-targets",
+        "--",
+        "-D",
+        "warnings",
+    ]))?;
     run(cargo().args(["build", "--workspace", "--bins"]))?;
     run(cargo().args(["test", "--workspace"]))
 }

@@ -1,0 +1,403 @@
+//! The people detector the gate runs on gated frames.
+//!
+//! * **HOG** (default): OpenCV's HOG descriptor with its built-in people SVM — ships
+//!   with OpenCV, needs no download. Its 64×128 window finds people about 100 px
+//!   tall and more; `hog_upscale` enlarges frames of small, distant people first.
+//! * **ONNX** (when `gate.detector.model` is set): a YOLO export run through
+//!   OpenCV's dnn module on the CPU. Expected model: one input `1×3×S×S` (RGB,
+//!   0..1, S = `input_px`, e.g. 640) and one output, either YOLOv8 style
+//!   `1×(4+C)×N` (rows cx, cy, w, h, then C class scores) or YOLOv5 style
+//!   `1×N×(5+C)` (cx, cy, w, h, objectness, C class scores), boxes in input
+//!   pixels. Class 0 must be "person" (COCO order); other classes are ignored.
+//!   Export e.g. with `yolo export model=yolov8n.pt format=onnx opset=12`.
+
+use std::path::Path;
+
+use isochron_shared::config::DetectorConfig;
+use isochron_shared::wire::Detection;
+use opencv::core::{Mat, Rect, Scalar, Size, Vector};
+use opencv::prelude::*;
+use opencv::{dnn, imgproc, objdetect};
+
+/// A ready detector.
+pub enum Detector {
+    /// OpenCV HOG + linear SVM for people.
+    Hog {
+        /// The descriptor with the people SVM set.
+        hog: objdetect::HOGDescriptor,
+        /// Upscale factor applied first.
+        upscale: f64,
+        /// SVM hit threshold.
+        hit_threshold: f64,
+        /// Reused buffer for the upscaled frame.
+        scaled: Mat,
+    },
+    /// A YOLO ONNX model through OpenCV dnn.
+    Onnx {
+        /// The network.
+        net: dnn::Net,
+        /// Square input size.
+        input_px: i32,
+        /// Lowest kept class score.
+        score_threshold: f32,
+        /// NMS overlap threshold.
+        nms_threshold: f32,
+        /// Reused buffer for the colour frame.
+        bgr: Mat,
+    },
+}
+
+impl Detector {
+    /// Builds the configured detector; `base_dir` resolves a relative model path.
+    pub fn from_config(config: &DetectorConfig, base_dir: &Path) -> Result<Self, String> {
+        match &config.model {
+            None => {
+                let mut hog = objdetect::HOGDescriptor::default()
+                    .map_err(|e| format!("creating the HOG descriptor: {e}"))?;
+                let svm = objdetect::HOGDescriptor::get_default_people_detector()
+                    .map_err(|e| format!("loading OpenCV's people detector: {e}"))?;
+                hog.set_svm_detector(svm);
+                Ok(Detector::Hog {
+                    hog,
+                    upscale: config.hog_upscale,
+                    hit_threshold: config.hog_hit_threshold,
+                    scaled: Mat::default(),
+                })
+            }
+            Some(model) => {
+                let path = if model.is_absolute() {
+                    model.clone()
+                } else {
+                    base_dir.join(model)
+                };
+                if !path.is_file() {
+                    return Err(format!(
+                        "gate.detector.model: {} does not exist",
+                        path.display()
+                    ));
+                }
+                let net = dnn::read_net_from_onnx(path.as_os_str()).map_err(|e| {
+                    format!(
+                        "gate.detector.model: OpenCV cannot load {}: {e}",
+                        path.display()
+                    )
+                })?;
+                Ok(Detector::Onnx {
+                    net,
+                    input_px: config.input_px as i32,
+                    score_threshold: config.score_threshold,
+                    nms_threshold: config.nms_threshold,
+                    bgr: Mat::default(),
+                })
+            }
+        }
+    }
+
+    /// Short name for logs.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Detector::Hog { .. } => "hog",
+            Detector::Onnx { .. } => "onnx",
+        }
+    }
+
+    /// Finds people in a GRAY8 frame; boxes in frame pixels.
+    pub fn detect(
+        &mut self,
+        gray: &[u8],
+        width: u32,
+        height: u32,
+    ) -> opencv::Result<Vec<Detection>> {
+        if gray.len() != width as usize * height as usize {
+            return Err(opencv::Error::new(
+                opencv::core::StsBadSize,
+                format!("{} bytes is not a {width}x{height} GRAY8 frame", gray.len()),
+            ));
+        }
+        // SAFETY: `gray` holds width × height bytes (checked above) and outlives
+        // `frame`, which OpenCV only reads.
+        let frame = unsafe {
+            Mat::new_rows_cols_with_data_unsafe(
+                height as i32,
+                width as i32,
+                opencv::core::CV_8UC1,
+                gray.as_ptr() as *mut std::ffi::c_void,
+                width as usize,
+            )?
+        };
+        match self {
+            Detector::Hog {
+                hog,
+                upscale,
+                hit_threshold,
+                scaled,
+            } => {
+                let mut rects = Vector::<Rect>::new();
+                let mut weights = Vector::<f64>::new();
+                let mut run = |image: &Mat| {
+                    hog.detect_multi_scale_weights(
+                        image,
+                        &mut rects,
+                        &mut weights,
+                        *hit_threshold,
+                        Size::new(8, 8),
+                        Size::new(8, 8),
+                        1.05,
+                        2.0,
+                        false,
+                    )
+                };
+                if (*upscale - 1.0).abs() > 1e-6 {
+                    let size = Size::new(
+                        (width as f64 * *upscale).round() as i32,
+                        (height as f64 * *upscale).round() as i32,
+                    );
+                    imgproc::resize(&frame, scaled, size, 0.0, 0.0, imgproc::INTER_LINEAR)?;
+                    run(scaled)?;
+                } else {
+                    run(&frame)?;
+                }
+                let s = *upscale as f32;
+                Ok(rects
+                    .iter()
+                    .zip(weights.iter())
+                    .map(|(r, w)| Detection {
+                        x: r.x as f32 / s,
+                        y: r.y as f32 / s,
+                        w: r.width as f32 / s,
+                        h: r.height as f32 / s,
+                        score: w as f32,
+                        class: 0,
+                    })
+                    .collect())
+            }
+            Detector::Onnx {
+                net,
+                input_px,
+                score_threshold,
+                nms_threshold,
+                bgr,
+            } => {
+                imgproc::cvt_color(&frame, bgr, imgproc::COLOR_GRAY2BGR, 0)?;
+                let blob = dnn::blob_from_image(
+                    bgr,
+                    1.0 / 255.0,
+                    Size::new(*input_px, *input_px),
+                    Scalar::default(),
+                    true,
+                    false,
+                    opencv::core::CV_32F,
+                )?;
+                net.set_input(&blob, "", 1.0, Scalar::default())?;
+                let out = net.forward_single("")?;
+                let (sx, sy) = (
+                    width as f32 / *input_px as f32,
+                    height as f32 / *input_px as f32,
+                );
+                let candidates = parse_yolo(&out, *score_threshold)?;
+                Ok(non_max_suppression(
+                    candidates,
+                    *score_threshold,
+                    *nms_threshold,
+                    sx,
+                    sy,
+                )?)
+            }
+        }
+    }
+}
+
+/// A person box in model input pixels (centre, size) with its score.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Candidate {
+    /// Centre x.
+    pub cx: f32,
+    /// Centre y.
+    pub cy: f32,
+    /// Width.
+    pub w: f32,
+    /// Height.
+    pub h: f32,
+    /// Person score.
+    pub score: f32,
+}
+
+/// Reads person candidates from a YOLOv8 (`1×(4+C)×N`) or YOLOv5 (`1×N×(5+C)`)
+/// output.
+pub fn parse_yolo(out: &Mat, score_threshold: f32) -> opencv::Result<Vec<Candidate>> {
+    let dims = out.mat_size();
+    let shape: Vec<i32> = dims.iter().copied().collect();
+    let data = out.data_typed::<f32>()?;
+    let bad = || {
+        opencv::Error::new(
+            opencv::core::StsBadArg,
+            format!("unexpected YOLO output shape {shape:?}: expected 1x(4+C)xN or 1xNx(5+C)"),
+        )
+    };
+    if shape.len() != 3 || shape[0] != 1 {
+        return Err(bad());
+    }
+    let (a, b) = (shape[1] as usize, shape[2] as usize);
+    let mut found = Vec::new();
+    if a < b {
+        // YOLOv8: a = 4 + C rows of b candidates.
+        if a < 5 {
+            return Err(bad());
+        }
+        for i in 0..b {
+            let score = data[4 * b + i];
+            if score >= score_threshold {
+                found.push(Candidate {
+                    cx: data[i],
+                    cy: data[b + i],
+                    w: data[2 * b + i],
+                    h: data[3 * b + i],
+                    score,
+                });
+            }
+        }
+    } else {
+        // YOLOv5: a candidates of b = 5 + C values.
+        if b < 6 {
+            return Err(bad());
+        }
+        for row in data.chunks_exact(b) {
+            let score = row[4] * row[5];
+            if score >= score_threshold {
+                found.push(Candidate {
+                    cx: row[0],
+                    cy: row[1],
+                    w: row[2],
+                    h: row[3],
+                    score,
+                });
+            }
+        }
+    }
+    Ok(found)
+}
+
+/// Non-maximum suppression, then scaling to frame pixels.
+fn non_max_suppression(
+    candidates: Vec<Candidate>,
+    score_threshold: f32,
+    nms_threshold: f32,
+    sx: f32,
+    sy: f32,
+) -> opencv::Result<Vec<Detection>> {
+    let boxes: Vector<Rect> = candidates
+        .iter()
+        .map(|c| {
+            Rect::new(
+                (c.cx - c.w / 2.0) as i32,
+                (c.cy - c.h / 2.0) as i32,
+                c.w as i32,
+                c.h as i32,
+            )
+        })
+        .collect();
+    let scores: Vector<f32> = candidates.iter().map(|c| c.score).collect();
+    let mut keep = Vector::<i32>::new();
+    dnn::nms_boxes(
+        &boxes,
+        &scores,
+        score_threshold,
+        nms_threshold,
+        &mut keep,
+        1.0,
+        0,
+    )?;
+    Ok(keep
+        .iter()
+        .map(|i| {
+            let c = candidates[i as usize];
+            Detection {
+                x: (c.cx - c.w / 2.0) * sx,
+                y: (c.cy - c.h / 2.0) * sy,
+                w: c.w * sx,
+                h: c.h * sy,
+                score: c.score,
+                class: 0,
+            }
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mat3(shape: [i32; 3], values: &[f32]) -> Mat {
+        let mut m =
+            Mat::new_nd_with_default(&shape, opencv::core::CV_32F, Scalar::all(0.0)).unwrap();
+        m.data_typed_mut::<f32>().unwrap().copy_from_slice(values);
+        m
+    }
+
+    #[test]
+    fn parses_yolov8_layout() {
+        // Rows cx, cy, w, h, person, other class; 8 candidates (real exports have
+        // far more candidates than rows, which is how the layouts are told apart).
+        let n = 8;
+        let mut v = vec![0.0f32; 6 * n];
+        for i in 0..n {
+            v[i] = 100.0 + i as f32; // cx
+            v[n + i] = 50.0; // cy
+            v[2 * n + i] = 20.0; // w
+            v[3 * n + i] = 40.0; // h
+        }
+        v[4 * n] = 0.9; // candidate 0: a person
+        v[4 * n + 1] = 0.3; // candidate 1: too weak
+        v[5 * n + 2] = 0.95; // candidate 2: another class
+        let found = parse_yolo(&mat3([1, 6, n as i32], &v), 0.5).unwrap();
+        assert_eq!(found.len(), 1);
+        assert_eq!(
+            (found[0].cx, found[0].cy, found[0].score),
+            (100.0, 50.0, 0.9)
+        );
+    }
+
+    #[test]
+    fn parses_yolov5_layout_with_objectness() {
+        // 8 candidates of cx, cy, w, h, objectness, person, other.
+        let mut v = vec![0.0f32; 8 * 7];
+        v[..7].copy_from_slice(&[10.0, 20.0, 4.0, 8.0, 0.9, 0.8, 0.1]);
+        v[7..14].copy_from_slice(&[30.0, 40.0, 4.0, 8.0, 0.2, 0.9, 0.0]);
+        let found = parse_yolo(&mat3([1, 8, 7], &v), 0.5).unwrap();
+        assert_eq!(found.len(), 1);
+        assert!((found[0].score - 0.72).abs() < 1e-6);
+    }
+
+    #[test]
+    fn overlapping_boxes_are_suppressed_and_scaled_to_the_frame() {
+        let c = |cx, score| Candidate {
+            cx,
+            cy: 50.0,
+            w: 20.0,
+            h: 40.0,
+            score,
+        };
+        let kept = non_max_suppression(
+            vec![c(100.0, 0.9), c(102.0, 0.8), c(300.0, 0.7)],
+            0.5,
+            0.45,
+            2.0,
+            1.0,
+        )
+        .unwrap();
+        assert_eq!(kept.len(), 2);
+        assert_eq!((kept[0].x, kept[0].w), (180.0, 40.0));
+    }
+
+    #[test]
+    fn a_missing_model_is_a_clear_error() {
+        let config = DetectorConfig {
+            model: Some("nope.onnx".into()),
+            ..DetectorConfig::default()
+        };
+        let err = Detector::from_config(&config, Path::new("/tmp"))
+            .err()
+            .unwrap();
+        assert!(err.contains("/tmp/nope.onnx does not exist"), "{err}");
+    }
+}

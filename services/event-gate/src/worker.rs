@@ -1,0 +1,180 @@
+//! The detector runs on its own thread, fed through a short queue: when the queue
+//! is full a new job is dropped and counted, so a slow detector never delays the
+//! activity path (events are published as activity arrives, whatever the detector
+//! is doing).
+
+use std::sync::Arc;
+use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, TrySendError, sync_channel};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use isochron_shared::wire::Detection;
+use parking_lot::Mutex;
+
+use crate::detector::Detector;
+use crate::ring::{FrameRing, StoredFrame};
+
+/// A request to run the detector on the latest frame at or before `time_ns`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Job {
+    /// The event that gated it.
+    pub event_id: u64,
+    /// Capture time of the frame to detect on (the latest at or before it).
+    pub time_ns: i64,
+}
+
+/// A finished detection.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Outcome {
+    /// The event that gated it.
+    pub event_id: u64,
+    /// Capture time of the detected frame.
+    pub capture_time_ns: i64,
+    /// Source index of the detected frame.
+    pub source_index: u64,
+    /// People found.
+    pub detections: Vec<Detection>,
+    /// Detector time.
+    pub detector_us: u64,
+}
+
+/// What the worker thread sends back.
+#[derive(Debug)]
+pub enum Report {
+    /// A detection ran.
+    Done(Outcome),
+    /// The job's frame was no longer in the ring.
+    FrameGone(Job),
+    /// The detector failed on a frame.
+    Failed(Job, String),
+}
+
+/// Handle to the detector thread.
+pub struct Worker {
+    jobs: Option<SyncSender<Job>>,
+    reports: Receiver<Report>,
+    thread: Option<JoinHandle<()>>,
+    /// Jobs accepted.
+    pub submitted: u64,
+    /// Jobs dropped because the queue was full.
+    pub dropped: u64,
+    /// Reports received.
+    pub completed: u64,
+}
+
+impl Worker {
+    /// Starts the thread; `make` builds the detector on it (OpenCV objects stay on
+    /// the thread that made them). Fails if the detector cannot be built.
+    pub fn start(
+        make: impl FnOnce() -> Result<Detector, String> + Send + 'static,
+        ring: Arc<Mutex<FrameRing>>,
+        queue: usize,
+    ) -> Result<(Worker, &'static str), String> {
+        let (jobs_tx, jobs_rx) = sync_channel::<Job>(queue);
+        let (reports_tx, reports_rx) = sync_channel::<Report>(1024);
+        let (ready_tx, ready_rx) = sync_channel::<Result<&'static str, String>>(1);
+        let thread = std::thread::Builder::new()
+            .name("detector".into())
+            .spawn(move || {
+                let mut detector = match make() {
+                    Ok(d) => {
+                        let _ = ready_tx.send(Ok(d.name()));
+                        d
+                    }
+                    Err(e) => {
+                        let _ = ready_tx.send(Err(e));
+                        return;
+                    }
+                };
+                let mut frame = StoredFrame::default();
+                while let Ok(job) = jobs_rx.recv() {
+                    let found = ring.lock().copy_latest_at(job.time_ns, &mut frame);
+                    let report = if !found {
+                        Report::FrameGone(job)
+                    } else {
+                        let t0 = Instant::now();
+                        match detector.detect(&frame.pixels, frame.width, frame.height) {
+                            Ok(detections) => Report::Done(Outcome {
+                                event_id: job.event_id,
+                                capture_time_ns: frame.capture_time_ns,
+                                source_index: frame.source_index,
+                                detections,
+                                detector_us: t0.elapsed().as_micros() as u64,
+                            }),
+                            Err(e) => Report::Failed(job, e.to_string()),
+                        }
+                    };
+                    if reports_tx.send(report).is_err() {
+                        break;
+                    }
+                }
+            })
+            .map_err(|e| format!("starting the detector thread: {e}"))?;
+        let name = ready_rx
+            .recv()
+            .map_err(|_| "the detector thread died while starting".to_string())??;
+        Ok((
+            Worker {
+                jobs: Some(jobs_tx),
+                reports: reports_rx,
+                thread: Some(thread),
+                submitted: 0,
+                dropped: 0,
+                completed: 0,
+            },
+            name,
+        ))
+    }
+
+    /// Queues a job; drops (and counts) it if the detector is busy and the queue
+    /// is full. Never blocks.
+    pub fn submit(&mut self, job: Job) -> bool {
+        let Some(jobs) = &self.jobs else { return false };
+        match jobs.try_send(job) {
+            Ok(()) => {
+                self.submitted += 1;
+                true
+            }
+            Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
+                self.dropped += 1;
+                false
+            }
+        }
+    }
+
+    /// Reports that arrived, without waiting.
+    pub fn reports(&mut self) -> Vec<Report> {
+        let mut out = Vec::new();
+        loop {
+            match self.reports.try_recv() {
+                Ok(r) => {
+                    self.completed += 1;
+                    out.push(r);
+                }
+                Err(TryRecvError::Empty) | Err(TryRecvError::Disconnected) => return out,
+            }
+        }
+    }
+
+    /// Jobs queued or running.
+    pub fn pending(&self) -> u64 {
+        self.submitted - self.completed
+    }
+
+    /// Waits up to `timeout` for the next report.
+    pub fn wait_report(&mut self, timeout: Duration) -> Option<Report> {
+        let r = self.reports.recv_timeout(timeout).ok()?;
+        self.completed += 1;
+        Some(r)
+    }
+}
+
+impl Drop for Worker {
+    fn drop(&mut self) {
+        // Closing the queue ends the thread after its current job.
+        self.jobs = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}

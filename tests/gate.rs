@@ -1,0 +1,257 @@
+//! isochron-gate as a separate process, fed frames and activity by this test over
+//! iceoryx2, watched through its `events` and `detections` streams.
+
+use std::time::{Duration, Instant};
+
+use isochron_shared::clock::NS_PER_S;
+use isochron_shared::ipc::{Activity, Detections, Events, Frames, Ipc, StreamPublisher};
+use isochron_shared::wire::{
+    ActivityHeader, BlockActivity, CameraId, EventPhase, FLAG_END_OF_STREAM, FrameHeader,
+    PixelFormat, Preamble, Stream,
+};
+use isochron_tests::{TestSite, eventually};
+
+const BLOCK_PX: u32 = 16;
+
+/// Publishes frames and activity the way capture and the cascade would.
+struct Feeder {
+    frames: StreamPublisher<Frames>,
+    activity: StreamPublisher<Activity>,
+    camera: CameraId,
+    width: u32,
+    height: u32,
+    pixels: Vec<u8>,
+    frame_index: u64,
+}
+
+impl Feeder {
+    fn new(ipc: &Ipc, width: u32, height: u32) -> Self {
+        let grid = (width.div_ceil(BLOCK_PX) * height.div_ceil(BLOCK_PX)) as usize;
+        // A textured frame, so the detector has something to look at.
+        let pixels = (0..width * height)
+            .map(|i| (((i % width) * 7) ^ ((i / width) * 13)) as u8)
+            .collect();
+        Feeder {
+            frames: ipc
+                .publisher::<Frames>("cam01", (width * height) as usize)
+                .unwrap(),
+            activity: ipc.publisher::<Activity>("cam01", grid).unwrap(),
+            camera: CameraId::new("cam01").unwrap(),
+            width,
+            height,
+            pixels,
+            frame_index: 0,
+        }
+    }
+
+    fn grid(&self) -> (u32, u32) {
+        (
+            self.width.div_ceil(BLOCK_PX),
+            self.height.div_ceil(BLOCK_PX),
+        )
+    }
+
+    /// Ten frames of second `s`, then its activity sample: block 5's moving
+    /// activity is `s2`.
+    fn second(&mut self, s: i64, s2: f32) {
+        let first = self.frame_index;
+        for k in 0..10 {
+            let mut preamble = Preamble::new::<u8>(
+                Stream::Frames,
+                self.camera,
+                self.frames.next_sequence(),
+                self.pixels.len(),
+            );
+            preamble.capture_time_ns = s * NS_PER_S + k * NS_PER_S / 10;
+            let header = FrameHeader {
+                preamble,
+                width: self.width,
+                height: self.height,
+                stride: self.width,
+                pixel_format: PixelFormat::Gray8 as u32,
+                source_index: self.frame_index,
+            };
+            self.frames.send_copy(header, &self.pixels).unwrap();
+            self.frame_index += 1;
+        }
+        let (gw, gh) = self.grid();
+        let mut blocks = vec![BlockActivity::default(); (gw * gh) as usize];
+        blocks[5].s2 = s2;
+        let header = self.activity_header((s + 1) * NS_PER_S, blocks.len(), 0);
+        let header = ActivityHeader {
+            first_source_index: first,
+            last_source_index: self.frame_index - 1,
+            ..header
+        };
+        self.activity.send_copy(header, &blocks).unwrap();
+    }
+
+    fn activity_header(&mut self, time_ns: i64, blocks: usize, flags: u32) -> ActivityHeader {
+        let (gw, gh) = self.grid();
+        let mut preamble = Preamble::new::<BlockActivity>(
+            Stream::Activity,
+            self.camera,
+            self.activity.next_sequence(),
+            blocks,
+        );
+        preamble.capture_time_ns = time_ns;
+        preamble.flags = flags;
+        ActivityHeader {
+            preamble,
+            grid_w: gw,
+            grid_h: gh,
+            block_px: BLOCK_PX,
+            frame_width: self.width,
+            frame_height: self.height,
+            frames: 10,
+            frame_rate: 10.0,
+            ..Default::default()
+        }
+    }
+
+    fn end_of_stream(&mut self, time_ns: i64) {
+        let header = self.activity_header(time_ns, 0, FLAG_END_OF_STREAM);
+        self.activity.send_copy(header, &[]).unwrap();
+    }
+
+    fn wait_for_gate(&self) {
+        eventually(Duration::from_secs(20), || {
+            (self.frames.subscriber_count() > 0 && self.activity.subscriber_count() > 0)
+                .then_some(())
+        })
+        .expect("the gate subscribed to frames and activity");
+    }
+}
+
+fn site(name: &str, gate: &str) -> TestSite {
+    TestSite::new(
+        name,
+        &format!(
+            "[ipc]\nlossless = true\nframe_buffer = 4\n\n[gate]\n{gate}\n\n[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\n"
+        ),
+    )
+}
+
+#[test]
+fn events_start_and_end_with_hysteresis_and_the_detector_runs_once_per_event() {
+    let site = site("gate-events", "hold_s = 2.0");
+    let ipc = site.ipc("feeder");
+    let events = ipc.subscriber::<Events>("cam01").unwrap();
+    let detections = ipc.subscriber::<Detections>("cam01").unwrap();
+    let mut feeder = Feeder::new(&ipc, 320, 240);
+    let _gate = site.spawn("isochron-gate", &["--camera", "cam01"]);
+    feeder.wait_for_gate();
+
+    // Quiet, active 5..10 s, a 1-s dip at 7 (shorter than the hold), quiet again.
+    for s in 0..20 {
+        let active = (5..10).contains(&s) && s != 7;
+        feeder.second(s, if active { 1.0 } else { 0.0 });
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    feeder.end_of_stream(20 * NS_PER_S);
+
+    let (mut records, mut dets, mut ended) = (Vec::new(), Vec::new(), (false, false));
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !(ended.0 && ended.1) && Instant::now() < deadline {
+        events.wait(Duration::from_millis(100));
+        while let Some(s) = events.receive().unwrap() {
+            let h = *s.user_header();
+            if h.preamble.is_end_of_stream() {
+                ended.0 = true;
+            } else {
+                records.push((h, s.payload().to_vec()));
+            }
+        }
+        while let Some(s) = detections.receive().unwrap() {
+            let h = *s.user_header();
+            if h.preamble.is_end_of_stream() {
+                ended.1 = true;
+                assert_eq!(h.frames_seen, 200);
+                assert_eq!(h.frames_detected, 1, "one detection for one event");
+            } else {
+                dets.push(h);
+            }
+        }
+    }
+    assert!(ended.0 && ended.1, "end of stream on events and detections");
+    assert_eq!(
+        records.len(),
+        2,
+        "one start and one end record: {records:?}"
+    );
+    let (start, blocks) = &records[0];
+    assert_eq!(start.phase, EventPhase::Start as u32);
+    assert_eq!((start.start_ns, start.start_frame), (5 * NS_PER_S, 50));
+    assert_eq!(blocks, &vec![5]);
+    assert_eq!(start.zone_name(), "all");
+    let (end, _) = &records[1];
+    assert_eq!(end.phase, EventPhase::End as u32);
+    assert_eq!((end.end_ns, end.end_frame), (10 * NS_PER_S, 99));
+    assert!(
+        end.peak >= 1.0 && (end.threshold - 0.5).abs() < 1e-6,
+        "cold: the floor"
+    );
+    assert_eq!(dets.len(), 1);
+    assert_eq!(dets[0].event_id, start.event_id);
+    assert_eq!(
+        dets[0].source_index, 59,
+        "the last frame of the triggering second"
+    );
+}
+
+#[test]
+fn a_slow_detector_does_not_delay_events() {
+    // HOG on an upscaled 1080p frame takes seconds; events come every second.
+    let site = site(
+        "gate-slow",
+        "hold_s = 0.0\n\n[gate.detector]\nhog_upscale = 2.0\nqueue = 1",
+    );
+    let ipc = site.ipc("feeder");
+    let events = ipc.subscriber::<Events>("cam01").unwrap();
+    let detections = ipc.subscriber::<Detections>("cam01").unwrap();
+    let mut feeder = Feeder::new(&ipc, 1920, 1080);
+    let _gate = site.spawn("isochron-gate", &["--camera", "cam01"]);
+    feeder.wait_for_gate();
+
+    let mut worst = Duration::ZERO;
+    let mut records = 0;
+    for s in 0..16 {
+        // On at even seconds, off at odd ones: a start, then an end, every 2 s.
+        let sent = Instant::now();
+        feeder.second(s, if s % 2 == 0 { 1.0 } else { 0.0 });
+        let got = eventually(Duration::from_secs(5), || {
+            events.receive().unwrap().map(|_| ())
+        });
+        assert!(got.is_some(), "no event record for second {s}");
+        records += 1;
+        worst = worst.max(sent.elapsed());
+    }
+    println!("slowest event record: {worst:?}");
+    assert_eq!(records, 16);
+    assert!(
+        worst < Duration::from_millis(1500),
+        "events waited for the detector: {worst:?}"
+    );
+
+    feeder.end_of_stream(16 * NS_PER_S);
+    let eos = eventually(Duration::from_secs(120), || {
+        while let Some(s) = detections.receive().unwrap() {
+            if s.user_header().preamble.is_end_of_stream() {
+                return Some(*s.user_header());
+            }
+        }
+        None
+    })
+    .expect("detections end of stream");
+    println!(
+        "detected {} frames, dropped {} jobs, detector {} ms",
+        eos.frames_detected,
+        eos.jobs_dropped,
+        eos.detector_total_us / 1000
+    );
+    assert!(
+        eos.jobs_dropped > 0,
+        "a busy detector drops work instead of queueing it"
+    );
+    assert!(eos.frames_detected >= 1 && eos.frames_detected < 8);
+}
