@@ -3,6 +3,8 @@
 mod common;
 mod launch;
 mod replay;
+mod store;
+mod synth;
 mod tap;
 mod up;
 
@@ -26,6 +28,10 @@ enum Command {
     Tap(tap::Args),
     /// Run the whole group on a video file and write what every stage produced.
     Replay(replay::Args),
+    /// Simulate days of people through a real isochron-cascade; leaves its store.
+    Synth(synth::Args),
+    /// Read a camera's long-term store (export CSV, info), also while it is written.
+    Store(store::Args),
 }
 
 fn main() -> ExitCode {
@@ -35,6 +41,8 @@ fn main() -> ExitCode {
         Command::Up(args) => up::run(args),
         Command::Tap(args) => tap::run(args),
         Command::Replay(args) => replay::run(args),
+        Command::Synth(args) => synth::run(args),
+        Command::Store(args) => store::run(args),
     };
     match result {
         Ok(code) => code,

@@ -1,0 +1,295 @@
+//! `isochron store ...`: read a camera's long-term store, also while the cascade writes
+//! it (SQLite WAL: readers never block the writer).
+//!
+//! * `isochron store export --store PATH --camera ID [--block X,Y] [--out FILE]`: the
+//!   isochronal profile as CSV `minute_of_day,mean,sigma,count` (`minute_of_week` for
+//!   a weekly store), one row per minute bin. Over all blocks: `mean` is the mean of
+//!   the block means (the camera view's mean `M_L1` in that minute), `sigma` the root
+//!   mean square of the block sigmas (the typical day-to-day spread of one block);
+//!   with `--block X,Y`, that block's own mean and sigma. `count` is the number of
+//!   days (weeks) that taught the bin; bins that never learned anything have empty
+//!   `mean` and `sigma` and count 0.
+//! * `isochron store info --store PATH --camera ID`: what the store is about, how far
+//!   it got, and a full check of its checksums.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{Context, bail};
+use isochron_shared::clock::{Cycle, format_rfc3339, format_t_star};
+use isochron_shared::store::{Model, Store};
+
+/// Read a camera's long-term store.
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(clap::Subcommand)]
+enum Command {
+    /// Write the isochronal profile as CSV `minute_of_day,mean,sigma,count`.
+    Export(ExportArgs),
+    /// Show what a store holds and check all of it.
+    Info(StoreArgs),
+}
+
+/// Which store.
+#[derive(clap::Args)]
+pub struct StoreArgs {
+    /// The store file (`<state_dir>/<camera>.isochron.sqlite`).
+    #[arg(long)]
+    pub store: PathBuf,
+    /// The camera it belongs to.
+    #[arg(long)]
+    pub camera: String,
+}
+
+#[derive(clap::Args)]
+struct ExportArgs {
+    #[command(flatten)]
+    store: StoreArgs,
+    /// One block, `X,Y` (column, row from the top left), instead of all blocks.
+    #[arg(long)]
+    block: Option<String>,
+    /// Output file; default standard output.
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    match args.command {
+        Command::Export(a) => export(a),
+        Command::Info(a) => info(a),
+    }
+}
+
+/// Which blocks a profile is taken over. A later `--segment NAME` (a floor polygon
+/// mapped to blocks) becomes one more variant.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Selection {
+    /// Every block of the view.
+    All,
+    /// One block, (column, row).
+    Block(u32, u32),
+}
+
+impl Selection {
+    /// Parses `--block X,Y` (absent: all blocks).
+    pub fn parse(block: Option<&str>) -> anyhow::Result<Selection> {
+        let Some(text) = block else {
+            return Ok(Selection::All);
+        };
+        let parsed = text
+            .split_once(',')
+            .and_then(|(x, y)| Some((x.trim().parse().ok()?, y.trim().parse().ok()?)));
+        match parsed {
+            Some((x, y)) => Ok(Selection::Block(x, y)),
+            None => bail!("--block: expected X,Y (column,row), found '{text}'"),
+        }
+    }
+
+    /// The row-major block indices of the selection on a `grid_w` × `grid_h` grid.
+    pub fn blocks(&self, grid_w: u32, grid_h: u32) -> anyhow::Result<Vec<usize>> {
+        match *self {
+            Selection::All => Ok((0..(grid_w * grid_h) as usize).collect()),
+            Selection::Block(x, y) => {
+                if x >= grid_w || y >= grid_h {
+                    bail!(
+                        "--block {x},{y} is outside the store's {grid_w}x{grid_h} grid (columns 0..{grid_w}, rows 0..{grid_h})"
+                    );
+                }
+                Ok(vec![(y * grid_w + x) as usize])
+            }
+        }
+    }
+
+    /// For people: "all 1200 blocks" or "block 3,4".
+    pub fn describe(&self, grid_w: u32, grid_h: u32) -> String {
+        match self {
+            Selection::All => format!("all {} blocks", grid_w * grid_h),
+            Selection::Block(x, y) => format!("block {x},{y}"),
+        }
+    }
+}
+
+/// One bin of a profile.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ProfilePoint {
+    /// Minute of the cycle.
+    pub t_star: u32,
+    /// Mean over the selected blocks of their long-term means (`None`: never taught).
+    pub mean: Option<f64>,
+    /// Root mean square of the selected blocks' sigmas.
+    pub sigma: Option<f64>,
+    /// Days (cycles) that taught the bin.
+    pub count: u32,
+}
+
+/// The isochronal profile of `selection`: one point per bin of the cycle.
+pub fn profile(model: &Model, selection: &Selection) -> anyhow::Result<Vec<ProfilePoint>> {
+    let blocks = selection.blocks(model.meta.grid_w, model.meta.grid_h)?;
+    let n = blocks.len().max(1) as f64;
+    Ok(model
+        .bins
+        .iter()
+        .enumerate()
+        .map(|(t, bin)| match bin {
+            Some(b) if b.count > 0 => {
+                let mean = blocks.iter().map(|&k| b.mean[k] as f64).sum::<f64>() / n;
+                let var = blocks
+                    .iter()
+                    .map(|&k| b.var[k].max(0.0) as f64)
+                    .sum::<f64>()
+                    / n;
+                ProfilePoint {
+                    t_star: t as u32,
+                    mean: Some(mean),
+                    sigma: Some(var.sqrt()),
+                    count: b.count,
+                }
+            }
+            _ => ProfilePoint {
+                t_star: t as u32,
+                mean: None,
+                sigma: None,
+                count: 0,
+            },
+        })
+        .collect())
+}
+
+/// Opens a store read-only with the error naming the file.
+pub fn open(path: &Path, camera: &str) -> anyhow::Result<Store> {
+    Ok(Store::open_read_only(path, camera)?)
+}
+
+fn export(args: ExportArgs) -> anyhow::Result<ExitCode> {
+    let store = open(&args.store.store, &args.store.camera)?;
+    let model = store.read_model()?;
+    let selection = Selection::parse(args.block.as_deref())?;
+    let points = profile(&model, &selection)?;
+    let mut text = String::with_capacity(points.len() * 32);
+    text += match model.meta.cycle {
+        Cycle::Daily => "minute_of_day,mean,sigma,count\n",
+        Cycle::Weekly => "minute_of_week,mean,sigma,count\n",
+    };
+    for p in &points {
+        match (p.mean, p.sigma) {
+            (Some(m), Some(s)) => text += &format!("{},{m},{s},{}\n", p.t_star, p.count),
+            _ => text += &format!("{},,,0\n", p.t_star),
+        }
+    }
+    match &args.out {
+        Some(path) => {
+            std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?
+        }
+        None => {
+            let mut out = std::io::stdout().lock();
+            // A closed pipe (`| head`) is not an error worth reporting.
+            let _ = out.write_all(text.as_bytes()).and_then(|_| out.flush());
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn info(args: StoreArgs) -> anyhow::Result<ExitCode> {
+    let store = open(&args.store, &args.camera)?;
+    let meta = store.meta().clone();
+    let report = store.verify()?;
+    let model = store.read_model()?;
+    let baseline = store.read_baseline()?;
+    let (min_days, max_days) = model
+        .learned()
+        .map(|b| b.count)
+        .fold((u32::MAX, 0), |(lo, hi), c| (lo.min(c), hi.max(c)));
+    println!("store       {}", store.path().display());
+    println!("camera      {}", meta.camera);
+    println!(
+        "grid        {} blocks of {} px ({}x{} frame)",
+        meta.grid(),
+        meta.block_px,
+        meta.frame_width,
+        meta.frame_height
+    );
+    println!(
+        "cycle       {:?}, {} bins, {} learned",
+        meta.cycle,
+        meta.bins(),
+        report.bins
+    );
+    if report.bins > 0 {
+        println!("days/bin    {min_days}..{max_days}");
+    }
+    println!("created     {}", format_rfc3339(meta.created_ns));
+    let p = report.progress;
+    match p.last_minute {
+        Some(m) => println!(
+            "progress    last minute {} ({}), {} minutes learned, {} skipped",
+            format_rfc3339(m * 60_000_000_000),
+            format_t_star((m.rem_euclid(meta.bins() as i64)) as u32),
+            p.committed,
+            p.skipped
+        ),
+        None => println!("progress    nothing yet"),
+    }
+    if let Some(b) = baseline {
+        println!(
+            "baseline    F_L1 at {} after {} frames, r = {:.2}/s",
+            format_rfc3339(b.capture_ns),
+            b.frames,
+            b.frame_rate
+        );
+    }
+    println!("check       ok (SQLite quick_check and every checksum)");
+    Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use isochron_shared::store::{Bin, StoreMeta};
+
+    fn model() -> Model {
+        let meta = StoreMeta {
+            camera: "c".into(),
+            grid_w: 2,
+            grid_h: 2,
+            block_px: 16,
+            frame_width: 32,
+            frame_height: 32,
+            cycle: Cycle::Daily,
+            created_ns: 0,
+        };
+        let mut bins = vec![None; 1440];
+        bins[5] = Some(Bin {
+            t_star: 5,
+            count: 3,
+            last_minute: 0,
+            mean: vec![1.0, 2.0, 3.0, 6.0],
+            var: vec![1.0, 1.0, 4.0, 4.0],
+        });
+        Model { meta, bins }
+    }
+
+    #[test]
+    fn profiles_aggregate_blocks_or_take_one() {
+        let m = model();
+        let all = profile(&m, &Selection::All).unwrap();
+        assert_eq!(all.len(), 1440);
+        assert_eq!(all[5].mean, Some(3.0));
+        assert_eq!(all[5].sigma, Some(2.5f64.sqrt()));
+        assert_eq!(all[5].count, 3);
+        assert_eq!(all[4].mean, None);
+        let one = profile(&m, &Selection::parse(Some("1,1")).unwrap()).unwrap();
+        assert_eq!((one[5].mean, one[5].sigma), (Some(6.0), Some(2.0)));
+        let err = profile(&m, &Selection::Block(2, 0)).unwrap_err();
+        assert!(
+            err.to_string().contains("outside the store's 2x2 grid"),
+            "{err}"
+        );
+        assert!(Selection::parse(Some("3")).is_err());
+        assert!(Selection::parse(Some("a,b")).is_err());
+    }
+}

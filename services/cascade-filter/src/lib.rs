@@ -1,0 +1,766 @@
+//! isochron-cascade: the per-camera cascade state machine, testable without shared
+//! memory.
+//!
+//! [`Cascade`] takes motion samples ([`Cascade::push`]) and produces, once per
+//! completed second of capture time, the activity of every block: in-place S1, moving
+//! S2, their flow vectors, and the long-term mean and sigma at the current t*
+//! ([`SecondOut`] + [`Cascade::activity`]). Once per completed minute it updates the
+//! long-term model of that minute's bin t* through a [`LongTerm`] model — the SQLite
+//! store in the service, [`MemoryModel`] in tests and benchmarks — in one atomic
+//! commit.
+//!
+//! The filter math is `isochron_shared::filters` (semantics documented there); this
+//! crate does the bookkeeping around it, all from header timestamps, never the wall
+//! clock:
+//!
+//! * **seconds** are `floor(capture_ns / 1 s)`; a second completes when the first
+//!   frame of a later second arrives (or at end of stream). Seconds without frames
+//!   publish nothing; S1 decays over them as over seconds of no motion.
+//! * **frame rate** r is measured from the header timestamps (median frame interval)
+//!   unless `cascade.frame_rate` is set; α of F_L1 is recomputed when r moves by more
+//!   than 2 %.
+//! * **minutes** are whole UTC minutes; t* is the minute's minute of the day (or week)
+//!   in the site's time zone. A minute teaches its bin only if it got at least
+//!   `min_coverage × r × 60` frames (a camera that was off teaches nothing), and only
+//!   if it is later than the minute that last taught the bin (data delivered twice
+//!   never counts twice). Every completed minute is one commit: the bin (if taught),
+//!   the F_L1 baseline, and the progress.
+//! * **time going backwards** by up to 2 s rejects the frame (out of order); by more,
+//!   it starts a new timeline (a replay of an older recording): the partial second
+//!   and minute are finished, the short-term state is reset, the long-term model and
+//!   the F_L1 baseline are kept. End of stream does the same.
+//! * **resuming**: a stored F_L1 baseline is taken up if the first frame comes at most
+//!   T_L1 after it; an older one is dropped (the scene may have changed).
+
+use std::collections::HashMap;
+use std::time::{Duration, Instant};
+
+use isochron_shared::clock::{NS_PER_S, SiteClock};
+use isochron_shared::config::CascadeConfig;
+use isochron_shared::filters::{
+    CascadeBank, FilterBank, OpCounts, RateEstimator, SecondInput, alpha, f_l2, warmup_weight,
+};
+use isochron_shared::health::quantile;
+use isochron_shared::store::{Baseline, Bin, MinuteCommit, Progress, Store, StoreError};
+use isochron_shared::wire::{
+    ActivityHeader, BlockActivity, BlockMotion, CameraId, MotionHeader, Preamble, Stream, WireError,
+};
+
+pub use isochron_shared::filters::NonCascadeBank;
+
+/// A backward time step up to this is an out-of-order frame (rejected); a larger one
+/// starts a new timeline.
+pub const RESYNC_BACKWARDS_NS: i64 = 2 * NS_PER_S;
+/// r must move by more than this fraction before α of F_L1 is recomputed.
+const RATE_CHANGE: f64 = 0.02;
+/// Largest density (and flow component) accepted; the wire says 0..=1.
+const MAX_DENSITY: f32 = 1.001;
+
+/// The filter parameters, from `[cascade]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Params {
+    /// T of F_L1, seconds.
+    pub t_l1_s: f64,
+    /// T of F_L2, cycles (days).
+    pub t_l2_days: f64,
+    /// T of F_S1, seconds.
+    pub t_s1_s: f64,
+    /// Fixed frame rate r; `None`: measured.
+    pub frame_rate: Option<f64>,
+    /// Fraction of a minute's expected frames it needs to teach F_L2.
+    pub min_coverage: f64,
+}
+
+impl From<&CascadeConfig> for Params {
+    fn from(c: &CascadeConfig) -> Self {
+        Params {
+            t_l1_s: c.t_l1_s,
+            t_l2_days: c.t_l2_days,
+            t_s1_s: c.t_s1_s,
+            frame_rate: c.frame_rate,
+            min_coverage: c.min_coverage,
+        }
+    }
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Params::from(&CascadeConfig::default())
+    }
+}
+
+/// The block grid of a motion stream.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Grid {
+    /// Blocks per row.
+    pub grid_w: u32,
+    /// Block rows.
+    pub grid_h: u32,
+    /// Block edge in pixels.
+    pub block_px: u32,
+    /// Frame width the blocks cover.
+    pub frame_width: u32,
+    /// Frame height the blocks cover.
+    pub frame_height: u32,
+}
+
+impl Grid {
+    /// The grid a motion header describes.
+    pub fn of(h: &MotionHeader) -> Grid {
+        Grid {
+            grid_w: h.grid_w,
+            grid_h: h.grid_h,
+            block_px: h.block_px,
+            frame_width: h.frame_width,
+            frame_height: h.frame_height,
+        }
+    }
+
+    /// Number of blocks.
+    pub fn blocks(&self) -> usize {
+        self.grid_w as usize * self.grid_h as usize
+    }
+}
+
+impl std::fmt::Display for Grid {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}x{} blocks of {} px ({}x{} frame)",
+            self.grid_w, self.grid_h, self.block_px, self.frame_width, self.frame_height
+        )
+    }
+}
+
+/// Where the long-term model lives: read one bin, commit one minute.
+pub trait LongTerm {
+    /// The model of bin `t_star`, if it has learned anything.
+    fn bin(&mut self, t_star: u32) -> Result<Option<Bin>, StoreError>;
+    /// Writes one completed minute atomically and durably.
+    fn commit(&mut self, commit: &MinuteCommit<'_>) -> Result<(), StoreError>;
+}
+
+impl LongTerm for Store {
+    fn bin(&mut self, t_star: u32) -> Result<Option<Bin>, StoreError> {
+        self.read_bin(t_star)
+    }
+
+    fn commit(&mut self, commit: &MinuteCommit<'_>) -> Result<(), StoreError> {
+        self.commit_minute(commit)
+    }
+}
+
+/// The long-term model in memory, for tests and benchmarks.
+#[derive(Debug, Clone, Default)]
+pub struct MemoryModel {
+    /// Bins that learned anything.
+    pub bins: HashMap<u32, Bin>,
+    /// The last baseline committed.
+    pub baseline: Option<Baseline>,
+    /// Progress as a store would keep it.
+    pub progress: Progress,
+}
+
+impl LongTerm for MemoryModel {
+    fn bin(&mut self, t_star: u32) -> Result<Option<Bin>, StoreError> {
+        Ok(self.bins.get(&t_star).cloned())
+    }
+
+    fn commit(&mut self, commit: &MinuteCommit<'_>) -> Result<(), StoreError> {
+        if let Some(bin) = commit.bin {
+            self.bins.insert(bin.t_star, bin.clone());
+            self.progress.committed += 1;
+        } else {
+            self.progress.skipped += 1;
+        }
+        if let Some(b) = commit.baseline {
+            self.baseline = Some(b.clone());
+        }
+        self.progress.last_minute = Some(
+            self.progress
+                .last_minute
+                .map_or(commit.minute, |m| m.max(commit.minute)),
+        );
+        Ok(())
+    }
+}
+
+/// Commit latencies of a [`Store`], measured.
+pub struct TimedStore {
+    /// The store.
+    pub store: Store,
+    latencies_ms: Vec<f32>,
+    cursor: usize,
+    /// Commits so far.
+    pub commits: u64,
+}
+
+impl TimedStore {
+    /// Wraps `store`.
+    pub fn new(store: Store) -> Self {
+        TimedStore {
+            store,
+            latencies_ms: Vec::new(),
+            cursor: 0,
+            commits: 0,
+        }
+    }
+
+    /// Median and 99th percentile of the recent commit latencies, ms.
+    pub fn latency_ms(&self) -> (f32, f32) {
+        (
+            quantile(&self.latencies_ms, 0.5),
+            quantile(&self.latencies_ms, 0.99),
+        )
+    }
+}
+
+impl LongTerm for TimedStore {
+    fn bin(&mut self, t_star: u32) -> Result<Option<Bin>, StoreError> {
+        self.store.read_bin(t_star)
+    }
+
+    fn commit(&mut self, commit: &MinuteCommit<'_>) -> Result<(), StoreError> {
+        let start = Instant::now();
+        let result = self.store.commit_minute(commit);
+        let ms = start.elapsed().as_secs_f32() * 1e3;
+        if self.latencies_ms.len() < 1024 {
+            self.latencies_ms.push(ms);
+        } else {
+            self.latencies_ms[self.cursor] = ms;
+            self.cursor = (self.cursor + 1) % 1024;
+        }
+        self.commits += 1;
+        result
+    }
+}
+
+/// Why a motion sample was rejected (it is counted and skipped; the cascade goes on).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum Reject {
+    /// The header does not describe the sample (foreign producer, other version...).
+    #[error("{0}")]
+    Wire(#[from] WireError),
+    /// The block grid differs from the one this cascade runs on.
+    #[error(
+        "the sample has {found}, this cascade runs on {expected} (was motion restarted with other settings?)"
+    )]
+    Grid {
+        /// The cascade's grid.
+        expected: Grid,
+        /// The sample's grid.
+        found: Grid,
+    },
+    /// A block holds a value outside its range (NaN, negative or > 1 density).
+    #[error("block {block}: {what}")]
+    Value {
+        /// Row-major block index.
+        block: usize,
+        /// What is wrong.
+        what: String,
+    },
+    /// Capture time is not plausible.
+    #[error("capture time {0} ns is not a time after 1970")]
+    Time(i64),
+    /// The frame is older than the previous one (by at most the resync limit).
+    #[error(
+        "capture time went back by {:.3} s (out-of-order frame)",
+        *by_ns as f64 / 1e9
+    )]
+    Backwards {
+        /// How far back.
+        by_ns: i64,
+    },
+}
+
+/// What can go wrong when pushing a sample.
+#[derive(Debug, thiserror::Error)]
+pub enum PushError {
+    /// The sample was rejected; nothing changed.
+    #[error("rejected motion sample: {0}")]
+    Reject(#[from] Reject),
+    /// The long-term store failed; the service cannot go on safely.
+    #[error("{0}")]
+    Store(#[from] StoreError),
+}
+
+/// One completed second: everything for the activity header (the blocks are
+/// [`Cascade::activity`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SecondOut {
+    /// The second: `floor(capture_ns / 1 s)`.
+    pub second: i64,
+    /// Isochronal time t* of the second.
+    pub t_star: u32,
+    /// Days (cycles) of data the long-term model has at t*.
+    pub model_days: u32,
+    /// Frames in the second.
+    pub frames: u32,
+    /// Source index of its first frame.
+    pub first_source_index: u64,
+    /// Source index of its last frame.
+    pub last_source_index: u64,
+    /// Frame rate r in use (0 while unknown).
+    pub frame_rate: f32,
+    /// `origin_wall_ns` of its last frame (for end-to-end latency).
+    pub origin_wall_ns: i64,
+}
+
+impl SecondOut {
+    /// End of the second, UTC ns: the activity sample's capture time.
+    pub fn capture_time_ns(&self) -> i64 {
+        (self.second + 1).saturating_mul(NS_PER_S)
+    }
+
+    /// The activity header for this second.
+    pub fn header(&self, camera: CameraId, grid: &Grid, sequence: u64) -> ActivityHeader {
+        let mut preamble =
+            Preamble::new::<BlockActivity>(Stream::Activity, camera, sequence, grid.blocks());
+        preamble.capture_time_ns = self.capture_time_ns();
+        preamble.origin_wall_ns = self.origin_wall_ns;
+        ActivityHeader {
+            preamble,
+            grid_w: grid.grid_w,
+            grid_h: grid.grid_h,
+            block_px: grid.block_px,
+            frame_width: grid.frame_width,
+            frame_height: grid.frame_height,
+            t_star: self.t_star,
+            model_days: self.model_days,
+            frames: self.frames,
+            first_source_index: self.first_source_index,
+            last_source_index: self.last_source_index,
+            frame_rate: self.frame_rate,
+            reserved: 0,
+        }
+    }
+}
+
+/// Counters of a cascade.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Stats {
+    /// Frames accepted.
+    pub frames: u64,
+    /// Seconds completed (activity samples produced).
+    pub seconds: u64,
+    /// Minutes that taught their bin.
+    pub minutes_learned: u64,
+    /// Minutes with too few frames.
+    pub minutes_sparse: u64,
+    /// Minutes their bin had already learned from (data delivered twice).
+    pub minutes_repeated: u64,
+    /// New timelines started (large backward jumps, end of stream).
+    pub timelines: u64,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct SecondState {
+    index: i64,
+    frames: u32,
+    first_source: u64,
+    last_source: u64,
+    origin_wall_ns: i64,
+}
+
+#[derive(Debug, Clone)]
+struct MinuteState {
+    index: i64,
+    t_star: u32,
+    frames: u32,
+    bin: Option<Bin>,
+}
+
+/// The cascade of one camera: filters, timing, and long-term updates.
+pub struct Cascade<B: FilterBank = CascadeBank> {
+    camera: CameraId,
+    params: Params,
+    clock: SiteClock,
+    grid: Grid,
+    bank: B,
+    rate: RateEstimator,
+    rate_in_use: Option<f64>,
+    l1_one_minus_alpha: f64,
+    l1_frames: u64,
+    alpha_s1: f32,
+    one_minus_alpha_l2: f64,
+    resume: Option<Baseline>,
+    last_capture_ns: Option<i64>,
+    last_second_done: Option<i64>,
+    second: Option<SecondState>,
+    minute: Option<MinuteState>,
+    minute_means: Vec<f32>,
+    out: Vec<BlockActivity>,
+    stats: Stats,
+}
+
+impl<B: FilterBank> Cascade<B> {
+    /// A cascade for `camera` on `grid`. `resume` is the stored F_L1 baseline, taken up
+    /// at the first frame if it is recent enough.
+    pub fn new(
+        camera: CameraId,
+        params: Params,
+        clock: SiteClock,
+        grid: Grid,
+        resume: Option<Baseline>,
+    ) -> Self {
+        let k = grid.blocks();
+        let rate_in_use = params.frame_rate;
+        let l1_one_minus_alpha = rate_in_use.map_or(0.0, |r| 1.0 - alpha(params.t_l1_s, r));
+        Cascade {
+            camera,
+            alpha_s1: alpha(params.t_s1_s, 1.0) as f32,
+            one_minus_alpha_l2: 1.0 - alpha(params.t_l2_days, 1.0),
+            params,
+            clock,
+            grid,
+            bank: B::new(k),
+            rate: RateEstimator::default(),
+            rate_in_use,
+            l1_one_minus_alpha,
+            l1_frames: 0,
+            resume: resume.filter(|b| b.level.len() == k),
+            last_capture_ns: None,
+            last_second_done: None,
+            second: None,
+            minute: None,
+            minute_means: vec![0.0; k],
+            out: vec![BlockActivity::default(); k],
+            stats: Stats::default(),
+        }
+    }
+
+    /// The grid this cascade runs on.
+    pub fn grid(&self) -> &Grid {
+        &self.grid
+    }
+
+    /// The blocks of the last completed second (valid after [`Cascade::push`] or
+    /// [`Cascade::end_of_stream`] returned a [`SecondOut`]).
+    pub fn activity(&self) -> &[BlockActivity] {
+        &self.out
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> Stats {
+        self.stats
+    }
+
+    /// Filter operations so far.
+    pub fn ops(&self) -> OpCounts {
+        self.bank.ops()
+    }
+
+    /// Bytes of per-block filter state.
+    pub fn state_bytes(&self) -> usize {
+        self.bank.state_bytes()
+    }
+
+    /// The frame rate r in use, if known.
+    pub fn frame_rate(&self) -> Option<f64> {
+        self.rate_in_use
+    }
+
+    /// α of F_L1 in use (for the rate in use).
+    pub fn alpha_l1(&self) -> f64 {
+        1.0 - self.l1_one_minus_alpha
+    }
+
+    /// The F_L1 baseline per block.
+    pub fn baseline(&self) -> &[f32] {
+        self.bank.baseline()
+    }
+
+    /// Frames the F_L1 baseline has seen.
+    pub fn baseline_frames(&self) -> u64 {
+        self.l1_frames
+    }
+
+    /// Pushes one motion sample. Returns the second it completed, if any (its blocks
+    /// are [`Cascade::activity`]). An end-of-stream sample is
+    /// [`Cascade::end_of_stream`]. A rejected sample changes nothing.
+    pub fn push(
+        &mut self,
+        header: &MotionHeader,
+        blocks: &[BlockMotion],
+        model: &mut dyn LongTerm,
+    ) -> Result<Option<SecondOut>, PushError> {
+        header
+            .validate(&self.camera, blocks.len())
+            .map_err(Reject::from)?;
+        if header.preamble.is_end_of_stream() {
+            return Ok(self.end_of_stream(model)?);
+        }
+        let found = Grid::of(header);
+        if found != self.grid {
+            return Err(Reject::Grid {
+                expected: self.grid,
+                found,
+            }
+            .into());
+        }
+        check_values(blocks)?;
+        let t = header.preamble.capture_time_ns;
+        if t <= 0 {
+            return Err(Reject::Time(t).into());
+        }
+        let mut done = None;
+        if let Some(last) = self.last_capture_ns
+            && t < last
+        {
+            if last - t <= RESYNC_BACKWARDS_NS {
+                return Err(Reject::Backwards { by_ns: last - t }.into());
+            }
+            tracing::info!(
+                "capture time jumped back by {:.1} s: a new timeline starts (short-term state reset, long-term model kept)",
+                (last - t) as f64 / 1e9
+            );
+            done = self.end_timeline(model)?;
+        }
+        if let Some(b) = self.resume.take() {
+            self.take_up(b, t);
+        }
+
+        let second = t.div_euclid(NS_PER_S);
+        if let Some(s) = self.second
+            && s.index != second
+        {
+            done = Some(self.finish_second(s));
+            self.second = None;
+        }
+        let minute = second.div_euclid(60);
+        if let Some(m) = &self.minute
+            && m.index != minute
+        {
+            let m = self.minute.take().expect("checked");
+            self.finish_minute(m, model)?;
+        }
+        if self.minute.is_none() {
+            let t_star = self.clock.t_star(minute * 60 * NS_PER_S);
+            self.minute = Some(MinuteState {
+                index: minute,
+                t_star,
+                frames: 0,
+                bin: model.bin(t_star)?,
+            });
+        }
+        let s = self.second.get_or_insert(SecondState {
+            index: second,
+            frames: 0,
+            first_source: header.source_index,
+            last_source: header.source_index,
+            origin_wall_ns: 0,
+        });
+        s.frames += 1;
+        s.last_source = header.source_index;
+        s.origin_wall_ns = header.preamble.origin_wall_ns;
+        if let Some(m) = &mut self.minute {
+            m.frames += 1;
+        }
+
+        self.update_rate(t);
+        let w = warmup_weight(self.l1_one_minus_alpha, self.l1_frames) as f32;
+        self.bank.frame(blocks, w);
+        self.l1_frames += 1;
+        self.last_capture_ns = Some(t);
+        self.stats.frames += 1;
+        Ok(done)
+    }
+
+    /// The stream ended: finishes the partial second (returned, if it had frames) and
+    /// the partial minute (it teaches its bin if it has enough frames), then resets the
+    /// short-term state for whatever comes next.
+    pub fn end_of_stream(
+        &mut self,
+        model: &mut dyn LongTerm,
+    ) -> Result<Option<SecondOut>, StoreError> {
+        self.end_timeline(model)
+    }
+
+    fn end_timeline(&mut self, model: &mut dyn LongTerm) -> Result<Option<SecondOut>, StoreError> {
+        let done = self.second.take().map(|s| self.finish_second(s));
+        if let Some(m) = self.minute.take() {
+            self.finish_minute(m, model)?;
+        }
+        self.bank.reset_short_term();
+        self.rate.reset();
+        self.last_capture_ns = None;
+        self.last_second_done = None;
+        self.stats.timelines += 1;
+        Ok(done)
+    }
+
+    fn take_up(&mut self, b: Baseline, first_ns: i64) {
+        let age_s = (first_ns - b.capture_ns) as f64 / 1e9;
+        if (0.0..=self.params.t_l1_s).contains(&age_s) {
+            self.bank.set_baseline(&b.level);
+            self.l1_frames = b.frames;
+            if self.params.frame_rate.is_none() && b.frame_rate > 0.0 {
+                self.set_rate(b.frame_rate);
+            }
+            tracing::info!(
+                "resumed the F_L1 baseline from the store ({} frames, r = {:.2}/s, {:.1} s old)",
+                b.frames,
+                b.frame_rate,
+                age_s
+            );
+        } else {
+            tracing::info!(
+                "not resuming the stored F_L1 baseline: it is {age_s:.0} s from the first frame (more than T_L1 = {} s, or in its future)",
+                self.params.t_l1_s
+            );
+        }
+    }
+
+    fn update_rate(&mut self, t: i64) {
+        let measured = self.rate.push(t);
+        if self.params.frame_rate.is_some() {
+            return;
+        }
+        if let Some(r) = measured
+            && self
+                .rate_in_use
+                .is_none_or(|u| (r / u - 1.0).abs() > RATE_CHANGE)
+        {
+            if let Some(u) = self.rate_in_use {
+                tracing::info!("frame rate changed from {u:.2} to {r:.2} frames/s");
+            }
+            self.set_rate(r);
+        }
+    }
+
+    fn set_rate(&mut self, r: f64) {
+        self.rate_in_use = Some(r);
+        self.l1_one_minus_alpha = 1.0 - alpha(self.params.t_l1_s, r);
+    }
+
+    fn finish_second(&mut self, s: SecondState) -> SecondOut {
+        let gap = self
+            .last_second_done
+            .map_or(0, |last| (s.index - last - 1).max(0));
+        let gap_decay = if gap == 0 {
+            1.0
+        } else if gap > 100_000 {
+            0.0
+        } else {
+            self.alpha_s1.powi(gap as i32)
+        };
+        self.bank.second(
+            SecondInput {
+                frames: s.frames,
+                gap_decay,
+                alpha_s1: self.alpha_s1,
+            },
+            &mut self.out,
+        );
+        let (t_star, bin) = match &self.minute {
+            Some(m) => (m.t_star, m.bin.as_ref()),
+            None => (self.clock.t_star(s.index * NS_PER_S), None),
+        };
+        match bin {
+            Some(bin) => {
+                for (k, o) in self.out.iter_mut().enumerate() {
+                    o.lt_mean = bin.mean[k];
+                    o.lt_sigma = bin.sigma(k);
+                }
+            }
+            None => {
+                for o in &mut self.out {
+                    o.lt_mean = 0.0;
+                    o.lt_sigma = 0.0;
+                }
+            }
+        }
+        self.last_second_done = Some(s.index);
+        self.stats.seconds += 1;
+        SecondOut {
+            second: s.index,
+            t_star,
+            model_days: bin.map_or(0, |b| b.count),
+            frames: s.frames,
+            first_source_index: s.first_source,
+            last_source_index: s.last_source,
+            frame_rate: self.rate_in_use.unwrap_or(0.0) as f32,
+            origin_wall_ns: s.origin_wall_ns,
+        }
+    }
+
+    fn finish_minute(
+        &mut self,
+        m: MinuteState,
+        model: &mut dyn LongTerm,
+    ) -> Result<(), StoreError> {
+        let k = self.grid.blocks();
+        self.bank.minute_mean(m.frames, &mut self.minute_means);
+        let expected = self
+            .rate_in_use
+            .map(|r| r * 60.0 * self.params.min_coverage);
+        let covered = expected.is_some_and(|e| m.frames as f64 >= e) && m.frames > 0;
+        let repeated = m.bin.as_ref().is_some_and(|b| b.last_minute >= m.index);
+        let baseline = Baseline {
+            capture_ns: self.last_capture_ns.unwrap_or(0),
+            frames: self.l1_frames,
+            frame_rate: self.rate_in_use.unwrap_or(0.0),
+            level: self.bank.baseline().to_vec(),
+        };
+        if covered && !repeated {
+            let mut bin = m.bin.unwrap_or_else(|| Bin::empty(m.t_star, k));
+            let w = warmup_weight(self.one_minus_alpha_l2, bin.count as u64) as f32;
+            for (kk, &x) in self.minute_means.iter().enumerate() {
+                f_l2(&mut bin.mean[kk], &mut bin.var[kk], x, w);
+            }
+            bin.count = bin.count.saturating_add(1);
+            bin.last_minute = m.index;
+            self.bank.count_f_l2(k as u64);
+            model.commit(&MinuteCommit {
+                minute: m.index,
+                bin: Some(&bin),
+                baseline: Some(&baseline),
+            })?;
+            self.stats.minutes_learned += 1;
+        } else {
+            model.commit(&MinuteCommit {
+                minute: m.index,
+                bin: None,
+                baseline: Some(&baseline),
+            })?;
+            if repeated {
+                self.stats.minutes_repeated += 1;
+            } else {
+                self.stats.minutes_sparse += 1;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Rejects NaN, infinite, negative or > 1 densities and flow components.
+fn check_values(blocks: &[BlockMotion]) -> Result<(), Reject> {
+    let ok = |b: &BlockMotion| {
+        (0.0..=MAX_DENSITY).contains(&b.density)
+            && b.dx.abs() <= MAX_DENSITY
+            && b.dy.abs() <= MAX_DENSITY
+    };
+    // One branch-free pass; the slow search only when something is wrong.
+    let all_ok = blocks.iter().fold(true, |acc, b| acc & ok(b));
+    if all_ok {
+        return Ok(());
+    }
+    let (block, b) = blocks
+        .iter()
+        .enumerate()
+        .find(|(_, b)| !ok(b))
+        .expect("a bad block exists");
+    Err(Reject::Value {
+        block,
+        what: format!(
+            "density {} and flow ({}, {}) outside 0..=1",
+            b.density, b.dx, b.dy
+        ),
+    })
+}
+
+/// How long a reject message is suppressed after it was logged, per kind.
+pub const REJECT_LOG_EVERY: Duration = Duration::from_secs(10);
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,875 @@
+//! The temporal filters of the cascade (DESIGN.md section 3), per block of a motion
+//! frame.
+//!
+//! Names follow the paper so that a reader can hold the code against its equations:
+//! `f_l1` is the high-pass F_L1 at frame rate giving `M_L1`, `f_s1` the in-place
+//! low-pass F_S1 giving `M_S1`, the band-pass F_S2 gives `M_S2`, `f_l2` the
+//! isochronal low-pass F_L2 giving `M_L2` at minute of the day `t_star`.
+//!
+//! Every filter but one is a first-order IIR (exponential moving average)
+//! `b'(t) = α·b'(t-1) + (1-α)·b(t)`, with α derived from the 10 %-decay duration T and
+//! the sample rate r: `α = 0.1^(1/(r·T))` ([`alpha`]). The exception is the 1-s FIR
+//! of F_S2, which is the mean over the frames of one second.
+//!
+//! Semantics (decided for isochron; the paper leaves them open):
+//!
+//! * **F_L1, per frame and block**: `b = α_L1·b + (1−α_L1)·M`, then
+//!   `M_L1 = max(0, M − b)` — a *rectified* high-pass: always-on motion (leaves, a
+//!   flashing light) sits at its own average and is removed; a person passing is a
+//!   pulse far above the average and passes almost whole. The flow vector is scaled
+//!   by the fraction of density that passes, `M_L1 / M`. The baseline starts with a
+//!   bias-corrected warm-up: the weight of a new frame is `max(1−α, 1/(n+1))` after
+//!   `n` frames ([`warmup_weight`]), so a cold camera learns its always-on level in
+//!   seconds instead of half an hour.
+//! * **Per second**: `m_sec`, the mean of `M_L1` over the frames of the second, is the
+//!   1-s FIR. `S2 = max(0, m_sec − S1_prev)` (the band-pass, rectified: a negative
+//!   part is activity *leaving*), then `S1 = α_S1·S1_prev + (1−α_S1)·m_sec`. The S1
+//!   vector is the EMA of the per-second mean vector; the S2 vector is the per-second
+//!   mean vector × `S2 / m_sec`.
+//! * **Per minute of the cycle t***: the mean of `M_L1` over the minute updates F_L2
+//!   of bin t* — an exponentially weighted mean and variance with α_L2, bias-corrected
+//!   while the bin has few samples ([`f_l2`]).
+//!
+//! The cascade ([`CascadeBank`]) feeds each filter from the one before it: one 1-s
+//! FIR serves both short-term outputs, one F_S1 serves the in-place output and the
+//! low end of the band-pass, and the minute means are built from the second sums.
+//! The non-cascade reference ([`NonCascadeBank`], the paper's table "Computational
+//! costs of non-cascade versus cascade filter") runs the five filters separately, each
+//! from `M_L1`: in-place (its own 1-s decimation and F_S1), band-pass (its own 1-s FIR
+//! and its own low-pass at T_S1, kept separately), and the long-term minute mean. Both
+//! give the same outputs; both count their filter operations ([`OpCounts`]) and report
+//! their state ([`FilterBank::state_bytes`]) so the benchmark can compare them.
+
+use crate::wire::{BlockActivity, BlockMotion};
+
+/// α of a first-order IIR whose output decays to 10 % in `t_decay` (in the unit of
+/// time whose sample rate is `rate`): `α = 0.1^(1/(r·T))`.
+///
+/// F_L1: T = 1800 s at 30 fps → 0.999957; F_L2: T = 10 days at 1/day → 0.794;
+/// F_S1: T = 20 s at 1 Hz → 0.891 (DESIGN.md's corrected table; the paper prints the
+/// first two swapped).
+pub fn alpha(t_decay: f64, rate: f64) -> f64 {
+    let n = rate * t_decay;
+    if !(n.is_finite() && n > 0.0) {
+        return 0.0;
+    }
+    0.1f64.powf(1.0 / n)
+}
+
+/// The weight of a new sample in a bias-corrected EMA that has seen `n` samples:
+/// `max(1 − α, 1/(n+1))`. The first sample gets weight 1, the first few are averaged
+/// equally, and from `n ≈ 1/(1−α)` on the filter is the plain EMA.
+pub fn warmup_weight(one_minus_alpha: f64, n: u64) -> f64 {
+    one_minus_alpha.max(1.0 / (n as f64 + 1.0))
+}
+
+/// F_L1 on one block: updates the baseline `b` with weight `w` (`1 − α_L1`, or the
+/// warm-up weight) and returns `M_L1 = max(0, M − b)`.
+#[inline(always)]
+pub fn f_l1(b: &mut f32, m: f32, w: f32) -> f32 {
+    *b += w * (m - *b);
+    (m - *b).max(0.0)
+}
+
+/// The fraction of a block's density that passes F_L1 (`M_L1 / M`, 0 without motion),
+/// by which its flow vector is scaled.
+#[inline(always)]
+pub fn pass_fraction(m: f32, m_l1: f32) -> f32 {
+    // M_L1 <= M always, and M_L1 = 0 when M = 0, so the guard only avoids 0/0.
+    m_l1 / m.max(f32::MIN_POSITIVE)
+}
+
+/// F_S1 and the low end of the band-pass on one block, once per second: returns
+/// `S2 = max(0, m_sec − S1_prev)` and updates `s1` to `α·S1_prev + (1−α)·m_sec`.
+#[inline(always)]
+pub fn f_s1(s1: &mut f32, m_sec: f32, alpha_s1: f32) -> f32 {
+    let s2 = (m_sec - *s1).max(0.0);
+    *s1 = alpha_s1 * *s1 + (1.0 - alpha_s1) * m_sec;
+    s2
+}
+
+/// F_L2 on one block of bin t*: an exponentially weighted mean and variance, updated
+/// with weight `w` (use [`warmup_weight`] with `1 − α_L2` and the bin's count):
+/// `d = x − mean; mean += w·d; var = (1 − w)·(var + w·d²)`. With `w = 1/n` this is
+/// exactly the running mean and population variance of the first `n` samples.
+#[inline(always)]
+pub fn f_l2(mean: &mut f32, var: &mut f32, x: f32, w: f32) {
+    let d = x - *mean;
+    let inc = w * d;
+    *mean += inc;
+    *var = ((1.0 - w) * (*var + d * inc)).max(0.0);
+}
+
+/// How many filter operations a bank has performed, by filter. One operation is one
+/// filter's update for one block (an EMA step, or one sample added to a FIR or
+/// decimating mean), counted at the rate that filter runs.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct OpCounts {
+    /// F_L1 high-pass steps (per block-frame).
+    pub f_l1: u64,
+    /// Samples added to 1-s FIR / decimating means (per block-frame).
+    pub fir: u64,
+    /// F_S1 low-pass steps (per block-second).
+    pub f_s1: u64,
+    /// Steps of the band-pass's own low-pass (non-cascade only; per block-second).
+    pub band_pass_low: u64,
+    /// Samples added to the per-minute means that feed F_L2.
+    pub minute_mean: u64,
+    /// F_L2 steps (per block-minute with enough frames).
+    pub f_l2: u64,
+}
+
+impl OpCounts {
+    /// All operations.
+    pub fn total(&self) -> u64 {
+        self.f_l1 + self.fir + self.f_s1 + self.band_pass_low + self.minute_mean + self.f_l2
+    }
+
+    /// Number of distinct filters that ran (the paper's "multiples of motion frame
+    /// filter operations"): 4 for the cascade, 5 for the non-cascade once every path
+    /// has run.
+    pub fn filters(&self) -> u32 {
+        // F_L1, the 1-s FIR (F_S2), F_S1, the band-pass low-pass, F_L2.
+        [
+            self.f_l1,
+            self.fir,
+            self.f_s1,
+            self.band_pass_low,
+            self.f_l2,
+        ]
+        .iter()
+        .filter(|&&n| n > 0)
+        .count() as u32
+    }
+}
+
+/// What a completed second produced, for the bookkeeping around a bank.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SecondInput {
+    /// Frames in the second (> 0).
+    pub frames: u32,
+    /// `α_S1^g` for the `g` seconds without frames before this one (1 without a gap):
+    /// S1 decays over a gap as over seconds of no motion.
+    pub gap_decay: f32,
+    /// α of F_S1.
+    pub alpha_s1: f32,
+}
+
+/// The per-block filter state of one camera, cascade or not.
+pub trait FilterBank {
+    /// A bank for `blocks` blocks, all state zero.
+    fn new(blocks: usize) -> Self
+    where
+        Self: Sized;
+
+    /// Number of blocks.
+    fn blocks(&self) -> usize;
+
+    /// One frame: F_L1 with weight `w_l1`, and the per-frame accumulations.
+    fn frame(&mut self, motion: &[BlockMotion], w_l1: f32);
+
+    /// One completed second: F_S1 and the band-pass, written to `out`'s `s1`, `s2` and
+    /// vector fields (the long-term fields are left alone).
+    fn second(&mut self, input: SecondInput, out: &mut [BlockActivity]);
+
+    /// The completed minute: the mean of `M_L1` per block over its `frames` frames
+    /// into `out`; resets the minute accumulation.
+    fn minute_mean(&mut self, frames: u32, out: &mut [f32]);
+
+    /// Forgets the short-term state (S1, partial second and minute), keeping the F_L1
+    /// baseline: a new timeline starts.
+    fn reset_short_term(&mut self);
+
+    /// The F_L1 baseline per block.
+    fn baseline(&self) -> &[f32];
+
+    /// Sets the F_L1 baseline (resuming from a store).
+    fn set_baseline(&mut self, level: &[f32]);
+
+    /// Counts F_L2 steps done on this bank's minute means.
+    fn count_f_l2(&mut self, blocks: u64);
+
+    /// Filter operations so far.
+    fn ops(&self) -> OpCounts;
+
+    /// Bytes of per-block filter state this bank keeps (the long-term model, which
+    /// both need alike, excluded).
+    fn state_bytes(&self) -> usize;
+}
+
+/// The cascade: F_L1 → one 1-s FIR → F_S1 (in-place) and, sharing F_S1, the rectified
+/// band-pass (moving); the minute mean is accumulated from the second sums.
+///
+/// State per block: the F_L1 baseline; the second's sums (density, dx, dy); S1 and its
+/// vector; the minute sum.
+#[derive(Debug, Clone)]
+pub struct CascadeBank {
+    level: Vec<f32>,
+    sec_m: Vec<f32>,
+    sec_dx: Vec<f32>,
+    sec_dy: Vec<f32>,
+    s1: Vec<f32>,
+    s1_dx: Vec<f32>,
+    s1_dy: Vec<f32>,
+    min_m: Vec<f32>,
+    ops: OpCounts,
+}
+
+impl FilterBank for CascadeBank {
+    fn new(blocks: usize) -> Self {
+        CascadeBank {
+            level: vec![0.0; blocks],
+            sec_m: vec![0.0; blocks],
+            sec_dx: vec![0.0; blocks],
+            sec_dy: vec![0.0; blocks],
+            s1: vec![0.0; blocks],
+            s1_dx: vec![0.0; blocks],
+            s1_dy: vec![0.0; blocks],
+            min_m: vec![0.0; blocks],
+            ops: OpCounts::default(),
+        }
+    }
+
+    fn blocks(&self) -> usize {
+        self.level.len()
+    }
+
+    fn frame(&mut self, motion: &[BlockMotion], w_l1: f32) {
+        let n = self.level.len().min(motion.len());
+        let (level, sm, sx, sy) = (
+            &mut self.level[..n],
+            &mut self.sec_m[..n],
+            &mut self.sec_dx[..n],
+            &mut self.sec_dy[..n],
+        );
+        for k in 0..n {
+            let b = &motion[k];
+            let m_l1 = f_l1(&mut level[k], b.density, w_l1);
+            let frac = pass_fraction(b.density, m_l1);
+            sm[k] += m_l1;
+            sx[k] += b.dx * frac;
+            sy[k] += b.dy * frac;
+        }
+        self.ops.f_l1 += n as u64;
+        self.ops.fir += n as u64;
+    }
+
+    fn second(&mut self, input: SecondInput, out: &mut [BlockActivity]) {
+        let n = self.level.len().min(out.len());
+        let inv = 1.0 / input.frames.max(1) as f32;
+        let a = input.alpha_s1;
+        for (k, o) in out.iter_mut().enumerate().take(n) {
+            let m_sec = self.sec_m[k] * inv;
+            let (vx, vy) = (self.sec_dx[k] * inv, self.sec_dy[k] * inv);
+            // The minute mean is built from the seconds: one add per block-second.
+            self.min_m[k] += self.sec_m[k];
+            if input.gap_decay != 1.0 {
+                self.s1[k] *= input.gap_decay;
+                self.s1_dx[k] *= input.gap_decay;
+                self.s1_dy[k] *= input.gap_decay;
+            }
+            let s2 = f_s1(&mut self.s1[k], m_sec, a);
+            self.s1_dx[k] = a * self.s1_dx[k] + (1.0 - a) * vx;
+            self.s1_dy[k] = a * self.s1_dy[k] + (1.0 - a) * vy;
+            let frac = pass_fraction(m_sec, s2);
+            o.s1 = self.s1[k];
+            o.s1_dx = self.s1_dx[k];
+            o.s1_dy = self.s1_dy[k];
+            o.s2 = s2;
+            o.s2_dx = vx * frac;
+            o.s2_dy = vy * frac;
+            self.sec_m[k] = 0.0;
+            self.sec_dx[k] = 0.0;
+            self.sec_dy[k] = 0.0;
+        }
+        self.ops.f_s1 += n as u64;
+        self.ops.minute_mean += n as u64;
+    }
+
+    fn minute_mean(&mut self, frames: u32, out: &mut [f32]) {
+        let inv = 1.0 / frames.max(1) as f32;
+        for (o, m) in out.iter_mut().zip(self.min_m.iter_mut()) {
+            *o = *m * inv;
+            *m = 0.0;
+        }
+    }
+
+    fn reset_short_term(&mut self) {
+        for v in [
+            &mut self.sec_m,
+            &mut self.sec_dx,
+            &mut self.sec_dy,
+            &mut self.s1,
+            &mut self.s1_dx,
+            &mut self.s1_dy,
+        ] {
+            v.fill(0.0);
+        }
+        self.min_m.fill(0.0);
+    }
+
+    fn baseline(&self) -> &[f32] {
+        &self.level
+    }
+
+    fn set_baseline(&mut self, level: &[f32]) {
+        let n = self.level.len().min(level.len());
+        self.level[..n].copy_from_slice(&level[..n]);
+    }
+
+    fn count_f_l2(&mut self, blocks: u64) {
+        self.ops.f_l2 += blocks;
+    }
+
+    fn ops(&self) -> OpCounts {
+        self.ops
+    }
+
+    fn state_bytes(&self) -> usize {
+        let f32s = [
+            &self.level,
+            &self.sec_m,
+            &self.sec_dx,
+            &self.sec_dy,
+            &self.s1,
+            &self.s1_dx,
+            &self.s1_dy,
+            &self.min_m,
+        ]
+        .iter()
+        .map(|v| v.len())
+        .sum::<usize>();
+        f32s * std::mem::size_of::<f32>()
+    }
+}
+
+/// The non-cascade reference: the same outputs from five separate filters, each fed
+/// from `M_L1` rather than from the filter before it.
+///
+/// * in-place: its own 1-s decimating mean, then its own F_S1;
+/// * moving: the band-pass as two filters of its own — a 1-s FIR (F_S2) and a
+///   low-pass at T_S1 whose output it subtracts (the high-pass end) — kept separately
+///   from the in-place F_S1 although it holds the same values;
+/// * long-term: its own per-minute mean of `M_L1`, accumulated per frame.
+#[derive(Debug, Clone)]
+pub struct NonCascadeBank {
+    level: Vec<f32>,
+    // In-place path: decimating mean and F_S1.
+    ip_m: Vec<f32>,
+    ip_dx: Vec<f32>,
+    ip_dy: Vec<f32>,
+    s1: Vec<f32>,
+    s1_dx: Vec<f32>,
+    s1_dy: Vec<f32>,
+    // Band-pass path: FIR (F_S2) and its own low-pass at T_S1.
+    bp_m: Vec<f32>,
+    bp_dx: Vec<f32>,
+    bp_dy: Vec<f32>,
+    bp_low: Vec<f32>,
+    // Long-term path: minute mean.
+    min_m: Vec<f32>,
+    ops: OpCounts,
+}
+
+impl FilterBank for NonCascadeBank {
+    fn new(blocks: usize) -> Self {
+        let z = || vec![0.0f32; blocks];
+        NonCascadeBank {
+            level: z(),
+            ip_m: z(),
+            ip_dx: z(),
+            ip_dy: z(),
+            s1: z(),
+            s1_dx: z(),
+            s1_dy: z(),
+            bp_m: z(),
+            bp_dx: z(),
+            bp_dy: z(),
+            bp_low: z(),
+            min_m: z(),
+            ops: OpCounts::default(),
+        }
+    }
+
+    fn blocks(&self) -> usize {
+        self.level.len()
+    }
+
+    fn frame(&mut self, motion: &[BlockMotion], w_l1: f32) {
+        let n = self.level.len().min(motion.len());
+        for (k, b) in motion.iter().enumerate().take(n) {
+            let m_l1 = f_l1(&mut self.level[k], b.density, w_l1);
+            let frac = pass_fraction(b.density, m_l1);
+            let (vx, vy) = (b.dx * frac, b.dy * frac);
+            // In-place path.
+            self.ip_m[k] += m_l1;
+            self.ip_dx[k] += vx;
+            self.ip_dy[k] += vy;
+            // Band-pass path.
+            self.bp_m[k] += m_l1;
+            self.bp_dx[k] += vx;
+            self.bp_dy[k] += vy;
+            // Long-term path.
+            self.min_m[k] += m_l1;
+        }
+        self.ops.f_l1 += n as u64;
+        self.ops.fir += 2 * n as u64;
+        self.ops.minute_mean += n as u64;
+    }
+
+    fn second(&mut self, input: SecondInput, out: &mut [BlockActivity]) {
+        let n = self.level.len().min(out.len());
+        let inv = 1.0 / input.frames.max(1) as f32;
+        let a = input.alpha_s1;
+        for (k, o) in out.iter_mut().enumerate().take(n) {
+            if input.gap_decay != 1.0 {
+                self.s1[k] *= input.gap_decay;
+                self.s1_dx[k] *= input.gap_decay;
+                self.s1_dy[k] *= input.gap_decay;
+                self.bp_low[k] *= input.gap_decay;
+            }
+            // In-place: F_S1 on the decimated M_L1.
+            let ip = self.ip_m[k] * inv;
+            let (ix, iy) = (self.ip_dx[k] * inv, self.ip_dy[k] * inv);
+            let mut s1 = self.s1[k];
+            f_s1(&mut s1, ip, a);
+            self.s1[k] = s1;
+            self.s1_dx[k] = a * self.s1_dx[k] + (1.0 - a) * ix;
+            self.s1_dy[k] = a * self.s1_dy[k] + (1.0 - a) * iy;
+            // Moving: the FIR's mean minus the band-pass's own low-pass, rectified.
+            let fir = self.bp_m[k] * inv;
+            let (fx, fy) = (self.bp_dx[k] * inv, self.bp_dy[k] * inv);
+            let s2 = f_s1(&mut self.bp_low[k], fir, a);
+            let frac = pass_fraction(fir, s2);
+            o.s1 = self.s1[k];
+            o.s1_dx = self.s1_dx[k];
+            o.s1_dy = self.s1_dy[k];
+            o.s2 = s2;
+            o.s2_dx = fx * frac;
+            o.s2_dy = fy * frac;
+            self.ip_m[k] = 0.0;
+            self.ip_dx[k] = 0.0;
+            self.ip_dy[k] = 0.0;
+            self.bp_m[k] = 0.0;
+            self.bp_dx[k] = 0.0;
+            self.bp_dy[k] = 0.0;
+        }
+        self.ops.f_s1 += n as u64;
+        self.ops.band_pass_low += n as u64;
+    }
+
+    fn minute_mean(&mut self, frames: u32, out: &mut [f32]) {
+        let inv = 1.0 / frames.max(1) as f32;
+        for (o, m) in out.iter_mut().zip(self.min_m.iter_mut()) {
+            *o = *m * inv;
+            *m = 0.0;
+        }
+    }
+
+    fn reset_short_term(&mut self) {
+        for v in [
+            &mut self.ip_m,
+            &mut self.ip_dx,
+            &mut self.ip_dy,
+            &mut self.s1,
+            &mut self.s1_dx,
+            &mut self.s1_dy,
+            &mut self.bp_m,
+            &mut self.bp_dx,
+            &mut self.bp_dy,
+            &mut self.bp_low,
+        ] {
+            v.fill(0.0);
+        }
+        self.min_m.fill(0.0);
+    }
+
+    fn baseline(&self) -> &[f32] {
+        &self.level
+    }
+
+    fn set_baseline(&mut self, level: &[f32]) {
+        let n = self.level.len().min(level.len());
+        self.level[..n].copy_from_slice(&level[..n]);
+    }
+
+    fn count_f_l2(&mut self, blocks: u64) {
+        self.ops.f_l2 += blocks;
+    }
+
+    fn ops(&self) -> OpCounts {
+        self.ops
+    }
+
+    fn state_bytes(&self) -> usize {
+        let f32s = [
+            &self.level,
+            &self.ip_m,
+            &self.ip_dx,
+            &self.ip_dy,
+            &self.s1,
+            &self.s1_dx,
+            &self.s1_dy,
+            &self.bp_m,
+            &self.bp_dx,
+            &self.bp_dy,
+            &self.bp_low,
+            &self.min_m,
+        ]
+        .iter()
+        .map(|v| v.len())
+        .sum::<usize>();
+        f32s * std::mem::size_of::<f32>()
+    }
+}
+
+/// Intervals the frame-rate estimate is the median of.
+const RATE_WINDOW: usize = 32;
+/// Intervals longer than this are gaps, not frame periods.
+const MAX_FRAME_INTERVAL_NS: i64 = 2_000_000_000;
+/// Intervals needed before there is an estimate.
+const MIN_INTERVALS: usize = 4;
+
+/// The frame rate r measured from capture times: the median of the last 32 frame
+/// intervals, ignoring gaps (> 2 s) and repeated or backward timestamps, so that a
+/// dropped frame or a stalled source does not move it.
+#[derive(Debug, Clone)]
+pub struct RateEstimator {
+    intervals: [i64; RATE_WINDOW],
+    len: usize,
+    next: usize,
+    last_ns: Option<i64>,
+    since_update: usize,
+    rate: Option<f64>,
+}
+
+impl Default for RateEstimator {
+    fn default() -> Self {
+        RateEstimator {
+            intervals: [0; RATE_WINDOW],
+            len: 0,
+            next: 0,
+            last_ns: None,
+            since_update: 0,
+            rate: None,
+        }
+    }
+}
+
+impl RateEstimator {
+    /// Adds a frame's capture time; returns the current estimate (frames/s).
+    pub fn push(&mut self, capture_ns: i64) -> Option<f64> {
+        if let Some(last) = self.last_ns {
+            let dt = capture_ns - last;
+            if dt > 0 && dt <= MAX_FRAME_INTERVAL_NS {
+                self.intervals[self.next] = dt;
+                self.next = (self.next + 1) % RATE_WINDOW;
+                self.len = (self.len + 1).min(RATE_WINDOW);
+                self.since_update += 1;
+                // The median moves slowly: recompute it early on, then every 16 frames.
+                if self.len >= MIN_INTERVALS
+                    && (self.rate.is_none() || self.len < RATE_WINDOW || self.since_update >= 16)
+                {
+                    let mut sorted = self.intervals;
+                    let window = &mut sorted[..self.len];
+                    window.sort_unstable();
+                    let median = if self.len % 2 == 1 {
+                        window[self.len / 2] as f64
+                    } else {
+                        (window[self.len / 2 - 1] + window[self.len / 2]) as f64 / 2.0
+                    };
+                    self.rate = Some(1e9 / median);
+                    self.since_update = 0;
+                }
+            }
+        }
+        if self.last_ns.is_none_or(|last| capture_ns > last) {
+            self.last_ns = Some(capture_ns);
+        }
+        self.rate
+    }
+
+    /// The current estimate, once a few intervals were seen.
+    pub fn rate(&self) -> Option<f64> {
+        self.rate
+    }
+
+    /// Forgets everything (a new timeline).
+    pub fn reset(&mut self) {
+        *self = RateEstimator::default();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn close(a: f64, b: f64, tol: f64) -> bool {
+        (a - b).abs() <= tol
+    }
+
+    #[test]
+    fn alpha_is_pinned_for_the_three_filters() {
+        // DESIGN.md's corrected table (the paper swaps the first two).
+        let l1 = alpha(30.0 * 60.0, 30.0);
+        assert!(close(l1, 0.999957, 5e-7), "F_L1 α = {l1}");
+        let l2 = alpha(10.0, 1.0);
+        assert!(close(l2, 0.794, 5e-4), "F_L2 α = {l2}");
+        let s1 = alpha(20.0, 1.0);
+        assert!(close(s1, 0.891, 5e-4), "F_S1 α = {s1}");
+        // The definition: n = r·T samples of zero input decay to exactly 10 %.
+        assert!(close(l1.powf(30.0 * 1800.0), 0.1, 1e-9));
+        assert_eq!(alpha(0.0, 30.0), 0.0);
+        assert_eq!(alpha(10.0, f64::NAN), 0.0);
+    }
+
+    #[test]
+    fn warmup_weight_averages_then_becomes_the_ema() {
+        assert_eq!(warmup_weight(0.1, 0), 1.0);
+        assert_eq!(warmup_weight(0.1, 1), 0.5);
+        assert_eq!(warmup_weight(0.1, 3), 0.25);
+        assert_eq!(warmup_weight(0.1, 9), 0.1);
+        assert_eq!(warmup_weight(0.1, 1000), 0.1);
+    }
+
+    /// Step response of an EMA with weight 1−α: y(n) = 1 − α^n for a unit step from 0.
+    #[test]
+    fn f_l1_baseline_step_response_is_the_analytic_ema() {
+        let a = alpha(2.0, 10.0) as f32; // T = 2 s at 10 fps: 20 samples to 10 %
+        let mut b = 0.0f32;
+        let mut m_l1 = Vec::new();
+        for _ in 0..60 {
+            m_l1.push(f_l1(&mut b, 1.0, 1.0 - a));
+        }
+        for (n, &out) in m_l1.iter().enumerate() {
+            // After n+1 samples the baseline is 1 − α^(n+1); M_L1 = α^(n+1).
+            let expected = a.powi(n as i32 + 1);
+            assert!((out - expected).abs() < 1e-5, "n={n}: {out} vs {expected}");
+        }
+        // 10 % decay after T: M_L1 has fallen to 10 % of the step after r·T samples.
+        assert!((m_l1[19] - 0.1).abs() < 1e-4, "{}", m_l1[19]);
+    }
+
+    #[test]
+    fn f_l1_impulse_passes_whole_and_the_baseline_decays_analytically() {
+        let a = 0.9f32;
+        let mut b = 0.0f32;
+        // Impulse of height 1 at n = 0.
+        let out = f_l1(&mut b, 1.0, 1.0 - a);
+        assert!(
+            (out - a).abs() < 1e-6,
+            "impulse passes with α of its height"
+        );
+        assert!((b - (1.0 - a)).abs() < 1e-6);
+        for n in 1..30 {
+            let out = f_l1(&mut b, 0.0, 1.0 - a);
+            // Rectified: the negative after-swing of a linear high-pass is removed.
+            assert_eq!(out, 0.0);
+            let expected = (1.0 - a) * a.powi(n);
+            assert!((b - expected).abs() < 1e-6, "n={n}: {b} vs {expected}");
+        }
+    }
+
+    #[test]
+    fn f_s1_step_and_impulse_responses_match_the_analytic_ema() {
+        let a = alpha(20.0, 1.0) as f32;
+        // Step: S1(n) = 1 − α^(n+1); S2(n) = max(0, 1 − S1(n−1)) = α^n.
+        let mut s1 = 0.0f32;
+        for n in 0..100 {
+            let s2 = f_s1(&mut s1, 1.0, a);
+            assert!((s1 - (1.0 - a.powi(n + 1))).abs() < 1e-5, "n={n}");
+            assert!((s2 - a.powi(n)).abs() < 1e-5, "n={n}");
+        }
+        // 10 % decay after T = 20 samples of zero input.
+        let peak = s1;
+        for _ in 0..20 {
+            let s2 = f_s1(&mut s1, 0.0, a);
+            assert_eq!(s2, 0.0, "activity leaving is not moving activity");
+        }
+        assert!((s1 / peak - 0.1).abs() < 1e-4, "{}", s1 / peak);
+        // Impulse: S1 jumps by (1−α) and decays by α per second; S2 takes the impulse.
+        let mut s1 = 0.0f32;
+        let s2 = f_s1(&mut s1, 1.0, a);
+        assert_eq!(s2, 1.0);
+        for n in 1..40 {
+            f_s1(&mut s1, 0.0, a);
+            assert!((s1 - (1.0 - a) * a.powi(n)).abs() < 1e-6, "n={n}");
+        }
+    }
+
+    #[test]
+    fn f_l2_is_mean_and_population_variance_during_warm_up_then_ema() {
+        let a = alpha(10.0, 1.0);
+        let xs = [2.0f32, 4.0, 4.0, 5.0];
+        let (mut mean, mut var) = (0.0f32, 0.0f32);
+        for (n, &x) in xs.iter().enumerate() {
+            // 1 − α = 0.206: the first four weights 1, 1/2, 1/3, 1/4 are all larger.
+            f_l2(
+                &mut mean,
+                &mut var,
+                x,
+                warmup_weight(1.0 - a, n as u64) as f32,
+            );
+        }
+        assert!((mean - 3.75).abs() < 1e-6, "{mean}");
+        // Population variance of 2, 4, 4, 5: (1.75² + 0.25² + 0.25² + 1.25²) / 4.
+        assert!((var - 1.1875).abs() < 1e-5, "{var}");
+
+        // Later: the EMA step response, mean → x with weight 1−α per sample.
+        let w = (1.0 - a) as f32;
+        let (mut mean, mut var) = (0.0f32, 0.0f32);
+        for n in 1..=30 {
+            f_l2(&mut mean, &mut var, 1.0, w);
+            let expected = 1.0 - (a as f32).powi(n);
+            assert!((mean - expected).abs() < 1e-5, "n={n}");
+        }
+        // After T = 10 days the model has moved 90 % of the way.
+        let (mut mean, mut var) = (0.0f32, 0.0f32);
+        for _ in 0..10 {
+            f_l2(&mut mean, &mut var, 1.0, w);
+        }
+        assert!((mean - 0.9).abs() < 2e-3, "{mean}");
+        assert!(var >= 0.0);
+    }
+
+    #[test]
+    fn flow_is_scaled_by_the_fraction_that_passes() {
+        assert_eq!(pass_fraction(0.0, 0.0), 0.0);
+        assert_eq!(pass_fraction(0.5, 0.25), 0.5);
+        assert_eq!(pass_fraction(0.5, 0.5), 1.0);
+    }
+
+    #[test]
+    fn rate_estimator_is_robust_to_gaps_jitter_and_repeats() {
+        let mut r = RateEstimator::default();
+        let period = 1_000_000_000 / 25;
+        let mut t = 0i64;
+        assert_eq!(r.push(t), None);
+        for i in 1..100 {
+            // ±10 % jitter, a 10-s gap and a repeated timestamp.
+            t += if i == 50 {
+                10_000_000_000
+            } else if i == 60 {
+                0
+            } else {
+                period
+                    + if i % 2 == 0 {
+                        period / 10
+                    } else {
+                        -period / 10
+                    }
+            };
+            r.push(t);
+        }
+        let rate = r.rate().unwrap();
+        assert!((rate - 25.0).abs() < 0.5, "{rate}");
+        r.reset();
+        assert_eq!(r.rate(), None);
+    }
+
+    struct Lcg(u64);
+    impl Lcg {
+        fn next(&mut self) -> f32 {
+            self.0 = self
+                .0
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (self.0 >> 40) as f32 / (1u64 << 24) as f32
+        }
+    }
+
+    fn random_frame(rng: &mut Lcg, blocks: usize) -> Vec<BlockMotion> {
+        (0..blocks)
+            .map(|_| {
+                let on = rng.next() < 0.3;
+                let d = if on { rng.next() } else { 0.0 };
+                let (ux, uy) = (rng.next() * 2.0 - 1.0, rng.next() * 2.0 - 1.0);
+                BlockMotion {
+                    density: d,
+                    dx: d * ux * 0.7,
+                    dy: d * uy * 0.7,
+                    ..Default::default()
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn cascade_and_non_cascade_banks_agree_and_the_cascade_is_cheaper() {
+        let blocks = 37;
+        let mut rng = Lcg(7);
+        let mut c = CascadeBank::new(blocks);
+        let mut nc = NonCascadeBank::new(blocks);
+        let (mut oc, mut onc) = (
+            vec![BlockActivity::default(); blocks],
+            vec![BlockActivity::default(); blocks],
+        );
+        let a = alpha(20.0, 1.0) as f32;
+        let (mut mc, mut mnc) = (vec![0.0; blocks], vec![0.0; blocks]);
+        let mut frames_in_minute = 0;
+        for second in 0..600u32 {
+            let frames = 5 + second % 4;
+            for f in 0..frames {
+                let frame = random_frame(&mut rng, blocks);
+                let w = warmup_weight(1.0 - 0.999, (second * 10 + f) as u64) as f32;
+                c.frame(&frame, w);
+                nc.frame(&frame, w);
+            }
+            frames_in_minute += frames;
+            let input = SecondInput {
+                frames,
+                gap_decay: if second % 97 == 0 { 0.5 } else { 1.0 },
+                alpha_s1: a,
+            };
+            c.second(input, &mut oc);
+            nc.second(input, &mut onc);
+            assert_eq!(oc, onc, "second {second}: short-term outputs differ");
+            if second % 60 == 59 {
+                c.minute_mean(frames_in_minute, &mut mc);
+                nc.minute_mean(frames_in_minute, &mut mnc);
+                frames_in_minute = 0;
+                for k in 0..blocks {
+                    assert!(
+                        (mc[k] - mnc[k]).abs() <= 1e-5 * mnc[k].abs().max(1e-3),
+                        "minute mean of block {k}: {} vs {}",
+                        mc[k],
+                        mnc[k]
+                    );
+                }
+            }
+        }
+        assert!(oc.iter().any(|o| o.s1 > 0.0) && oc.iter().any(|o| o.s2 > 0.0));
+        assert_eq!(c.baseline(), nc.baseline());
+        assert!(c.ops().total() < nc.ops().total());
+        assert!(c.state_bytes() < nc.state_bytes());
+        assert_eq!(c.ops().filters(), 3, "F_L2 not counted yet");
+        c.count_f_l2(1);
+        nc.count_f_l2(1);
+        assert_eq!((c.ops().filters(), nc.ops().filters()), (4, 5));
+    }
+
+    #[test]
+    fn reset_short_term_keeps_the_baseline() {
+        let mut c = CascadeBank::new(2);
+        let frame = vec![
+            BlockMotion {
+                density: 0.5,
+                ..Default::default()
+            };
+            2
+        ];
+        c.frame(&frame, 1.0);
+        let mut out = vec![BlockActivity::default(); 2];
+        c.second(
+            SecondInput {
+                frames: 1,
+                gap_decay: 1.0,
+                alpha_s1: 0.5,
+            },
+            &mut out,
+        );
+        c.reset_short_term();
+        assert_eq!(c.baseline(), &[0.5, 0.5]);
+        assert!(c.s1.iter().all(|&v| v == 0.0));
+    }
+}
