@@ -1,7 +1,10 @@
 //! `isochron`: the command-line tool people use to run and watch a site.
 
 mod common;
+mod costmap;
 mod launch;
+mod plan;
+mod plot;
 mod replay;
 mod store;
 mod synth;
@@ -32,6 +35,12 @@ enum Command {
     Synth(synth::Args),
     /// Read a camera's long-term store (export CSV, info), also while it is written.
     Store(store::Args),
+    /// Plot a camera's long-term activity over the day (PNG or SVG).
+    Plot(plot::Args),
+    /// Plan routes and departure times around people (Cost1 off-line, Cost2 now).
+    Plan(plan::Args),
+    /// Snapshots of the cost map, and a check of the cameras' floor mappings.
+    Costmap(costmap::Args),
 }
 
 fn main() -> ExitCode {
@@ -43,6 +52,9 @@ fn main() -> ExitCode {
         Command::Replay(args) => replay::run(args),
         Command::Synth(args) => synth::run(args),
         Command::Store(args) => store::run(args),
+        Command::Plot(args) => plot::run(args),
+        Command::Plan(args) => plan::run(args),
+        Command::Costmap(args) => costmap::run(args),
     };
     match result {
         Ok(code) => code,

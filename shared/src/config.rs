@@ -76,6 +76,8 @@ pub struct Config {
     pub cascade: CascadeConfig,
     /// The event gate and its detector.
     pub gate: GateConfig,
+    /// The cost map on the robots' floor, its ROS 2 output, and path planning.
+    pub costmap: CostmapConfig,
 }
 
 /// `[gate]`: events from short-term activity, and the detector they gate.
@@ -411,6 +413,216 @@ pub struct CameraConfig {
     /// Zones for events; default one zone `"all"` covering the whole view.
     #[serde(default, rename = "zone")]
     pub zones: Vec<ZoneConfig>,
+    /// Where the view lies on the floor: at least 4 pairs of an image point and the
+    /// same point on the floor, `{ image_px = [x, y], floor_m = [x, y] }`; the cost
+    /// map bridge fits a homography to them (least squares for more than 4). Image
+    /// points are frame pixels at the analysis size (like masks and zones), floor
+    /// points metres in the robots' map frame. No two points alike and no three on
+    /// a line (for exactly 4). Default: none — the camera is not on the cost map.
+    #[serde(default)]
+    pub floor_points: Vec<FloorPoint>,
+}
+
+/// One image ↔ floor correspondence of a camera (`[[camera]].floor_points`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FloorPoint {
+    /// The point in the image, `[x, y]`, frame pixels at the analysis size.
+    pub image_px: [f64; 2],
+    /// The same point on the floor, `[x, y]`, metres in the robots' map frame.
+    pub floor_m: [f64; 2],
+}
+
+/// `[costmap]`: block activity on the robots' map as a ROS 2 `OccupancyGrid`
+/// (DESIGN.md section 5), snapshots, and path planning on segments and routes.
+///
+/// The grid is configured either by `map_yaml` (a `map_server` YAML: origin and
+/// resolution from it, size from its image, so the activity lines up with the
+/// robots' map) or by `resolution_m`, `width_cells`, `height_cells` and the
+/// `origin_*` keys. Without a grid the bridge publishes nothing to ROS 2 and only
+/// answers planning requests.
+///
+/// Cost of a cell seen by a camera: `min(cap, round(100 · (weight_in_place·S1 +
+/// weight_moving·S2 + weight_long_term·M(t*)) / cost_scale))` over the block that
+/// covers it (the highest over cameras that overlap), -1 where no camera sees.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CostmapConfig {
+    /// `map_server` YAML of the robots' map (relative to this file); its `origin`
+    /// and `resolution` and its image's size define the grid. Default: none.
+    pub map_yaml: Option<PathBuf>,
+    /// Grid cell edge, metres (without `map_yaml`). Default 0.1.
+    pub resolution_m: Option<f64>,
+    /// Grid cells per row (without `map_yaml`).
+    pub width_cells: Option<u32>,
+    /// Grid rows (without `map_yaml`).
+    pub height_cells: Option<u32>,
+    /// x of the grid's corner (cell (0, 0)) in the map frame, metres. Default 0.
+    pub origin_x_m: Option<f64>,
+    /// y of the grid's corner in the map frame, metres. Default 0.
+    pub origin_y_m: Option<f64>,
+    /// Rotation of the grid about z, radians. Default 0.
+    pub origin_yaw_rad: Option<f64>,
+    /// `header.frame_id` of the grid. Default `"map"`.
+    pub frame_id: String,
+    /// ROS 2 topic of the grid (`nav_msgs/msg/OccupancyGrid`, reliable,
+    /// transient-local). Default `"/isochron/activity_costmap"`.
+    pub topic: String,
+    /// ROS 2 topic of the deltas (`map_msgs/msg/OccupancyGridUpdate`). Default
+    /// `<topic>_updates`, where Nav2's StaticLayer looks for them.
+    pub updates_topic: Option<String>,
+    /// Publish rate, Hz. Default 1.
+    pub publish_hz: f64,
+    /// The full grid is republished at least this often, seconds, while deltas went
+    /// out since the last one (so a late joiner's grid is at most this old);
+    /// between, only the changed rectangle goes out. Default 10.
+    pub full_every_s: f64,
+    /// DDS domain (ROS_DOMAIN_ID), 0 to 232. Default: `$ROS_DOMAIN_ID`, else 0.
+    pub ros_domain_id: Option<u16>,
+    /// IP addresses of the network interfaces DDS may use, e.g. `["127.0.0.1"]` to
+    /// stay on this machine. Default: all (loopback only when `ROS_LOCALHOST_ONLY=1`).
+    pub dds_interfaces: Vec<String>,
+    /// Weight of in-place activity S1 in the cost. Default 1.
+    pub weight_in_place: f64,
+    /// Weight of moving activity S2 in the cost. Default 1.
+    pub weight_moving: f64,
+    /// Weight of the long-term mean M(t*) at the current t* in the cost. Default 0.5.
+    pub weight_long_term: f64,
+    /// The weighted activity (density units) that costs 100. Default 0.2 (on the
+    /// PETS demo: a median active cell costs about 10, the busiest 5 % reach 100);
+    /// tune per site with `isochron costmap snapshot`.
+    pub cost_scale: f64,
+    /// Highest cost activity can give a cell, 1 to 100 (Nav2 reads 100 as lethal,
+    /// the paper's "people cost as much as walls"; lower it to make busy areas
+    /// expensive but passable). Default 100.
+    pub cap: u8,
+    /// A person the detector confirmed raises the cells within this radius of their
+    /// feet, metres. Default 0.5.
+    pub confirm_radius_m: f64,
+    /// ... for this long after the detected frame (capture time), seconds. Default 5.
+    pub confirm_hold_s: f64,
+    /// ... to at least this cost, 0 to 100. Default: `cap`.
+    pub confirm_cost: Option<u8>,
+    /// A camera whose activity stopped arriving this long ago (wall clock) no
+    /// longer counts as seeing: its cells turn unknown (-1), seconds. Default 10.
+    pub stale_s: f64,
+    /// Directory for snapshots (PGM + YAML + PNG), relative to this file. Default
+    /// `<site.state_dir>/costmap`.
+    pub snapshot_dir: Option<PathBuf>,
+    /// Also write a snapshot this often, seconds; 0: only on request
+    /// (`isochron costmap snapshot`). Default 0.
+    pub snapshot_every_s: f64,
+    /// Snapshots kept in `snapshot_dir`; older ones are deleted. Default 100.
+    pub snapshot_keep: usize,
+    /// Planning: weight of the long-term cost Cost1(t* = now) in Cost2. Default 1.
+    pub w1: f64,
+    /// Planning: weight of the short-term cost Σ Cost(M_p(now)) in Cost2. Default 1.
+    pub w2: f64,
+    /// Planning: a segment whose long-term activity never exceeded this at any t*
+    /// has M'_p = 0 (people never go there) and makes every route through it
+    /// infinitely expensive. Default 0 (the paper: any activity at all).
+    pub min_activity: f64,
+    /// Path segments (`[[costmap.segment]]`).
+    #[serde(rename = "segment")]
+    pub segments: Vec<SegmentConfig>,
+    /// Routes (`[[costmap.route]]`).
+    #[serde(rename = "route")]
+    pub routes: Vec<RouteConfig>,
+}
+
+impl Default for CostmapConfig {
+    fn default() -> Self {
+        CostmapConfig {
+            map_yaml: None,
+            resolution_m: None,
+            width_cells: None,
+            height_cells: None,
+            origin_x_m: None,
+            origin_y_m: None,
+            origin_yaw_rad: None,
+            frame_id: "map".into(),
+            topic: "/isochron/activity_costmap".into(),
+            updates_topic: None,
+            publish_hz: 1.0,
+            full_every_s: 10.0,
+            ros_domain_id: None,
+            dds_interfaces: Vec::new(),
+            weight_in_place: 1.0,
+            weight_moving: 1.0,
+            weight_long_term: 0.5,
+            cost_scale: 0.2,
+            cap: 100,
+            confirm_radius_m: 0.5,
+            confirm_hold_s: 5.0,
+            confirm_cost: None,
+            stale_s: 10.0,
+            snapshot_dir: None,
+            snapshot_every_s: 0.0,
+            snapshot_keep: 100,
+            w1: 1.0,
+            w2: 1.0,
+            min_activity: 0.0,
+            segments: Vec::new(),
+            routes: Vec::new(),
+        }
+    }
+}
+
+impl CostmapConfig {
+    /// True if a grid is configured (`map_yaml` or `width_cells`).
+    pub fn has_grid(&self) -> bool {
+        self.map_yaml.is_some() || self.width_cells.is_some()
+    }
+
+    /// The updates topic: `updates_topic`, else `<topic>_updates`.
+    pub fn updates_topic(&self) -> String {
+        self.updates_topic
+            .clone()
+            .unwrap_or_else(|| format!("{}_updates", self.topic))
+    }
+
+    /// The cost a confirmed person gives: `confirm_cost`, else `cap`.
+    pub fn confirm_cost(&self) -> u8 {
+        self.confirm_cost.unwrap_or(self.cap)
+    }
+
+    /// The segment named `name`.
+    pub fn segment(&self, name: &str) -> Option<&SegmentConfig> {
+        self.segments.iter().find(|s| s.name == name)
+    }
+
+    /// The route named `name`.
+    pub fn route(&self, name: &str) -> Option<&RouteConfig> {
+        self.routes.iter().find(|r| r.name == name)
+    }
+}
+
+/// `[[costmap.segment]]`: a path segment p — a floor polygon, or a camera's zone.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SegmentConfig {
+    /// Name (1 to 32 bytes), unique.
+    pub name: String,
+    /// Outline on the floor, `[[x, y], ...]`, metres in the map frame (at least 3
+    /// points); its blocks are those of every camera whose centre lands inside.
+    #[serde(default)]
+    pub polygon_m: Option<Vec<[f64; 2]>>,
+    /// Instead of `polygon_m`: a camera ...
+    #[serde(default)]
+    pub camera: Option<String>,
+    /// ... and one of its zones (`"all"` for a camera without zones).
+    #[serde(default)]
+    pub zone: Option<String>,
+}
+
+/// `[[costmap.route]]`: a route, the ordered path segments a robot passes.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RouteConfig {
+    /// Name (1 to 32 bytes), unique.
+    pub name: String,
+    /// Segment names, in the order the robot passes them (at least one).
+    pub segments: Vec<String>,
 }
 
 fn default_pixel_format() -> String {
@@ -778,9 +990,329 @@ impl Config {
                 }
                 check_polygon(&format!("{zkey}.polygon"), &zone.polygon)?;
             }
+            check_floor_points(&key("floor_points"), &cam.floor_points)?;
         }
+        validate_costmap(self)?;
         Ok(())
     }
+}
+
+/// Longest segment or route name, in bytes (the planning service's fixed width).
+pub const PLAN_NAME_LEN: usize = crate::wire::PLAN_NAME_LEN;
+
+/// Checks a camera's floor points: none, or at least 4 finite pairs that can define
+/// a homography (no duplicates, not all on a line, no three on a line when 4).
+fn check_floor_points(key: &str, points: &[FloorPoint]) -> Result<(), Invalid> {
+    if points.is_empty() {
+        return Ok(());
+    }
+    if points.len() < 4 {
+        return Err(Invalid::new(
+            key,
+            format!(
+                "expected at least 4 {{ image_px = [x, y], floor_m = [x, y] }} pairs, found {}",
+                points.len()
+            ),
+        ));
+    }
+    for (side, pick) in [
+        (
+            "image_px",
+            (|p: &FloorPoint| p.image_px) as fn(&FloorPoint) -> [f64; 2],
+        ),
+        ("floor_m", |p: &FloorPoint| p.floor_m),
+    ] {
+        let pts: Vec<[f64; 2]> = points.iter().map(pick).collect();
+        if pts.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(Invalid::new(
+                key,
+                format!("expected finite {side} coordinates"),
+            ));
+        }
+        if let Some(reason) = degenerate_points(&pts) {
+            return Err(Invalid::new(
+                key,
+                format!("the {side} points cannot define a homography: {reason}"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Why `pts` (at least 4) cannot be one side of a homography, if they cannot:
+/// two points alike, all on one line, or (for exactly 4) three on one line.
+pub fn degenerate_points(pts: &[[f64; 2]]) -> Option<String> {
+    let extent = pts
+        .iter()
+        .flat_map(|a| pts.iter().map(move |b| (a[0] - b[0]).hypot(a[1] - b[1])))
+        .fold(0.0, f64::max);
+    if extent == 0.0 {
+        return Some("all points are the same".into());
+    }
+    let eps = 1e-9 * extent;
+    for i in 0..pts.len() {
+        for j in i + 1..pts.len() {
+            if (pts[i][0] - pts[j][0]).hypot(pts[i][1] - pts[j][1]) <= eps {
+                return Some(format!(
+                    "points {} and {} are the same ({:?})",
+                    i + 1,
+                    j + 1,
+                    pts[i]
+                ));
+            }
+        }
+    }
+    // |cross| / extent² is twice a triangle's area relative to the set's size.
+    let collinear = |a: [f64; 2], b: [f64; 2], c: [f64; 2]| {
+        let cross = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+        cross.abs() <= 1e-6 * extent * extent
+    };
+    if pts.len() == 4 {
+        for (i, j, k) in [(0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3)] {
+            if collinear(pts[i], pts[j], pts[k]) {
+                return Some(format!(
+                    "points {}, {} and {} are on one line",
+                    i + 1,
+                    j + 1,
+                    k + 1
+                ));
+            }
+        }
+    }
+    // The two points farthest apart span the line any other point would be on.
+    let (a, b) = pts
+        .iter()
+        .flat_map(|a| pts.iter().map(move |b| (*a, *b)))
+        .max_by(|x, y| {
+            let d = |(a, b): &([f64; 2], [f64; 2])| (a[0] - b[0]).hypot(a[1] - b[1]);
+            d(x).total_cmp(&d(y))
+        })
+        .expect("at least two points");
+    if pts.iter().all(|&c| collinear(a, b, c)) {
+        return Some("all points are on one line".into());
+    }
+    None
+}
+
+/// Checks `[costmap]`, its segments and routes against the cameras.
+fn validate_costmap(config: &Config) -> Result<(), Invalid> {
+    let c = &config.costmap;
+    if c.map_yaml.is_some() {
+        for (name, given) in [
+            ("resolution_m", c.resolution_m.is_some()),
+            ("width_cells", c.width_cells.is_some()),
+            ("height_cells", c.height_cells.is_some()),
+            ("origin_x_m", c.origin_x_m.is_some()),
+            ("origin_y_m", c.origin_y_m.is_some()),
+            ("origin_yaw_rad", c.origin_yaw_rad.is_some()),
+        ] {
+            if given {
+                return Err(Invalid::new(
+                    format!("costmap.{name}"),
+                    "the grid comes from costmap.map_yaml: set either map_yaml or the grid keys, not both",
+                ));
+            }
+        }
+    } else if c.width_cells.is_some() || c.height_cells.is_some() {
+        let key = if c.width_cells.is_none() {
+            "costmap.width_cells"
+        } else {
+            "costmap.height_cells"
+        };
+        let (w, h) = (c.width_cells.unwrap_or(0), c.height_cells.unwrap_or(0));
+        if c.width_cells.is_none() || c.height_cells.is_none() {
+            return Err(Invalid::new(
+                key,
+                "expected both width_cells and height_cells",
+            ));
+        }
+        check_range("costmap.width_cells", w as f64, 1.0, 10_000.0)?;
+        check_range("costmap.height_cells", h as f64, 1.0, 10_000.0)?;
+        if w as u64 * h as u64 > MAX_GRID_CELLS {
+            return Err(Invalid::new(
+                "costmap.width_cells",
+                format!(
+                    "a {w}x{h} grid has {} cells; at most {MAX_GRID_CELLS} (1 MB per grid message) are allowed: use a coarser resolution_m or a smaller area",
+                    w as u64 * h as u64
+                ),
+            ));
+        }
+    } else if c.resolution_m.is_some() || c.origin_x_m.is_some() || c.origin_y_m.is_some() {
+        return Err(Invalid::new(
+            "costmap.width_cells",
+            "expected width_cells and height_cells with the other grid keys (or map_yaml)",
+        ));
+    }
+    if let Some(r) = c.resolution_m {
+        check_range("costmap.resolution_m", r, 0.001, 100.0)?;
+    }
+    for (name, v) in [
+        ("origin_x_m", c.origin_x_m),
+        ("origin_y_m", c.origin_y_m),
+        ("origin_yaw_rad", c.origin_yaw_rad),
+    ] {
+        if let Some(v) = v {
+            check_range(&format!("costmap.{name}"), v, -1e6, 1e6)?;
+        }
+    }
+    if c.frame_id.trim().is_empty() {
+        return Err(Invalid::new(
+            "costmap.frame_id",
+            "expected a frame name such as \"map\"",
+        ));
+    }
+    for (key, topic) in [
+        ("costmap.topic", Some(&c.topic)),
+        ("costmap.updates_topic", c.updates_topic.as_ref()),
+    ] {
+        if let Some(topic) = topic
+            && !is_valid_ros_topic(topic)
+        {
+            return Err(Invalid::new(
+                key,
+                format!(
+                    "expected a ROS 2 topic name such as \"/isochron/activity_costmap\" (letters, digits, '_', '/'), found \"{topic}\""
+                ),
+            ));
+        }
+    }
+    check_range("costmap.publish_hz", c.publish_hz, 0.01, 100.0)?;
+    check_range("costmap.full_every_s", c.full_every_s, 0.0, 86_400.0)?;
+    if let Some(d) = c.ros_domain_id {
+        check_range("costmap.ros_domain_id", d as f64, 0.0, 232.0)?;
+    }
+    for (i, addr) in c.dds_interfaces.iter().enumerate() {
+        if addr.parse::<std::net::IpAddr>().is_err() {
+            return Err(Invalid::new(
+                format!("costmap.dds_interfaces[{i}]"),
+                format!(
+                    "expected the IP address of a network interface such as \"127.0.0.1\", found \"{addr}\""
+                ),
+            ));
+        }
+    }
+    for (name, v) in [
+        ("weight_in_place", c.weight_in_place),
+        ("weight_moving", c.weight_moving),
+        ("weight_long_term", c.weight_long_term),
+        ("w1", c.w1),
+        ("w2", c.w2),
+        ("min_activity", c.min_activity),
+    ] {
+        check_range(&format!("costmap.{name}"), v, 0.0, 1e6)?;
+    }
+    check_positive("costmap.cost_scale", c.cost_scale)?;
+    check_range("costmap.cap", c.cap as f64, 1.0, 100.0)?;
+    check_range("costmap.confirm_radius_m", c.confirm_radius_m, 0.0, 100.0)?;
+    check_range("costmap.confirm_hold_s", c.confirm_hold_s, 0.0, 3600.0)?;
+    if let Some(v) = c.confirm_cost {
+        check_range("costmap.confirm_cost", v as f64, 0.0, 100.0)?;
+    }
+    check_positive("costmap.stale_s", c.stale_s)?;
+    check_range("costmap.snapshot_every_s", c.snapshot_every_s, 0.0, 1e7)?;
+    check_range("costmap.snapshot_keep", c.snapshot_keep as f64, 1.0, 1e6)?;
+
+    let located = config
+        .cameras
+        .iter()
+        .any(|cam| !cam.floor_points.is_empty());
+    for (i, seg) in c.segments.iter().enumerate() {
+        let key = |k: &str| format!("costmap.segment[{i}].{k}");
+        if seg.name.is_empty() || seg.name.len() > PLAN_NAME_LEN || seg.name.contains(',') {
+            return Err(Invalid::new(
+                key("name"),
+                "expected a name of 1 to 32 bytes without ','",
+            ));
+        }
+        if c.segments[..i].iter().any(|s| s.name == seg.name) {
+            return Err(Invalid::new(
+                key("name"),
+                format!("segment name \"{}\" is used twice", seg.name),
+            ));
+        }
+        match (&seg.polygon_m, &seg.camera, &seg.zone) {
+            (Some(poly), None, None) => {
+                check_polygon(&key("polygon_m"), poly)?;
+                if !located {
+                    return Err(Invalid::new(
+                        key("polygon_m"),
+                        "a floor polygon needs cameras on the floor: give at least one [[camera]] floor_points",
+                    ));
+                }
+            }
+            (None, Some(camera), Some(zone)) => {
+                let Some(cam) = config.cameras.iter().find(|cam| &cam.id == camera) else {
+                    return Err(Invalid::new(
+                        key("camera"),
+                        format!("no [[camera]] with id \"{camera}\""),
+                    ));
+                };
+                let known = if cam.zones.is_empty() {
+                    zone == "all"
+                } else {
+                    cam.zones.iter().any(|z| &z.name == zone)
+                };
+                if !known {
+                    return Err(Invalid::new(
+                        key("zone"),
+                        format!("camera \"{camera}\" has no zone \"{zone}\""),
+                    ));
+                }
+            }
+            _ => {
+                return Err(Invalid::new(
+                    key("name"),
+                    "expected either polygon_m, or camera and zone",
+                ));
+            }
+        }
+    }
+    for (i, route) in c.routes.iter().enumerate() {
+        let key = |k: &str| format!("costmap.route[{i}].{k}");
+        if route.name.is_empty() || route.name.len() > PLAN_NAME_LEN || route.name.contains(',') {
+            return Err(Invalid::new(
+                key("name"),
+                "expected a name of 1 to 32 bytes without ','",
+            ));
+        }
+        if c.routes[..i].iter().any(|r| r.name == route.name) {
+            return Err(Invalid::new(
+                key("name"),
+                format!("route name \"{}\" is used twice", route.name),
+            ));
+        }
+        if route.segments.is_empty() {
+            return Err(Invalid::new(
+                key("segments"),
+                "expected at least one segment name",
+            ));
+        }
+        for (j, name) in route.segments.iter().enumerate() {
+            if c.segment(name).is_none() {
+                return Err(Invalid::new(
+                    format!("costmap.route[{i}].segments[{j}]"),
+                    format!("no [[costmap.segment]] named \"{name}\""),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Most cells of a grid: 1 MB per `OccupancyGrid` message.
+pub const MAX_GRID_CELLS: u64 = 1 << 20;
+
+/// True if `topic` is a ROS 2 topic name this bridge can publish on: `/`-separated
+/// tokens of letters, digits and `_`, each starting with a letter or `_`.
+pub fn is_valid_ros_topic(topic: &str) -> bool {
+    let rest = topic.strip_prefix('/').unwrap_or(topic);
+    !rest.is_empty()
+        && rest.split('/').all(|tok| {
+            !tok.is_empty()
+                && !tok.contains("__")
+                && tok.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_')
+                && tok.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+        })
 }
 
 /// Errors unless `lo <= v <= hi`.

@@ -114,7 +114,58 @@ fn setup(root: &Path) -> anyhow::Result<()> {
         args.extend(&missing);
         run(&mut apt_get(&args))?;
     }
-    fetch_vtest(root)
+    fetch_vtest(root)?;
+    ros2_venv(root)
+}
+
+/// The Python package the ROS 2 interoperability test subscribes with (Eclipse
+/// Cyclone DDS; this version has manylinux wheels for CPython 3.10 to 3.13, so pip
+/// never builds it from source).
+const CYCLONEDDS: &str = "cyclonedds==11.0.1";
+
+/// Makes `target/ros2-venv`, a Python venv with [`CYCLONEDDS`], for
+/// `tests/costmap.rs` (an independent ROS 2 subscriber: no ROS install needed).
+fn ros2_venv(root: &Path) -> anyhow::Result<()> {
+    let venv = root.join("target/ros2-venv");
+    let python = venv.join("bin/python3");
+    let version = CYCLONEDDS.trim_start_matches("cyclonedds==");
+    let ready = Command::new(&python)
+        .args([
+            "-c",
+            &format!("import importlib.metadata as m, cyclonedds.domain; assert m.version('cyclonedds') == '{version}'"),
+        ])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if ready {
+        return Ok(());
+    }
+    let has_venv = Command::new("python3")
+        .args(["-c", "import venv, ensurepip"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !has_venv {
+        eprintln!("xtask: installing python3 and python3-venv");
+        run(&mut apt_get(&["update", "-qq"]))?;
+        run(&mut apt_get(&[
+            "install",
+            "-y",
+            "-qq",
+            "--no-install-recommends",
+            "python3",
+            "python3-venv",
+        ]))?;
+    }
+    eprintln!("xtask: making {} with {CYCLONEDDS}", venv.display());
+    let _ = std::fs::remove_dir_all(&venv);
+    run(Command::new("python3").arg("-m").arg("venv").arg(&venv))?;
+    run(Command::new(&python).args([
+        "-m",
+        "pip",
+        "install",
+        "--quiet",
+        "--only-binary=:all:",
+        CYCLONEDDS,
+    ]))
 }
 
 /// Fetches `data/vtest.avi` from Debian's opencv-doc package (downloaded, not

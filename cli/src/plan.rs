@@ -1,0 +1,466 @@
+//! `isochron plan`: when and which way a robot should go, from the paper's costs.
+//!
+//! * `isochron plan offline --route NAME [--between HH:MM HH:MM] [--step 5m] [--day DAY] [--json]`:
+//!   Cost1 of the route over the day from the long-term stores (read here, also
+//!   while the cascade writes them) — the cheapest departure windows, then the cost
+//!   curve. Infinite when a segment of the route never saw activity (M'_p = 0).
+//! * `isochron plan now --routes A,B,... [--json]`: Cost2 = w1·Cost1(t* = now) +
+//!   w2·Σ Cost(M_p(now)) of each route, ranked, asked of the running
+//!   isochron-costmap (it has the live activity) over `<prefix>/plan`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+use isochron_costmap::plan::{DayRange, OfflinePlan, RouteNow};
+use isochron_costmap::plan_service::{PlanClient, ranking_of};
+use isochron_costmap::planner::Planner;
+use isochron_shared::clock::{
+    Cycle, MINUTES_PER_DAY, SiteClock, format_t_star, parse_hhmm, wall_now_ns,
+};
+use isochron_shared::config::LoadedConfig;
+use isochron_shared::ipc::Ipc;
+use isochron_shared::names::ServiceNames;
+use isochron_shared::wire::{PlanKind, PlanRequest, PlanStatus};
+use serde_json::json;
+
+use crate::common::load_config;
+
+/// Plan routes and departure times around people.
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(clap::Subcommand)]
+enum Command {
+    /// When is a route cheapest? Cost1 over the day from the long-term stores.
+    Offline(OfflineArgs),
+    /// Which route is cheapest now? Cost2, from the running isochron-costmap.
+    Now(NowArgs),
+}
+
+#[derive(clap::Args)]
+struct OfflineArgs {
+    /// Site configuration (default: $ISOCHRON_CONFIG or /etc/isochron/isochron.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// The route (a [[costmap.route]] name).
+    #[arg(long)]
+    route: String,
+    /// Only departures between these times of day, `HH:MM HH:MM` (end exclusive;
+    /// `24:00` is midnight; an end before the start wraps past midnight).
+    #[arg(long, num_args = 2, value_names = ["FROM", "TO"])]
+    between: Option<Vec<String>>,
+    /// Minutes between curve points: `5m`, `15`, `1h`. Each point is the mean Cost1
+    /// over its step.
+    #[arg(long, default_value = "5m")]
+    step: String,
+    /// Weekly stores: the day (`mon` .. `sun`); default today.
+    #[arg(long)]
+    day: Option<String>,
+    /// One JSON object instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(clap::Args)]
+struct NowArgs {
+    /// Site configuration (default: $ISOCHRON_CONFIG or /etc/isochron/isochron.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Routes to rank, comma-separated ([[costmap.route]] names).
+    #[arg(long, value_delimiter = ',', required = true)]
+    routes: Vec<String>,
+    /// One JSON object instead of text.
+    #[arg(long)]
+    json: bool,
+    /// How long to wait for isochron-costmap's answer, seconds.
+    #[arg(long, default_value_t = 5.0)]
+    timeout: f64,
+}
+
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    match args.command {
+        Command::Offline(a) => offline(a),
+        Command::Now(a) => now(a),
+    }
+}
+
+/// Parses a step: `5m`, `5`, `1h`, `90min`.
+pub fn parse_step(s: &str) -> Option<u32> {
+    let s = s.trim();
+    let (number, unit) = s.split_at(s.find(|c: char| !c.is_ascii_digit()).unwrap_or(s.len()));
+    let n: u32 = number.parse().ok()?;
+    let minutes = match unit.trim() {
+        "" | "m" | "min" | "mins" | "minutes" => n,
+        "h" | "hour" | "hours" => n.checked_mul(60)?,
+        _ => return None,
+    };
+    (1..=MINUTES_PER_DAY).contains(&minutes).then_some(minutes)
+}
+
+/// Parses a time of day, `HH:MM`, allowing `24:00` for the end of the day.
+fn parse_time(s: &str) -> Option<u32> {
+    if s.trim() == "24:00" {
+        return Some(MINUTES_PER_DAY);
+    }
+    parse_hhmm(s.trim())
+}
+
+fn parse_day(s: &str) -> Option<u32> {
+    let s = s.trim().to_ascii_lowercase();
+    ["mon", "tue", "wed", "thu", "fri", "sat", "sun"]
+        .iter()
+        .position(|d| s.starts_with(d))
+        .map(|d| d as u32)
+}
+
+/// The range of an off-line plan from the arguments.
+fn day_range(args: &OfflineArgs, loaded: &LoadedConfig) -> anyhow::Result<DayRange> {
+    let step = parse_step(&args.step).with_context(|| {
+        format!(
+            "--step: expected minutes such as 5m, 15 or 1h (1 to 1440), found '{}'",
+            args.step
+        )
+    })?;
+    let (start, end) = match &args.between {
+        None => (0, MINUTES_PER_DAY),
+        Some(v) => {
+            let start = parse_time(&v[0])
+                .filter(|&m| m < MINUTES_PER_DAY)
+                .with_context(|| format!("--between: expected HH:MM, found '{}'", v[0]))?;
+            let end = parse_time(&v[1])
+                .with_context(|| format!("--between: expected HH:MM, found '{}'", v[1]))?;
+            if end == 0 {
+                (start, MINUTES_PER_DAY)
+            } else {
+                (start, end)
+            }
+        }
+    };
+    let cycle_offset = match loaded.config.cascade.cycle {
+        Cycle::Daily => {
+            if args.day.is_some() {
+                bail!("--day is for weekly stores; this site has cascade.cycle = \"daily\"");
+            }
+            0
+        }
+        Cycle::Weekly => {
+            let day = match &args.day {
+                Some(d) => parse_day(d)
+                    .with_context(|| format!("--day: expected mon .. sun, found '{d}'"))?,
+                None => {
+                    let clock = SiteClock::new(&loaded.config.site.time_zone, Cycle::Weekly)?;
+                    clock.t_star(wall_now_ns()) / MINUTES_PER_DAY
+                }
+            };
+            day * MINUTES_PER_DAY
+        }
+    };
+    Ok(DayRange {
+        start,
+        end,
+        step,
+        cycle_offset,
+    })
+}
+
+fn offline(args: OfflineArgs) -> anyhow::Result<ExitCode> {
+    let loaded = load_config(args.config.clone())?;
+    let range = day_range(&args, &loaded)?;
+    let mut planner = Planner::new(&loaded)?;
+    let plan = planner.offline(&args.route, range)?;
+    let segments = planner.route(&args.route)?.segments.clone();
+    if args.json {
+        println!("{}", offline_json(&plan, &segments));
+    } else {
+        print_offline(&plan, &segments, planner.days());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// A cost as JSON: a number, `"inf"`, or null (no data).
+fn cost_json(c: f64) -> serde_json::Value {
+    if c.is_infinite() {
+        json!("inf")
+    } else if c.is_nan() {
+        serde_json::Value::Null
+    } else {
+        json!((c * 1000.0).round() / 1000.0)
+    }
+}
+
+fn hhmm(minute: u32) -> String {
+    if minute == MINUTES_PER_DAY {
+        "24:00".into()
+    } else {
+        format_t_star(minute % MINUTES_PER_DAY)
+    }
+}
+
+/// The off-line plan as one JSON object.
+pub fn offline_json(plan: &OfflinePlan, segments: &[String]) -> serde_json::Value {
+    json!({
+        "route": plan.route,
+        "segments": segments,
+        "between": [hhmm(plan.range.start), hhmm(plan.range.end)],
+        "step_min": plan.range.step,
+        "infinite": !plan.never_active.is_empty(),
+        "never_active": plan.never_active,
+        "windows": plan.windows.iter().map(|w| json!({
+            "start": hhmm(w.start % MINUTES_PER_DAY),
+            "end": hhmm(if w.end == MINUTES_PER_DAY { w.end } else { w.end % MINUTES_PER_DAY }),
+            "start_minute": w.start,
+            "end_minute": w.end,
+            "cost": cost_json(w.cost),
+        })).collect::<Vec<_>>(),
+        "best": plan.best.iter().map(|p| json!({"time": hhmm(p.minute), "minute": p.minute, "cost": cost_json(p.cost)})).collect::<Vec<_>>(),
+        "curve": plan.curve.iter().map(|p| json!({"time": hhmm(p.minute), "minute": p.minute, "cost": cost_json(p.cost)})).collect::<Vec<_>>(),
+    })
+}
+
+fn print_offline(plan: &OfflinePlan, segments: &[String], days: u32) {
+    println!(
+        "route {}: {} ({} day{} of long-term data)",
+        plan.route,
+        segments.join(" → "),
+        days,
+        if days == 1 { "" } else { "s" }
+    );
+    if !plan.never_active.is_empty() {
+        println!(
+            "Cost1 is infinite all day: no activity was ever seen on segment{} {} (M'_p = 0: people never go there, so neither should the robot)",
+            if plan.never_active.len() == 1 {
+                ""
+            } else {
+                "s"
+            },
+            plan.never_active.join(", ")
+        );
+        return;
+    }
+    if plan.windows.is_empty() {
+        println!(
+            "no long-term data in {}–{} yet: nothing to plan on",
+            hhmm(plan.range.start),
+            hhmm(plan.range.end)
+        );
+        return;
+    }
+    println!("cheapest departures (Cost1 within 5 % of the day's range above the minimum):");
+    for w in &plan.windows {
+        let end = if w.end == MINUTES_PER_DAY {
+            w.end
+        } else {
+            w.end % MINUTES_PER_DAY
+        };
+        println!(
+            "  {}–{}  cost {:.1}",
+            hhmm(w.start % MINUTES_PER_DAY),
+            hhmm(end),
+            w.cost
+        );
+    }
+    let max = plan
+        .curve
+        .iter()
+        .map(|p| p.cost)
+        .filter(|c| c.is_finite())
+        .fold(0.0f64, f64::max);
+    println!(
+        "cost curve (Cost1, mean over each {} min):",
+        plan.range.step
+    );
+    for p in &plan.curve {
+        if p.cost.is_nan() {
+            println!("  {}      —  (no long-term data)", hhmm(p.minute));
+        } else {
+            let bar = if max > 0.0 {
+                (p.cost / max * 40.0).round() as usize
+            } else {
+                0
+            };
+            println!("  {}  {:>6.1}  {}", hhmm(p.minute), p.cost, "█".repeat(bar));
+        }
+    }
+}
+
+fn now(args: NowArgs) -> anyhow::Result<ExitCode> {
+    let loaded = load_config(args.config.clone())?;
+    for r in &args.routes {
+        if loaded.config.costmap.route(r).is_none() {
+            let known: Vec<&str> = loaded
+                .config
+                .costmap
+                .routes
+                .iter()
+                .map(|r| r.name.as_str())
+                .collect();
+            bail!(
+                "--routes: no route '{r}' in [[costmap.route]] (configured: {})",
+                known.join(", ")
+            );
+        }
+    }
+    if args.routes.len() > isochron_shared::wire::PLAN_MAX_ROUTES {
+        bail!(
+            "--routes: at most {} routes at once",
+            isochron_shared::wire::PLAN_MAX_ROUTES
+        );
+    }
+    let ipc = Ipc::new(
+        &format!("isochron-plan-{}", std::process::id()),
+        ServiceNames::new(&loaded.config.site.service_prefix),
+        loaded.config.ipc.clone(),
+    )?;
+    let client = PlanClient::new(&ipc)?;
+    let names: Vec<&str> = args.routes.iter().map(String::as_str).collect();
+    let response = client
+        .request(
+            PlanRequest::new(PlanKind::Now, &names),
+            Duration::from_secs_f64(args.timeout.max(0.1)),
+        )
+        .map_err(anyhow::Error::msg)?;
+    match response.validate()? {
+        PlanStatus::Ok => {}
+        status => bail!(
+            "isochron-costmap could not plan ({status:?}): {}",
+            response.message()
+        ),
+    }
+    let ranked = ranking_of(&response);
+    if args.json {
+        println!("{}", now_json(&ranked, response.t_star, &loaded));
+    } else {
+        print_now(&ranked, response.t_star, &loaded);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The ranking as one JSON object.
+pub fn now_json(ranked: &[RouteNow], t_star: u32, loaded: &LoadedConfig) -> serde_json::Value {
+    json!({
+        "t_star": t_star,
+        "time": format_t_star(t_star),
+        "w1": loaded.config.costmap.w1,
+        "w2": loaded.config.costmap.w2,
+        "routes": ranked.iter().enumerate().map(|(i, r)| json!({
+            "rank": i + 1,
+            "route": r.name,
+            "cost2": cost_json(r.cost2),
+            "cost1": cost_json(r.cost1),
+            "short_term": cost_json(r.short_term),
+            "infinite": r.infinite,
+            "estimated": r.estimated,
+            "no_long_term": r.no_long_term,
+        })).collect::<Vec<_>>(),
+    })
+}
+
+fn print_now(ranked: &[RouteNow], t_star: u32, loaded: &LoadedConfig) {
+    let c = &loaded.config.costmap;
+    println!(
+        "routes at t* = {} (Cost2 = {}·Cost1 + {}·short-term):",
+        format_t_star(t_star),
+        c.w1,
+        c.w2
+    );
+    println!(
+        "{:<5} {:<24} {:>9} {:>9} {:>11}  NOTE",
+        "RANK", "ROUTE", "COST2", "COST1", "SHORT-TERM"
+    );
+    for (i, r) in ranked.iter().enumerate() {
+        let mut notes = Vec::new();
+        if r.infinite {
+            notes.push("a segment never saw activity");
+        }
+        if r.estimated {
+            notes.push("no live activity for a segment: long-term stood in");
+        }
+        if r.no_long_term {
+            notes.push("no long-term data at this t*");
+        }
+        let num = |v: f64| {
+            if v.is_finite() {
+                format!("{v:.1}")
+            } else {
+                "inf".to_string()
+            }
+        };
+        println!(
+            "{:<5} {:<24} {:>9} {:>9} {:>11}  {}",
+            i + 1,
+            r.name,
+            num(r.cost2),
+            num(r.cost1),
+            num(r.short_term),
+            notes.join("; ")
+        );
+    }
+}
+
+/// The long-term activity of a path segment over the day, for
+/// `isochron plot daily --segment NAME`, and the plot's default title. A weekly
+/// cycle is folded onto one day (weighted by the days that taught each minute).
+pub fn segment_daily(
+    config: Option<PathBuf>,
+    segment: &str,
+) -> anyhow::Result<(crate::plot::Daily, String)> {
+    let loaded = load_config(config)?;
+    let mut planner = Planner::new(&loaded)?;
+    let seg = planner.segment_daily(segment)?;
+    let points: Vec<crate::store::ProfilePoint> = (0..seg.count.len())
+        .map(|t| crate::store::ProfilePoint {
+            t_star: t as u32,
+            mean: seg.profile.m_p[t],
+            sigma: seg.sigma[t],
+            count: seg.count[t],
+        })
+        .collect();
+    let daily = crate::plot::Daily::from_profile(&points);
+    if daily.days == 0 {
+        bail!("segment '{segment}' has no long-term data yet: nothing to plot");
+    }
+    let c = &loaded.config.costmap;
+    let title = format!(
+        "Isochronal activity M_p(t*), segment {segment}, {} {}{} (Cost = 100·M/{}, cap {}){}",
+        daily.days,
+        if daily.days == 1 { "day" } else { "days" },
+        if planner.cycle() == Cycle::Weekly {
+            ", week folded onto a day"
+        } else {
+            ""
+        },
+        c.cost_scale,
+        c.cap,
+        if seg.profile.m_prime {
+            ""
+        } else {
+            " — never active: M'_p = 0"
+        }
+    );
+    Ok((daily, title))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn steps_and_times_parse() {
+        assert_eq!(parse_step("5m"), Some(5));
+        assert_eq!(parse_step("15"), Some(15));
+        assert_eq!(parse_step("1h"), Some(60));
+        assert_eq!(parse_step("90min"), Some(90));
+        assert_eq!(parse_step("0m"), None);
+        assert_eq!(parse_step("25h"), None);
+        assert_eq!(parse_step("5s"), None);
+        assert_eq!(parse_time("24:00"), Some(1440));
+        assert_eq!(parse_time("12:30"), Some(750));
+        assert_eq!(parse_day("Wednesday"), Some(2));
+        assert_eq!(parse_day("x"), None);
+    }
+}

@@ -1,0 +1,568 @@
+//! `isochron plot daily --store PATH --camera ID --out FILE.png|.svg [--block X,Y]`:
+//! the isochronal activity of a camera over the day, in the style of the paper's
+//! figure of hallway activity — activity against the time of day, with red vertical
+//! lines at the quiet times of the working day, when a robot best plans to pass.
+//!
+//! The curve is the long-term mean of the selected blocks per minute (as
+//! `isochron store export` writes it), drawn over a band of ± one sigma, with its
+//! 15-minute running mean on top. A weekly store is folded onto one day (each minute
+//! averaged over the days of the week, weighted by how many weeks taught it). The
+//! selection of blocks is a [`Selection`], so a later `--segment NAME` (a floor
+//! polygon of the site) adds a variant there, not a new plot.
+//!
+//! Text needs a TrueType font: `$ISOCHRON_FONT`, else DejaVu Sans, Liberation Sans or
+//! Noto Sans from the usual system directories.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{Context, bail};
+use isochron_shared::clock::{Cycle, MINUTES_PER_DAY, format_t_star};
+use isochron_shared::store::Model;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::{FontStyle, register_font};
+
+use crate::store::{ProfilePoint, Selection, StoreArgs, open, profile};
+
+/// Plot a camera's long-term activity.
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(clap::Subcommand)]
+enum Command {
+    /// Activity over the day (PNG or SVG, by the file's extension).
+    Daily(DailyArgs),
+}
+
+#[derive(clap::Args)]
+struct DailyArgs {
+    #[command(flatten)]
+    store: Option<StoreArgs>,
+    /// Instead of `--store`/`--camera`: a path segment of the site (a
+    /// [[costmap.segment]] name), its long-term activity M_p(t*) over the day.
+    #[arg(long, conflicts_with_all = ["store", "camera", "block"])]
+    segment: Option<String>,
+    /// With `--segment`: the site configuration (default: $ISOCHRON_CONFIG or
+    /// /etc/isochron/isochron.toml).
+    #[arg(long, requires = "segment")]
+    config: Option<PathBuf>,
+    /// Output image: `.png` or `.svg`.
+    #[arg(long)]
+    out: PathBuf,
+    /// One block, `X,Y`, instead of all blocks.
+    #[arg(long)]
+    block: Option<String>,
+    /// Title; default names the camera, the blocks and the days of data.
+    #[arg(long)]
+    title: Option<String>,
+    /// Image width, pixels.
+    #[arg(long, default_value_t = 1200)]
+    width: u32,
+    /// Image height, pixels.
+    #[arg(long, default_value_t = 520)]
+    height: u32,
+    /// Start of the working day (quiet times are looked for between start and end).
+    #[arg(long, default_value = "06:00")]
+    day_start: String,
+    /// End of the working day.
+    #[arg(long, default_value = "21:00")]
+    day_end: String,
+}
+
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    match args.command {
+        Command::Daily(a) => daily(a),
+    }
+}
+
+/// The image format, from the file name.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Format {
+    Png,
+    Svg,
+}
+
+fn format_of(path: &Path) -> anyhow::Result<Format> {
+    match path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .as_deref()
+    {
+        Some("png") => Ok(Format::Png),
+        Some("svg") => Ok(Format::Svg),
+        _ => bail!(
+            "--out {}: expected a .png or .svg file name",
+            path.display()
+        ),
+    }
+}
+
+/// One day of activity, per minute: what the plot draws.
+#[derive(Debug, Clone)]
+pub struct Daily {
+    /// Mean per minute of the day (`None`: never learned).
+    pub mean: Vec<Option<f64>>,
+    /// Sigma per minute of the day.
+    pub sigma: Vec<Option<f64>>,
+    /// Most days any minute learned from.
+    pub days: u32,
+}
+
+impl Daily {
+    /// Folds a profile of any cycle onto one day.
+    pub fn from_profile(points: &[ProfilePoint]) -> Daily {
+        let n = MINUTES_PER_DAY as usize;
+        let mut sum = vec![0.0; n];
+        let mut sum_var = vec![0.0; n];
+        let mut weight = vec![0u64; n];
+        let mut days = 0;
+        for p in points {
+            if let (Some(m), Some(s)) = (p.mean, p.sigma) {
+                let i = (p.t_star % MINUTES_PER_DAY) as usize;
+                sum[i] += m * p.count as f64;
+                sum_var[i] += s * s * p.count as f64;
+                weight[i] += p.count as u64;
+                days = days.max(p.count);
+            }
+        }
+        let per = |s: &[f64]| -> Vec<Option<f64>> {
+            (0..n)
+                .map(|i| (weight[i] > 0).then(|| s[i] / weight[i] as f64))
+                .collect()
+        };
+        Daily {
+            mean: per(&sum),
+            sigma: per(&sum_var)
+                .into_iter()
+                .map(|v| v.map(f64::sqrt))
+                .collect(),
+            days,
+        }
+    }
+
+    /// Running mean of the means over `window` minutes (centred), over learned
+    /// minutes only.
+    pub fn smoothed(&self, window: usize) -> Vec<Option<f64>> {
+        running_mean(&self.mean, window)
+    }
+
+    /// Up to `max` quiet times of the working day `[start, end)` (minutes): the lowest
+    /// local minima of the 30-minute running mean, at least 90 minutes apart, inside
+    /// the busy part of the day (where the activity is at least 10 % of its peak).
+    pub fn quiet_times(&self, start: u32, end: u32, max: usize) -> Vec<u32> {
+        let smooth = self.smoothed(31);
+        let peak = smooth.iter().flatten().cloned().fold(0.0, f64::max);
+        if peak <= 0.0 {
+            return Vec::new();
+        }
+        let busy: Vec<u32> = (start..end.min(MINUTES_PER_DAY))
+            .filter(|&m| smooth[m as usize].is_some_and(|v| v >= 0.1 * peak))
+            .collect();
+        let (Some(&first), Some(&last)) = (busy.first(), busy.last()) else {
+            return Vec::new();
+        };
+        let value = |m: u32| smooth[m as usize];
+        let mut minima: Vec<(f64, u32)> = (first + 30..last.saturating_sub(30))
+            .filter_map(|m| {
+                let v = value(m)?;
+                let around = (m - 30..=m + 30).filter_map(value);
+                around
+                    .clone()
+                    .all(|u| v <= u)
+                    .then_some((v, m))
+                    .filter(|_| around.fold(0.0, f64::max) > v * 1.05)
+            })
+            .collect();
+        minima.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut chosen: Vec<u32> = Vec::new();
+        for (_, m) in minima {
+            if chosen.iter().all(|&c| c.abs_diff(m) >= 90) {
+                chosen.push(m);
+            }
+            if chosen.len() == max {
+                break;
+            }
+        }
+        chosen.sort_unstable();
+        chosen
+    }
+}
+
+fn daily(args: DailyArgs) -> anyhow::Result<ExitCode> {
+    let format = format_of(&args.out)?;
+    let day_start = isochron_shared::clock::parse_hhmm(&args.day_start)
+        .with_context(|| format!("--day-start: expected HH:MM, found '{}'", args.day_start))?;
+    let day_end = isochron_shared::clock::parse_hhmm(&args.day_end)
+        .with_context(|| format!("--day-end: expected HH:MM, found '{}'", args.day_end))?;
+    if let Some(segment) = &args.segment {
+        let (daily, title) = crate::plan::segment_daily(args.config.clone(), segment)?;
+        let title = args.title.clone().unwrap_or(title);
+        return render(&args, format, day_start, day_end, &daily, &title);
+    }
+    let Some(store_args) = &args.store else {
+        bail!(
+            "give --store PATH --camera ID (a camera's activity), or --segment NAME (a path segment's)"
+        );
+    };
+    let store = open(&store_args.store, &store_args.camera)?;
+    let model: Model = store.read_model()?;
+    let selection = Selection::parse(args.block.as_deref())?;
+    let points = profile(&model, &selection)?;
+    let daily = Daily::from_profile(&points);
+    if daily.days == 0 {
+        bail!(
+            "{} has not learned anything yet: nothing to plot",
+            store_args.store.display()
+        );
+    }
+    let what = selection.describe(model.meta.grid_w, model.meta.grid_h);
+    let title = args.title.clone().unwrap_or_else(|| {
+        format!(
+            "Isochronal activity, camera {} ({what}), {} {}{}",
+            model.meta.camera,
+            daily.days,
+            if daily.days == 1 { "day" } else { "days" },
+            if model.meta.cycle == Cycle::Weekly {
+                ", week folded onto a day"
+            } else {
+                ""
+            }
+        )
+    });
+    render(&args, format, day_start, day_end, &daily, &title)
+}
+
+/// Draws `daily` into `args.out` and reports the quiet times.
+fn render(
+    args: &DailyArgs,
+    format: Format,
+    day_start: u32,
+    day_end: u32,
+    daily: &Daily,
+    title: &str,
+) -> anyhow::Result<ExitCode> {
+    let quiet = daily.quiet_times(day_start, day_end, 3);
+    load_font()?;
+    let size = (args.width.clamp(300, 8000), args.height.clamp(200, 8000));
+    match format {
+        Format::Png => {
+            let root = BitMapBackend::new(&args.out, size).into_drawing_area();
+            draw(&root, daily, &quiet, title)?;
+            root.present()
+                .map_err(|e| anyhow::anyhow!("writing {}: {e}", args.out.display()))?;
+        }
+        Format::Svg => {
+            let root = SVGBackend::new(&args.out, size).into_drawing_area();
+            draw(&root, daily, &quiet, title)?;
+            root.present()
+                .map_err(|e| anyhow::anyhow!("writing {}: {e}", args.out.display()))?;
+        }
+    }
+    let times: Vec<String> = quiet.iter().map(|&m| format_t_star(m)).collect();
+    println!(
+        "plot: {} written; quiet times of the working day: {}",
+        args.out.display(),
+        if times.is_empty() {
+            "none found".to_string()
+        } else {
+            times.join(", ")
+        }
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Draws the plot on any plotters backend.
+fn draw<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    daily: &Daily,
+    quiet: &[u32],
+    title: &str,
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let e = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow::anyhow!("drawing the plot: {e:?}");
+    root.fill(&WHITE).map_err(e)?;
+    let top = daily
+        .mean
+        .iter()
+        .zip(&daily.sigma)
+        .filter_map(|(m, s)| Some(m.as_ref()? + s.as_ref()?))
+        .fold(0.0, f64::max);
+    let y_max = if top > 0.0 { top * 1.1 } else { 1.0 };
+    let mut chart = ChartBuilder::on(root)
+        .caption(title, ("sans-serif", 22).into_font())
+        .margin(12)
+        .x_label_area_size(44)
+        .y_label_area_size(72)
+        .build_cartesian_2d(0f64..24f64, 0f64..y_max)
+        .map_err(e)?;
+    chart
+        .configure_mesh()
+        .x_labels(13)
+        .x_label_formatter(&|h| format!("{:02}:00", *h as u32))
+        .x_desc("time of day")
+        .y_desc("activity (mean M_L1 per block)")
+        .y_label_formatter(&|v| format!("{v:.3}"))
+        .light_line_style(WHITE.mix(0.0))
+        .label_style(("sans-serif", 15))
+        .draw()
+        .map_err(e)?;
+
+    let hour = |m: usize| m as f64 / 60.0;
+    let band = RGBColor(70, 110, 200).mix(0.18);
+    let raw = RGBColor(70, 110, 200).mix(0.55);
+    let smooth_color = RGBColor(20, 40, 130);
+    let smooth = daily.smoothed(15);
+    // The band is drawn from the 15-minute running sigma: per-minute sigmas of single
+    // blocks are too ragged to read.
+    let sigma = running_mean(&daily.sigma, 15);
+    for (i, run) in runs(&daily.mean).into_iter().enumerate() {
+        let first = i == 0;
+        let at = |m: usize| (smooth[m].unwrap_or(0.0), sigma[m].unwrap_or(0.0));
+        let mut poly: Vec<(f64, f64)> = run.clone().map(|m| (hour(m), at(m).0 + at(m).1)).collect();
+        poly.extend(
+            run.clone()
+                .rev()
+                .map(|m| (hour(m), (at(m).0 - at(m).1).max(0.0))),
+        );
+        let series = chart
+            .draw_series(std::iter::once(Polygon::new(poly, band.filled())))
+            .map_err(e)?;
+        if first {
+            series
+                .label("± sigma (typical block)")
+                .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 20, y + 5)], band.filled()));
+        }
+        let series = chart
+            .draw_series(LineSeries::new(
+                run.clone().map(|m| (hour(m), daily.mean[m].unwrap_or(0.0))),
+                raw.stroke_width(1),
+            ))
+            .map_err(e)?;
+        if first {
+            series.label("mean per minute").legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], raw.stroke_width(1))
+            });
+        }
+        let series = chart
+            .draw_series(LineSeries::new(
+                run.map(|m| (hour(m), smooth[m].unwrap_or(0.0))),
+                smooth_color.stroke_width(3),
+            ))
+            .map_err(e)?;
+        if first {
+            series.label("15-minute mean").legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], smooth_color.stroke_width(3))
+            });
+        }
+    }
+    for (i, &m) in quiet.iter().enumerate() {
+        let x = m as f64 / 60.0;
+        let series = chart
+            .draw_series(std::iter::once(PathElement::new(
+                vec![(x, 0.0), (x, y_max)],
+                RED.stroke_width(2),
+            )))
+            .map_err(e)?;
+        if i == 0 {
+            series
+                .label("quiet time to plan a robot's pass")
+                .legend(|(x, y)| {
+                    PathElement::new(vec![(x + 10, y - 6), (x + 10, y + 6)], RED.stroke_width(2))
+                });
+        }
+        chart
+            .draw_series(std::iter::once(Text::new(
+                format_t_star(m),
+                (x + 0.1, y_max * 0.97),
+                ("sans-serif", 15).into_font().color(&RED),
+            )))
+            .map_err(e)?;
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK.mix(0.3))
+        .label_font(("sans-serif", 14))
+        .draw()
+        .map_err(e)?;
+    Ok(())
+}
+
+/// Running mean over `window` minutes (centred, around midnight too) of the present
+/// values; `None` where the value itself is absent.
+fn running_mean(values: &[Option<f64>], window: usize) -> Vec<Option<f64>> {
+    let n = values.len() as isize;
+    let half = (window / 2) as isize;
+    (0..n)
+        .map(|i| {
+            let (mut s, mut c) = (0.0, 0);
+            for j in i - half..=i + half {
+                if let Some(v) = values[j.rem_euclid(n) as usize] {
+                    s += v;
+                    c += 1;
+                }
+            }
+            (c > 0 && values[i as usize].is_some()).then(|| s / c as f64)
+        })
+        .collect()
+}
+
+/// Runs of consecutive learned minutes, as index ranges.
+fn runs(values: &[Option<f64>]) -> Vec<std::ops::Range<usize>> {
+    let mut out = Vec::new();
+    let mut start = None;
+    for (i, v) in values.iter().enumerate() {
+        match (v.is_some(), start) {
+            (true, None) => start = Some(i),
+            (false, Some(s)) => {
+                out.push(s..i);
+                start = None;
+            }
+            _ => {}
+        }
+    }
+    if let Some(s) = start {
+        out.push(s..values.len());
+    }
+    out
+}
+
+/// Registers the font for all text, once.
+fn load_font() -> anyhow::Result<()> {
+    static LOADED: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    LOADED
+        .get_or_init(|| {
+            let candidates: Vec<PathBuf> = std::env::var_os("ISOCHRON_FONT")
+                .map(PathBuf::from)
+                .into_iter()
+                .chain(
+                    [
+                        "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+                        "/usr/share/fonts/dejavu/DejaVuSans.ttf",
+                        "/usr/share/fonts/TTF/DejaVuSans.ttf",
+                        "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
+                        "/usr/share/fonts/liberation/LiberationSans-Regular.ttf",
+                        "/usr/share/fonts/truetype/noto/NotoSans-Regular.ttf",
+                        "/usr/share/fonts/noto/NotoSans-Regular.ttf",
+                        "/System/Library/Fonts/Supplemental/Arial.ttf",
+                    ]
+                    .map(PathBuf::from),
+                )
+                .collect();
+            for path in &candidates {
+                if let Ok(bytes) = std::fs::read(path) {
+                    // plotters keeps fonts for the life of the process.
+                    let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+                    if register_font("sans-serif", FontStyle::Normal, bytes).is_ok() {
+                        return Ok(());
+                    }
+                }
+            }
+            Err(
+                "no TrueType font found for the plot's text: install one (Debian: fonts-dejavu-core) or set ISOCHRON_FONT=/path/to/font.ttf"
+                    .to_string(),
+            )
+        })
+        .clone()
+        .map_err(anyhow::Error::msg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn office() -> Daily {
+        // Busy 08:00-12:00 and 13:30-17:00, a lull at 12:45, nothing at night.
+        let mean: Vec<Option<f64>> = (0..1440)
+            .map(|m| {
+                let h = m as f64 / 60.0;
+                let v = if (8.0..12.0).contains(&h) || (13.5..17.0).contains(&h) {
+                    1.0
+                } else if (12.0..13.5).contains(&h) {
+                    0.3 + 0.7 * ((h - 12.75).abs() / 0.75)
+                } else if (7.0..8.0).contains(&h) || (17.0..19.0).contains(&h) {
+                    0.2
+                } else {
+                    0.0
+                };
+                Some(v)
+            })
+            .collect();
+        Daily {
+            sigma: vec![Some(0.1); 1440],
+            mean,
+            days: 14,
+        }
+    }
+
+    #[test]
+    fn quiet_times_find_the_lunch_lull() {
+        let q = office().quiet_times(6 * 60, 21 * 60, 3);
+        assert!(q.iter().any(|&m| (755..=775).contains(&m)), "{q:?}");
+        assert!(q.iter().all(|&m| (7 * 60..19 * 60).contains(&m)), "{q:?}");
+        let empty = Daily {
+            mean: vec![None; 1440],
+            sigma: vec![None; 1440],
+            days: 0,
+        };
+        assert!(empty.quiet_times(0, 1440, 3).is_empty());
+    }
+
+    #[test]
+    fn weekly_profiles_fold_onto_a_day_weighted_by_count() {
+        let points = vec![
+            ProfilePoint {
+                t_star: 10,
+                mean: Some(1.0),
+                sigma: Some(0.0),
+                count: 3,
+            },
+            ProfilePoint {
+                t_star: 1440 + 10,
+                mean: Some(2.0),
+                sigma: Some(0.0),
+                count: 1,
+            },
+        ];
+        let d = Daily::from_profile(&points);
+        assert_eq!(d.mean[10], Some(1.25));
+        assert_eq!(d.mean[11], None);
+        assert_eq!(d.days, 3);
+        assert_eq!(runs(&d.mean), vec![10..11]);
+    }
+
+    #[test]
+    fn renders_png_and_svg() {
+        let dir = tempfile::tempdir().unwrap();
+        load_font().unwrap();
+        let daily = office();
+        let quiet = daily.quiet_times(360, 1260, 3);
+        let png = dir.path().join("a.png");
+        {
+            let root = BitMapBackend::new(&png, (800, 400)).into_drawing_area();
+            draw(&root, &daily, &quiet, "office").unwrap();
+            root.present().unwrap();
+        }
+        let bytes = std::fs::read(&png).unwrap();
+        assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n");
+        let svg = dir.path().join("a.svg");
+        {
+            let root = SVGBackend::new(&svg, (800, 400)).into_drawing_area();
+            draw(&root, &daily, &quiet, "office").unwrap();
+            root.present().unwrap();
+        }
+        let text = std::fs::read_to_string(&svg).unwrap();
+        assert!(text.contains("<svg") && text.contains("office"));
+        assert!(text.contains("12:"), "the lull is labelled");
+        assert!(format_of(Path::new("x.jpg")).is_err());
+        assert_eq!(format_of(Path::new("x.SVG")).unwrap(), Format::Svg);
+    }
+}

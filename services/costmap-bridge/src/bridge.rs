@@ -1,0 +1,390 @@
+//! The bridge's state between samples: per camera its floor mapping, footprint on
+//! the grid, latest activity and the people the detector confirmed; and from them
+//! the cost map. No shared memory here — `main.rs` feeds it, tests drive it
+//! directly.
+
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+use isochron_shared::clock::NS_PER_S;
+use isochron_shared::config::{LoadedConfig, Polygon};
+use isochron_shared::geometry::BlockGrid;
+use isochron_shared::wire::{ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader};
+
+use crate::cost::{CostParams, Layer, compose};
+use crate::grid::MapGrid;
+use crate::homography::Homography;
+use crate::planner::LiveCamera;
+use crate::raster::Footprint;
+
+/// Class id of a person in [`Detection::class`].
+pub const PERSON: u32 = 0;
+
+/// A camera's latest activity sample.
+#[derive(Debug, Clone)]
+pub struct Latest {
+    /// Its header.
+    pub header: ActivityHeader,
+    /// Its blocks.
+    pub blocks: Vec<BlockActivity>,
+    /// When it arrived (wall clock of this process).
+    pub arrived: Instant,
+}
+
+/// What the bridge knows of one camera.
+#[derive(Debug, Clone)]
+pub struct CameraState {
+    /// Camera id.
+    pub id: String,
+    /// The id as it travels in headers.
+    pub camera_id: CameraId,
+    /// Image → floor, if the camera has floor points.
+    pub homography: Option<Homography>,
+    /// RMS error of the homography at its own points, metres.
+    pub homography_rms_m: f64,
+    /// Masked regions (frame pixels).
+    pub masks: Vec<Polygon>,
+    /// The footprint of its current block grid on the map grid.
+    pub footprint: Option<Footprint>,
+    /// The latest activity.
+    pub latest: Option<Latest>,
+    /// Confirmed people: (capture time of the detected frame, feet on the floor).
+    pub confirmed: VecDeque<(i64, [f64; 2])>,
+}
+
+/// The cost map bridge's state.
+#[derive(Debug, Clone)]
+pub struct Bridge {
+    /// The map grid, if configured.
+    pub grid: Option<MapGrid>,
+    /// The cost function.
+    pub params: CostParams,
+    /// The cameras, in config order.
+    pub cameras: Vec<CameraState>,
+    stale: Duration,
+    confirm_hold_ns: i64,
+}
+
+/// Most confirmations kept per camera.
+const MAX_CONFIRMED: usize = 1024;
+
+impl Bridge {
+    /// The bridge of `loaded`: `grid` (see [`MapGrid::from_config`]), the cameras'
+    /// homographies (an error names the camera's `floor_points` key).
+    pub fn new(loaded: &LoadedConfig, grid: Option<MapGrid>) -> Result<Bridge, String> {
+        let config = &loaded.config;
+        let mut cameras = Vec::new();
+        for (i, cam) in config.cameras.iter().enumerate() {
+            let fitted = Homography::of_camera(cam)
+                .map_err(|e| format!("camera[{i}].floor_points ({}): {e}", cam.id))?;
+            cameras.push(CameraState {
+                id: cam.id.clone(),
+                camera_id: CameraId::new(&cam.id)
+                    .ok_or_else(|| format!("camera[{i}].id: invalid"))?,
+                homography: fitted.map(|(h, _)| h),
+                homography_rms_m: fitted.map_or(0.0, |(_, rms)| rms),
+                masks: cam.mask.clone(),
+                footprint: None,
+                latest: None,
+                confirmed: VecDeque::new(),
+            });
+        }
+        let c = &config.costmap;
+        Ok(Bridge {
+            grid,
+            params: CostParams::from_config(c),
+            cameras,
+            stale: Duration::from_secs_f64(c.stale_s),
+            confirm_hold_ns: (c.confirm_hold_s * NS_PER_S as f64) as i64,
+        })
+    }
+
+    /// Takes camera `k`'s activity sample (validated by the caller).
+    pub fn on_activity(
+        &mut self,
+        k: usize,
+        header: &ActivityHeader,
+        blocks: &[BlockActivity],
+        now: Instant,
+    ) {
+        let Some(cam) = self.cameras.get_mut(k) else {
+            return;
+        };
+        let block_grid = BlockGrid {
+            frame_width: header.frame_width,
+            frame_height: header.frame_height,
+            block_px: header.block_px,
+        };
+        if let (Some(grid), Some(h)) = (&self.grid, &cam.homography)
+            && cam
+                .footprint
+                .as_ref()
+                .is_none_or(|f| f.blocks != block_grid)
+        {
+            let footprint = Footprint::build(grid, h, block_grid, &cam.masks);
+            tracing::info!(
+                camera = %cam.id,
+                "{}x{} blocks of {} px cover {} of the grid's {} cells",
+                block_grid.grid_w(),
+                block_grid.grid_h(),
+                block_grid.block_px,
+                footprint.seen,
+                grid.len()
+            );
+            if footprint.seen == 0 {
+                tracing::warn!(
+                    camera = %cam.id,
+                    "the camera sees no cell of the grid: check its floor_points and the [costmap] grid"
+                );
+            }
+            cam.footprint = Some(footprint);
+        }
+        let latest = cam.latest.get_or_insert_with(|| Latest {
+            header: *header,
+            blocks: Vec::new(),
+            arrived: now,
+        });
+        latest.header = *header;
+        latest.blocks.clear();
+        latest.blocks.extend_from_slice(blocks);
+        latest.arrived = now;
+        let horizon = header.preamble.capture_time_ns - self.confirm_hold_ns;
+        while cam.confirmed.front().is_some_and(|(t, _)| *t < horizon) {
+            cam.confirmed.pop_front();
+        }
+    }
+
+    /// Takes camera `k`'s detections (validated by the caller): each person's feet
+    /// (the bottom centre of their box) on the floor. Returns how many were placed.
+    pub fn on_detections(
+        &mut self,
+        k: usize,
+        header: &DetectionHeader,
+        detections: &[Detection],
+    ) -> usize {
+        let Some(cam) = self.cameras.get_mut(k) else {
+            return 0;
+        };
+        let Some(h) = &cam.homography else {
+            return 0;
+        };
+        let t = header.preamble.capture_time_ns;
+        let mut placed = 0;
+        for d in detections.iter().filter(|d| d.class == PERSON) {
+            if !(d.x.is_finite() && d.y.is_finite() && d.w.is_finite() && d.h.is_finite()) {
+                continue;
+            }
+            let feet = [(d.x + d.w / 2.0) as f64, (d.y + d.h) as f64];
+            if let Some(p) = h.apply(feet) {
+                cam.confirmed.push_back((t, p));
+                placed += 1;
+            }
+        }
+        while cam.confirmed.len() > MAX_CONFIRMED {
+            cam.confirmed.pop_front();
+        }
+        placed
+    }
+
+    /// True if camera `k`'s activity arrived within `stale_s`.
+    pub fn is_live(&self, k: usize, now: Instant) -> bool {
+        self.cameras
+            .get(k)
+            .and_then(|c| c.latest.as_ref())
+            .is_some_and(|l| now.saturating_duration_since(l.arrived) < self.stale)
+    }
+
+    /// The cost map now, if a grid is configured.
+    pub fn compose(&self, now: Instant) -> Option<Vec<i8>> {
+        let grid = self.grid.as_ref()?;
+        let mut layers = Vec::new();
+        let mut confirmed = Vec::new();
+        for (k, cam) in self.cameras.iter().enumerate() {
+            if !self.is_live(k, now) {
+                continue;
+            }
+            let (Some(footprint), Some(latest)) = (&cam.footprint, &cam.latest) else {
+                continue;
+            };
+            if latest.blocks.len() != footprint.blocks.len() {
+                continue;
+            }
+            layers.push(Layer {
+                footprint,
+                blocks: &latest.blocks,
+            });
+            let since = latest.header.preamble.capture_time_ns - self.confirm_hold_ns;
+            confirmed.extend(
+                cam.confirmed
+                    .iter()
+                    .filter(|(t, _)| *t >= since)
+                    .map(|(_, p)| *p),
+            );
+        }
+        Some(compose(grid, &self.params, &layers, &confirmed))
+    }
+
+    /// The live cameras' latest activity, for real-time planning.
+    pub fn live(&self, now: Instant) -> Vec<Option<LiveCamera<'_>>> {
+        self.cameras
+            .iter()
+            .enumerate()
+            .map(|(k, cam)| {
+                let latest = cam.latest.as_ref().filter(|_| self.is_live(k, now))?;
+                Some(LiveCamera {
+                    blocks: BlockGrid {
+                        frame_width: latest.header.frame_width,
+                        frame_height: latest.header.frame_height,
+                        block_px: latest.header.block_px,
+                    },
+                    activity: &latest.blocks,
+                })
+            })
+            .collect()
+    }
+
+    /// The newest live sample: its capture time (UTC ns) and t*.
+    pub fn newest(&self, now: Instant) -> Option<(i64, u32)> {
+        self.cameras
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| self.is_live(*k, now))
+            .filter_map(|(_, c)| c.latest.as_ref())
+            .map(|l| (l.header.preamble.capture_time_ns, l.header.t_star))
+            .max_by_key(|(t, _)| *t)
+    }
+
+    /// The footprints of the cameras, for pictures.
+    pub fn coverage(&self) -> Vec<&[u32]> {
+        self.cameras
+            .iter()
+            .filter_map(|c| c.footprint.as_ref().map(|f| f.cell_block.as_slice()))
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use isochron_shared::config::Config;
+    use isochron_shared::wire::{Preamble, Stream};
+
+    const SITE: &str = r#"
+[[camera]]
+id = "cam01"
+source = "video.avi"
+floor_points = [
+  { image_px = [0, 0], floor_m = [0, 3] },
+  { image_px = [320, 0], floor_m = [4, 3] },
+  { image_px = [320, 240], floor_m = [4, 0] },
+  { image_px = [0, 240], floor_m = [0, 0] },
+]
+
+[costmap]
+resolution_m = 0.1
+width_cells = 50
+height_cells = 40
+cost_scale = 0.1
+weight_long_term = 0.0
+confirm_radius_m = 0.15
+confirm_hold_s = 2
+stale_s = 5
+"#;
+
+    fn bridge() -> Bridge {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("site.toml");
+        std::fs::write(&path, SITE).unwrap();
+        let loaded = Config::load(&path).unwrap();
+        let grid = MapGrid::from_config(&loaded).unwrap();
+        Bridge::new(&loaded, grid).unwrap()
+    }
+
+    fn header(t_ns: i64) -> ActivityHeader {
+        let mut preamble = Preamble::new::<BlockActivity>(
+            Stream::Activity,
+            CameraId::new("cam01").unwrap(),
+            0,
+            300,
+        );
+        preamble.capture_time_ns = t_ns;
+        ActivityHeader {
+            preamble,
+            grid_w: 20,
+            grid_h: 15,
+            block_px: 16,
+            frame_width: 320,
+            frame_height: 240,
+            t_star: 600,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn activity_lands_on_its_cells_and_goes_stale() {
+        let mut b = bridge();
+        let t0 = Instant::now();
+        // Nothing yet: all unknown.
+        assert!(b.compose(t0).unwrap().iter().all(|&c| c == -1));
+        // Block (10, 7): image x 160..176, y 112..128 → floor x 2.0..2.2, y 1.4..1.6.
+        let mut blocks = vec![BlockActivity::default(); 300];
+        blocks[7 * 20 + 10].s1 = 0.05;
+        b.on_activity(0, &header(1_000 * NS_PER_S), &blocks, t0);
+        let cells = b.compose(t0).unwrap();
+        let grid = b.grid.unwrap();
+        let hot: Vec<(u32, u32)> = (0..grid.len())
+            .filter(|&k| cells[k] > 0)
+            .map(|k| ((k % 50) as u32, (k / 50) as u32))
+            .collect();
+        assert_eq!(hot, vec![(20, 14), (21, 14), (20, 15), (21, 15)]);
+        assert!(hot.iter().all(|&(i, j)| cells[grid.index(i, j)] == 50));
+        // The camera sees x < 4 m, y < 3 m: cost 0 there, unknown beyond.
+        assert_eq!(cells[grid.index(39, 29)], 0);
+        assert_eq!(cells[grid.index(40, 29)], -1);
+        assert_eq!(cells[grid.index(39, 30)], -1);
+        assert_eq!(b.newest(t0), Some((1_000 * NS_PER_S, 600)));
+        // Stale after 5 s without activity.
+        let later = t0 + Duration::from_secs(6);
+        assert!(b.compose(later).unwrap().iter().all(|&c| c == -1));
+        assert!(b.live(later)[0].is_none());
+    }
+
+    #[test]
+    fn confirmed_people_raise_their_cells_for_a_while() {
+        let mut b = bridge();
+        let t0 = Instant::now();
+        let blocks = vec![BlockActivity::default(); 300];
+        b.on_activity(0, &header(1_000 * NS_PER_S), &blocks, t0);
+        let mut dh = DetectionHeader {
+            preamble: Preamble::new::<Detection>(
+                Stream::Detections,
+                CameraId::new("cam01").unwrap(),
+                0,
+                1,
+            ),
+            ..Default::default()
+        };
+        dh.preamble.capture_time_ns = 1_000 * NS_PER_S;
+        // Feet at image (105, 124) → floor (1.3125, 1.45): cell (13, 14).
+        let person = Detection {
+            x: 95.0,
+            y: 60.0,
+            w: 20.0,
+            h: 64.0,
+            score: 1.0,
+            class: PERSON,
+        };
+        let chair = Detection {
+            class: 56,
+            ..person
+        };
+        assert_eq!(b.on_detections(0, &dh, &[person, chair]), 1);
+        let grid = b.grid.unwrap();
+        let cells = b.compose(t0).unwrap();
+        assert_eq!(cells[grid.index(13, 14)], 100);
+        assert_eq!(cells[grid.index(20, 20)], 0);
+        // 3 s of capture time later the confirmation has expired.
+        b.on_activity(0, &header(1_003 * NS_PER_S), &blocks, t0);
+        assert_eq!(b.compose(t0).unwrap()[grid.index(13, 14)], 0);
+    }
+}

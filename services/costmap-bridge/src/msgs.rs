@@ -1,0 +1,162 @@
+//! The ROS 2 messages the bridge publishes, as plain serde structs in CDR field
+//! order (the order of the `.msg` definitions), so that any DDS implementation reads
+//! them as `nav_msgs/msg/OccupancyGrid` and `map_msgs/msg/OccupancyGridUpdate`.
+//!
+//! No ROS install is needed: the DDS type names are
+//! `nav_msgs::msg::dds_::OccupancyGrid_` and `map_msgs::msg::dds_::OccupancyGridUpdate_`,
+//! and the serialised form is plain (XCDR1) little-endian CDR, which is what every
+//! ROS 2 DDS middleware exchanges.
+
+use serde::{Deserialize, Serialize};
+
+/// `builtin_interfaces/msg/Time`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Time {
+    /// Seconds since the Unix epoch.
+    pub sec: i32,
+    /// Nanoseconds within the second.
+    pub nanosec: u32,
+}
+
+impl Time {
+    /// The time of a UTC nanosecond instant (clamped to the range of `sec`).
+    pub fn from_utc_ns(utc_ns: i64) -> Time {
+        let sec = utc_ns
+            .div_euclid(1_000_000_000)
+            .clamp(i32::MIN as i64, i32::MAX as i64);
+        Time {
+            sec: sec as i32,
+            nanosec: utc_ns.rem_euclid(1_000_000_000) as u32,
+        }
+    }
+}
+
+/// `std_msgs/msg/Header`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Header {
+    /// Time of the data.
+    pub stamp: Time,
+    /// Coordinate frame of the data.
+    pub frame_id: String,
+}
+
+/// `geometry_msgs/msg/Point`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Point {
+    /// x, metres.
+    pub x: f64,
+    /// y, metres.
+    pub y: f64,
+    /// z, metres.
+    pub z: f64,
+}
+
+/// `geometry_msgs/msg/Quaternion`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Quaternion {
+    /// x.
+    pub x: f64,
+    /// y.
+    pub y: f64,
+    /// z.
+    pub z: f64,
+    /// w.
+    pub w: f64,
+}
+
+impl Quaternion {
+    /// A rotation of `yaw` radians about z.
+    pub fn from_yaw(yaw: f64) -> Quaternion {
+        Quaternion {
+            x: 0.0,
+            y: 0.0,
+            z: (yaw / 2.0).sin(),
+            w: (yaw / 2.0).cos(),
+        }
+    }
+}
+
+/// `geometry_msgs/msg/Pose`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Pose {
+    /// Position.
+    pub position: Point,
+    /// Orientation.
+    pub orientation: Quaternion,
+}
+
+/// `nav_msgs/msg/MapMetaData`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct MapMetaData {
+    /// When the map was loaded (here: the time of the data).
+    pub map_load_time: Time,
+    /// Cell edge, metres.
+    pub resolution: f32,
+    /// Cells per row.
+    pub width: u32,
+    /// Rows.
+    pub height: u32,
+    /// Pose of cell (0, 0)'s corner in the frame.
+    pub origin: Pose,
+}
+
+/// `nav_msgs/msg/OccupancyGrid`: row-major, row 0 at the origin, values 0..=100 or
+/// -1 (unknown).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OccupancyGrid {
+    /// Stamp and frame.
+    pub header: Header,
+    /// Geometry.
+    pub info: MapMetaData,
+    /// Cells.
+    pub data: Vec<i8>,
+}
+
+/// `map_msgs/msg/OccupancyGridUpdate`: new values for a rectangle of a grid
+/// published before on the same topic (without `_updates`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OccupancyGridUpdate {
+    /// Stamp and frame.
+    pub header: Header,
+    /// First column of the rectangle.
+    pub x: i32,
+    /// First row of the rectangle.
+    pub y: i32,
+    /// Columns of the rectangle.
+    pub width: u32,
+    /// Rows of the rectangle.
+    pub height: u32,
+    /// The rectangle's cells, row-major.
+    pub data: Vec<i8>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn time_splits_nanoseconds() {
+        assert_eq!(
+            Time::from_utc_ns(1_500_000_000_250),
+            Time {
+                sec: 1500,
+                nanosec: 250
+            }
+        );
+        assert_eq!(
+            Time::from_utc_ns(-1),
+            Time {
+                sec: -1,
+                nanosec: 999_999_999
+            }
+        );
+    }
+
+    #[test]
+    fn yaw_quaternion_is_unit() {
+        let q = Quaternion::from_yaw(std::f64::consts::FRAC_PI_2);
+        assert!((q.z * q.z + q.w * q.w - 1.0).abs() < 1e-12);
+        assert!((q.z - q.w).abs() < 1e-12);
+        assert_eq!(Quaternion::from_yaw(0.0).w, 1.0);
+    }
+}

@@ -1,0 +1,678 @@
+//! Path planning on segments and routes, as in the paper (sections "Off-line" and
+//! "Real-time Global Path Planning").
+//!
+//! A path segment `p` is a floor polygon (its blocks: those of every camera whose
+//! centre lands inside it) or a camera's zone (its blocks: those whose centre is in
+//! the zone). Its activity is the mean over its blocks:
+//!
+//! * `M_p(t*)`: the long-term mean at isochronal time t* (from the long-term store);
+//! * `M'_p`: 1 if `M_p(t*)` exceeds `min_activity` at any t*, else 0 — people never
+//!   go there, so neither should the robot;
+//! * `M_p(now)`: the short-term activity now, `weight_in_place·S1 + weight_moving·S2`.
+//!
+//! and, with `Cost(M) = min(cap, 100·M / cost_scale)`:
+//!
+//! * `cost1(route, t*) = Σ Cost(M_p(t*))` over the route's segments, infinite if any
+//!   `M'_p = 0`;
+//! * `cost2(route, now) = w1·cost1(route, t* = now) + w2·Σ Cost(M_p(now))`.
+//!
+//! Where the long-term model has no data at t* (a camera never ran then), `cost1`
+//! is unknown (NaN) and is left out of curves; a segment without live activity
+//! uses its long-term `M_p(t*)` as the estimate of `M_p(now)` (flagged).
+
+use std::collections::BTreeMap;
+
+use isochron_shared::clock::MINUTES_PER_DAY;
+use isochron_shared::config::{CameraConfig, RouteConfig, SegmentConfig};
+use isochron_shared::geometry::{BlockGrid, point_in_polygon};
+use isochron_shared::store::Model;
+
+use crate::cost::CostParams;
+use crate::homography::Homography;
+
+/// Why a plan cannot be made.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PlanError {
+    /// No such route in the config.
+    #[error("no route '{0}' in [[costmap.route]] (configured: {1})")]
+    UnknownRoute(String, String),
+    /// No such segment in the config.
+    #[error("no segment '{0}' in [[costmap.segment]] (configured: {1})")]
+    UnknownSegment(String, String),
+    /// The segment covers no block of any camera.
+    #[error(
+        "segment '{0}' covers no block of any camera: check its polygon_m against the cameras' floor_points, or its zone"
+    )]
+    EmptySegment(String),
+    /// Data is missing (a store, a camera's block grid).
+    #[error("{0}")]
+    NoData(String),
+    /// The configuration cannot be used (a camera's floor points).
+    #[error("{0}")]
+    Config(String),
+}
+
+/// What the planner knows of a camera: its id, config, homography and block grid.
+#[derive(Debug, Clone)]
+pub struct CameraGeometry {
+    /// The camera's config.
+    pub config: CameraConfig,
+    /// Image → floor, if the camera has floor points.
+    pub homography: Option<Homography>,
+    /// Its block grid, if known (from the store or the activity stream).
+    pub blocks: Option<BlockGrid>,
+}
+
+/// The blocks of a segment, per camera (index into the camera list).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SegmentBlocks {
+    /// Segment name.
+    pub name: String,
+    /// `(camera index, block indices)`, cameras with at least one block.
+    pub blocks: Vec<(usize, Vec<u32>)>,
+}
+
+impl SegmentBlocks {
+    /// Number of blocks over all cameras.
+    pub fn len(&self) -> usize {
+        self.blocks.iter().map(|(_, b)| b.len()).sum()
+    }
+
+    /// True if no block.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Finds the blocks of `segment` among `cameras`; an error if it has none.
+pub fn resolve_segment(
+    segment: &SegmentConfig,
+    cameras: &[CameraGeometry],
+) -> Result<SegmentBlocks, PlanError> {
+    let mut blocks = Vec::new();
+    if let Some(poly) = &segment.polygon_m {
+        for (k, cam) in cameras.iter().enumerate() {
+            let (Some(h), Some(grid)) = (&cam.homography, &cam.blocks) else {
+                continue;
+            };
+            let inside: Vec<u32> = (0..grid.len())
+                .filter(|&b| {
+                    h.apply(grid.center(b))
+                        .is_some_and(|p| point_in_polygon(p, poly))
+                })
+                .map(|b| b as u32)
+                .collect();
+            if !inside.is_empty() {
+                blocks.push((k, inside));
+            }
+        }
+    } else if let (Some(camera), Some(zone)) = (&segment.camera, &segment.zone)
+        && let Some((k, cam)) = cameras
+            .iter()
+            .enumerate()
+            .find(|(_, c)| &c.config.id == camera)
+    {
+        let Some(grid) = cam.blocks else {
+            return Err(PlanError::NoData(format!(
+                "segment '{}': the block grid of camera '{camera}' is not known yet (no long-term store, no activity)",
+                segment.name
+            )));
+        };
+        let zones = cam
+            .config
+            .zones_or_default(grid.frame_width, grid.frame_height);
+        if let Some(z) = zones.iter().find(|z| &z.name == zone) {
+            let inside = grid.blocks_in(&z.polygon);
+            if !inside.is_empty() {
+                blocks.push((k, inside));
+            }
+        }
+    }
+    let resolved = SegmentBlocks {
+        name: segment.name.clone(),
+        blocks,
+    };
+    if resolved.is_empty() {
+        return Err(PlanError::EmptySegment(segment.name.clone()));
+    }
+    Ok(resolved)
+}
+
+/// A segment's long-term activity over the cycle.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SegmentProfile {
+    /// Segment name.
+    pub name: String,
+    /// `M_p(t*)` per bin of the cycle; `None` where no camera of the segment has
+    /// learned that bin.
+    pub m_p: Vec<Option<f64>>,
+    /// `M'_p`: true if the segment ever saw activity above `min_activity`.
+    pub m_prime: bool,
+}
+
+impl SegmentProfile {
+    /// The long-term profile of `segment` from the cameras' models (`models[k]` for
+    /// camera `k`; a camera without a model contributes nothing). `bins` is the
+    /// cycle's length.
+    pub fn from_models(
+        segment: &SegmentBlocks,
+        models: &[Option<&Model>],
+        bins: usize,
+        min_activity: f64,
+    ) -> SegmentProfile {
+        let mut m_p = vec![None; bins];
+        for (t, slot) in m_p.iter_mut().enumerate() {
+            let (mut sum, mut n) = (0.0f64, 0usize);
+            for (k, blocks) in &segment.blocks {
+                let Some(Some(model)) = models.get(*k) else {
+                    continue;
+                };
+                // A daily store serves every day of a weekly cycle.
+                let Some(bin) = model.bin(t as u32 % model.meta.bins().max(1)) else {
+                    continue;
+                };
+                for &b in blocks {
+                    if let Some(&m) = bin.mean.get(b as usize)
+                        && m.is_finite()
+                    {
+                        sum += (m as f64).max(0.0);
+                        n += 1;
+                    }
+                }
+            }
+            if n > 0 {
+                *slot = Some(sum / n as f64);
+            }
+        }
+        let m_prime = m_p.iter().flatten().any(|&m| m > min_activity);
+        SegmentProfile {
+            name: segment.name.clone(),
+            m_p,
+            m_prime,
+        }
+    }
+
+    /// `M_p(t*)`.
+    pub fn at(&self, t_star: u32) -> Option<f64> {
+        self.m_p.get(t_star as usize).copied().flatten()
+    }
+}
+
+/// `cost1(route, t*)`: Σ Cost(M_p(t*)); infinite if a segment has `M'_p = 0`; NaN if
+/// some segment has no long-term data at t*.
+pub fn cost1(route: &[&SegmentProfile], t_star: u32, params: &CostParams) -> f64 {
+    if route.iter().any(|p| !p.m_prime) {
+        return f64::INFINITY;
+    }
+    let mut sum = 0.0;
+    for p in route {
+        match p.at(t_star) {
+            Some(m) => sum += params.cost_of(m),
+            None => return f64::NAN,
+        }
+    }
+    sum
+}
+
+/// The profiles of a route's segments, in order.
+pub fn route_profiles<'a>(
+    route: &RouteConfig,
+    profiles: &'a BTreeMap<String, SegmentProfile>,
+) -> Result<Vec<&'a SegmentProfile>, PlanError> {
+    route
+        .segments
+        .iter()
+        .map(|s| {
+            profiles.get(s).ok_or_else(|| {
+                PlanError::UnknownSegment(
+                    s.clone(),
+                    profiles.keys().cloned().collect::<Vec<_>>().join(", "),
+                )
+            })
+        })
+        .collect()
+}
+
+/// The minutes an off-line plan looks at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DayRange {
+    /// First minute of the day, 0..1440.
+    pub start: u32,
+    /// End minute, exclusive, 1..=1440; at or below `start` the range wraps past
+    /// midnight.
+    pub end: u32,
+    /// Minutes per curve point.
+    pub step: u32,
+    /// Added to each minute of the day to get t* (weekly cycle: day × 1440).
+    pub cycle_offset: u32,
+}
+
+impl DayRange {
+    /// The whole day in steps of `step` minutes.
+    pub fn whole_day(step: u32) -> DayRange {
+        DayRange {
+            start: 0,
+            end: MINUTES_PER_DAY,
+            step: step.max(1),
+            cycle_offset: 0,
+        }
+    }
+
+    /// Length in minutes.
+    pub fn minutes(&self) -> u32 {
+        if self.end > self.start {
+            self.end - self.start
+        } else {
+            MINUTES_PER_DAY - self.start + self.end
+        }
+    }
+}
+
+/// One point of an off-line cost curve.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CurvePoint {
+    /// Minute of the day the point starts at.
+    pub minute: u32,
+    /// Mean `cost1` over the point's minutes (infinite, or NaN if no data).
+    pub cost: f64,
+}
+
+/// A run of curve points near the cheapest cost.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Window {
+    /// First minute of the day.
+    pub start: u32,
+    /// End minute, exclusive (can pass 1440 when the range wraps past midnight).
+    pub end: u32,
+    /// Mean cost over the window.
+    pub cost: f64,
+}
+
+/// An off-line plan: the cost curve of a route and its cheapest departure times.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OfflinePlan {
+    /// The route.
+    pub route: String,
+    /// The range and step.
+    pub range: DayRange,
+    /// The curve, one point per step.
+    pub curve: Vec<CurvePoint>,
+    /// Segments with `M'_p = 0` (the route is infinitely expensive if any).
+    pub never_active: Vec<String>,
+    /// The cheapest windows: runs of points within [`WINDOW_MARGIN`] of the
+    /// cheapest, cheapest first.
+    pub windows: Vec<Window>,
+    /// The cheapest points, cheapest first (ties: earlier first), at most 5.
+    pub best: Vec<CurvePoint>,
+}
+
+/// A window holds the points whose cost is within this fraction of the curve's
+/// range (max − min) above its minimum.
+pub const WINDOW_MARGIN: f64 = 0.05;
+
+/// Plans `route` off-line over `range`.
+pub fn plan_offline(
+    route: &RouteConfig,
+    profiles: &[&SegmentProfile],
+    range: DayRange,
+    params: &CostParams,
+) -> OfflinePlan {
+    let never_active: Vec<String> = profiles
+        .iter()
+        .filter(|p| !p.m_prime)
+        .map(|p| p.name.clone())
+        .collect();
+    let total = range.minutes();
+    let step = range.step.max(1);
+    let mut curve = Vec::new();
+    let mut offset = 0;
+    while offset < total {
+        let minute = (range.start + offset) % MINUTES_PER_DAY;
+        let n = step.min(total - offset);
+        let (mut sum, mut count, mut infinite) = (0.0, 0u32, false);
+        for k in 0..n {
+            let m = (minute + k) % MINUTES_PER_DAY;
+            let c = cost1(profiles, range.cycle_offset + m, params);
+            if c.is_infinite() {
+                infinite = true;
+            } else if c.is_finite() {
+                sum += c;
+                count += 1;
+            }
+        }
+        let cost = if infinite {
+            f64::INFINITY
+        } else if count == 0 {
+            f64::NAN
+        } else {
+            sum / count as f64
+        };
+        curve.push(CurvePoint { minute, cost });
+        offset += step;
+    }
+    let finite: Vec<&CurvePoint> = curve.iter().filter(|p| p.cost.is_finite()).collect();
+    let mut windows = Vec::new();
+    let mut best = Vec::new();
+    if !finite.is_empty() {
+        let min = finite.iter().map(|p| p.cost).fold(f64::INFINITY, f64::min);
+        let max = finite
+            .iter()
+            .map(|p| p.cost)
+            .fold(f64::NEG_INFINITY, f64::max);
+        let limit = min + (WINDOW_MARGIN * (max - min)).max(1e-9);
+        let mut run: Option<(usize, usize)> = None;
+        let close = |(a, b): (usize, usize), windows: &mut Vec<Window>| {
+            let pts = &curve[a..=b];
+            let cost = pts.iter().map(|p| p.cost).sum::<f64>() / pts.len() as f64;
+            let start = curve[a].minute;
+            let length: u32 = ((b - a) as u32) * step + step.min(total - (b as u32) * step);
+            windows.push(Window {
+                start,
+                end: start + length,
+                cost,
+            });
+        };
+        for (k, p) in curve.iter().enumerate() {
+            let near = p.cost.is_finite() && p.cost <= limit;
+            run = match (run, near) {
+                (None, true) => Some((k, k)),
+                (Some((a, _)), true) => Some((a, k)),
+                (Some(r), false) => {
+                    close(r, &mut windows);
+                    None
+                }
+                (None, false) => None,
+            };
+        }
+        if let Some(r) = run {
+            close(r, &mut windows);
+        }
+        windows.sort_by(|a, b| a.cost.total_cmp(&b.cost).then(a.start.cmp(&b.start)));
+        let mut sorted: Vec<CurvePoint> = finite.into_iter().copied().collect();
+        sorted.sort_by(|a, b| a.cost.total_cmp(&b.cost));
+        best = sorted.into_iter().take(5).collect();
+    }
+    OfflinePlan {
+        route: route.name.clone(),
+        range,
+        curve,
+        never_active,
+        windows,
+        best,
+    }
+}
+
+/// A route's real-time cost.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RouteNow {
+    /// Route name.
+    pub name: String,
+    /// `cost1(route, t* = now)` (unknown long-term data counts as 0, flagged).
+    pub cost1: f64,
+    /// `Σ Cost(M_p(now))`.
+    pub short_term: f64,
+    /// `w1·cost1 + w2·short_term`; infinite if a segment never saw activity.
+    pub cost2: f64,
+    /// A segment never saw activity (`M'_p = 0`).
+    pub infinite: bool,
+    /// Some segment had no live activity; its long-term mean stood in.
+    pub estimated: bool,
+    /// Some segment had no long-term data at t*.
+    pub no_long_term: bool,
+}
+
+/// Ranks `routes` by `cost2` at isochronal time `t_star`, cheapest first (infinite
+/// last, ties by name). `now[segment]` is `M_p(now)`, `None` without live data.
+pub fn plan_now(
+    routes: &[(&RouteConfig, Vec<&SegmentProfile>)],
+    now: &BTreeMap<String, Option<f64>>,
+    t_star: u32,
+    params: &CostParams,
+    w1: f64,
+    w2: f64,
+) -> Vec<RouteNow> {
+    let mut out: Vec<RouteNow> = routes
+        .iter()
+        .map(|(route, profiles)| {
+            let infinite = profiles.iter().any(|p| !p.m_prime);
+            let (mut c1, mut short) = (0.0, 0.0);
+            let (mut estimated, mut no_long_term) = (false, false);
+            for p in profiles {
+                let long = p.at(t_star);
+                match long {
+                    Some(m) => c1 += params.cost_of(m),
+                    None => no_long_term = true,
+                }
+                match now.get(&p.name).copied().flatten() {
+                    Some(m) => short += params.cost_of(m),
+                    None => {
+                        estimated = true;
+                        short += long.map_or(0.0, |m| params.cost_of(m));
+                    }
+                }
+            }
+            let cost1 = if infinite { f64::INFINITY } else { c1 };
+            let cost2 = if infinite {
+                f64::INFINITY
+            } else {
+                w1 * c1 + w2 * short
+            };
+            RouteNow {
+                name: route.name.clone(),
+                cost1,
+                short_term: short,
+                cost2,
+                infinite,
+                estimated,
+                no_long_term,
+            }
+        })
+        .collect();
+    out.sort_by(|a, b| a.cost2.total_cmp(&b.cost2).then(a.name.cmp(&b.name)));
+    out
+}
+
+/// `M_p(now)` of a segment: the mean short-term activity over its blocks of the
+/// cameras with live data (`live[k]`: camera `k`'s latest activity per block).
+pub fn segment_now(
+    segment: &SegmentBlocks,
+    live: &[Option<&[isochron_shared::wire::BlockActivity]>],
+    params: &CostParams,
+) -> Option<f64> {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (k, blocks) in &segment.blocks {
+        let Some(Some(acts)) = live.get(*k) else {
+            continue;
+        };
+        for &b in blocks {
+            if let Some(a) = acts.get(b as usize) {
+                sum += params.short_term_activity(a);
+                n += 1;
+            }
+        }
+    }
+    (n > 0).then(|| sum / n as f64)
+}
+
+/// The block grid a camera's store was made for.
+pub fn store_block_grid(model: &Model) -> BlockGrid {
+    BlockGrid {
+        frame_width: model.meta.frame_width,
+        frame_height: model.meta.frame_height,
+        block_px: model.meta.block_px.max(1),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use isochron_shared::clock::Cycle;
+    use isochron_shared::store::{Bin, StoreMeta};
+    use isochron_shared::wire::BlockActivity;
+
+    fn params() -> CostParams {
+        CostParams {
+            weight_in_place: 1.0,
+            weight_moving: 1.0,
+            weight_long_term: 0.5,
+            cost_scale: 0.1,
+            cap: 100,
+            confirm_cost: 100,
+            confirm_radius_m: 0.5,
+        }
+    }
+
+    fn profile(name: &str, f: impl Fn(u32) -> Option<f64>) -> SegmentProfile {
+        let m_p: Vec<Option<f64>> = (0..1440).map(f).collect();
+        SegmentProfile {
+            name: name.into(),
+            m_prime: m_p.iter().flatten().any(|&m| m > 0.0),
+            m_p,
+        }
+    }
+
+    fn route(name: &str, segments: &[&str]) -> RouteConfig {
+        RouteConfig {
+            name: name.into(),
+            segments: segments.iter().map(|s| s.to_string()).collect(),
+        }
+    }
+
+    #[test]
+    fn the_quiet_hour_is_the_cheapest_window() {
+        // Busy all day except 12:00-13:00 on segment a; b is always a little busy.
+        let a = profile("a", |m| {
+            Some(if (720..780).contains(&m) { 0.0 } else { 0.08 })
+        });
+        let b = profile("b", |_| Some(0.01));
+        let r = route("r", &["a", "b"]);
+        let plan = plan_offline(&r, &[&a, &b], DayRange::whole_day(5), &params());
+        assert_eq!(plan.curve.len(), 288);
+        assert!(plan.never_active.is_empty());
+        assert_eq!(
+            plan.windows[0],
+            Window {
+                start: 720,
+                end: 780,
+                cost: 10.0
+            }
+        );
+        assert_eq!(plan.windows.len(), 1);
+        assert_eq!(plan.best[0].minute, 720);
+        assert!((plan.curve[0].cost - 90.0).abs() < 1e-9);
+        // Within a narrower range, and with a step that straddles the window's edge.
+        let range = DayRange {
+            start: 11 * 60,
+            end: 14 * 60,
+            step: 7,
+            cycle_offset: 0,
+        };
+        let plan = plan_offline(&r, &[&a, &b], range, &params());
+        assert_eq!(plan.curve.first().unwrap().minute, 660);
+        let w = plan.windows[0];
+        assert!(w.start >= 720 && w.end <= 780 + 7, "{w:?}");
+    }
+
+    #[test]
+    fn a_never_visited_segment_makes_the_route_infinite() {
+        let a = profile("a", |_| Some(0.05));
+        let dead = profile("dead", |_| Some(0.0));
+        assert!(!dead.m_prime);
+        let r = route("r", &["a", "dead"]);
+        assert_eq!(cost1(&[&a, &dead], 600, &params()), f64::INFINITY);
+        let plan = plan_offline(&r, &[&a, &dead], DayRange::whole_day(60), &params());
+        assert_eq!(plan.never_active, vec!["dead".to_string()]);
+        assert!(plan.curve.iter().all(|p| p.cost == f64::INFINITY));
+        assert!(plan.windows.is_empty() && plan.best.is_empty());
+        // Missing data is unknown, not free.
+        let gap = profile("gap", |m| (m >= 60).then_some(0.02));
+        assert!(cost1(&[&gap], 30, &params()).is_nan());
+        assert!((cost1(&[&gap], 90, &params()) - 20.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn now_ranks_by_the_weighted_sum() {
+        // Long-term: x is quiet, y busy at 10:00. Short-term now: x busy, y quiet.
+        let x = profile("x", |_| Some(0.01)); // Cost 10
+        let y = profile("y", |_| Some(0.05)); // Cost 50
+        let dead = profile("dead", |_| Some(0.0));
+        let rx = route("via-x", &["x"]);
+        let ry = route("via-y", &["y"]);
+        let rd = route("via-dead", &["dead"]);
+        let mut now = BTreeMap::new();
+        now.insert("x".to_string(), Some(0.08)); // Cost 80
+        now.insert("y".to_string(), Some(0.0)); // Cost 0
+        let routes = vec![(&rx, vec![&x]), (&ry, vec![&y]), (&rd, vec![&dead])];
+        // Long-term dominates: x (10) before y (50).
+        let ranked = plan_now(&routes, &now, 600, &params(), 1.0, 0.1);
+        let names: Vec<&str> = ranked.iter().map(|r| r.name.as_str()).collect();
+        assert_eq!(names, ["via-x", "via-y", "via-dead"]);
+        assert!((ranked[0].cost2 - (10.0 + 0.1 * 80.0)).abs() < 1e-9);
+        assert!(ranked[2].infinite && ranked[2].cost2.is_infinite());
+        // Short-term dominates: y (50·0.1 + 0) before x (10·0.1 + 80).
+        let ranked = plan_now(&routes, &now, 600, &params(), 0.1, 1.0);
+        let names: Vec<&str> = ranked.iter().map(|r| r.name.as_str()).collect();
+        assert_eq!(names, ["via-y", "via-x", "via-dead"]);
+        assert!((ranked[0].cost2 - 5.0).abs() < 1e-9);
+        assert!((ranked[1].cost2 - 81.0).abs() < 1e-9);
+        // No live data: the long-term mean stands in, flagged.
+        let ranked = plan_now(
+            &[(&rx, vec![&x])],
+            &BTreeMap::new(),
+            600,
+            &params(),
+            1.0,
+            1.0,
+        );
+        assert!(ranked[0].estimated);
+        assert!((ranked[0].cost2 - 20.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn profiles_average_the_segment_blocks_of_learned_bins() {
+        let meta = StoreMeta {
+            camera: "cam01".into(),
+            grid_w: 2,
+            grid_h: 1,
+            block_px: 16,
+            frame_width: 32,
+            frame_height: 16,
+            cycle: Cycle::Daily,
+            created_ns: 0,
+        };
+        let mut bins = vec![None; 1440];
+        bins[100] = Some(Bin {
+            t_star: 100,
+            count: 3,
+            last_minute: 0,
+            mean: vec![0.2, 0.4],
+            var: vec![0.0, 0.0],
+        });
+        let model = Model { meta, bins };
+        let seg = SegmentBlocks {
+            name: "s".into(),
+            blocks: vec![(0, vec![0, 1])],
+        };
+        let p = SegmentProfile::from_models(&seg, &[Some(&model)], 1440, 0.0);
+        assert!((p.at(100).unwrap() - 0.3).abs() < 1e-6);
+        assert_eq!(p.at(101), None);
+        assert!(p.m_prime);
+        let p = SegmentProfile::from_models(&seg, &[Some(&model)], 1440, 0.5);
+        assert!(!p.m_prime, "nothing above min_activity");
+        // Short-term: mean over the live blocks.
+        let live = [
+            BlockActivity {
+                s1: 0.1,
+                ..Default::default()
+            },
+            BlockActivity {
+                s2: 0.3,
+                ..Default::default()
+            },
+        ];
+        let now = segment_now(&seg, &[Some(&live[..])], &params()).unwrap();
+        assert!((now - 0.2).abs() < 1e-6);
+        assert_eq!(segment_now(&seg, &[None], &params()), None);
+        assert_eq!(store_block_grid(&model).grid_w(), 2);
+    }
+}

@@ -1,0 +1,531 @@
+//! The planner of a site: the segments and routes of its config, the cameras'
+//! floor mappings, and their long-term stores, read-only (also while the cascade
+//! writes them). Both the `isochron plan` command and the bridge's planning
+//! service answer through it.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use isochron_shared::clock::Cycle;
+use isochron_shared::config::{CostmapConfig, LoadedConfig, RouteConfig};
+use isochron_shared::geometry::BlockGrid;
+use isochron_shared::store::{Model, Store, StoreError, store_path};
+use isochron_shared::wire::BlockActivity;
+
+use crate::cost::CostParams;
+use crate::homography::Homography;
+use crate::plan::{
+    CameraGeometry, DayRange, OfflinePlan, PlanError, RouteNow, SegmentBlocks, SegmentProfile,
+    plan_now, plan_offline, resolve_segment, route_profiles, segment_now, store_block_grid,
+};
+
+/// A camera's latest live activity.
+#[derive(Debug, Clone, Copy)]
+pub struct LiveCamera<'a> {
+    /// Its block grid.
+    pub blocks: BlockGrid,
+    /// Activity per block.
+    pub activity: &'a [BlockActivity],
+}
+
+/// A segment's long-term activity per bin of the cycle.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SegmentDaily {
+    /// `M_p(t*)` and `M'_p`.
+    pub profile: SegmentProfile,
+    /// Day-to-day spread per bin: root mean square of the block sigmas.
+    pub sigma: Vec<Option<f64>>,
+    /// Days (cycles) that taught each bin (the most over the segment's cameras).
+    pub count: Vec<u32>,
+}
+
+/// A camera's long-term model as last read.
+struct Cached {
+    model: Model,
+    last_minute: Option<i64>,
+    checked: Instant,
+}
+
+/// Plans for one site.
+pub struct Planner {
+    config: CostmapConfig,
+    cycle: Cycle,
+    cameras: Vec<CameraGeometry>,
+    state_dir: PathBuf,
+    params: CostParams,
+    models: Vec<Option<Cached>>,
+    /// How long a read model is trusted before the store is checked for news.
+    pub refresh_every: Duration,
+}
+
+impl Planner {
+    /// The planner of `loaded`; fails if a camera's floor points do not define a
+    /// homography.
+    pub fn new(loaded: &LoadedConfig) -> Result<Planner, PlanError> {
+        let config = &loaded.config;
+        let mut cameras = Vec::new();
+        for (i, cam) in config.cameras.iter().enumerate() {
+            let homography = Homography::of_camera(cam)
+                .map_err(|e| {
+                    PlanError::Config(format!("camera[{i}].floor_points ({}): {e}", cam.id))
+                })?
+                .map(|(h, _)| h);
+            cameras.push(CameraGeometry {
+                config: cam.clone(),
+                homography,
+                blocks: None,
+            });
+        }
+        Ok(Planner {
+            config: config.costmap.clone(),
+            cycle: config.cascade.cycle,
+            models: cameras.iter().map(|_| None).collect(),
+            cameras,
+            state_dir: loaded.state_dir(),
+            params: CostParams::from_config(&config.costmap),
+            refresh_every: Duration::ZERO,
+        })
+    }
+
+    /// The cost function in use.
+    pub fn params(&self) -> &CostParams {
+        &self.params
+    }
+
+    /// The isochronal cycle of the site.
+    pub fn cycle(&self) -> Cycle {
+        self.cycle
+    }
+
+    /// The route named `name`.
+    pub fn route(&self, name: &str) -> Result<&RouteConfig, PlanError> {
+        self.config.route(name).ok_or_else(|| {
+            PlanError::UnknownRoute(
+                name.to_string(),
+                self.config
+                    .routes
+                    .iter()
+                    .map(|r| r.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            )
+        })
+    }
+
+    /// Reads (or re-reads, when the cascade committed since) each camera's store.
+    fn refresh(&mut self) -> Result<(), PlanError> {
+        let now = Instant::now();
+        for (k, cam) in self.cameras.iter_mut().enumerate() {
+            if let Some(c) = &self.models[k]
+                && now.duration_since(c.checked) < self.refresh_every
+            {
+                continue;
+            }
+            let path = store_path(&self.state_dir, &cam.config.id);
+            let store = match Store::open_read_only(&path, &cam.config.id) {
+                Ok(s) => s,
+                Err(StoreError::NotFound { .. }) => {
+                    self.models[k] = None;
+                    continue;
+                }
+                Err(e) => return Err(PlanError::NoData(e.to_string())),
+            };
+            let last_minute = store
+                .progress()
+                .map_err(|e| PlanError::NoData(e.to_string()))?
+                .last_minute;
+            if let Some(c) = &mut self.models[k]
+                && c.last_minute == last_minute
+            {
+                c.checked = now;
+                continue;
+            }
+            let model = store
+                .read_model()
+                .map_err(|e| PlanError::NoData(e.to_string()))?;
+            cam.blocks = Some(store_block_grid(&model));
+            self.models[k] = Some(Cached {
+                model,
+                last_minute,
+                checked: now,
+            });
+        }
+        Ok(())
+    }
+
+    /// The blocks of every segment named by `names` on the long-term block grids.
+    fn long_term_segments(&self, names: &[&str]) -> Result<Vec<SegmentBlocks>, PlanError> {
+        names
+            .iter()
+            .map(|name| {
+                let seg = self.config.segment(name).ok_or_else(|| {
+                    PlanError::UnknownSegment(
+                        name.to_string(),
+                        self.config
+                            .segments
+                            .iter()
+                            .map(|s| s.name.as_str())
+                            .collect::<Vec<_>>()
+                            .join(", "),
+                    )
+                })?;
+                let blocks = resolve_segment(seg, &self.cameras).map_err(|e| match e {
+                    PlanError::EmptySegment(_) if self.models.iter().all(Option::is_none) => {
+                        self.no_store()
+                    }
+                    other => other,
+                })?;
+                // A segment needs the long-term model of at least one of its cameras.
+                if blocks.blocks.iter().all(|(k, _)| self.models[*k].is_none()) {
+                    return Err(self.no_store());
+                }
+                Ok(blocks)
+            })
+            .collect()
+    }
+
+    fn no_store(&self) -> PlanError {
+        PlanError::NoData(format!(
+            "no long-term store under {} for the cameras of this plan: isochron-cascade writes one per camera ({}) once it runs",
+            self.state_dir.display(),
+            self.cameras
+                .iter()
+                .map(|c| store_path(&self.state_dir, &c.config.id)
+                    .display()
+                    .to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ))
+    }
+
+    /// The long-term profiles of the segments named by `names`.
+    pub fn profiles(
+        &mut self,
+        names: &[&str],
+    ) -> Result<BTreeMap<String, SegmentProfile>, PlanError> {
+        self.refresh()?;
+        let segments = self.long_term_segments(names)?;
+        let models: Vec<Option<&Model>> = self
+            .models
+            .iter()
+            .map(|m| m.as_ref().map(|c| &c.model))
+            .collect();
+        let bins = self.cycle.bins() as usize;
+        Ok(segments
+            .iter()
+            .map(|s| {
+                (
+                    s.name.clone(),
+                    SegmentProfile::from_models(s, &models, bins, self.config.min_activity),
+                )
+            })
+            .collect())
+    }
+
+    /// The off-line plan of `route` over `range`.
+    pub fn offline(&mut self, route: &str, range: DayRange) -> Result<OfflinePlan, PlanError> {
+        let route = self.route(route)?.clone();
+        let names: Vec<&str> = route.segments.iter().map(String::as_str).collect();
+        let profiles = self.profiles(&names)?;
+        let ordered = route_profiles(&route, &profiles)?;
+        Ok(plan_offline(&route, &ordered, range, &self.params))
+    }
+
+    /// The routes named `routes` ranked by `cost2` at isochronal time `t_star`, with
+    /// the cameras' live activity (`live[k]` for camera `k`, `None` if none).
+    pub fn now(
+        &mut self,
+        routes: &[String],
+        live: &[Option<LiveCamera<'_>>],
+        t_star: u32,
+    ) -> Result<Vec<RouteNow>, PlanError> {
+        let configs: Vec<RouteConfig> = routes
+            .iter()
+            .map(|r| self.route(r).cloned())
+            .collect::<Result<_, _>>()?;
+        let mut names: Vec<&str> = configs
+            .iter()
+            .flat_map(|r| r.segments.iter().map(String::as_str))
+            .collect();
+        names.sort_unstable();
+        names.dedup();
+        let profiles = self.profiles(&names)?;
+        // M_p(now) on the live block grids.
+        let live_cameras: Vec<CameraGeometry> = self
+            .cameras
+            .iter()
+            .zip(live.iter().chain(std::iter::repeat(&None)))
+            .map(|(c, l)| CameraGeometry {
+                blocks: l.map(|l| l.blocks),
+                ..c.clone()
+            })
+            .collect();
+        let activity: Vec<Option<&[BlockActivity]>> = (0..self.cameras.len())
+            .map(|k| live.get(k).copied().flatten().map(|l| l.activity))
+            .collect();
+        let mut now = BTreeMap::new();
+        for name in &names {
+            let seg = self.config.segment(name).expect("resolved above");
+            let m = resolve_segment(seg, &live_cameras)
+                .ok()
+                .and_then(|blocks| segment_now(&blocks, &activity, &self.params));
+            now.insert(name.to_string(), m);
+        }
+        let ordered: Vec<(&RouteConfig, Vec<&SegmentProfile>)> = configs
+            .iter()
+            .map(|r| route_profiles(r, &profiles).map(|p| (r, p)))
+            .collect::<Result<_, _>>()?;
+        Ok(plan_now(
+            &ordered,
+            &now,
+            t_star,
+            &self.params,
+            self.config.w1,
+            self.config.w2,
+        ))
+    }
+
+    /// The long-term profile of one segment over the cycle: what
+    /// `isochron plot daily --segment` draws.
+    pub fn segment_daily(&mut self, name: &str) -> Result<SegmentDaily, PlanError> {
+        let profiles = self.profiles(&[name])?;
+        let profile = profiles.into_values().next().expect("one segment");
+        let segment = self.long_term_segments(&[name])?.remove(0);
+        let bins = self.cycle.bins() as usize;
+        let mut sigma = vec![None; bins];
+        let mut count = vec![0u32; bins];
+        for t in 0..bins {
+            let (mut sum, mut n) = (0.0, 0usize);
+            for (k, blocks) in &segment.blocks {
+                let Some(Some(c)) = self.models.get(*k) else {
+                    continue;
+                };
+                let Some(bin) = c.model.bin(t as u32 % c.model.meta.bins().max(1)) else {
+                    continue;
+                };
+                count[t] = count[t].max(bin.count);
+                for &b in blocks {
+                    let s = bin.sigma(b as usize) as f64;
+                    sum += s * s;
+                    n += 1;
+                }
+            }
+            if n > 0 {
+                sigma[t] = Some((sum / n as f64).sqrt());
+            }
+        }
+        Ok(SegmentDaily {
+            profile,
+            sigma,
+            count,
+        })
+    }
+
+    /// How many days taught the segment's cameras' bins at most (for titles).
+    pub fn days(&self) -> u32 {
+        self.models
+            .iter()
+            .flatten()
+            .flat_map(|c| c.model.learned().map(|b| b.count))
+            .max()
+            .unwrap_or(0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use isochron_shared::config::Config;
+    use isochron_shared::store::{Bin, MinuteCommit, StoreMeta};
+
+    /// A site with one camera looking straight down at a 4 m × 3 m floor
+    /// (80 px per metre), a 320×240 frame in 16 px blocks (20×15), and a
+    /// hand-made long-term store.
+    const SITE: &str = r#"
+[site]
+state_dir = "state"
+
+[[camera]]
+id = "cam01"
+source = "video.avi"
+floor_points = [
+  { image_px = [0, 0], floor_m = [0, 3] },
+  { image_px = [320, 0], floor_m = [4, 3] },
+  { image_px = [320, 240], floor_m = [4, 0] },
+  { image_px = [0, 240], floor_m = [0, 0] },
+]
+[[camera.zone]]
+name = "door"
+polygon = [[0, 0], [64, 0], [64, 64], [0, 64]]
+
+[costmap]
+cost_scale = 0.1
+w1 = 1.0
+w2 = 1.0
+
+[[costmap.segment]]
+name = "west"
+polygon_m = [[0, 0], [2, 0], [2, 3], [0, 3]]
+
+[[costmap.segment]]
+name = "east"
+polygon_m = [[2, 0], [4, 0], [4, 3], [2, 3]]
+
+[[costmap.segment]]
+name = "door"
+camera = "cam01"
+zone = "door"
+
+[[costmap.route]]
+name = "through"
+segments = ["west", "east"]
+
+[[costmap.route]]
+name = "via-door"
+segments = ["door", "west"]
+"#;
+
+    fn site(bins: impl Fn(u32) -> Option<Vec<f32>>) -> (tempfile::TempDir, LoadedConfig) {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("site.toml");
+        std::fs::write(&path, SITE).unwrap();
+        let loaded = Config::load(&path).unwrap();
+        let meta = StoreMeta {
+            camera: "cam01".into(),
+            grid_w: 20,
+            grid_h: 15,
+            block_px: 16,
+            frame_width: 320,
+            frame_height: 240,
+            cycle: Cycle::Daily,
+            created_ns: 0,
+        };
+        let mut store =
+            Store::open_or_create(&store_path(&loaded.state_dir(), "cam01"), &meta).unwrap();
+        for t in 0..1440 {
+            if let Some(mean) = bins(t) {
+                let bin = Bin {
+                    t_star: t,
+                    count: 10,
+                    last_minute: t as i64,
+                    var: vec![0.0; mean.len()],
+                    mean,
+                };
+                store
+                    .commit_minute(&MinuteCommit {
+                        minute: t as i64,
+                        bin: Some(&bin),
+                        baseline: None,
+                    })
+                    .unwrap();
+            }
+        }
+        (dir, loaded)
+    }
+
+    /// Block index → is it in the west half (x < 160 px ↔ x < 2 m)?
+    fn west(b: usize) -> bool {
+        b % 20 < 10
+    }
+
+    #[test]
+    fn offline_finds_the_quiet_hour_from_the_store() {
+        // The west half is busy except 12:00-13:00; the east half always a little.
+        let (_dir, loaded) = site(|t| {
+            Some(
+                (0..300)
+                    .map(|b| {
+                        if west(b) {
+                            if (720..780).contains(&t) { 0.0 } else { 0.05 }
+                        } else {
+                            0.01
+                        }
+                    })
+                    .collect(),
+            )
+        });
+        let mut planner = Planner::new(&loaded).unwrap();
+        let plan = planner.offline("through", DayRange::whole_day(5)).unwrap();
+        assert_eq!(plan.windows[0].start, 720);
+        assert_eq!(plan.windows[0].end, 780);
+        assert!(
+            (plan.windows[0].cost - 10.0).abs() < 1e-4,
+            "{:?}",
+            plan.windows[0]
+        );
+        assert!((plan.curve[0].cost - 60.0).abs() < 1e-4);
+        let err = planner
+            .offline("nowhere", DayRange::whole_day(5))
+            .unwrap_err();
+        assert!(err.to_string().contains("through, via-door"), "{err}");
+    }
+
+    #[test]
+    fn a_segment_never_visited_makes_its_routes_infinite() {
+        // Only the east half ever moves.
+        let (_dir, loaded) =
+            site(|_| Some((0..300).map(|b| if west(b) { 0.0 } else { 0.02 }).collect()));
+        let mut planner = Planner::new(&loaded).unwrap();
+        let plan = planner.offline("through", DayRange::whole_day(60)).unwrap();
+        assert_eq!(plan.never_active, vec!["west".to_string()]);
+        assert!(plan.curve.iter().all(|p| p.cost.is_infinite()));
+        let ranked = planner
+            .now(&["through".into(), "via-door".into()], &[], 600)
+            .unwrap();
+        assert!(ranked.iter().all(|r| r.infinite));
+    }
+
+    #[test]
+    fn now_uses_live_activity_and_ranks() {
+        // Long-term: everything equally a little busy.
+        let (_dir, loaded) = site(|_| Some(vec![0.01; 300]));
+        let mut planner = Planner::new(&loaded).unwrap();
+        // Live: the door zone (blocks x < 4, y < 4) is crowded.
+        let blocks = BlockGrid {
+            frame_width: 320,
+            frame_height: 240,
+            block_px: 16,
+        };
+        let activity: Vec<BlockActivity> = (0..300)
+            .map(|b| BlockActivity {
+                s1: if b % 20 < 4 && b / 20 < 4 { 0.2 } else { 0.0 },
+                ..Default::default()
+            })
+            .collect();
+        let live = [Some(LiveCamera {
+            blocks,
+            activity: &activity,
+        })];
+        let ranked = planner
+            .now(&["via-door".into(), "through".into()], &live, 600)
+            .unwrap();
+        let names: Vec<&str> = ranked.iter().map(|r| r.name.as_str()).collect();
+        assert_eq!(names, ["through", "via-door"]);
+        // through: long-term 10 + 10, short-term: west has 16 of 150 blocks at 0.2.
+        let west_now = 16.0 * 0.2 / 150.0;
+        assert!(
+            (ranked[0].short_term - 100.0 * west_now / 0.1).abs() < 1e-3,
+            "{:?}",
+            ranked[0]
+        );
+        assert!((ranked[0].cost1 - 20.0).abs() < 1e-3);
+        // via-door: door is all crowded → capped at 100.
+        assert!((ranked[1].short_term - (100.0 + 100.0 * west_now / 0.1)).abs() < 1e-3);
+        assert!(!ranked[0].estimated);
+    }
+
+    #[test]
+    fn a_missing_store_says_where_it_was_looked_for() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("site.toml");
+        std::fs::write(&path, SITE).unwrap();
+        let loaded = Config::load(&path).unwrap();
+        let mut planner = Planner::new(&loaded).unwrap();
+        let err = planner
+            .offline("through", DayRange::whole_day(5))
+            .unwrap_err();
+        assert!(matches!(err, PlanError::NoData(_)), "{err}");
+        assert!(err.to_string().contains("cam01.isochron.sqlite"), "{err}");
+    }
+}

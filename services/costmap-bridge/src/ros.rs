@@ -1,0 +1,334 @@
+//! ROS 2 output over DDS, in pure Rust (`ros2-client` on RustDDS): no ROS install.
+//!
+//! * `<topic>`: `nav_msgs/msg/OccupancyGrid`, reliable, transient-local, keep last 1
+//!   — what `map_server` offers, so a late joiner (a Nav2 costmap started after the
+//!   bridge) gets the current grid at once;
+//! * `<topic>_updates` (or `costmap.updates_topic`): `map_msgs/msg/OccupancyGridUpdate`,
+//!   reliable, volatile, keep last 10 — deltas relative to the last full grid, which
+//!   is what Nav2's StaticLayer subscribes to with `subscribe_to_updates: true`.
+//!
+//! The DDS participant joins `costmap.ros_domain_id` (else `$ROS_DOMAIN_ID`, else 0)
+//! and uses the network interfaces of `costmap.dds_interfaces` (else all; only
+//! loopback when `ROS_LOCALHOST_ONLY=1` or `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`).
+
+use std::net::IpAddr;
+use std::time::Duration;
+
+use ros2_client::dds::{Context, Node, Publisher};
+use ros2_client::qos::Durability;
+use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions};
+use rustdds::{DomainParticipantBuilder, QosPolicyBuilder, TopicKind, policy};
+
+use crate::msgs::{OccupancyGrid, OccupancyGridUpdate};
+
+/// Highest DDS domain id whose RTPS ports fit in 16 bits.
+pub const MAX_DOMAIN_ID: u16 = 232;
+/// Grids kept for late joiners: the current one.
+const GRID_DEPTH: i32 = 1;
+/// Updates kept for slow readers.
+const UPDATES_DEPTH: i32 = 10;
+/// How long the spinner may take to register the publishers with the node.
+const SPINNER_GRACE: Duration = Duration::from_secs(3);
+/// How long `publish` waits for a full reliable send window before it gives up.
+const MAX_BLOCKING: Duration = Duration::from_millis(50);
+
+/// Where and how the bridge talks ROS 2.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RosSettings {
+    /// DDS domain (ROS_DOMAIN_ID).
+    pub domain_id: u16,
+    /// Network interfaces (their addresses) DDS may use; empty: all.
+    pub interfaces: Vec<IpAddr>,
+    /// The grid topic, e.g. `/isochron/activity_costmap`.
+    pub topic: String,
+    /// The updates topic, e.g. `/isochron/activity_costmap_updates`.
+    pub updates_topic: String,
+}
+
+/// Why ROS 2 output could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum RosError {
+    /// A topic name ROS 2 does not accept.
+    #[error("invalid ROS 2 topic name '{name}': {detail}")]
+    TopicName {
+        /// The name.
+        name: String,
+        /// What is wrong.
+        detail: String,
+    },
+    /// DDS could not be set up (ports, interfaces).
+    #[error("starting DDS on domain {domain}: {detail}")]
+    Dds {
+        /// The domain.
+        domain: u16,
+        /// What failed.
+        detail: String,
+    },
+}
+
+/// Parses a topic name (`/a/b` absolute, `a/b` relative to the node's namespace `/`).
+pub fn topic_name(name: &str) -> Result<Name, RosError> {
+    Name::parse(name).map_err(|e| RosError::TopicName {
+        name: name.to_string(),
+        detail: format!("{e:?}"),
+    })
+}
+
+/// The ROS 2 node of the bridge and its two publishers.
+pub struct RosOutput {
+    started: std::time::Instant,
+    grid: Publisher<OccupancyGrid>,
+    updates: Publisher<OccupancyGridUpdate>,
+    node: Node,
+    _spinner: Option<std::thread::JoinHandle<()>>,
+    _context: Context,
+}
+
+impl RosOutput {
+    /// Joins the DDS domain and creates the node `/isochron/costmap_bridge` with its
+    /// publishers.
+    pub fn start(settings: &RosSettings) -> Result<RosOutput, RosError> {
+        let dds = |detail: String| RosError::Dds {
+            domain: settings.domain_id,
+            detail,
+        };
+        let grid_topic_name = topic_name(&settings.topic)?;
+        let updates_topic_name = topic_name(&settings.updates_topic)?;
+        let mut builder = DomainParticipantBuilder::new(settings.domain_id);
+        if !settings.interfaces.is_empty() {
+            builder = builder.with_only_networks(settings.interfaces.iter().copied());
+        }
+        let participant = builder.build().map_err(|e| dds(format!("{e:?}")))?;
+        let context =
+            Context::from_domain_participant(participant).map_err(|e| dds(format!("{e:?}")))?;
+        let node_name = NodeName::new("/isochron", "costmap_bridge").expect("a valid node name");
+        let mut node = context
+            .new_node(
+                node_name.clone(),
+                NodeOptions::new()
+                    .enable_rosout(false)
+                    .start_parameter_services(false),
+            )
+            .map_err(|e| dds(format!("creating the node: {e:?}")))?;
+
+        // Keep-last is enforced through the writer's resource limits: RustDDS keeps
+        // every sample no reader has acknowledged, so without them a bridge nobody
+        // listens to would pile up grids, and a late joiner would receive all of
+        // them before the current one.
+        let grid_topic = create_topic(
+            &context,
+            &node_name,
+            &grid_topic_name,
+            "nav_msgs",
+            "OccupancyGrid",
+            Durability::TransientLocal,
+            GRID_DEPTH,
+        )
+        .map_err(|e| dds(format!("creating topic {}: {e}", settings.topic)))?;
+        let updates_topic = create_topic(
+            &context,
+            &node_name,
+            &updates_topic_name,
+            "map_msgs",
+            "OccupancyGridUpdate",
+            Durability::Volatile,
+            UPDATES_DEPTH,
+        )
+        .map_err(|e| dds(format!("creating topic {}: {e}", settings.updates_topic)))?;
+        let grid = node
+            .create_publisher::<OccupancyGrid>(&grid_topic, None)
+            .map_err(|e| dds(format!("creating the grid publisher: {e:?}")))?;
+        let updates = node
+            .create_publisher::<OccupancyGridUpdate>(&updates_topic, None)
+            .map_err(|e| dds(format!("creating the updates publisher: {e:?}")))?;
+
+        // The spinner keeps the node visible in the ROS graph (`ros2 node list`) and
+        // answers its discovery traffic; it ends when the node is dropped.
+        let spinner = match node.spinner() {
+            Ok(spinner) => std::thread::Builder::new()
+                .name("ros2-spinner".into())
+                .spawn(move || {
+                    let _ = futures::executor::block_on(spinner.spin());
+                })
+                .ok(),
+            Err(e) => {
+                tracing::warn!("ROS 2 spinner not started: {e:?}");
+                None
+            }
+        };
+        Ok(RosOutput {
+            started: std::time::Instant::now(),
+            grid,
+            updates,
+            node,
+            _spinner: spinner,
+            _context: context,
+        })
+    }
+
+    /// Publishes a full grid.
+    pub fn publish_grid(&self, grid: OccupancyGrid) -> Result<(), String> {
+        self.grid.publish(grid).map_err(|e| format!("{e:?}"))
+    }
+
+    /// Publishes a delta.
+    pub fn publish_update(&self, update: OccupancyGridUpdate) -> Result<(), String> {
+        self.updates.publish(update).map_err(|e| format!("{e:?}"))
+    }
+
+    /// Matched subscribers of the grid topic (0 during the first seconds, until
+    /// the spinner has registered the publisher with the node).
+    pub fn grid_subscribers(&self) -> usize {
+        if self.started.elapsed() < SPINNER_GRACE {
+            return 0;
+        }
+        self.grid.get_subscription_count(&self.node)
+    }
+}
+
+/// Creates the DDS topic of ROS 2 topic `name` for `package/msg/type_name`: reliable
+/// (waiting at most [`MAX_BLOCKING`] for room), `durability`, keep last `depth`,
+/// and at most `depth` samples in the writer's cache.
+fn create_topic(
+    context: &Context,
+    node_name: &NodeName,
+    name: &Name,
+    package: &str,
+    type_name: &str,
+    durability: Durability,
+    depth: i32,
+) -> Result<rustdds::Topic, String> {
+    let qos = QosPolicyBuilder::new()
+        .reliability(policy::Reliability::Reliable {
+            max_blocking_time: rustdds::Duration::from_std(MAX_BLOCKING),
+        })
+        .durability(match durability {
+            Durability::Volatile => policy::Durability::Volatile,
+            Durability::TransientLocal => policy::Durability::TransientLocal,
+        })
+        .history(policy::History::KeepLast { depth })
+        .resource_limits(policy::ResourceLimits {
+            max_samples: depth,
+            max_instances: 1,
+            max_samples_per_instance: depth,
+        })
+        .build();
+    context
+        .domain_participant()
+        .create_topic(
+            name.to_dds_name("rt", node_name, ""),
+            MessageTypeName::new(package, type_name).dds_msg_type(),
+            &qos,
+            TopicKind::NoKey,
+        )
+        .map_err(|e| format!("{e:?}"))
+}
+
+/// Limits what RustDDS and ros2-client log (through the `log` facade) to
+/// `$ISOCHRON_DDS_LOG` (`off`, `error`, `warn`, `info`, `debug`, `trace`; default
+/// `error`): they report routine discovery events as warnings many times a second.
+/// Call after the process's logging is set up.
+pub fn limit_dds_logging() {
+    let level = std::env::var("ISOCHRON_DDS_LOG")
+        .ok()
+        .and_then(|v| v.trim().parse::<log::LevelFilter>().ok())
+        .unwrap_or(log::LevelFilter::Error);
+    log::set_max_level(level);
+}
+
+/// The domain id: `configured`, else `$ROS_DOMAIN_ID`, else 0.
+pub fn domain_id(configured: Option<u16>) -> Result<u16, String> {
+    if let Some(d) = configured {
+        return Ok(d);
+    }
+    match std::env::var("ROS_DOMAIN_ID") {
+        Ok(v) if !v.trim().is_empty() => v
+            .trim()
+            .parse::<u16>()
+            .ok()
+            .filter(|d| *d <= MAX_DOMAIN_ID)
+            .ok_or_else(|| format!("ROS_DOMAIN_ID={v}: expected 0 to {MAX_DOMAIN_ID}")),
+        _ => Ok(0),
+    }
+}
+
+/// The interfaces DDS may use: `configured`, else loopback only when ROS's own
+/// variables ask for it (`ROS_LOCALHOST_ONLY=1`,
+/// `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`), else all (empty).
+pub fn interfaces(configured: &[IpAddr]) -> Vec<IpAddr> {
+    if !configured.is_empty() {
+        return configured.to_vec();
+    }
+    let localhost_only = std::env::var("ROS_LOCALHOST_ONLY").is_ok_and(|v| v.trim() == "1")
+        || std::env::var("ROS_AUTOMATIC_DISCOVERY_RANGE")
+            .is_ok_and(|v| v.trim().eq_ignore_ascii_case("LOCALHOST"));
+    if localhost_only {
+        vec![IpAddr::from([127, 0, 0, 1])]
+    } else {
+        Vec::new()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rustdds::CDRSerializerAdapter;
+    use rustdds::no_key::SerializerAdapter;
+
+    use super::*;
+    use crate::msgs::{Header, MapMetaData, Point, Pose, Quaternion, Time};
+
+    /// The CDR bytes of a tiny grid, laid out by hand from the `.msg` definitions:
+    /// this is what any ROS 2 subscriber decodes.
+    #[test]
+    fn occupancy_grid_cdr_layout() {
+        let grid = OccupancyGrid {
+            header: Header {
+                stamp: Time { sec: 7, nanosec: 9 },
+                frame_id: "map".into(),
+            },
+            info: MapMetaData {
+                map_load_time: Time { sec: 7, nanosec: 9 },
+                resolution: 0.5,
+                width: 2,
+                height: 1,
+                origin: Pose {
+                    position: Point {
+                        x: 1.0,
+                        y: 2.0,
+                        z: 0.0,
+                    },
+                    orientation: Quaternion::from_yaw(0.0),
+                },
+            },
+            data: vec![-1, 100],
+        };
+        let bytes = CDRSerializerAdapter::<OccupancyGrid>::to_bytes(&grid).unwrap();
+        let mut expected: Vec<u8> = Vec::new();
+        expected.extend(7i32.to_le_bytes()); // header.stamp.sec @0
+        expected.extend(9u32.to_le_bytes()); // nanosec @4
+        expected.extend(4u32.to_le_bytes()); // frame_id length incl. NUL @8
+        expected.extend(b"map\0"); // @12
+        expected.extend(7i32.to_le_bytes()); // info.map_load_time @16
+        expected.extend(9u32.to_le_bytes());
+        expected.extend(0.5f32.to_le_bytes()); // resolution @24
+        expected.extend(2u32.to_le_bytes()); // width @28
+        expected.extend(1u32.to_le_bytes()); // height @32
+        expected.extend([0u8; 4]); // pad to 8 for the f64s @36
+        for v in [1.0f64, 2.0, 0.0, 0.0, 0.0, 0.0, 1.0] {
+            expected.extend(v.to_le_bytes()); // origin @40..96
+        }
+        expected.extend(2u32.to_le_bytes()); // data length @96
+        expected.extend([0xff, 100]); // data
+        assert_eq!(bytes.as_ref(), expected.as_slice());
+    }
+
+    #[test]
+    fn domain_and_interfaces_prefer_the_config() {
+        assert_eq!(domain_id(Some(42)), Ok(42));
+        let lo: IpAddr = "127.0.0.1".parse().unwrap();
+        assert_eq!(interfaces(&[lo]), vec![lo]);
+        assert!(topic_name("/isochron/activity_costmap").is_ok());
+        assert!(topic_name("/bad//name").is_err());
+        assert!(topic_name("/bad name").is_err());
+    }
+}

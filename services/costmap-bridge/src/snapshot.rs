@@ -1,0 +1,440 @@
+//! Snapshots of the cost map: `map_server` files for robots and tools, and a picture
+//! for people.
+//!
+//! * `<stem>.pgm` + `<stem>.yaml`: the cost map as a `map_server` map in `mode: raw`
+//!   — each pixel is the cell's cost 0..100, 255 where no camera sees — so
+//!   `map_server` (Nav2) loads exactly the grid that was published. Row 0 of the
+//!   image is the grid's last row, as `map_server` expects.
+//! * `<stem>.png`: the same for people: the floor plan (the `map_yaml` image, if
+//!   any) or plain floor, hatched where no camera sees, each camera's coverage
+//!   outlined in its own colour, the cost as a yellow-to-red overlay, the path
+//!   segments outlined in blue, and a cost scale (0 to 100) along the bottom.
+//!
+//! Files are written under a temporary name and renamed, so a reader never sees
+//! half a snapshot.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use crate::grid::{MapGrid, pgm_header};
+use crate::raster::NOT_SEEN;
+
+/// A grey image of the floor plan, one value per grid cell, rows top (last grid
+/// row) first — the layout of a `map_server` image.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FloorPlan {
+    /// Width, cells.
+    pub width: u32,
+    /// Height, cells.
+    pub height: u32,
+    /// Grey levels, row-major, top row first.
+    pub grey: Vec<u8>,
+}
+
+impl FloorPlan {
+    /// Loads a PGM (8-bit P5) or PNG (grey or colour, 8-bit) map image.
+    pub fn load(path: &Path) -> Result<FloorPlan, String> {
+        let bytes =
+            std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+        if bytes.starts_with(b"P5") {
+            let h = pgm_header(&bytes)
+                .ok_or_else(|| format!("{}: damaged PGM header", path.display()))?;
+            let n = h.width as usize * h.height as usize;
+            if h.max == 0 || h.max > 255 || bytes.len() < h.data_offset + n {
+                return Err(format!(
+                    "{}: only complete 8-bit PGM files are supported",
+                    path.display()
+                ));
+            }
+            let grey = bytes[h.data_offset..h.data_offset + n]
+                .iter()
+                .map(|&v| (v as u32 * 255 / h.max) as u8)
+                .collect();
+            return Ok(FloorPlan {
+                width: h.width,
+                height: h.height,
+                grey,
+            });
+        }
+        let mut decoder = png::Decoder::new(std::io::Cursor::new(bytes));
+        decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
+        let mut reader = decoder
+            .read_info()
+            .map_err(|e| format!("{}: not a PGM or PNG image: {e}", path.display()))?;
+        let mut buf = vec![0; reader.output_buffer_size()];
+        let info = reader
+            .next_frame(&mut buf)
+            .map_err(|e| format!("{}: {e}", path.display()))?;
+        let channels = info.color_type.samples();
+        let grey = buf[..info.buffer_size()]
+            .chunks(channels)
+            .map(|px| match channels {
+                1 | 2 => px[0],
+                _ => ((px[0] as u32 + px[1] as u32 + px[2] as u32) / 3) as u8,
+            })
+            .collect();
+        Ok(FloorPlan {
+            width: info.width,
+            height: info.height,
+            grey,
+        })
+    }
+}
+
+/// What a snapshot shows.
+#[derive(Debug, Clone, Copy)]
+pub struct Snapshot<'a> {
+    /// The grid.
+    pub grid: &'a MapGrid,
+    /// Its cells (0..=100, -1 unknown), row-major from the origin.
+    pub cells: &'a [i8],
+    /// The floor plan under it, if one is configured and matches the grid.
+    pub floor_plan: Option<&'a FloorPlan>,
+    /// Per camera, the block covering each cell (or `NOT_SEEN`).
+    pub coverage: &'a [&'a [u32]],
+    /// Path segment outlines on the floor (map frame).
+    pub segments: &'a [&'a [[f64; 2]]],
+    /// Time of the data, for the YAML's comment.
+    pub stamp: &'a str,
+}
+
+/// The files a snapshot wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SnapshotFiles {
+    /// The `map_server` YAML.
+    pub yaml: PathBuf,
+    /// The raw-mode PGM.
+    pub pgm: PathBuf,
+    /// The picture.
+    pub png: PathBuf,
+}
+
+/// Writes `<dir>/<stem>.{pgm,yaml,png}`.
+pub fn write(dir: &Path, stem: &str, s: &Snapshot<'_>) -> Result<SnapshotFiles, String> {
+    std::fs::create_dir_all(dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
+    let files = SnapshotFiles {
+        yaml: dir.join(format!("{stem}.yaml")),
+        pgm: dir.join(format!("{stem}.pgm")),
+        png: dir.join(format!("{stem}.png")),
+    };
+    write_atomically(&files.pgm, &pgm_bytes(s.grid, s.cells))?;
+    let yaml = map_yaml(s.grid, &format!("{stem}.pgm"), s.stamp);
+    write_atomically(&files.png, &png_bytes(s)?)?;
+    // The YAML last: once it exists, the image it names is complete.
+    write_atomically(&files.yaml, yaml.as_bytes())?;
+    Ok(files)
+}
+
+/// Removes the oldest snapshots in `dir` (by name: stems sort by time) beyond `keep`.
+pub fn prune(dir: &Path, prefix: &str, keep: usize) -> Result<usize, String> {
+    let mut stems: Vec<String> = std::fs::read_dir(dir)
+        .map_err(|e| format!("reading {}: {e}", dir.display()))?
+        .filter_map(Result::ok)
+        .filter_map(|e| e.file_name().into_string().ok())
+        .filter(|n| n.starts_with(prefix) && n.ends_with(".yaml"))
+        .map(|n| n.trim_end_matches(".yaml").to_string())
+        .collect();
+    stems.sort();
+    let excess = stems.len().saturating_sub(keep);
+    for stem in &stems[..excess] {
+        for ext in ["yaml", "pgm", "png"] {
+            let _ = std::fs::remove_file(dir.join(format!("{stem}.{ext}")));
+        }
+    }
+    Ok(excess)
+}
+
+fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), String> {
+    let tmp = path.with_extension(format!(
+        "{}.tmp-{}",
+        path.extension().and_then(|e| e.to_str()).unwrap_or(""),
+        std::process::id()
+    ));
+    let result = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    result.map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        format!("writing {}: {e}", path.display())
+    })
+}
+
+/// The cost map as a binary PGM in `map_server` raw mode: value = cost, 255 =
+/// unknown, top row = the grid's last row.
+pub fn pgm_bytes(grid: &MapGrid, cells: &[i8]) -> Vec<u8> {
+    let (w, h) = (grid.width as usize, grid.height as usize);
+    let mut out = format!("P5\n# isochron activity cost map, map_server raw mode\n{w} {h}\n255\n")
+        .into_bytes();
+    out.reserve(w * h);
+    for row in (0..h).rev() {
+        for &c in &cells[row * w..(row + 1) * w] {
+            out.push(if (0..=100).contains(&c) { c as u8 } else { 255 });
+        }
+    }
+    out
+}
+
+/// The `map_server` YAML for `image`.
+pub fn map_yaml(grid: &MapGrid, image: &str, stamp: &str) -> String {
+    format!(
+        "# isochron activity cost map at {stamp}: cost 0..100 per cell, 255 = no camera sees.\n\
+         image: {image}\n\
+         mode: raw\n\
+         resolution: {}\n\
+         origin: [{}, {}, {}]\n\
+         negate: 0\n\
+         occupied_thresh: 0.65\n\
+         free_thresh: 0.25\n",
+        grid.resolution, grid.origin_x, grid.origin_y, grid.yaw
+    )
+}
+
+/// Distinct outline colours for up to 8 cameras (then they repeat).
+const CAMERA_COLOURS: [[u8; 3]; 8] = [
+    [0, 150, 136],
+    [156, 39, 176],
+    [255, 152, 0],
+    [63, 81, 181],
+    [121, 85, 72],
+    [0, 188, 212],
+    [233, 30, 99],
+    [139, 195, 74],
+];
+
+/// The picture for people, as PNG bytes.
+pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, String> {
+    let (w, h) = (s.grid.width as usize, s.grid.height as usize);
+    let scale = (900 / w.max(h).max(1)).clamp(1, 8);
+    let bar = 24usize;
+    let (iw, ih) = (w * scale, h * scale + bar);
+    let mut img = vec![255u8; iw * ih * 3];
+    let put = |img: &mut Vec<u8>, x: usize, y: usize, c: [u8; 3]| {
+        if x < iw && y < ih {
+            let k = (y * iw + x) * 3;
+            img[k..k + 3].copy_from_slice(&c);
+        }
+    };
+    let plan = s
+        .floor_plan
+        .filter(|p| p.width as usize == w && p.height as usize == h);
+    for gy in 0..h {
+        // Image row 0 is the grid's last row.
+        let py0 = (h - 1 - gy) * scale;
+        for gx in 0..w {
+            let k = gy * w + gx;
+            let base = match plan {
+                Some(p) => {
+                    let g = p.grey[(h - 1 - gy) * w + gx];
+                    // Lighten the plan so the overlay stays readable.
+                    let g = 128 + g / 2;
+                    [g, g, g]
+                }
+                None => [250, 250, 250],
+            };
+            let cost = s.cells.get(k).copied().unwrap_or(-1);
+            for dy in 0..scale {
+                for dx in 0..scale {
+                    let c = if cost < 0 {
+                        // Hatched: no camera sees here.
+                        if (gx * scale + dx + gy * scale + dy) % 6 < 2 {
+                            [150, 150, 150]
+                        } else {
+                            blend(base, [200, 200, 200], 0.5)
+                        }
+                    } else {
+                        cost_colour(base, cost as u8)
+                    };
+                    put(&mut img, gx * scale + dx, py0 + dy, c);
+                }
+            }
+        }
+    }
+    // Camera coverage outlines: seen cells with an unseen 4-neighbour.
+    for (n, cover) in s.coverage.iter().enumerate() {
+        if cover.len() != w * h {
+            continue;
+        }
+        let colour = CAMERA_COLOURS[n % CAMERA_COLOURS.len()];
+        let seen = |x: isize, y: isize| {
+            x >= 0
+                && y >= 0
+                && (x as usize) < w
+                && (y as usize) < h
+                && cover[y as usize * w + x as usize] != NOT_SEEN
+        };
+        for gy in 0..h as isize {
+            for gx in 0..w as isize {
+                if seen(gx, gy)
+                    && !(seen(gx - 1, gy)
+                        && seen(gx + 1, gy)
+                        && seen(gx, gy - 1)
+                        && seen(gx, gy + 1))
+                {
+                    let py0 = (h - 1 - gy as usize) * scale;
+                    for dy in 0..scale {
+                        for dx in 0..scale {
+                            put(&mut img, gx as usize * scale + dx, py0 + dy, colour);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    // Segment outlines.
+    let to_px = |p: [f64; 2]| {
+        let g = s.grid.to_grid(p);
+        (g[0] * scale as f64, (h as f64 - g[1]) * scale as f64)
+    };
+    for poly in s.segments {
+        for k in 0..poly.len() {
+            let (a, b) = (to_px(poly[k]), to_px(poly[(k + 1) % poly.len()]));
+            let steps =
+                ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).clamp(1, 100_000);
+            for t in 0..=steps {
+                let f = t as f64 / steps as f64;
+                let (x, y) = (a.0 + (b.0 - a.0) * f, a.1 + (b.1 - a.1) * f);
+                if x >= 0.0 && y >= 0.0 && (y as usize) < h * scale {
+                    for d in 0..2 {
+                        put(&mut img, x as usize + d, y as usize, [30, 80, 220]);
+                        put(&mut img, x as usize, y as usize + d, [30, 80, 220]);
+                    }
+                }
+            }
+        }
+    }
+    // Cost scale along the bottom: 0 (left) to 100 (right).
+    for x in 0..iw {
+        let cost = (x * 100 / iw.max(1)) as u8;
+        for y in h * scale + 4..ih - 4 {
+            put(&mut img, x, y, cost_colour([250, 250, 250], cost.max(1)));
+        }
+    }
+    let mut out = Vec::new();
+    {
+        let mut encoder = png::Encoder::new(&mut out, iw as u32, ih as u32);
+        encoder.set_color(png::ColorType::Rgb);
+        encoder.set_depth(png::BitDepth::Eight);
+        let mut writer = encoder.write_header().map_err(|e| e.to_string())?;
+        writer.write_image_data(&img).map_err(|e| e.to_string())?;
+    }
+    Ok(out)
+}
+
+/// A cell's colour: the base for cost 0, then yellow to red as the cost rises.
+fn cost_colour(base: [u8; 3], cost: u8) -> [u8; 3] {
+    if cost == 0 {
+        return base;
+    }
+    let f = cost.min(100) as f64 / 100.0;
+    let ramp = [255u8, (230.0 * (1.0 - f)) as u8, 0];
+    blend(base, ramp, 0.35 + 0.65 * f)
+}
+
+fn blend(a: [u8; 3], b: [u8; 3], t: f64) -> [u8; 3] {
+    [0, 1, 2].map(|k| (a[k] as f64 * (1.0 - t) + b[k] as f64 * t).round() as u8)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid() -> MapGrid {
+        MapGrid {
+            origin_x: -1.0,
+            origin_y: 2.0,
+            yaw: 0.0,
+            resolution: 0.5,
+            width: 3,
+            height: 2,
+        }
+    }
+
+    #[test]
+    fn pgm_round_trips_through_map_server_raw_mode() {
+        // Row 0 (at the origin) = [0, 50, -1]; row 1 = [100, 7, 0].
+        let cells = [0i8, 50, -1, 100, 7, 0];
+        let bytes = pgm_bytes(&grid(), &cells);
+        let h = pgm_header(&bytes).unwrap();
+        assert_eq!((h.width, h.height, h.max), (3, 2, 255));
+        let px = &bytes[h.data_offset..];
+        // Top image row is the grid's last row.
+        assert_eq!(px, &[100, 7, 0, 0, 50, 255]);
+        // Read back the way map_server does in raw mode.
+        let mut back = vec![0i8; 6];
+        for y in 0..2 {
+            for x in 0..3 {
+                let v = px[y * 3 + x];
+                back[3 * (2 - y - 1) + x] = if v <= 100 { v as i8 } else { -1 };
+            }
+        }
+        assert_eq!(back, cells);
+        let yaml = map_yaml(&grid(), "a.pgm", "t");
+        assert!(
+            yaml.contains("mode: raw") && yaml.contains("origin: [-1, 2, 0]"),
+            "{yaml}"
+        );
+        assert!(yaml.contains("resolution: 0.5"));
+    }
+
+    #[test]
+    fn snapshot_files_are_written_and_pruned() {
+        let dir = tempfile::tempdir().unwrap();
+        let cells = [0i8, 50, -1, 100, 7, 0];
+        let cover: Vec<u32> = vec![0, 0, NOT_SEEN, 1, 1, 1];
+        let seg: &[[f64; 2]] = &[[-1.0, 2.0], [0.0, 2.0], [0.0, 3.0]];
+        let s = Snapshot {
+            grid: &grid(),
+            cells: &cells,
+            floor_plan: None,
+            coverage: &[&cover],
+            segments: &[seg],
+            stamp: "2026-03-02T07:00:00Z",
+        };
+        for stem in ["activity-1", "activity-2", "activity-3"] {
+            let files = write(dir.path(), stem, &s).unwrap();
+            assert!(files.yaml.is_file() && files.pgm.is_file());
+            let png = std::fs::read(&files.png).unwrap();
+            assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+        }
+        // The map_server YAML loads as a grid of the same geometry.
+        let g = MapGrid::from_map_yaml(&dir.path().join("activity-3.yaml")).unwrap();
+        assert_eq!(g, grid());
+        assert_eq!(prune(dir.path(), "activity-", 2).unwrap(), 1);
+        assert!(!dir.path().join("activity-1.yaml").exists());
+        assert!(dir.path().join("activity-3.pgm").exists());
+        // No temporary files are left behind.
+        assert!(
+            std::fs::read_dir(dir.path()).unwrap().all(|e| !e
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .contains(".tmp-"))
+        );
+    }
+
+    #[test]
+    fn floor_plans_load_from_pgm_and_png() {
+        let dir = tempfile::tempdir().unwrap();
+        let pgm = dir.path().join("f.pgm");
+        std::fs::write(&pgm, b"P5\n2 1\n255\n\x00\xff").unwrap();
+        let p = FloorPlan::load(&pgm).unwrap();
+        assert_eq!((p.width, p.height, p.grey.clone()), (2, 1, vec![0, 255]));
+        let png_path = dir.path().join("f.png");
+        let mut out = Vec::new();
+        {
+            let mut e = png::Encoder::new(&mut out, 2, 1);
+            e.set_color(png::ColorType::Rgb);
+            e.set_depth(png::BitDepth::Eight);
+            e.write_header()
+                .unwrap()
+                .write_image_data(&[0, 0, 0, 30, 60, 90])
+                .unwrap();
+        }
+        std::fs::write(&png_path, out).unwrap();
+        let p = FloorPlan::load(&png_path).unwrap();
+        assert_eq!(p.grey, vec![0, 60]);
+    }
+}

@@ -1,0 +1,665 @@
+//! isochron-costmap as a separate process, fed synthetic activity by this test over
+//! iceoryx2, read back by an independent ROS 2 subscriber (Eclipse Cyclone DDS from
+//! Python, `tests/ros2/costmap_listener.py`), and asked for plans and snapshots by
+//! the `isochron` CLI.
+//!
+//! DDS stays on this machine (loopback only, unicast discovery) and every test uses
+//! its own DDS domain, derived from the process id, so parallel runs never meet.
+//! The Python interpreter is the venv `cargo xtask setup` makes under
+//! `target/ros2-venv` (or `$ISOCHRON_ROS2_PYTHON`).
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU16, Ordering};
+use std::time::{Duration, Instant};
+
+use isochron_shared::clock::{Cycle, NS_PER_S, parse_rfc3339, wall_now_ns};
+use isochron_shared::ipc::{Activity, Ipc, StreamPublisher};
+use isochron_shared::store::{Bin, MinuteCommit, Store, StoreMeta, store_path};
+use isochron_shared::wire::{ActivityHeader, BlockActivity, CameraId, Preamble, Stream};
+use isochron_tests::{Proc, TestSite, bin, repo_root};
+use serde_json::Value;
+
+/// The frame: 320×240 in 16-px blocks (20×15).
+const FRAME: (u32, u32, u32) = (320, 240, 16);
+const BLOCKS: usize = 20 * 15;
+
+/// The camera's view of the floor, floor → image (homogeneous), with perspective:
+/// `u = (80x + 10y + 20) / (0.05y + 1)`, `v = (400 − 60y) / (0.05y + 1)`.
+/// The test knows it; the bridge only gets point pairs from it.
+fn floor_to_image(p: [f64; 2]) -> [f64; 2] {
+    let w = 0.05 * p[1] + 1.0;
+    [
+        (80.0 * p[0] + 10.0 * p[1] + 20.0) / w,
+        (400.0 - 60.0 * p[1]) / w,
+    ]
+}
+
+/// The grid: 60×60 cells of 0.1 m from (-1, 1.5).
+const GRID: (f64, f64, f64, u32, u32) = (-1.0, 1.5, 0.1, 60, 60);
+
+/// Block (10, 7) is the synthetic activity source: pixels x 160..176, y 112..128.
+const HOT_BLOCK: usize = 7 * 20 + 10;
+/// Its in-place activity and the cost that gives with `cost_scale = 0.05`.
+const HOT_S1: f32 = 0.03;
+const HOT_COST: i64 = 60;
+
+static NEXT_DOMAIN: AtomicU16 = AtomicU16::new(0);
+
+/// A DDS domain no other test process uses at the same time: derived from the pid,
+/// plus a counter for the tests of this process.
+fn dds_domain() -> u16 {
+    let n = NEXT_DOMAIN.fetch_add(1, Ordering::Relaxed);
+    1 + ((std::process::id() as u16)
+        .wrapping_mul(7)
+        .wrapping_add(n * 101))
+        % 230
+}
+
+/// The Python of the venv with `cyclonedds`; fails with what to do when missing.
+fn python() -> PathBuf {
+    let path = std::env::var_os("ISOCHRON_ROS2_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| repo_root().join("target/ros2-venv/bin/python3"));
+    assert!(
+        path.is_file(),
+        "{} is missing: run `cargo xtask setup` (it makes a Python venv with the cyclonedds package for the ROS 2 interoperability test)",
+        path.display()
+    );
+    let ok = std::process::Command::new(&path)
+        .args(["-c", "import cyclonedds.domain"])
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(
+        ok,
+        "{} cannot import cyclonedds: run `cargo xtask setup` again",
+        path.display()
+    );
+    path
+}
+
+/// The camera table, with floor points taken from [`floor_to_image`] at 5 floor
+/// positions (so the bridge fits by least squares).
+fn camera_toml() -> String {
+    let floor = [[0.0, 2.5], [3.5, 2.5], [4.0, 6.0], [-0.5, 6.0], [1.5, 4.0]];
+    let pairs: Vec<String> = floor
+        .iter()
+        .map(|f| {
+            let i = floor_to_image(*f);
+            format!(
+                "  {{ image_px = [{:.9}, {:.9}], floor_m = [{}, {}] }},",
+                i[0], i[1], f[0], f[1]
+            )
+        })
+        .collect();
+    format!(
+        "[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\nfloor_points = [\n{}\n]\n",
+        pairs.join("\n")
+    )
+}
+
+fn costmap_toml(domain: u16, extra: &str) -> String {
+    let (x, y, res, w, h) = GRID;
+    format!(
+        r#"
+[costmap]
+origin_x_m = {x}
+origin_y_m = {y}
+resolution_m = {res}
+width_cells = {w}
+height_cells = {h}
+frame_id = "test_map"
+topic = "/isochron_test/activity_costmap"
+publish_hz = 4
+full_every_s = 2
+ros_domain_id = {domain}
+dds_interfaces = ["127.0.0.1"]
+cost_scale = 0.05
+weight_long_term = 0.0
+stale_s = 120
+{extra}
+"#
+    )
+}
+
+/// The grid the bridge should publish while [`HOT_BLOCK`] is active (or not):
+/// computed with the true mapping, independently of the bridge's fit.
+fn expected_cells(hot: bool) -> Vec<i64> {
+    let (x0, y0, res, w, h) = GRID;
+    let mut cells = Vec::with_capacity((w * h) as usize);
+    for j in 0..h {
+        for i in 0..w {
+            let c = [x0 + (i as f64 + 0.5) * res, y0 + (j as f64 + 0.5) * res];
+            let [u, v] = floor_to_image(c);
+            let value = if !(0.0..320.0).contains(&u) || !(0.0..240.0).contains(&v) {
+                -1
+            } else if hot && (160.0..176.0).contains(&u) && (112.0..128.0).contains(&v) {
+                HOT_COST
+            } else {
+                0
+            };
+            cells.push(value);
+        }
+    }
+    cells
+}
+
+/// Publishes synthetic activity of cam01.
+struct Source {
+    publisher: StreamPublisher<Activity>,
+    start_ns: i64,
+    seconds: i64,
+}
+
+impl Source {
+    fn new(ipc: &Ipc, start: &str) -> Source {
+        Source {
+            publisher: ipc.publisher::<Activity>("cam01", BLOCKS).unwrap(),
+            start_ns: parse_rfc3339(start).unwrap(),
+            seconds: 0,
+        }
+    }
+
+    /// One second of activity: `s1` on the blocks `hot` lists, nothing elsewhere.
+    fn send(&mut self, hot: &[(usize, f32)], t_star: u32) {
+        let mut blocks = vec![BlockActivity::default(); BLOCKS];
+        for &(b, s1) in hot {
+            blocks[b].s1 = s1;
+        }
+        let mut preamble = Preamble::new::<BlockActivity>(
+            Stream::Activity,
+            CameraId::new("cam01").unwrap(),
+            self.publisher.next_sequence(),
+            BLOCKS,
+        );
+        self.seconds += 1;
+        preamble.capture_time_ns = self.start_ns + self.seconds * NS_PER_S;
+        preamble.origin_wall_ns = wall_now_ns();
+        let header = ActivityHeader {
+            preamble,
+            grid_w: 20,
+            grid_h: 15,
+            block_px: FRAME.2,
+            frame_width: FRAME.0,
+            frame_height: FRAME.1,
+            t_star,
+            model_days: 10,
+            frames: 10,
+            frame_rate: 10.0,
+            ..Default::default()
+        };
+        self.publisher.send_copy(header, &blocks).unwrap();
+    }
+
+    fn wait_for_subscriber(&self, costmap: &Proc) {
+        let end = Instant::now() + Duration::from_secs(30);
+        while self.publisher.subscriber_count() == 0 {
+            assert!(
+                Instant::now() < end,
+                "isochron-costmap never subscribed:\n{}",
+                costmap.stderr()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+/// The listener's JSON lines so far.
+fn messages(listener: &mut Proc) -> Vec<Value> {
+    listener
+        .stdout()
+        .lines()
+        .filter_map(|l| serde_json::from_str(l).ok())
+        .collect()
+}
+
+fn data(v: &Value) -> Vec<i64> {
+    v["data"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c.as_i64().unwrap())
+        .collect()
+}
+
+/// The grid a subscriber holds after the messages so far: the last full grid with
+/// the updates since applied.
+fn held_grid(msgs: &[Value]) -> Option<Vec<i64>> {
+    let last = msgs.iter().rposition(|m| m["kind"] == "grid")?;
+    let mut cells = data(&msgs[last]);
+    let width = msgs[last]["width"].as_i64().unwrap();
+    for m in &msgs[last + 1..] {
+        if m["kind"] != "update" {
+            continue;
+        }
+        let (x, y, w) = (
+            m["x"].as_i64().unwrap(),
+            m["y"].as_i64().unwrap(),
+            m["width"].as_i64().unwrap(),
+        );
+        for (k, v) in data(m).into_iter().enumerate() {
+            let (dx, dy) = (k as i64 % w, k as i64 / w);
+            cells[((y + dy) * width + x + dx) as usize] = v;
+        }
+    }
+    Some(cells)
+}
+
+fn listener(domain: u16, updates: bool, grids: u32, timeout_s: u32) -> Proc {
+    let script = repo_root().join("tests/ros2/costmap_listener.py");
+    let mut args = vec![
+        script.display().to_string(),
+        "--domain".into(),
+        domain.to_string(),
+        "--topic".into(),
+        "/isochron_test/activity_costmap".into(),
+        "--timeout".into(),
+        timeout_s.to_string(),
+    ];
+    if updates {
+        args.push("--updates".into());
+    }
+    if grids > 0 {
+        args.push("--grids".into());
+        args.push(grids.to_string());
+    }
+    Proc::spawn(&python(), &args)
+}
+
+/// Waits until `f` holds for the listener's messages, feeding the source meanwhile.
+fn wait_until(
+    what: &str,
+    listener: &mut Proc,
+    costmap: &Proc,
+    mut feed: impl FnMut(),
+    timeout: Duration,
+    mut f: impl FnMut(&[Value]) -> bool,
+) {
+    let end = Instant::now() + timeout;
+    loop {
+        feed();
+        let msgs = messages(listener);
+        if f(&msgs) {
+            return;
+        }
+        assert!(
+            Instant::now() < end,
+            "timed out waiting for {what}; listener saw {} messages ({}):\nlistener stderr:\n{}\ncostmap stderr:\n{}",
+            msgs.len(),
+            msgs.iter()
+                .map(|m| m["kind"].as_str().unwrap_or("?"))
+                .collect::<Vec<_>>()
+                .join(" "),
+            listener.stderr(),
+            costmap.stderr()
+        );
+        std::thread::sleep(Duration::from_millis(250));
+    }
+}
+
+#[test]
+fn a_ros2_subscriber_gets_the_grid_its_updates_and_late_joiners_the_last_grid() {
+    python(); // fails early, saying what to do, without the venv
+    let domain = dds_domain();
+    let site = TestSite::new(
+        "costmap-ros2",
+        &format!("{}{}", camera_toml(), costmap_toml(domain, "")),
+    );
+    let ipc = site.ipc("source");
+    let mut source = Source::new(&ipc, "2026-03-02T11:00:00Z");
+    let costmap = site.spawn("isochron-costmap", &[]);
+    source.wait_for_subscriber(&costmap);
+
+    // An early subscriber, reading grids and updates.
+    let mut early = listener(domain, true, 0, 90);
+    let quiet = expected_cells(false);
+    let hot = expected_cells(true);
+    assert!(
+        hot.iter().filter(|&&c| c == HOT_COST).count() >= 2,
+        "the hot block covers cells"
+    );
+    assert!(
+        quiet.iter().filter(|&&c| c == -1).count() > 100,
+        "part of the grid is unseen"
+    );
+
+    // 1. No activity: the camera's view is free (0), the rest unknown (-1).
+    wait_until(
+        "the quiet grid",
+        &mut early,
+        &costmap,
+        || source.send(&[], 750),
+        Duration::from_secs(60),
+        |msgs| held_grid(msgs).is_some_and(|g| g == quiet),
+    );
+    let grid = messages(&mut early)
+        .into_iter()
+        .rfind(|m| m["kind"] == "grid")
+        .unwrap();
+    assert_eq!(grid["frame_id"], "test_map");
+    assert_eq!(grid["width"], 60);
+    assert_eq!(grid["height"], 60);
+    assert!((grid["resolution"].as_f64().unwrap() - 0.1).abs() < 1e-6);
+    let origin: Vec<f64> = grid["origin"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert_eq!(origin, vec![-1.0, 1.5, 0.0, 0.0, 0.0, 0.0, 1.0]);
+    // The stamp is the activity's capture time, not the wall clock.
+    let start_s = parse_rfc3339("2026-03-02T11:00:00Z").unwrap() / NS_PER_S;
+    let stamp = grid["stamp"][0].as_i64().unwrap();
+    assert!(stamp > start_s && stamp < start_s + 600, "stamp {stamp}");
+
+    // 2. The hot block: an update carries the change, then a full grid follows.
+    wait_until(
+        "an update with the hot cells",
+        &mut early,
+        &costmap,
+        || source.send(&[(HOT_BLOCK, HOT_S1)], 750),
+        Duration::from_secs(30),
+        |msgs| {
+            msgs.iter()
+                .any(|m| m["kind"] == "update" && data(m).contains(&HOT_COST))
+                && held_grid(msgs).is_some_and(|g| g == hot)
+        },
+    );
+    wait_until(
+        "a full grid with the hot cells",
+        &mut early,
+        &costmap,
+        || source.send(&[(HOT_BLOCK, HOT_S1)], 750),
+        Duration::from_secs(30),
+        |msgs| msgs.iter().any(|m| m["kind"] == "grid" && data(m) == hot),
+    );
+    let update = messages(&mut early)
+        .into_iter()
+        .find(|m| m["kind"] == "update" && data(m).contains(&HOT_COST))
+        .unwrap();
+    let area = update["width"].as_i64().unwrap() * update["height"].as_i64().unwrap();
+    assert!(
+        area < 60 * 60 / 2,
+        "an update is the changed rectangle, not the grid: {area} cells"
+    );
+
+    // 3. A late joiner, once the source has gone quiet (the camera stays live for
+    //    stale_s, so nothing new is published): transient-local gives it the last grid.
+    std::thread::sleep(Duration::from_secs(1));
+    let mut late = listener(domain, false, 1, 30);
+    wait_until(
+        "the late joiner's grid",
+        &mut late,
+        &costmap,
+        || {},
+        Duration::from_secs(30),
+        |msgs| msgs.iter().any(|m| m["kind"] == "grid"),
+    );
+    let grids: Vec<Value> = messages(&mut late)
+        .into_iter()
+        .filter(|m| m["kind"] == "grid")
+        .collect();
+    assert_eq!(
+        data(&grids[0]),
+        hot,
+        "the late joiner's first grid is the last one published"
+    );
+    assert_eq!(grids[0]["frame_id"], "test_map");
+}
+
+/// The long-term store of cam01: blocks with x < 160 px (the west half of the
+/// floor, x < 2 m) are busy except 12:00-13:00; the rest is a little busy.
+fn write_store(site: &TestSite) {
+    let state_dir = site.config().state_dir();
+    let meta = StoreMeta {
+        camera: "cam01".into(),
+        grid_w: 20,
+        grid_h: 15,
+        block_px: 16,
+        frame_width: 320,
+        frame_height: 240,
+        cycle: Cycle::Daily,
+        created_ns: 0,
+    };
+    let mut store = Store::open_or_create(&store_path(&state_dir, "cam01"), &meta).unwrap();
+    for t in (10 * 60..15 * 60).step_by(1) {
+        let mean: Vec<f32> = (0..BLOCKS)
+            .map(|b| {
+                if b % 20 < 10 {
+                    if (720..780).contains(&t) { 0.0 } else { 0.04 }
+                } else {
+                    0.01
+                }
+            })
+            .collect();
+        let bin = Bin {
+            t_star: t,
+            count: 14,
+            last_minute: t as i64,
+            var: vec![0.0; BLOCKS],
+            mean,
+        };
+        store
+            .commit_minute(&MinuteCommit {
+                minute: t as i64,
+                bin: Some(&bin),
+                baseline: None,
+            })
+            .unwrap();
+    }
+}
+
+#[test]
+fn plans_and_snapshots_are_served_by_the_running_bridge() {
+    let domain = dds_domain();
+    // West and east halves of the camera's view on the floor, a corridor nobody uses.
+    let extra = r#"
+[[costmap.segment]]
+name = "west"
+polygon_m = [[-1, 1.5], [1.6, 1.5], [1.6, 7.5], [-1, 7.5]]
+
+[[costmap.segment]]
+name = "east"
+polygon_m = [[1.6, 1.5], [5, 1.5], [5, 7.5], [1.6, 7.5]]
+
+[[costmap.segment]]
+name = "corridor"
+polygon_m = [[10, 10], [11, 10], [11, 11], [10, 11]]
+
+[[costmap.route]]
+name = "via-west"
+segments = ["west"]
+
+[[costmap.route]]
+name = "via-east"
+segments = ["east"]
+"#;
+    let site = TestSite::new(
+        "costmap-plan",
+        &format!("{}{}", camera_toml(), costmap_toml(domain, extra)),
+    );
+    write_store(&site);
+    let config = site.config_path().display().to_string();
+
+    // Off-line, from the store, without any service.
+    let out = site.isochron(
+        &[
+            "plan",
+            "offline",
+            "--config",
+            &config,
+            "--route",
+            "via-west",
+            "--between",
+            "11:00",
+            "14:00",
+            "--step",
+            "5m",
+            "--json",
+        ],
+        Duration::from_secs(60),
+    );
+    assert!(out.status.success(), "{}", out.stderr);
+    let plan: Value = serde_json::from_str(&out.stdout).unwrap();
+    assert_eq!(plan["windows"][0]["start"], "12:00", "{plan}");
+    assert_eq!(plan["windows"][0]["end"], "13:00", "{plan}");
+    assert_eq!(plan["curve"].as_array().unwrap().len(), 36);
+    assert_eq!(plan["infinite"], false);
+    let text = site.isochron(
+        &[
+            "plan", "offline", "--config", &config, "--route", "via-west",
+        ],
+        Duration::from_secs(60),
+    );
+    assert!(
+        text.status.success() && text.stdout.contains("12:00–13:00"),
+        "{}",
+        text.stdout
+    );
+
+    // Now: west is quiet at 12:30 in the long term, but busy live.
+    let ipc = site.ipc("source");
+    let mut source = Source::new(&ipc, "2026-03-02T12:30:00Z");
+    let costmap = site.spawn("isochron-costmap", &[]);
+    source.wait_for_subscriber(&costmap);
+    let west_blocks: Vec<(usize, f32)> = (0..BLOCKS)
+        .filter(|b| b % 20 < 8)
+        .map(|b| (b, 0.05))
+        .collect();
+    for _ in 0..3 {
+        source.send(&west_blocks, 750);
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let now = site.isochron(
+        &[
+            "plan",
+            "now",
+            "--config",
+            &config,
+            "--routes",
+            "via-west,via-east",
+            "--json",
+        ],
+        Duration::from_secs(60),
+    );
+    assert!(now.status.success(), "{}\n{}", now.stderr, costmap.stderr());
+    let ranked: Value = serde_json::from_str(&now.stdout).unwrap();
+    assert_eq!(ranked["t_star"], 750);
+    let routes = ranked["routes"].as_array().unwrap();
+    assert_eq!(routes[0]["route"], "via-east", "{ranked}");
+    assert_eq!(routes[1]["route"], "via-west");
+    // via-west: long-term 0 at 12:30, live activity on most of its blocks.
+    assert_eq!(routes[1]["cost1"], 0.0);
+    assert!(routes[1]["short_term"].as_f64().unwrap() > 50.0, "{ranked}");
+    // via-east: long-term 0.01 → Cost 20, nothing live.
+    assert!(
+        (routes[0]["cost1"].as_f64().unwrap() - 20.0).abs() < 0.01,
+        "{ranked}"
+    );
+    assert_eq!(routes[0]["short_term"], 0.0);
+    let (c1, c2) = (
+        routes[0]["cost1"].as_f64().unwrap(),
+        routes[0]["cost2"].as_f64().unwrap(),
+    );
+    assert!(
+        (c2 - (c1 + routes[0]["short_term"].as_f64().unwrap())).abs() < 0.01,
+        "w1 = w2 = 1"
+    );
+    // An unknown route is refused by the CLI with the configured names.
+    let bad = site.isochron(
+        &["plan", "now", "--config", &config, "--routes", "nowhere"],
+        Duration::from_secs(30),
+    );
+    assert!(
+        !bad.status.success() && bad.stderr.contains("via-west"),
+        "{}",
+        bad.stderr
+    );
+
+    // A snapshot on request: map_server raw PGM of the grid as published.
+    let snap_dir = site.path("snapshots");
+    let snap = site.isochron(
+        &[
+            "costmap",
+            "snapshot",
+            "--config",
+            &config,
+            "--out",
+            snap_dir.to_str().unwrap(),
+        ],
+        Duration::from_secs(60),
+    );
+    assert!(
+        snap.status.success(),
+        "{}\n{}",
+        snap.stderr,
+        costmap.stderr()
+    );
+    let files: Vec<PathBuf> = std::fs::read_dir(&snap_dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    let find = |ext: &str| {
+        files
+            .iter()
+            .find(|p| p.extension().is_some_and(|e| e == ext))
+            .unwrap()
+            .clone()
+    };
+    let yaml = std::fs::read_to_string(find("yaml")).unwrap();
+    assert!(
+        yaml.contains("mode: raw") && yaml.contains("resolution: 0.1"),
+        "{yaml}"
+    );
+    assert!(yaml.contains("origin: [-1, 1.5, 0]"), "{yaml}");
+    let pgm = std::fs::read(find("pgm")).unwrap();
+    let png = std::fs::read(find("png")).unwrap();
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    // The PGM's last 3600 bytes are the cells, top row = the grid's last row.
+    let pixels = &pgm[pgm.len() - 3600..];
+    let cell = |i: usize, j: usize| pixels[(59 - j) * 60 + i];
+    let unseen = expected_cells(false);
+    for j in 0..60 {
+        for i in 0..60 {
+            if unseen[j * 60 + i] == -1 {
+                assert_eq!(cell(i, j), 255, "cell ({i}, {j}) is not seen");
+            }
+        }
+    }
+    // West blocks (x < 128 px) are live at s1 0.05 → cost 100 where seen.
+    let busy = (0..60)
+        .flat_map(|j| (0..60).map(move |i| (i, j)))
+        .filter(|&(i, j)| cell(i, j) == 100)
+        .count();
+    assert!(busy > 100, "{busy} cells at cost 100");
+
+    // The corridor covers no block: planning through it is refused with the reason.
+    std::fs::write(
+        site.path("with-corridor.toml"),
+        toml_with_route(&site, "corridor"),
+    )
+    .unwrap();
+    let out = site.isochron(
+        &[
+            "plan",
+            "offline",
+            "--config",
+            site.path("with-corridor.toml").to_str().unwrap(),
+            "--route",
+            "via-corridor",
+        ],
+        Duration::from_secs(60),
+    );
+    assert!(!out.status.success());
+    assert!(out.stderr.contains("covers no block"), "{}", out.stderr);
+    drop(costmap);
+    assert!(bin("isochron").is_file());
+}
+
+/// The site's config with a route through `segment`.
+fn toml_with_route(site: &TestSite, segment: &str) -> String {
+    let mut text = std::fs::read_to_string(site.config_path()).unwrap();
+    text.push_str(&format!(
+        "\n[[costmap.route]]\nname = \"via-{segment}\"\nsegments = [\"{segment}\"]\n"
+    ));
+    text
+}
