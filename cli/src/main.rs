@@ -2,10 +2,12 @@
 
 mod common;
 mod costmap;
+mod doctor;
 mod launch;
 mod plan;
 mod plot;
 mod replay;
+mod status;
 mod store;
 mod synth;
 mod tap;
@@ -29,6 +31,10 @@ enum Command {
     Up(up::Args),
     /// Attach to a stream and print one line per sample.
     Tap(tap::Args),
+    /// Show every service of the site: state, rates, drops, latency.
+    Status(status::Args),
+    /// Check config, sources, state, shared memory and services; say what to fix.
+    Doctor(doctor::Args),
     /// Run the whole group on a video file and write what every stage produced.
     Replay(replay::Args),
     /// Simulate days of people through a real isochron-cascade; leaves its store.
@@ -49,6 +55,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Up(args) => up::run(args),
         Command::Tap(args) => tap::run(args),
+        Command::Status(args) => status::run(args),
+        Command::Doctor(args) => doctor::run(args),
         Command::Replay(args) => replay::run(args),
         Command::Synth(args) => synth::run(args),
         Command::Store(args) => store::run(args),

@@ -15,6 +15,7 @@ use std::os::unix::net::{UnixListener, UnixStream};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
+use iceoryx2::prelude::*;
 use isochron_shared::config::IpcConfig;
 use isochron_shared::ipc::{Frames, Ipc};
 use isochron_shared::names::ServiceNames;
@@ -271,12 +272,23 @@ fn receiver(transport: &str, tag: &str, size_index: usize) {
         "iceoryx2" => {
             let ipc = ipc(tag, "ipcbench-receiver");
             let frames = ipc.subscriber::<Frames>("bench").expect("subscriber");
+            // Woken as the services are: a WaitSet on the stream's event service.
+            let waitset = WaitSetBuilder::new()
+                .create::<ipc::Service>()
+                .expect("waitset");
+            let _guard = waitset.attach_notification(&frames).expect("attach");
             println!("ready");
             std::io::stdout().flush().unwrap();
             let mut latencies_us = Vec::with_capacity(FRAMES);
             let (mut n, mut cpu0, mut checksum) = (0usize, 0.0, 0u64);
             while n < WARMUP + FRAMES {
-                frames.wait(Duration::from_secs(5));
+                waitset
+                    .wait_and_process_once_with_timeout(
+                        |_| CallbackProgression::Continue,
+                        Duration::from_secs(5),
+                    )
+                    .expect("wait");
+                frames.drain_wakeups();
                 while let Some(sample) = frames.receive().expect("receive") {
                     let now = monotonic_ns();
                     let h = sample.user_header();

@@ -93,6 +93,11 @@ pub struct GateConfig {
     /// Lowest threshold once the model is warm (a quiet night has sigma ≈ 0).
     /// Default 0.2.
     pub min_threshold: f32,
+    /// In-place activity counts a block only where its own S1 is at least this
+    /// (density): a place with lasting activity. People walking by leave each
+    /// block a small, decaying S1 tail that, summed over a zone, would otherwise
+    /// look like in-place activity. Default 0.05.
+    pub in_place_block_min: f32,
     /// An event ends after its activity stayed below the threshold this long,
     /// seconds. Default 3.
     pub hold_s: f64,
@@ -113,6 +118,7 @@ impl Default for GateConfig {
             k_sigma: 3.0,
             floor: 0.5,
             min_threshold: 0.2,
+            in_place_block_min: 0.05,
             hold_s: 3.0,
             detect_per_event: 1,
             detect_every_s: None,
@@ -400,6 +406,12 @@ pub struct CameraConfig {
     /// Play a file source again from the start when it ends. Default `false`.
     #[serde(default, rename = "loop")]
     pub loop_file: bool,
+    /// File sources only: decode the first this many frames once into memory and
+    /// publish them in a loop, with proper timestamps — a source that costs no
+    /// decoding, to measure the stages apart from the decoder. Cameras of one
+    /// capture process with the same file share the decoded frames.
+    #[serde(default)]
+    pub preload_frames: Option<u32>,
     /// First reconnect delay after a live source drops out, seconds. Default 0.5.
     #[serde(default = "default_reconnect_initial_s")]
     pub reconnect_initial_s: f64,
@@ -872,6 +884,12 @@ impl Config {
         check_range("gate.k_sigma", g.k_sigma as f64, 0.0, 100.0)?;
         check_positive("gate.floor", g.floor as f64)?;
         check_positive("gate.min_threshold", g.min_threshold as f64)?;
+        check_range(
+            "gate.in_place_block_min",
+            g.in_place_block_min as f64,
+            0.0,
+            1.0,
+        )?;
         check_range("gate.hold_s", g.hold_s, 0.0, 3600.0)?;
         check_range("gate.detect_per_event", g.detect_per_event as f64, 0.0, 1e6)?;
         if let Some(every) = g.detect_every_s {
@@ -961,7 +979,21 @@ impl Config {
                     ),
                 ));
             }
-            check_positive(&key("reconnect_initial_s"), cam.reconnect_initial_s)?;
+            if let Some(n) = cam.preload_frames {
+                check_range(&key("preload_frames"), n as f64, 2.0, 100_000.0)?;
+                if !cam.source_kind(Path::new(".")).is_file() {
+                    return Err(Invalid::new(
+                        key("preload_frames"),
+                        "expected only for file sources (live sources cannot be preloaded)",
+                    ));
+                }
+            }
+            check_range(
+                &key("reconnect_initial_s"),
+                cam.reconnect_initial_s,
+                1e-3,
+                3600.0,
+            )?;
             if cam.reconnect_max_s < cam.reconnect_initial_s {
                 return Err(Invalid::new(
                     key("reconnect_max_s"),

@@ -117,6 +117,12 @@ impl Health {
         self
     }
 
+    /// True when the first report (or the next one) is due; the first is due at
+    /// the first tick, so `isochron status` sees a service as soon as it runs.
+    fn report_due(&self, now: Instant) -> bool {
+        self.status.report_wall_ns == 0 || now.duration_since(self.last_report) >= self.report_every
+    }
+
     /// Counts a received sample with `sequence`; a gap counts as dropped upstream.
     /// A sequence that goes backwards means the publisher restarted.
     pub fn received(&mut self, sequence: u64) {
@@ -172,7 +178,7 @@ impl Health {
             let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
             self.last_watchdog = now;
         }
-        if now.duration_since(self.last_report) >= self.report_every {
+        if self.report_due(now) {
             self.report(detail());
         }
     }

@@ -127,7 +127,16 @@ pub struct Ipc {
     node: Node<Ipc2>,
     names: ServiceNames,
     config: IpcConfig,
-    stop_requested: AtomicBool,
+}
+
+/// Set once SIGINT or SIGTERM arrived: iceoryx2 reports a signal only once, to
+/// whichever node or WaitSet asks first, so the answer is kept for every thread.
+static STOP_REQUESTED: AtomicBool = AtomicBool::new(false);
+
+/// Marks the process as stopping (for example when a WaitSet reported the
+/// termination request): every [`Ipc::should_stop`] answers true from now on.
+pub fn request_stop() {
+    STOP_REQUESTED.store(true, Ordering::Relaxed);
 }
 
 impl Ipc {
@@ -149,7 +158,6 @@ impl Ipc {
             node,
             names,
             config,
-            stop_requested: AtomicBool::new(false),
         })
     }
 
@@ -168,15 +176,14 @@ impl Ipc {
         &self.config
     }
 
-    /// True once SIGINT or SIGTERM was received (and from then on: iceoryx2 reports
-    /// a signal only once, so the answer is kept).
+    /// True once SIGINT or SIGTERM was received, in any thread of the process.
     pub fn should_stop(&self) -> bool {
-        if self.stop_requested.load(Ordering::Relaxed) {
+        if STOP_REQUESTED.load(Ordering::Relaxed) {
             return true;
         }
         let stop = self.node.wait(Duration::ZERO).is_err();
         if stop {
-            self.stop_requested.store(true, Ordering::Relaxed);
+            request_stop();
         }
         stop
     }
@@ -340,25 +347,31 @@ impl Ipc {
         Ok(StatusPublisher { publisher })
     }
 
-    /// Reads the latest status of `stage` for `camera`, waiting up to `timeout` for
-    /// it to arrive. `None` if no such stage reported.
-    pub fn read_status(&self, camera: &str, stage: &str, timeout: Duration) -> Option<StageStatus> {
+    /// A reader of `stage`'s status for `camera` (the latest report arrives at once
+    /// if the stage runs).
+    pub fn status_subscriber(&self, camera: &str, stage: &str) -> Result<StatusSubscriber, IpcError> {
         let subscriber = self
-            .open_status(camera, stage)
-            .ok()?
+            .open_status(camera, stage)?
             .subscriber_builder()
             .create()
-            .ok()?;
-        let deadline = std::time::Instant::now() + timeout;
-        loop {
-            if let Ok(Some(sample)) = subscriber.receive() {
-                return Some(*sample.payload());
-            }
-            if std::time::Instant::now() >= deadline {
-                return None;
-            }
-            std::thread::sleep(Duration::from_millis(10));
+            .map_err(|e| err(format!("creating the status subscriber of {stage}/{camera}"))(&e))?;
+        Ok(StatusSubscriber { subscriber })
+    }
+}
+
+/// Reads a stage's [`StageStatus`] reports.
+pub struct StatusSubscriber {
+    subscriber: Subscriber<Ipc2, StageStatus, ()>,
+}
+
+impl StatusSubscriber {
+    /// The newest report received so far, if any.
+    pub fn latest(&self) -> Option<StageStatus> {
+        let mut last = None;
+        while let Ok(Some(sample)) = self.subscriber.receive() {
+            last = Some(*sample.payload());
         }
+        last
     }
 }
 
@@ -377,6 +390,60 @@ impl StatusPublisher {
             .map(|_| ())
             .map_err(|e| err("publishing a status")(&e))
     }
+}
+
+/// The iceoryx2 nodes of this machine, as `isochron doctor` reports them.
+#[derive(Debug, Default, Clone)]
+pub struct NodeCensus {
+    /// Names of nodes whose process is alive.
+    pub alive: Vec<String>,
+    /// Nodes of dead processes whose stale resources were removed.
+    pub dead_removed: Vec<String>,
+    /// Nodes of dead processes that could not be cleaned (permissions).
+    pub dead_left: Vec<String>,
+    /// Nodes this user may not inspect (another user's).
+    pub inaccessible: usize,
+}
+
+/// Lists the iceoryx2 nodes and, if `remove_dead`, removes the resources dead
+/// processes left behind (a crash or `kill -9` leaves shared memory and files).
+/// Run it before creating a node: creating one cleans dead nodes silently.
+pub fn node_census(remove_dead: bool) -> Result<NodeCensus, IpcError> {
+    use iceoryx2::node::NodeView;
+    set_log_level_from_env_or(LogLevel::Error);
+    let mut census = NodeCensus::default();
+    let name_of = |d: Option<&iceoryx2::node::NodeDetails>| {
+        d.map(|d| d.name().to_string())
+            .unwrap_or_else(|| "(unnamed)".into())
+    };
+    Node::<Ipc2>::list(iceoryx2::config::Config::global_config(), |state| {
+        match state {
+            NodeState::Alive(view) => census.alive.push(name_of(view.details().as_ref())),
+            NodeState::Dead(view) => {
+                let name = name_of(view.details().as_ref());
+                if remove_dead && view.blocking_remove_stale_resources(Duration::from_secs(1)).is_ok() {
+                    census.dead_removed.push(name);
+                } else {
+                    census.dead_left.push(name);
+                }
+            }
+            NodeState::Inaccessible(_) | NodeState::Undefined(_) => census.inaccessible += 1,
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| err("listing iceoryx2 nodes")(&e))?;
+    Ok(census)
+}
+
+/// Shared memory a publisher of `payload_bytes` per sample preallocates under
+/// `config`: `max_subscribers × (buffer + borrowed) + loaned` samples (history is 0).
+pub fn publisher_segment_bytes(config: &IpcConfig, stream: Stream, payload_bytes: usize) -> usize {
+    let buffer = match stream {
+        Stream::Frames => config.frame_buffer,
+        _ => config.stream_buffer,
+    };
+    let samples = config.max_subscribers * (buffer + MAX_BORROWED) + MAX_LOANED;
+    samples * payload_bytes
 }
 
 /// The publishing end of a stream: sends samples and wakes subscribers.

@@ -34,9 +34,14 @@ impl ServiceNames {
         format!("{}/{camera}/{}", self.prefix, stream.name())
     }
 
-    /// `<prefix>/<camera>/status/<stage>`: the periodic status of one stage.
+    /// `<prefix>/<camera>/status/<stage>`: the periodic status of one stage; for a
+    /// site-wide stage (empty `camera`), `<prefix>/status/<stage>`.
     pub fn status(&self, camera: &str, stage: &str) -> String {
-        format!("{}/{camera}/status/{stage}", self.prefix)
+        if camera.is_empty() {
+            format!("{}/status/{stage}", self.prefix)
+        } else {
+            format!("{}/{camera}/status/{stage}", self.prefix)
+        }
     }
 
     /// `<prefix>/plan`: the request-response planning service.
@@ -69,6 +74,7 @@ mod tests {
             "isochron/cam01/activity"
         );
         assert_eq!(n.status("cam01", "motion"), "isochron/cam01/status/motion");
+        assert_eq!(n.status("", "costmap"), "isochron/status/costmap");
         let t = ServiceNames::new("test-42");
         assert_eq!(t.stream("c", Stream::Events), "test-42/c/events");
     }

@@ -47,7 +47,8 @@ impl ServiceContext {
 }
 
 /// Initialises logging, loads the config, finds `camera`, and creates the node
-/// `isochron-<stage>/<camera>`.
+/// `<prefix>/<stage>/<camera>` (`<prefix>/<stage>` for site-wide stages), the name
+/// `iox2 node list` shows.
 pub fn start(stage: &str, config: &Path, camera: Option<&str>) -> Result<ServiceContext, Fatal> {
     crate::logging::init(&format!("isochron-{stage}"));
     let loaded = Config::load(config).map_err(|e| Fatal::new(exit::CONFIG, e.to_string()))?;
@@ -55,9 +56,10 @@ pub fn start(stage: &str, config: &Path, camera: Option<&str>) -> Result<Service
         .map(|id| loaded.camera(id).cloned())
         .transpose()
         .map_err(|e| Fatal::new(exit::CONFIG, e))?;
+    let prefix = &loaded.config.site.service_prefix;
     let node_name = match &camera {
-        Some(c) => format!("isochron-{stage}/{}", c.id),
-        None => format!("isochron-{stage}"),
+        Some(c) => format!("{prefix}/{stage}/{}", c.id),
+        None => format!("{prefix}/{stage}"),
     };
     let ipc = Ipc::new(
         &node_name,

@@ -6,7 +6,10 @@
 //! * `demo`: setup, release build, `isochron replay` on the sample video with
 //!   `config/demo.toml`, and a report of what every stage did;
 //! * `test`: setup, format and lint checks, build, every test;
-//! * `bench NAME`: setup and one benchmark (motion, cascade, gate, ipc, group).
+//! * `bench NAME`: setup and one benchmark (motion, cascade, gate, ipc, group);
+//! * `install [--prefix P] [--destdir D]`: release build, then binaries, systemd
+//!   units, sysusers/tmpfiles entries, an example config and the README installed
+//!   under `D/P` (default `P` = `/usr/local`), and what to do next.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -49,7 +52,10 @@ fn main() -> anyhow::Result<()> {
             setup(&root)?;
             bench(package, target, &args[2..])
         }
-        _ => bail!("usage: cargo xtask <setup|demo|test|bench NAME>"),
+        Some("install") => install(&root, &args[1..]),
+        _ => bail!(
+            "usage: cargo xtask <setup|demo|test|bench NAME|install [--prefix P] [--destdir D]>"
+        ),
     }
 }
 
@@ -290,7 +296,114 @@ fn test() -> anyhow::Result<()> {
 }
 
 fn bench(package: &str, target: &str, extra: &[String]) -> anyhow::Result<()> {
+    if matches!(target, "gate" | "group") {
+        // These run the whole process group.
+        run(cargo().args(["build", "--release", "--workspace", "--bins"]))?;
+    }
     run(cargo()
         .args(["bench", "-p", package, "--bench", target, "--"])
         .args(extra))
+}
+
+/// The binaries a site runs.
+const BINARIES: [&str; 6] = [
+    "isochron",
+    "isochron-capture",
+    "isochron-motion",
+    "isochron-cascade",
+    "isochron-gate",
+    "isochron-costmap",
+];
+
+fn install(root: &Path, args: &[String]) -> anyhow::Result<()> {
+    let mut prefix = PathBuf::from("/usr/local");
+    let mut destdir = PathBuf::from("/");
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--prefix" => prefix = it.next().context("--prefix needs a path")?.into(),
+            "--destdir" => destdir = it.next().context("--destdir needs a path")?.into(),
+            other => bail!("install: unknown argument '{other}'"),
+        }
+    }
+    anyhow::ensure!(prefix.is_absolute(), "--prefix must be an absolute path");
+    run(cargo().args(["build", "--release", "--workspace", "--bins"]))?;
+    let under = |p: &Path| destdir.join(p.strip_prefix("/").unwrap_or(p));
+    let bin = prefix.join("bin");
+    let units = prefix.join("lib/systemd/system");
+    for dir in [
+        &bin,
+        &units,
+        &prefix.join("lib/sysusers.d"),
+        &prefix.join("lib/tmpfiles.d"),
+        &prefix.join("share/doc/isochron"),
+    ] {
+        std::fs::create_dir_all(under(dir))?;
+    }
+    for name in BINARIES {
+        let from = root.join("target/release").join(name);
+        if from.is_file() {
+            std::fs::copy(&from, under(&bin.join(name)))
+                .with_context(|| format!("installing {name}"))?;
+        }
+    }
+    // Units name /usr/bin; point them at this prefix.
+    let bin_text = format!("{}/", bin.display());
+    let copy_unit = |from: &Path, to: &Path| -> anyhow::Result<()> {
+        let text = std::fs::read_to_string(from)?.replace("/usr/bin/", &bin_text);
+        std::fs::write(to, text).with_context(|| format!("writing {}", to.display()))
+    };
+    for entry in std::fs::read_dir(root.join("systemd"))? {
+        let path = entry?.path();
+        let name = path.file_name().context("unit name")?.to_owned();
+        if path.is_dir() {
+            let target = under(&units.join(&name));
+            std::fs::create_dir_all(&target)?;
+            for inner in std::fs::read_dir(&path)? {
+                let inner = inner?.path();
+                copy_unit(
+                    &inner,
+                    &target.join(inner.file_name().context("drop-in name")?),
+                )?;
+            }
+        } else if path
+            .extension()
+            .is_some_and(|e| e == "service" || e == "target")
+        {
+            copy_unit(&path, &under(&units.join(&name)))?;
+        }
+    }
+    std::fs::copy(
+        root.join("systemd/isochron.sysusers"),
+        under(&prefix.join("lib/sysusers.d/isochron.conf")),
+    )?;
+    std::fs::copy(
+        root.join("systemd/isochron.tmpfiles"),
+        under(&prefix.join("lib/tmpfiles.d/isochron.conf")),
+    )?;
+    std::fs::copy(
+        root.join("README.md"),
+        under(&prefix.join("share/doc/isochron/README.md")),
+    )?;
+    let config = under(Path::new("/etc/isochron/isochron.toml"));
+    if !config.exists() {
+        std::fs::create_dir_all(config.parent().expect("config dir"))?;
+        std::fs::copy(root.join("config/site.example.toml"), &config)?;
+    }
+    println!("installed under {}", under(&prefix).display());
+    println!("next, as root:");
+    println!(
+        "  systemd-sysusers && systemd-tmpfiles --create    # the isochron user, /tmp/iceoryx2"
+    );
+    println!("  $EDITOR /etc/isochron/isochron.toml              # cameras, zones, floor points");
+    println!("  systemctl daemon-reload");
+    println!("  systemctl enable --now isochron.target isochron-costmap.service");
+    println!(
+        "  for c in cam01; do systemctl enable --now isochron-{{capture,motion,cascade,gate}}@$c; done"
+    );
+    println!(
+        "  sudo -u isochron {}/isochron doctor               # checks it all",
+        bin.display()
+    );
+    Ok(())
 }

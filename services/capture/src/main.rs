@@ -5,7 +5,7 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use clap::Parser;
-use isochron_capture::source::{ReadOutcome, SourceError, VideoSource};
+use isochron_capture::source::{PreloadedSource, ReadOutcome, SourceError, VideoSource};
 use isochron_capture::{Backoff, Pacer, Stamper};
 use isochron_shared::clock::{format_rfc3339, parse_rfc3339, wall_now_ns};
 use isochron_shared::config::{SourceKind, Speed};
@@ -63,6 +63,18 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
 
     let is_file = kind.is_file();
     let fps = cam.fps.unwrap_or_else(|| source.stated_fps());
+    let mut source = match cam.preload_frames {
+        None => Source::Video(source),
+        Some(n) => {
+            let preloaded =
+                PreloadedSource::load(&kind, n, width, height, format).map_err(source_fatal)?;
+            tracing::info!(
+                "preloaded {} frames: publishing them in a loop, no decoding",
+                preloaded.len()
+            );
+            Source::Preloaded(preloaded)
+        }
+    };
     if is_file && (fps.is_nan() || fps <= 0.0) {
         return Err(Fatal::new(
             exit::CONFIG,
@@ -132,7 +144,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
                 continue;
             }
         };
-        let source_index = source.frames_read();
+        let source_index = source.next_index();
         // SAFETY: the loan holds exactly `frame_bytes` bytes.
         let outcome = unsafe {
             source.read_into(
@@ -173,10 +185,10 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
             }
             Ok(ReadOutcome::EndOfFile) => {
                 drop(sample);
-                check_complete(&source);
+                source.check_complete();
                 if cam.loop_file {
                     loops += 1;
-                    source = VideoSource::open(&kind).map_err(source_fatal)?;
+                    source = Source::Video(VideoSource::open(&kind).map_err(source_fatal)?);
                     continue;
                 }
                 send_end_of_stream(&mut publisher, camera_id, stamper.stamp(index))?;
@@ -195,7 +207,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
                 );
                 backoff.reset();
                 match open_source(&kind, &mut backoff, &ctx.ipc)? {
-                    Some(s) => source = s,
+                    Some(s) => source = Source::Video(s),
                     None => break,
                 }
                 reconnects += 1;
@@ -205,7 +217,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
             Err(e) => {
                 // A file that breaks mid-way: publish what was decodable, then end.
                 drop(sample);
-                tracing::warn!("decoding failed after {} frames: {e}", source.frames_read());
+                tracing::warn!("decoding failed after {} frames: {e}", source.next_index());
                 send_end_of_stream(&mut publisher, camera_id, stamper.stamp(index))?;
                 return Ok(());
             }
@@ -250,14 +262,51 @@ fn source_fatal(e: SourceError) -> Fatal {
     Fatal::new(code, e.to_string())
 }
 
-/// Warns when a file ended well before the frame count it states (truncated file).
-fn check_complete(source: &VideoSource) {
-    let stated = source.stated_frame_count();
-    let read = source.frames_read();
-    if stated > 0 && read + 1 < stated {
-        tracing::warn!(
-            "the file ended after {read} of the {stated} frames it states: it is truncated or damaged"
-        );
+/// Where frames come from: a decoder, or frames preloaded into memory.
+enum Source {
+    Video(VideoSource),
+    Preloaded(PreloadedSource),
+}
+
+impl Source {
+    /// Source index of the frame the next read returns.
+    fn next_index(&self) -> u64 {
+        match self {
+            Source::Video(v) => v.frames_read(),
+            Source::Preloaded(p) => p.next_index(),
+        }
+    }
+
+    /// Reads the next frame into `dst` (see [`VideoSource::read_into`]).
+    ///
+    /// # Safety
+    /// `dst` must point to one frame of `width × height` `format`.
+    unsafe fn read_into(
+        &mut self,
+        dst: *mut u8,
+        width: u32,
+        height: u32,
+        format: isochron_shared::wire::PixelFormat,
+    ) -> Result<ReadOutcome, SourceError> {
+        match self {
+            // SAFETY: forwarded from the caller.
+            Source::Video(v) => unsafe { v.read_into(dst, width, height, format) },
+            // SAFETY: forwarded from the caller.
+            Source::Preloaded(p) => Ok(unsafe { p.read_into(dst) }),
+        }
+    }
+
+    /// Warns when a file ended well before the frame count it states (truncated).
+    fn check_complete(&self) {
+        if let Source::Video(v) = self {
+            let stated = v.stated_frame_count();
+            let read = v.frames_read();
+            if stated > 0 && read + 1 < stated {
+                tracing::warn!(
+                    "the file ended after {read} of the {stated} frames it states: it is truncated or damaged"
+                );
+            }
+        }
     }
 }
 

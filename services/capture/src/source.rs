@@ -217,3 +217,79 @@ fn conversion(channels: i32, format: PixelFormat) -> i32 {
         _ => imgproc::COLOR_BGR2GRAY,
     }
 }
+
+/// Frames decoded once into memory (already at the analysis size and format),
+/// handed out in a loop: a source that costs no decoding.
+pub struct PreloadedSource {
+    frames: std::sync::Arc<Vec<Vec<u8>>>,
+    next: usize,
+    fps: f64,
+}
+
+impl PreloadedSource {
+    /// Decodes the first `count` frames of `kind` (a file), converted to
+    /// `width × height` `format`.
+    pub fn load(
+        kind: &SourceKind,
+        count: u32,
+        width: u32,
+        height: u32,
+        format: PixelFormat,
+    ) -> Result<Self, SourceError> {
+        let mut video = VideoSource::open(kind)?;
+        let fps = video.stated_fps();
+        let bytes = width as usize * height as usize * format.channels();
+        let mut frames = Vec::with_capacity(count as usize);
+        while frames.len() < count as usize {
+            let mut frame = vec![0u8; bytes];
+            // SAFETY: `frame` holds exactly the bytes of one frame.
+            match unsafe { video.read_into(frame.as_mut_ptr(), width, height, format)? } {
+                ReadOutcome::Frame => frames.push(frame),
+                _ => break,
+            }
+        }
+        if frames.len() < 2 {
+            let SourceKind::File(path) = kind else {
+                return Err(SourceError::Unavailable("a live source cannot be preloaded".into()));
+            };
+            return Err(SourceError::Undecodable(path.clone()));
+        }
+        Ok(PreloadedSource {
+            frames: std::sync::Arc::new(frames),
+            next: 0,
+            fps,
+        })
+    }
+
+    /// Frames in memory.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// True if nothing was loaded (never: loading needs two frames).
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
+    /// Frame rate the file states.
+    pub fn stated_fps(&self) -> f64 {
+        self.fps
+    }
+
+    /// Index the next frame will have in the preload.
+    pub fn next_index(&self) -> u64 {
+        self.next as u64
+    }
+
+    /// Copies the next frame (looping) into `dst`.
+    ///
+    /// # Safety
+    /// `dst` must point to one frame's bytes.
+    pub unsafe fn read_into(&mut self, dst: *mut u8) -> ReadOutcome {
+        let frame = &self.frames[self.next];
+        // SAFETY: the caller guarantees `dst` holds one frame of this size.
+        unsafe { std::ptr::copy_nonoverlapping(frame.as_ptr(), dst, frame.len()) };
+        self.next = (self.next + 1) % self.frames.len();
+        ReadOutcome::Frame
+    }
+}

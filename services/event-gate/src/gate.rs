@@ -150,7 +150,9 @@ impl Gate {
             let (mut s1, mut s2, mut mean, mut var) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
             for &i in &zone.blocks {
                 let b = &blocks[i as usize];
-                s1 += b.s1;
+                if b.s1 >= g.in_place_block_min {
+                    s1 += b.s1;
+                }
                 s2 += b.s2;
                 mean += b.lt_mean;
                 var += b.lt_sigma * b.lt_sigma;
@@ -158,15 +160,15 @@ impl Gate {
             let thr = threshold(mean, var, warm, g.k_sigma, g.floor, g.min_threshold);
             for (tracker, value) in zone.trackers.iter_mut().zip([s1, s2]) {
                 self.scratch.clear();
-                let pick: fn(&BlockActivity) -> f32 = match tracker.kind() {
-                    ActivityKind::InPlace => |b| b.s1,
-                    ActivityKind::Moving => |b| b.s2,
+                let (pick, min): (fn(&BlockActivity) -> f32, f32) = match tracker.kind() {
+                    ActivityKind::InPlace => (|b| b.s1, g.in_place_block_min.max(BLOCK_ACTIVE)),
+                    ActivityKind::Moving => (|b| b.s2, BLOCK_ACTIVE),
                 };
                 self.scratch.extend(
                     zone.blocks
                         .iter()
                         .copied()
-                        .filter(|&i| pick(&blocks[i as usize]) >= BLOCK_ACTIVE),
+                        .filter(|&i| pick(&blocks[i as usize]) >= min),
                 );
                 let change =
                     tracker.update(second, value, thr, &self.scratch, &mut self.next_event_id);
@@ -410,6 +412,24 @@ mod tests {
             (zone.as_str(), event.kind, event.blocks.clone()),
             ("right", ActivityKind::InPlace, vec![6])
         );
+    }
+
+    #[test]
+    fn passers_by_tails_are_not_in_place_activity() {
+        // Eight blocks each with a small decaying S1 tail (0.04 < 0.05): together
+        // 0.32 — but no block has lasting activity, so no in-place event.
+        let mut g = gate(GateConfig {
+            floor: 0.3,
+            ..GateConfig::default()
+        });
+        let mut b = blocks(0.0, 0.0, 0.0);
+        b.iter_mut().for_each(|b| b.s1 = 0.04);
+        assert!(g.on_activity(&header(0, 0), &b).is_empty());
+        // One block where someone stands: in place.
+        b[3].s1 = 0.4;
+        let a = g.on_activity(&header(1, 0), &b);
+        let Some(Action::Event { event, .. }) = a.last() else { panic!("{a:?}") };
+        assert_eq!((event.kind, event.blocks.clone()), (ActivityKind::InPlace, vec![3]));
     }
 
     #[test]

@@ -1,0 +1,146 @@
+//! `isochron status`: one table of the whole group, from the status every service
+//! publishes (rates, drops, latencies), whoever started it (systemd or `up`).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use isochron_shared::clock::wall_now_ns;
+use isochron_shared::ipc::Ipc;
+use isochron_shared::names::ServiceNames;
+use isochron_shared::wire::{StageStatus, fixed_str};
+use serde_json::json;
+
+use crate::common::load_config;
+use crate::launch::installed_stages;
+
+/// Show the status of every service of the site.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Site configuration (default: $ISOCHRON_CONFIG or /etc/isochron/isochron.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// One JSON object per service instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+/// A report older than this many report periods (5 s) means the service is gone.
+const STALE_AFTER_S: f64 = 15.0;
+
+/// One row: a service and what it last reported.
+pub struct Row {
+    /// Stage name.
+    pub stage: &'static str,
+    /// Camera id ("" for site-wide stages).
+    pub camera: String,
+    /// The last report, if any.
+    pub status: Option<StageStatus>,
+}
+
+impl Row {
+    /// Seconds since the last report.
+    pub fn age_s(&self) -> Option<f64> {
+        self.status
+            .map(|s| (wall_now_ns() - s.report_wall_ns) as f64 / 1e9)
+    }
+
+    /// "running", "stale" or "not running".
+    pub fn state(&self) -> &'static str {
+        match self.age_s() {
+            None => "not running",
+            Some(age) if age > STALE_AFTER_S => "stale",
+            Some(_) => "running",
+        }
+    }
+}
+
+/// Reads the last status of every installed stage of every camera.
+pub fn collect(ipc: &Ipc, cameras: &[String]) -> anyhow::Result<Vec<Row>> {
+    let mut readers = Vec::new();
+    for (stage, _) in installed_stages() {
+        let targets: Vec<String> = if stage == "costmap" {
+            vec![String::new()]
+        } else {
+            cameras.to_vec()
+        };
+        for camera in targets {
+            let reader = ipc.status_subscriber(&camera, stage)?;
+            readers.push((stage, camera, reader));
+        }
+    }
+    // Running stages deliver their last report as soon as we subscribe.
+    std::thread::sleep(Duration::from_millis(200));
+    Ok(readers
+        .into_iter()
+        .map(|(stage, camera, reader)| Row {
+            stage,
+            camera,
+            status: reader.latest().filter(|s| s.validate().is_ok()),
+        })
+        .collect())
+}
+
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let loaded = load_config(args.config)?;
+    let ipc = Ipc::new(
+        "isochron-status",
+        ServiceNames::new(&loaded.config.site.service_prefix),
+        loaded.config.ipc.clone(),
+    )?;
+    let cameras: Vec<String> = loaded.config.cameras.iter().map(|c| c.id.clone()).collect();
+    let rows = collect(&ipc, &cameras)?;
+    if args.json {
+        for row in &rows {
+            let mut o = json!({"stage": row.stage, "camera": row.camera, "state": row.state()});
+            if let Some(s) = &row.status {
+                o["pid"] = json!(s.pid);
+                o["age_s"] = json!(row.age_s());
+                o["uptime_s"] = json!((s.report_wall_ns - s.started_wall_ns) as f64 / 1e9);
+                o["received"] = json!(s.received);
+                o["sent"] = json!(s.sent);
+                o["dropped"] = json!(s.dropped);
+                o["rejected"] = json!(s.rejected);
+                o["rate_in"] = json!(s.rate_in);
+                o["rate_out"] = json!(s.rate_out);
+                o["stage_latency_ms"] = json!(s.stage_latency_ms);
+                o["e2e_latency_p50_ms"] = json!(s.e2e_latency_p50_ms);
+                o["e2e_latency_p99_ms"] = json!(s.e2e_latency_p99_ms);
+                o["detail"] = json!(fixed_str(&s.detail));
+            }
+            println!("{o}");
+        }
+    } else {
+        println!(
+            "{:<8} {:<10} {:<12} {:>7} {:>9} {:>9} {:>8} {:>8} {:>9} {:>13}  DETAIL",
+            "STAGE", "CAMERA", "STATE", "PID", "IN/s", "OUT/s", "DROPPED", "REJECTED", "LAT ms", "E2E p50/p99"
+        );
+        for row in &rows {
+            let camera = if row.camera.is_empty() { "-" } else { row.camera.as_str() };
+            match &row.status {
+                None => println!("{:<8} {:<10} {:<12}", row.stage, camera, row.state()),
+                Some(s) => println!(
+                    "{:<8} {:<10} {:<12} {:>7} {:>9.1} {:>9.1} {:>8} {:>8} {:>9.2} {:>6.1}/{:<6.1}  {}",
+                    row.stage,
+                    camera,
+                    row.state(),
+                    s.pid,
+                    s.rate_in,
+                    s.rate_out,
+                    s.dropped,
+                    s.rejected,
+                    s.stage_latency_ms,
+                    s.e2e_latency_p50_ms,
+                    s.e2e_latency_p99_ms,
+                    fixed_str(&s.detail)
+                ),
+            }
+        }
+    }
+    let all_running = rows.iter().all(|r| r.state() == "running");
+    Ok(if all_running {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(3)
+    })
+}
