@@ -75,7 +75,11 @@ fn started(up: &mut Proc) -> HashMap<String, u32> {
         let ready = text.lines().filter(|l| l.ends_with(" ready")).count();
         (!pids.is_empty() && ready >= pids.len()).then_some(())
     });
-    assert!(out.is_some(), "not every service became ready:\n{}", up.stdout());
+    assert!(
+        out.is_some(),
+        "not every service became ready:\n{}",
+        up.stdout()
+    );
     pids
 }
 
@@ -98,7 +102,10 @@ fn killing_each_service_in_turn_leaves_the_others_running_and_it_comes_back() {
     let motion = ipc.subscriber::<Motion>("cam01").unwrap();
     let activity = ipc.subscriber::<Activity>("cam01").unwrap();
     let events = ipc.subscriber::<Events>("cam01").unwrap();
-    assert!(next_sample(&activity, Duration::from_secs(20)).is_some(), "activity flows");
+    assert!(
+        next_sample(&activity, Duration::from_secs(20)).is_some(),
+        "activity flows"
+    );
 
     let order: Vec<String> = ["capture", "motion", "cascade", "gate", "costmap"]
         .iter()
@@ -139,10 +146,16 @@ fn killing_each_service_in_turn_leaves_the_others_running_and_it_comes_back() {
             gap.as_secs_f64(),
             end_to_end.as_secs_f64()
         );
-        assert!(gap <= Duration::from_secs(2), "{name} took {gap:?} to come back and flow");
+        assert!(
+            gap <= Duration::from_secs(2),
+            "{name} took {gap:?} to come back and flow"
+        );
         for (other, other_pid) in &pids {
             if *other != name {
-                assert!(alive(*other_pid), "{other} (pid {other_pid}) died when {name} was killed");
+                assert!(
+                    alive(*other_pid),
+                    "{other} (pid {other_pid}) died when {name} was killed"
+                );
             }
         }
         pids.insert(name.clone(), new_pid);
@@ -155,7 +168,10 @@ fn killing_each_service_in_turn_leaves_the_others_running_and_it_comes_back() {
         }
     }
     up.signal(libc::SIGINT);
-    assert!(up.wait(Duration::from_secs(30)).is_some_and(|s| s.success()));
+    assert!(
+        up.wait(Duration::from_secs(30))
+            .is_some_and(|s| s.success())
+    );
 }
 
 #[test]
@@ -186,13 +202,23 @@ fn a_hung_service_is_caught_by_the_watchdog() {
     let site = looping_site("ops-hang", "2");
     let mut up = up(&site, "2");
     let pids = started(&mut up);
-    let name = pids.keys().find(|n| n.starts_with("motion/")).unwrap().clone();
+    let name = pids
+        .keys()
+        .find(|n| n.starts_with("motion/"))
+        .unwrap()
+        .clone();
     // SAFETY: kill(2) on a process of this test.
     unsafe { libc::kill(pids[&name] as i32, libc::SIGSTOP) };
     let stopped = Instant::now();
-    up.wait_for_line(&format!("{name} watchdog: no sign of life"), Duration::from_secs(10))
-        .unwrap_or_else(|| panic!("the hang was not detected:\n{}", up.stdout()));
-    println!("hang detected after {:.1} s (watchdog 2 s)", stopped.elapsed().as_secs_f64());
+    up.wait_for_line(
+        &format!("{name} watchdog: no sign of life"),
+        Duration::from_secs(10),
+    )
+    .unwrap_or_else(|| panic!("the hang was not detected:\n{}", up.stdout()));
+    println!(
+        "hang detected after {:.1} s (watchdog 2 s)",
+        stopped.elapsed().as_secs_f64()
+    );
     up.wait_for_line(&format!("{name} restarted pid="), Duration::from_secs(10))
         .expect("the hung service is restarted");
     up.signal(libc::SIGINT);
@@ -207,8 +233,10 @@ fn a_subscriber_that_stops_reading_does_not_slow_its_publisher() {
     let _never_read = ipc.subscriber::<Frames>("cam01").unwrap();
     let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
     let counter = ipc.subscriber::<Frames>("cam01").unwrap();
-    eventually(Duration::from_secs(20), || counter.receive().ok().flatten().map(|_| ()))
-        .expect("frames flow");
+    eventually(Duration::from_secs(20), || {
+        counter.receive().ok().flatten().map(|_| ())
+    })
+    .expect("frames flow");
     let t0 = Instant::now();
     let mut n = 0u32;
     while t0.elapsed() < Duration::from_secs(4) {
@@ -219,10 +247,17 @@ fn a_subscriber_that_stops_reading_does_not_slow_its_publisher() {
     }
     let rate = n as f64 / t0.elapsed().as_secs_f64();
     println!("publisher rate with a stalled subscriber: {rate:.1} frames/s (paced at 50)");
-    assert!(rate > 45.0, "the stalled subscriber slowed capture to {rate:.1} frames/s");
+    assert!(
+        rate > 45.0,
+        "the stalled subscriber slowed capture to {rate:.1} frames/s"
+    );
     assert!(alive(capture.pid()));
     capture.signal(libc::SIGTERM);
-    assert!(capture.wait(Duration::from_secs(10)).is_some_and(|s| s.success()));
+    assert!(
+        capture
+            .wait(Duration::from_secs(10))
+            .is_some_and(|s| s.success())
+    );
 }
 
 /// A malformed frames sample: wrong magic, or a header that lies about its size.
@@ -230,7 +265,12 @@ fn send_garbage(publisher: &mut isochron_shared::ipc::StreamPublisher<Frames>, n
     let camera = CameraId::new("cam01").unwrap();
     let pixels = vec![9u8; 64 * 48];
     for i in 0..n {
-        let mut preamble = Preamble::new::<u8>(Stream::Frames, camera, publisher.next_sequence(), pixels.len());
+        let mut preamble = Preamble::new::<u8>(
+            Stream::Frames,
+            camera,
+            publisher.next_sequence(),
+            pixels.len(),
+        );
         preamble.capture_time_ns = i as i64 * 100_000_000;
         let mut h = FrameHeader {
             preamble,
@@ -259,8 +299,10 @@ fn a_foreign_publisher_of_malformed_samples_does_not_crash_consumers() {
     let mut publisher = ipc.publisher::<Frames>("cam01", 64 * 48).unwrap();
     let mut motion = site.spawn("isochron-motion", &["--camera", "cam01"]);
     let mut gate = site.spawn("isochron-gate", &["--camera", "cam01"]);
-    eventually(Duration::from_secs(20), || (publisher.subscriber_count() >= 2).then_some(()))
-        .expect("motion and gate subscribed");
+    eventually(Duration::from_secs(20), || {
+        (publisher.subscriber_count() >= 2).then_some(())
+    })
+    .expect("motion and gate subscribed");
     send_garbage(&mut publisher, 30);
     for (name, proc) in [("motion", &mut motion), ("gate", &mut gate)] {
         assert!(
@@ -271,13 +313,18 @@ fn a_foreign_publisher_of_malformed_samples_does_not_crash_consumers() {
         let status = status_of(&ipc, name);
         assert!(alive(proc.pid()), "{name} died on malformed input");
         assert!(!proc.stderr().contains("panicked"), "{name} panicked");
-        println!("{name}: rejected {} malformed samples", status.map_or(0, |s| s.rejected));
+        println!(
+            "{name}: rejected {} malformed samples",
+            status.map_or(0, |s| s.rejected)
+        );
     }
 }
 
 fn status_of(ipc: &Ipc, stage: &str) -> Option<isochron_shared::wire::StageStatus> {
     let sub: StatusSubscriber = ipc.status_subscriber("cam01", stage).ok()?;
-    eventually(Duration::from_secs(8), || sub.latest().filter(|s| s.rejected > 0))
+    eventually(Duration::from_secs(8), || {
+        sub.latest().filter(|s| s.rejected > 0)
+    })
 }
 
 /// RSS of a process, kB.
@@ -320,7 +367,10 @@ fn soak() {
     let rss0: HashMap<&String, u64> = pids.iter().map(|(n, p)| (n, rss_kb(*p))).collect();
     let shm0 = shm_bytes();
     std::thread::sleep(Duration::from_secs(minutes * 60));
-    println!("{:<16} {:>10} {:>10} {:>8}", "service", "RSS0 kB", "RSS kB", "growth");
+    println!(
+        "{:<16} {:>10} {:>10} {:>8}",
+        "service", "RSS0 kB", "RSS kB", "growth"
+    );
     let mut worst: f64 = 0.0;
     for (name, pid) in &pids {
         assert!(alive(*pid), "{name} died during the soak");
@@ -337,7 +387,10 @@ fn soak() {
     );
     assert!(worst < 0.01, "RSS grew {:.2} %", worst * 100.0);
     assert!(shm1 <= shm0, "shared memory grew");
-    assert!(!up.stdout().contains("restarted"), "a service restarted during the soak");
+    assert!(
+        !up.stdout().contains("restarted"),
+        "a service restarted during the soak"
+    );
     up.signal(libc::SIGINT);
     up.wait(Duration::from_secs(30));
 }

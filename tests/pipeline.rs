@@ -78,7 +78,10 @@ fn vtest_through_all_stages_gates_the_detector_onto_people() {
     assert_eq!(count("frames"), VTEST_FRAMES);
     assert!((794..=795).contains(&count("motion")), "{summary}");
     assert!((79..=80).contains(&count("activity")), "{summary}");
-    assert!(count("events") >= 1, "people walk in every frame: {summary}");
+    assert!(
+        count("events") >= 1,
+        "people walk in every frame: {summary}"
+    );
 
     let detections = read_jsonl(&site.path("out/detections.jsonl"));
     assert_eq!(detections.len() as u64, count("detections"));
@@ -108,7 +111,7 @@ fn vtest_through_all_stages_gates_the_detector_onto_people() {
         reported += people.len();
         correct += people
             .iter()
-            .filter(|p| truth[frame].iter().any(|t| iou(**t, **p) >= 0.3))
+            .filter(|p| truth[frame].iter().any(|t| iou(*t, **p) >= 0.3))
             .count();
     }
     let recall = found as f64 / boxes.max(1) as f64;
@@ -142,10 +145,19 @@ fn write_empty_scene_video(path: &Path) {
     .unwrap();
     assert!(writer.is_opened().unwrap(), "OpenCV cannot write MJPG");
     // Background: smooth noise, so edges exist everywhere but nothing moves.
-    let mut noise = Mat::new_rows_cols_with_default(h, w, opencv::core::CV_8UC3, Scalar::all(0.0)).unwrap();
+    let mut noise =
+        Mat::new_rows_cols_with_default(h, w, opencv::core::CV_8UC3, Scalar::all(0.0)).unwrap();
     opencv::core::randu(&mut noise, &Scalar::all(60.0), &Scalar::all(200.0)).unwrap();
     let mut background = Mat::default();
-    imgproc::gaussian_blur(&noise, &mut background, Size::new(5, 5), 1.5, 1.5, opencv::core::BORDER_DEFAULT).unwrap();
+    imgproc::gaussian_blur(
+        &noise,
+        &mut background,
+        Size::new(5, 5),
+        1.5,
+        1.5,
+        opencv::core::BORDER_DEFAULT,
+    )
+    .unwrap();
     // The object: a 24×56 striped figure.
     let frames = (LENGTH_S * FPS) as i32;
     for i in 0..frames {
@@ -195,7 +207,11 @@ fn an_empty_scene_raises_one_event_per_interval_of_motion_and_none_elsewhere() {
         "events: {:?}",
         events
             .iter()
-            .map(|e| (e["kind"].as_str().unwrap().to_string(), seconds(&e["start"]), seconds(&e["end"])))
+            .map(|e| (
+                e["kind"].as_str().unwrap().to_string(),
+                seconds(&e["start"]),
+                seconds(&e["end"])
+            ))
             .collect::<Vec<_>>()
     );
     for (i, (from, to)) in INTERVALS.iter().enumerate() {
@@ -206,10 +222,20 @@ fn an_empty_scene_raises_one_event_per_interval_of_motion_and_none_elsewhere() {
         assert_eq!(inside.len(), 1, "interval {i} ({from}..{to} s): {inside:?}");
         let latency = seconds(&inside[0]["start"]) - from;
         println!("interval {i}: event starts {latency:+.2} s from the object's entry");
-        assert!(latency.abs() <= 1.5, "interval {i}: start latency {latency:.2} s");
+        assert!(
+            latency.abs() <= 1.5,
+            "interval {i}: start latency {latency:.2} s"
+        );
         assert_eq!(inside[0]["kind"], "moving");
         let frame = inside[0]["start_frame"].as_u64().unwrap() as f64 / FPS;
-        assert!((frame - seconds(&inside[0]["start"])).abs() < 0.15, "start_frame matches start");
+        assert!(
+            (frame - seconds(&inside[0]["start"])).abs() < 0.15,
+            "start_frame matches start"
+        );
     }
-    assert_eq!(events.len(), INTERVALS.len(), "no events outside the intervals");
+    assert_eq!(
+        events.len(),
+        INTERVALS.len(),
+        "no events outside the intervals"
+    );
 }

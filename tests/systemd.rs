@@ -21,7 +21,9 @@ const SERVICES: [&str; 5] = [
 fn install_units(dir: &Path) {
     let bin = format!("{}/", bin_dir().display());
     let copy = |from: &Path, to: &Path| {
-        let text = std::fs::read_to_string(from).unwrap().replace("/usr/bin/", &bin);
+        let text = std::fs::read_to_string(from)
+            .unwrap()
+            .replace("/usr/bin/", &bin);
         std::fs::write(to, text).unwrap();
     };
     for entry in std::fs::read_dir(repo_root().join("systemd")).unwrap() {
@@ -50,7 +52,8 @@ fn analyze(dir: &Path, args: &[&str]) -> (bool, String) {
         .env("SYSTEMD_UNIT_PATH", format!("{}:", dir.display()))
         .output()
         .expect("systemd-analyze is installed (package systemd; cargo xtask setup)");
-    let text = String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
     (out.status.success(), text)
 }
 
@@ -84,7 +87,9 @@ fn every_service_is_hardened_to_an_exposure_of_at_most_2() {
 
 #[test]
 fn services_share_hardening_readiness_and_restart_policy() {
-    let dropin = std::fs::read_to_string(repo_root().join("systemd/isochron-.service.d/isochron.conf")).unwrap();
+    let dropin =
+        std::fs::read_to_string(repo_root().join("systemd/isochron-.service.d/isochron.conf"))
+            .unwrap();
     for line in [
         "Type=notify",
         "WatchdogSec=",
@@ -98,7 +103,10 @@ fn services_share_hardening_readiness_and_restart_policy() {
     ] {
         assert!(dropin.contains(line), "the shared drop-in lacks {line}");
     }
-    assert!(!dropin.contains("PrivateTmp=yes"), "services must share /tmp/iceoryx2");
+    assert!(
+        !dropin.contains("PrivateTmp=yes"),
+        "services must share /tmp/iceoryx2"
+    );
     for unit in SERVICES {
         let file = unit.replace("@cam01", "@");
         let text = std::fs::read_to_string(repo_root().join("systemd").join(&file)).unwrap();

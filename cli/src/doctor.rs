@@ -56,7 +56,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         Ok(census) => {
             let stale = census.dead_removed.len() + census.dead_left.len();
             if stale == 0 {
-                report.say(Level::Ok, "stale resources", "none (no dead iceoryx2 nodes)");
+                report.say(
+                    Level::Ok,
+                    "stale resources",
+                    "none (no dead iceoryx2 nodes)",
+                );
             } else if census.dead_left.is_empty() {
                 report.say(
                     Level::Ok,
@@ -69,7 +73,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 );
             } else {
                 report.say(
-                    if args.keep_stale { Level::Warn } else { Level::Fail },
+                    if args.keep_stale {
+                        Level::Warn
+                    } else {
+                        Level::Fail
+                    },
                     "stale resources",
                     format!(
                         "dead nodes left: {} (run without --keep-stale, as the user that ran them)",
@@ -88,7 +96,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 );
             }
         }
-        Err(e) => report.say(Level::Warn, "stale resources", format!("cannot list iceoryx2 nodes: {e}")),
+        Err(e) => report.say(
+            Level::Warn,
+            "stale resources",
+            format!("cannot list iceoryx2 nodes: {e}"),
+        ),
     }
 
     let path = config_path(args.config);
@@ -167,7 +179,10 @@ fn check_sources(loaded: &LoadedConfig, report: &mut Report) {
             SourceKind::File(p) => report.say(
                 Level::Fail,
                 &what,
-                format!("{} does not exist (capture exits with code 66)", p.display()),
+                format!(
+                    "{} does not exist (capture exits with code 66)",
+                    p.display()
+                ),
             ),
             SourceKind::Device(i) => {
                 let dev = PathBuf::from(format!("/dev/video{i}"));
@@ -184,8 +199,12 @@ fn check_sources(loaded: &LoadedConfig, report: &mut Report) {
                     );
                 }
             }
-            SourceKind::Url(u) => report.say(Level::Ok, &what, format!("{u} (network: not probed)")),
-            SourceKind::GStreamer(p) => report.say(Level::Ok, &what, format!("GStreamer pipeline '{p}'")),
+            SourceKind::Url(u) => {
+                report.say(Level::Ok, &what, format!("{u} (network: not probed)"))
+            }
+            SourceKind::GStreamer(p) => {
+                report.say(Level::Ok, &what, format!("GStreamer pipeline '{p}'"))
+            }
         }
     }
 }
@@ -206,7 +225,11 @@ fn check_state_dir(dir: &Path, report: &mut Report) {
     match std::fs::write(&probe, b"") {
         Ok(()) => {
             let _ = std::fs::remove_file(&probe);
-            report.say(Level::Ok, "state dir", format!("{} is writable", dir.display()));
+            report.say(
+                Level::Ok,
+                "state dir",
+                format!("{} is writable", dir.display()),
+            );
         }
         Err(e) => report.say(
             Level::Fail,
@@ -226,7 +249,10 @@ fn check_stores(loaded: &LoadedConfig, report: &mut Report) {
             report.say(
                 Level::Ok,
                 &what,
-                format!("{} not created yet (the cascade creates it when motion arrives)", path.display()),
+                format!(
+                    "{} not created yet (the cascade creates it when motion arrives)",
+                    path.display()
+                ),
             );
             continue;
         }
@@ -275,10 +301,15 @@ fn check_shared_memory(loaded: &LoadedConfig, report: &mut Report) {
             cam.width.unwrap_or(1920) as usize,
             cam.height.unwrap_or(1080) as usize,
         );
-        let blocks = w.div_ceil(c.motion.block_px as usize) * h.div_ceil(c.motion.block_px as usize);
+        let blocks =
+            w.div_ceil(c.motion.block_px as usize) * h.div_ceil(c.motion.block_px as usize);
         need += publisher_segment_bytes(&c.ipc, Stream::Frames, bytes)
             + publisher_segment_bytes(&c.ipc, Stream::Motion, blocks * size_of::<BlockMotion>())
-            + publisher_segment_bytes(&c.ipc, Stream::Activity, blocks * size_of::<BlockActivity>());
+            + publisher_segment_bytes(
+                &c.ipc,
+                Stream::Activity,
+                blocks * size_of::<BlockActivity>(),
+            );
     }
     let free = free_bytes("/dev/shm");
     let mib = |b: usize| b as f64 / (1 << 20) as f64;

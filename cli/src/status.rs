@@ -113,10 +113,23 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     } else {
         println!(
             "{:<8} {:<10} {:<12} {:>7} {:>9} {:>9} {:>8} {:>8} {:>9} {:>13}  DETAIL",
-            "STAGE", "CAMERA", "STATE", "PID", "IN/s", "OUT/s", "DROPPED", "REJECTED", "LAT ms", "E2E p50/p99"
+            "STAGE",
+            "CAMERA",
+            "STATE",
+            "PID",
+            "IN/s",
+            "OUT/s",
+            "DROPPED",
+            "REJECTED",
+            "LAT ms",
+            "E2E p50/p99"
         );
         for row in &rows {
-            let camera = if row.camera.is_empty() { "-" } else { row.camera.as_str() };
+            let camera = if row.camera.is_empty() {
+                "-"
+            } else {
+                row.camera.as_str()
+            };
             match &row.status {
                 None => println!("{:<8} {:<10} {:<12}", row.stage, camera, row.state()),
                 Some(s) => println!(

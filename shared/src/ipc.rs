@@ -349,12 +349,20 @@ impl Ipc {
 
     /// A reader of `stage`'s status for `camera` (the latest report arrives at once
     /// if the stage runs).
-    pub fn status_subscriber(&self, camera: &str, stage: &str) -> Result<StatusSubscriber, IpcError> {
+    pub fn status_subscriber(
+        &self,
+        camera: &str,
+        stage: &str,
+    ) -> Result<StatusSubscriber, IpcError> {
         let subscriber = self
             .open_status(camera, stage)?
             .subscriber_builder()
             .create()
-            .map_err(|e| err(format!("creating the status subscriber of {stage}/{camera}"))(&e))?;
+            .map_err(|e| {
+                err(format!(
+                    "creating the status subscriber of {stage}/{camera}"
+                ))(&e)
+            })?;
         Ok(StatusSubscriber { subscriber })
     }
 }
@@ -421,7 +429,11 @@ pub fn node_census(remove_dead: bool) -> Result<NodeCensus, IpcError> {
             NodeState::Alive(view) => census.alive.push(name_of(view.details().as_ref())),
             NodeState::Dead(view) => {
                 let name = name_of(view.details().as_ref());
-                if remove_dead && view.blocking_remove_stale_resources(Duration::from_secs(1)).is_ok() {
+                if remove_dead
+                    && view
+                        .blocking_remove_stale_resources(Duration::from_secs(1))
+                        .is_ok()
+                {
                     census.dead_removed.push(name);
                 } else {
                     census.dead_left.push(name);

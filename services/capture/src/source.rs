@@ -250,7 +250,9 @@ impl PreloadedSource {
         }
         if frames.len() < 2 {
             let SourceKind::File(path) = kind else {
-                return Err(SourceError::Unavailable("a live source cannot be preloaded".into()));
+                return Err(SourceError::Unavailable(
+                    "a live source cannot be preloaded".into(),
+                ));
             };
             return Err(SourceError::Undecodable(path.clone()));
         }

@@ -23,7 +23,10 @@ use opencv::{imgproc, videoio};
 const DETECT_ALL_FRAMES: usize = 80;
 
 fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().unwrap()
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../..")
+        .canonicalize()
+        .unwrap()
 }
 
 fn main() {
@@ -33,7 +36,8 @@ fn main() {
     let config = Config::load(&config_path).expect("config/demo.toml");
 
     // Detect all: decode every frame, time the detector on an even sample of them.
-    let mut cap = videoio::VideoCapture::from_file(video.to_str().unwrap(), videoio::CAP_ANY).unwrap();
+    let mut cap =
+        videoio::VideoCapture::from_file(video.to_str().unwrap(), videoio::CAP_ANY).unwrap();
     let (mut bgr, mut gray) = (Mat::default(), Mat::default());
     let mut frames = Vec::new();
     while cap.read(&mut bgr).unwrap() && !bgr.empty() {
@@ -63,11 +67,21 @@ fn main() {
         "build the release binaries first (cargo xtask bench gate does)"
     );
     let status = Command::new(&isochron)
-        .args(["replay", video.to_str().unwrap(), "--out", out.to_str().unwrap(), "--config"])
+        .args([
+            "replay",
+            video.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--config",
+        ])
         .arg(&config_path)
         .status()
         .expect("isochron replay");
-    assert!(status.success(), "replay failed; see {}", out.join("logs").display());
+    assert!(
+        status.success(),
+        "replay failed; see {}",
+        out.join("logs").display()
+    );
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     let group_frames = summary["counts"]["frames"].as_u64().unwrap();
@@ -83,10 +97,12 @@ fn main() {
         .collect();
     let covered = |frame: u64| {
         events.iter().any(|e| {
-            e["start_frame"].as_u64().unwrap() <= frame && frame <= e["end_frame"].as_u64().unwrap() + 10
+            e["start_frame"].as_u64().unwrap() <= frame
+                && frame <= e["end_frame"].as_u64().unwrap() + 10
         })
     };
-    let gt = std::fs::read_to_string(root.join("tests/data/pets09-s2l1-gt.txt")).unwrap_or_default();
+    let gt =
+        std::fs::read_to_string(root.join("tests/data/pets09-s2l1-gt.txt")).unwrap_or_default();
     let mut present: Vec<u64> = gt
         .lines()
         .filter_map(|l| {
@@ -99,7 +115,10 @@ fn main() {
     let missed = present.iter().filter(|&&f| !covered(f)).count();
 
     let speedup = hybrid_fps / detect_all_fps;
-    println!("gate benchmark on vtest.avi ({w}x{h}, {total} frames), detector: {}", detector.name());
+    println!(
+        "gate benchmark on vtest.avi ({w}x{h}, {total} frames), detector: {}",
+        detector.name()
+    );
     println!("{:<34} {:>12} {:>16}", "", "frames/s", "frames detected");
     println!(
         "{:<34} {:>12.1} {:>16}",

@@ -428,8 +428,13 @@ mod tests {
         // One block where someone stands: in place.
         b[3].s1 = 0.4;
         let a = g.on_activity(&header(1, 0), &b);
-        let Some(Action::Event { event, .. }) = a.last() else { panic!("{a:?}") };
-        assert_eq!((event.kind, event.blocks.clone()), (ActivityKind::InPlace, vec![3]));
+        let Some(Action::Event { event, .. }) = a.last() else {
+            panic!("{a:?}")
+        };
+        assert_eq!(
+            (event.kind, event.blocks.clone()),
+            (ActivityKind::InPlace, vec![3])
+        );
     }
 
     #[test]

@@ -197,10 +197,18 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
     let ring = Arc::new(Mutex::new(FrameRing::new(config.gate.ring_frames)));
     let detector_config = config.gate.detector.clone();
     let base_dir = ctx.config.base_dir();
+    // Live, a busy detector loses work instead of delaying events; a lossless
+    // replay detects every gated frame, at the detector's pace.
+    let lossless = config.ipc.lossless;
+    let queue = if lossless {
+        0
+    } else {
+        config.gate.detector.queue
+    };
     let (mut worker, detector_name) = Worker::start(
         move || Detector::from_config(&detector_config, &base_dir),
         ring.clone(),
-        config.gate.detector.queue,
+        queue,
     )
     .map_err(|e| Fatal::new(exit::CONFIG, e))?;
     let mut gate = Gate::new(
@@ -309,6 +317,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
                         &action,
                         &mut outputs,
                         &mut worker,
+                        lossless,
                         h.preamble.capture_time_ns,
                         0,
                         grid_len.max(1),
@@ -332,6 +341,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
                     &action,
                     &mut outputs,
                     &mut worker,
+                    lossless,
                     h.preamble.capture_time_ns,
                     h.preamble.origin_wall_ns,
                     grid_len,
@@ -365,6 +375,7 @@ fn execute(
     action: &Action,
     outputs: &mut Outputs,
     worker: &mut Worker,
+    lossless: bool,
     now_ns: i64,
     origin_wall_ns: i64,
     grid_len: usize,
@@ -380,7 +391,12 @@ fn execute(
             }
         }
         Action::Detect(job) => {
-            if !worker.submit(*job) {
+            let queued = if lossless {
+                worker.submit_wait(*job)
+            } else {
+                worker.submit(*job)
+            };
+            if !queued {
                 tracing::debug!(event = job.event_id, "detector busy: detection dropped");
             }
         }

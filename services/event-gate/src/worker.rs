@@ -64,7 +64,9 @@ pub struct Worker {
 
 impl Worker {
     /// Starts the thread; `make` builds the detector on it (OpenCV objects stay on
-    /// the thread that made them). Fails if the detector cannot be built.
+    /// the thread that made them). Fails if the detector cannot be built. With a
+    /// `queue` of 0 a job is handed over only when the detector takes it, so the
+    /// frame it names is copied out of the ring before anything can replace it.
     pub fn start(
         make: impl FnOnce() -> Result<Detector, String> + Send + 'static,
         ring: Arc<Mutex<FrameRing>>,
@@ -153,6 +155,19 @@ impl Worker {
                 }
                 Err(TryRecvError::Empty) | Err(TryRecvError::Disconnected) => return out,
             }
+        }
+    }
+
+    /// Queues a job, waiting for room (lossless replays: every gated frame is
+    /// detected, and the whole group runs at the pace the detector allows).
+    pub fn submit_wait(&mut self, job: Job) -> bool {
+        let Some(jobs) = &self.jobs else { return false };
+        if jobs.send(job).is_ok() {
+            self.submitted += 1;
+            true
+        } else {
+            self.dropped += 1;
+            false
         }
     }
 
