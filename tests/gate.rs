@@ -123,18 +123,20 @@ impl Feeder {
     }
 }
 
-fn site(name: &str, gate: &str) -> TestSite {
+/// A site whose gate runs in live mode (a busy detector drops work) or, when
+/// `lossless`, in replay mode (every gated frame is detected).
+fn site(name: &str, lossless: bool, gate: &str) -> TestSite {
     TestSite::new(
         name,
         &format!(
-            "[ipc]\nlossless = true\nframe_buffer = 4\n\n[gate]\n{gate}\n\n[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\n"
+            "[ipc]\nlossless = {lossless}\nframe_buffer = 4\n\n[gate]\n{gate}\n\n[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\n"
         ),
     )
 }
 
 #[test]
 fn events_start_and_end_with_hysteresis_and_the_detector_runs_once_per_event() {
-    let site = site("gate-events", "hold_s = 2.0");
+    let site = site("gate-events", true, "hold_s = 2.0");
     let ipc = site.ipc("feeder");
     let events = ipc.subscriber::<Events>("cam01").unwrap();
     let detections = ipc.subscriber::<Detections>("cam01").unwrap();
@@ -202,8 +204,10 @@ fn events_start_and_end_with_hysteresis_and_the_detector_runs_once_per_event() {
 #[test]
 fn a_slow_detector_does_not_delay_events() {
     // HOG on an upscaled 1080p frame takes seconds; events come every second.
+    // Live mode: the detector may drop work, events may never wait for it.
     let site = site(
         "gate-slow",
+        false,
         "hold_s = 0.0\n\n[gate.detector]\nhog_upscale = 2.0\nqueue = 1",
     );
     let ipc = site.ipc("feeder");
