@@ -59,8 +59,9 @@ pub struct ServiceSpec {
     pub args: Vec<OsString>,
 }
 
-/// The services of every stage for every camera of `config` (the costmap bridge
-/// once per site), downstream first, so consumers are up before producers.
+/// The services of every stage for every camera of `config` — one process per
+/// `site.cameras_per_process` cameras — and the costmap bridge once per site,
+/// downstream first, so consumers are up before producers.
 pub fn group_specs(config: &LoadedConfig) -> Vec<ServiceSpec> {
     let config_arg = OsString::from(
         config
@@ -79,16 +80,22 @@ pub fn group_specs(config: &LoadedConfig) -> Vec<ServiceSpec> {
             });
             continue;
         }
-        for cam in &config.config.cameras {
+        let per_process = config.config.site.cameras_per_process.max(1);
+        for cameras in config.config.cameras.chunks(per_process) {
+            let ids = cameras
+                .iter()
+                .map(|c| c.id.as_str())
+                .collect::<Vec<_>>()
+                .join(",");
             specs.push(ServiceSpec {
-                name: format!("{stage}/{}", cam.id),
+                name: format!("{stage}/{ids}"),
                 stage,
                 program: program.clone(),
                 args: vec![
                     "--config".into(),
                     config_arg.clone(),
                     "--camera".into(),
-                    cam.id.clone().into(),
+                    ids.into(),
                 ],
             });
         }

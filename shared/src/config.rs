@@ -269,6 +269,10 @@ pub struct SiteConfig {
     /// Directory for state (the long-term store). Default `"/var/lib/isochron"`;
     /// relative paths are relative to the config file.
     pub state_dir: PathBuf,
+    /// Cameras one process of a per-camera stage serves, when `isochron up` starts
+    /// the group (each camera on its own thread; see the README's "Scale"). Default
+    /// 1: one process per camera and stage.
+    pub cameras_per_process: usize,
 }
 
 impl Default for SiteConfig {
@@ -278,6 +282,7 @@ impl Default for SiteConfig {
             time_zone: "UTC".into(),
             service_prefix: crate::names::DEFAULT_PREFIX.into(),
             state_dir: PathBuf::from("/var/lib/isochron"),
+            cameras_per_process: 1,
         }
     }
 }
@@ -852,6 +857,12 @@ impl Config {
                 ),
             ));
         }
+        check_range(
+            "site.cameras_per_process",
+            site.cameras_per_process as f64,
+            1.0,
+            1024.0,
+        )?;
         let ipc = &self.ipc;
         check_range("ipc.max_subscribers", ipc.max_subscribers as f64, 1.0, 64.0)?;
         check_range("ipc.frame_buffer", ipc.frame_buffer as f64, 1.0, 64.0)?;

@@ -1,6 +1,8 @@
 //! Service health: exit codes, systemd notifications (readiness, watchdog, status),
 //! and the periodic one-line status every stage logs and publishes.
 
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, OnceLock, Weak};
 use std::time::{Duration, Instant};
 
 use crate::clock::wall_now_ns;
@@ -31,12 +33,66 @@ pub mod exit {
     }
 }
 
-/// Tells systemd (if it started us with `Type=notify`) that the service is ready.
+/// Loops that still have to call [`notify_ready`] before the process is ready.
+static READY_PENDING: AtomicUsize = AtomicUsize::new(1);
+
+/// Sets how many loops (one per camera of a multi-camera process) must call
+/// [`notify_ready`] before systemd is told the service is ready. Default 1.
+pub fn expect_ready(loops: usize) {
+    READY_PENDING.store(loops.max(1), Ordering::Relaxed);
+}
+
+/// Tells systemd (if it started us with `Type=notify`) that the service is ready,
+/// once every loop of the process has said so (see [`expect_ready`]).
 pub fn notify_ready(status: &str) {
-    let _ = sd_notify::notify(&[
-        sd_notify::NotifyState::Ready,
-        sd_notify::NotifyState::Status(status),
-    ]);
+    let before = READY_PENDING
+        .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1))
+        .unwrap_or(0);
+    if before == 1 {
+        let _ = sd_notify::notify(&[
+            sd_notify::NotifyState::Ready,
+            sd_notify::NotifyState::Status(status),
+        ]);
+    }
+}
+
+/// Heartbeats (ms since [`epoch`]) of the loops of this process, one per camera
+/// thread: the watchdog is fed only while every live loop beats, so one hung
+/// camera of a multi-camera process gets the process restarted.
+static HEARTBEATS: Mutex<Vec<Weak<AtomicU64>>> = Mutex::new(Vec::new());
+
+fn epoch() -> Instant {
+    static EPOCH: OnceLock<Instant> = OnceLock::new();
+    *EPOCH.get_or_init(Instant::now)
+}
+
+fn millis_since_epoch(now: Instant) -> u64 {
+    now.duration_since(epoch()).as_millis() as u64
+}
+
+/// A new heartbeat, registered with the process's watchdog.
+fn register_heartbeat(now: Instant) -> Arc<AtomicU64> {
+    let beat = Arc::new(AtomicU64::new(millis_since_epoch(now)));
+    let mut all = HEARTBEATS.lock().unwrap_or_else(|e| e.into_inner());
+    all.retain(|w| w.strong_count() > 0);
+    all.push(Arc::downgrade(&beat));
+    beat
+}
+
+/// True when every live loop of the process beat within `period` of `now`.
+fn all_loops_alive(now: Instant, period: Duration) -> bool {
+    let all = HEARTBEATS.lock().unwrap_or_else(|e| e.into_inner());
+    all_alive(&all, now, period)
+}
+
+/// True when every live heartbeat of `beats` is within `period` of `now`.
+fn all_alive(beats: &[Weak<AtomicU64>], now: Instant, period: Duration) -> bool {
+    let now_ms = millis_since_epoch(now);
+    let limit = period.as_millis() as u64;
+    beats
+        .iter()
+        .filter_map(Weak::upgrade)
+        .all(|beat| now_ms.saturating_sub(beat.load(Ordering::Relaxed)) <= limit)
 }
 
 /// Tells systemd the service is stopping.
@@ -59,6 +115,7 @@ pub struct Health {
     last_counts: (u64, u64),
     watchdog_every: Option<Duration>,
     last_watchdog: Instant,
+    heartbeat: Arc<AtomicU64>,
     stage_latency_ms: Window,
     e2e_latency_ms: Window,
     last_sequence: Option<u64>,
@@ -105,6 +162,7 @@ impl Health {
             // Ping at half the watchdog period, as systemd recommends.
             watchdog_every: sd_notify::watchdog_enabled().map(|d| d / 2),
             last_watchdog: now,
+            heartbeat: register_heartbeat(now),
             stage_latency_ms: Window::default(),
             e2e_latency_ms: Window::default(),
             last_sequence: None,
@@ -171,16 +229,27 @@ impl Health {
     /// Call often from the main loop: feeds the watchdog and, when due, reports.
     /// `detail` gives the stage-specific counters as text.
     pub fn tick(&mut self, detail: impl FnOnce() -> String) {
+        let now = self.keep_alive();
+        if self.report_due(now) {
+            self.report(detail());
+        }
+    }
+
+    /// Says this loop is alive (call it also while waiting, e.g. between reconnect
+    /// attempts) and feeds the systemd watchdog when due and every loop of the
+    /// process is alive.
+    pub fn keep_alive(&mut self) -> Instant {
         let now = Instant::now();
+        self.heartbeat
+            .store(millis_since_epoch(now), Ordering::Relaxed);
         if let Some(every) = self.watchdog_every
             && now.duration_since(self.last_watchdog) >= every
+            && all_loops_alive(now, every * 2)
         {
             let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
             self.last_watchdog = now;
         }
-        if self.report_due(now) {
-            self.report(detail());
-        }
+        now
     }
 
     /// Logs and publishes the status now.
@@ -268,6 +337,22 @@ mod tests {
         // A restarted publisher starts again at 0: not a gap.
         h.received(0);
         assert_eq!(h.status().dropped, 2);
+    }
+
+    #[test]
+    fn the_watchdog_is_fed_only_while_every_loop_beats() {
+        let start = Instant::now();
+        let beat = || Arc::new(AtomicU64::new(millis_since_epoch(start)));
+        let (a, b) = (beat(), beat());
+        let beats = [Arc::downgrade(&a), Arc::downgrade(&b)];
+        let period = Duration::from_secs(5);
+        assert!(all_alive(&beats, start, period));
+        let later = start + Duration::from_secs(10);
+        assert!(!all_alive(&beats, later, period));
+        a.store(millis_since_epoch(later), Ordering::Relaxed);
+        assert!(!all_alive(&beats, later, period), "b hangs");
+        drop(b); // b's loop ended normally: it no longer counts
+        assert!(all_alive(&beats, later, period));
     }
 
     #[test]

@@ -51,11 +51,129 @@ impl ServiceContext {
 /// `iox2 node list` shows.
 pub fn start(stage: &str, config: &Path, camera: Option<&str>) -> Result<ServiceContext, Fatal> {
     crate::logging::init(&format!("isochron-{stage}"));
-    let loaded = Config::load(config).map_err(|e| Fatal::new(exit::CONFIG, e.to_string()))?;
+    let loaded = load(config)?;
     let camera = camera
         .map(|id| loaded.camera(id).cloned())
         .transpose()
         .map_err(|e| Fatal::new(exit::CONFIG, e))?;
+    context(stage, loaded, camera)
+}
+
+/// Runs a per-camera service for each of `cameras` and returns the exit code.
+///
+/// One camera runs on the main thread. Several run one thread each, every one with
+/// its own node `<prefix>/<stage>/<camera>` (so `iox2 node list` and
+/// `isochron status` show each camera), sharing the process: its code, its
+/// libraries, and caches such as capture's preloaded frames. A camera that fails
+/// for good (a missing file, a bad setting) is logged and stops while the others
+/// go on; the process then exits with that code once they end. A transient failure
+/// (shared memory, iceoryx2, a bug) stops the whole process, so that its
+/// supervisor restarts it.
+pub fn run_cameras(
+    stage: &'static str,
+    config: &Path,
+    cameras: &[String],
+    run: fn(ServiceContext) -> Result<(), Fatal>,
+) -> std::process::ExitCode {
+    crate::logging::init(&format!("isochron-{stage}"));
+    let result = load(config).and_then(|loaded| {
+        let mut chosen: Vec<CameraConfig> = Vec::new();
+        for id in cameras {
+            let cam = loaded.camera(id).map_err(|e| Fatal::new(exit::CONFIG, e))?;
+            if !chosen.iter().any(|c| c.id == cam.id) {
+                chosen.push(cam.clone());
+            }
+        }
+        match chosen.len() {
+            0 => Err(Fatal::new(
+                exit::USAGE,
+                "no camera given: use --camera ID[,ID...]",
+            )),
+            1 => context(stage, loaded, chosen.pop()).and_then(run),
+            n => {
+                crate::health::expect_ready(n);
+                tracing::info!("serving {n} cameras, one thread each");
+                run_threads(stage, &loaded, chosen, run)
+            }
+        }
+    });
+    finish(stage, result)
+}
+
+/// Runs `run` for every camera on its own thread; see [`run_cameras`].
+fn run_threads(
+    stage: &'static str,
+    loaded: &LoadedConfig,
+    cameras: Vec<CameraConfig>,
+    run: fn(ServiceContext) -> Result<(), Fatal>,
+) -> Result<(), Fatal> {
+    let threads: Vec<_> = cameras
+        .into_iter()
+        .map(|cam| {
+            let loaded = loaded.clone();
+            let id = cam.id.clone();
+            let thread = std::thread::Builder::new()
+                .name(format!("{stage}-{id}"))
+                .spawn(move || {
+                    let _span = tracing::info_span!("camera", camera = %cam.id).entered();
+                    let result = context(stage, loaded, Some(cam)).and_then(run);
+                    match &result {
+                        Err(f) if exit::is_permanent(f.code) => {
+                            tracing::error!("this camera stops: {}", f.message);
+                        }
+                        Err(f) => {
+                            tracing::error!("{}; stopping the process", f.message);
+                            crate::ipc::request_stop();
+                        }
+                        Ok(()) => {}
+                    }
+                    result
+                });
+            (id, thread)
+        })
+        .collect();
+    let mut first_failure: Option<Fatal> = None;
+    for (id, thread) in threads {
+        let result = match thread {
+            Ok(handle) => handle.join().unwrap_or_else(|_| {
+                crate::ipc::request_stop();
+                Err(Fatal::new(
+                    exit::SOFTWARE,
+                    format!("the thread of camera '{id}' panicked"),
+                ))
+            }),
+            Err(e) => {
+                crate::ipc::request_stop();
+                Err(Fatal::new(
+                    exit::UNAVAILABLE,
+                    format!("starting the thread of camera '{id}': {e}"),
+                ))
+            }
+        };
+        if let Err(f) = result {
+            // A transient failure decides the exit code: it asks for a restart.
+            let replace = match &first_failure {
+                None => true,
+                Some(prev) => exit::is_permanent(prev.code) && !exit::is_permanent(f.code),
+            };
+            if replace {
+                first_failure = Some(Fatal::new(f.code, format!("camera '{id}': {}", f.message)));
+            }
+        }
+    }
+    first_failure.map_or(Ok(()), Err)
+}
+
+fn load(config: &Path) -> Result<LoadedConfig, Fatal> {
+    Config::load(config).map_err(|e| Fatal::new(exit::CONFIG, e.to_string()))
+}
+
+/// The node of `stage` (for `camera`, if per-camera) on `loaded`'s site.
+fn context(
+    stage: &str,
+    loaded: LoadedConfig,
+    camera: Option<CameraConfig>,
+) -> Result<ServiceContext, Fatal> {
     let prefix = &loaded.config.site.service_prefix;
     let node_name = match &camera {
         Some(c) => format!("{prefix}/{stage}/{}", c.id),

@@ -11,7 +11,7 @@ use isochron_shared::clock::{format_rfc3339, parse_rfc3339, wall_now_ns};
 use isochron_shared::config::{SourceKind, Speed};
 use isochron_shared::health::{Health, exit, notify_ready};
 use isochron_shared::ipc::{Frames, Ipc, StreamPublisher};
-use isochron_shared::service::{Fatal, ServiceContext, finish, start};
+use isochron_shared::service::{Fatal, ServiceContext, run_cameras};
 use isochron_shared::wire::{
     CameraId, FLAG_DISCONTINUITY, FLAG_END_OF_STREAM, FrameHeader, Preamble, Stream,
 };
@@ -23,15 +23,15 @@ struct Args {
     /// Site configuration file.
     #[arg(long)]
     config: PathBuf,
-    /// Camera id (a `[[camera]]` of the config).
-    #[arg(long)]
-    camera: String,
+    /// Camera id (a `[[camera]]` of the config), or several separated by commas
+    /// (or given again): one process then serves them all, one thread each.
+    #[arg(long, value_delimiter = ',', required = true)]
+    camera: Vec<String>,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    let result = start("capture", &args.config, Some(&args.camera)).and_then(run);
-    finish("capture", result)
+    run_cameras("capture", &args.config, &args.camera, run)
 }
 
 fn run(ctx: ServiceContext) -> Result<(), Fatal> {
@@ -41,7 +41,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
         Duration::from_secs_f64(cam.reconnect_initial_s),
         Duration::from_secs_f64(cam.reconnect_max_s),
     );
-    let Some(mut source) = open_source(&kind, &mut backoff, &ctx.ipc)? else {
+    let Some(mut source) = open_source(&kind, &mut backoff, &ctx.ipc, &mut || {})? else {
         return Ok(());
     };
 
@@ -130,7 +130,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
         if is_file {
             let wait = pacer.wait_for(index);
             if !wait.is_zero() {
-                sleep_unless_stopped(&ctx.ipc, wait);
+                sleep_unless_stopped(&ctx.ipc, wait, &mut || {});
                 continue;
             }
         }
@@ -206,7 +206,10 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
                     cam.id
                 );
                 backoff.reset();
-                match open_source(&kind, &mut backoff, &ctx.ipc)? {
+                let mut keep_alive = || {
+                    health.keep_alive();
+                };
+                match open_source(&kind, &mut backoff, &ctx.ipc, &mut keep_alive)? {
                     Some(s) => source = Source::Video(s),
                     None => break,
                 }
@@ -229,11 +232,13 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
 
 /// Opens the source. A file that is missing or undecodable is a permanent error; a
 /// live source is retried with exponential backoff until it opens or we are asked to
-/// stop (`Ok(None)`).
+/// stop (`Ok(None)`). `keep_alive` runs while waiting (the watchdog must know a
+/// camera that is reconnecting is not hung).
 fn open_source(
     kind: &SourceKind,
     backoff: &mut Backoff,
     ipc: &Ipc,
+    keep_alive: &mut dyn FnMut(),
 ) -> Result<Option<VideoSource>, Fatal> {
     loop {
         match VideoSource::open(kind) {
@@ -245,7 +250,7 @@ fn open_source(
                     "{e}; attempt {attempt} failed, retrying in {:.1} s",
                     delay.as_secs_f64()
                 );
-                if !sleep_unless_stopped(ipc, delay) {
+                if !sleep_unless_stopped(ipc, delay, keep_alive) {
                     return Ok(None);
                 }
             }
@@ -329,10 +334,12 @@ fn send_end_of_stream(
         .map_err(|e| Fatal::new(exit::UNAVAILABLE, e.to_string()))
 }
 
-/// Sleeps `total`, waking early when asked to stop. Returns false if asked to stop.
-fn sleep_unless_stopped(ipc: &Ipc, total: Duration) -> bool {
+/// Sleeps `total`, waking early when asked to stop and every 100 ms to run
+/// `keep_alive`. Returns false if asked to stop.
+fn sleep_unless_stopped(ipc: &Ipc, total: Duration, keep_alive: &mut dyn FnMut()) -> bool {
     let end = Instant::now() + total;
     loop {
+        keep_alive();
         if ipc.should_stop() {
             return false;
         }

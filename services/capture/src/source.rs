@@ -5,6 +5,9 @@
 //! pixels are written once, where every consumer reads them.
 
 use std::path::PathBuf;
+use std::sync::Arc;
+
+use parking_lot::Mutex;
 
 use isochron_shared::config::SourceKind;
 use isochron_shared::wire::PixelFormat;
@@ -221,15 +224,56 @@ fn conversion(channels: i32, format: PixelFormat) -> i32 {
 /// Frames decoded once into memory (already at the analysis size and format),
 /// handed out in a loop: a source that costs no decoding.
 pub struct PreloadedSource {
-    frames: std::sync::Arc<Vec<Vec<u8>>>,
+    frames: Arc<Vec<Vec<u8>>>,
     next: usize,
     fps: f64,
 }
 
+/// What a preload is made of: the same key means the same frames.
+type PreloadKey = (SourceKind, u32, u32, u32, PixelFormat);
+
+/// A preload kept for the other cameras of this process.
+struct Preload {
+    key: PreloadKey,
+    frames: Arc<Vec<Vec<u8>>>,
+    fps: f64,
+}
+
+/// Preloads of this process, shared by the cameras that read the same file at
+/// the same size (a multi-camera capture process decodes each file once).
+static PRELOADS: Mutex<Vec<Preload>> = Mutex::new(Vec::new());
+
 impl PreloadedSource {
-    /// Decodes the first `count` frames of `kind` (a file), converted to
-    /// `width × height` `format`.
+    /// The first `count` frames of `kind` (a file), converted to `width × height`
+    /// `format`: decoded now, or shared with a camera of this process that
+    /// preloaded the same.
     pub fn load(
+        kind: &SourceKind,
+        count: u32,
+        width: u32,
+        height: u32,
+        format: PixelFormat,
+    ) -> Result<Self, SourceError> {
+        let key = (kind.clone(), count, width, height, format);
+        // Held while decoding, so two cameras never decode the same file twice.
+        let mut preloads = PRELOADS.lock();
+        if let Some(p) = preloads.iter().find(|p| p.key == key) {
+            return Ok(PreloadedSource {
+                frames: p.frames.clone(),
+                next: 0,
+                fps: p.fps,
+            });
+        }
+        let source = Self::decode(kind, count, width, height, format)?;
+        preloads.push(Preload {
+            key,
+            frames: source.frames.clone(),
+            fps: source.fps,
+        });
+        Ok(source)
+    }
+
+    fn decode(
         kind: &SourceKind,
         count: u32,
         width: u32,
@@ -257,7 +301,7 @@ impl PreloadedSource {
             return Err(SourceError::Undecodable(path.clone()));
         }
         Ok(PreloadedSource {
-            frames: std::sync::Arc::new(frames),
+            frames: Arc::new(frames),
             next: 0,
             fps,
         })

@@ -15,7 +15,7 @@ use isochron_cascade::{
 use isochron_shared::clock::{SiteClock, wall_now_ns};
 use isochron_shared::health::{Health, exit, notify_ready};
 use isochron_shared::ipc::{Activity, Ipc, Motion, StreamPublisher};
-use isochron_shared::service::{Fatal, ServiceContext, finish, start};
+use isochron_shared::service::{Fatal, ServiceContext, run_cameras};
 use isochron_shared::store::{Store, StoreError, StoreMeta, store_path};
 use isochron_shared::wire::{
     ActivityHeader, BlockActivity, CameraId, FLAG_END_OF_STREAM, MotionHeader, Preamble, Stream,
@@ -28,9 +28,10 @@ struct Args {
     /// Site configuration file.
     #[arg(long)]
     config: PathBuf,
-    /// Camera id (a `[[camera]]` of the config).
-    #[arg(long)]
-    camera: String,
+    /// Camera id (a `[[camera]]` of the config), or several separated by commas
+    /// (or given again): one process then serves them all, one thread each.
+    #[arg(long, value_delimiter = ',', required = true)]
+    camera: Vec<String>,
 }
 
 /// The WaitSet wakes at least this often, so health reports and the watchdog tick.
@@ -41,8 +42,7 @@ const GRID_MISMATCH_LIMIT: u32 = 30;
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    let result = start("cascade", &args.config, Some(&args.camera)).and_then(run);
-    finish("cascade", result)
+    run_cameras("cascade", &args.config, &args.camera, run)
 }
 
 fn run(ctx: ServiceContext) -> Result<(), Fatal> {

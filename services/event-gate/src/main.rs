@@ -16,7 +16,7 @@ use isochron_gate::ring::FrameRing;
 use isochron_gate::worker::{Outcome, Report, Worker};
 use isochron_shared::health::{Health, exit, notify_ready};
 use isochron_shared::ipc::{Activity, Detections, Events, Frames, Ipc, StreamPublisher};
-use isochron_shared::service::{Fatal, ServiceContext, finish, start};
+use isochron_shared::service::{Fatal, ServiceContext, run_cameras};
 use isochron_shared::wire::{
     CameraId, DetectionHeader, EventHeader, EventPhase, FLAG_END_OF_STREAM, PixelFormat, Preamble,
     Stream, ZONE_NAME_LEN, to_fixed,
@@ -35,15 +35,15 @@ struct Args {
     /// Site configuration file.
     #[arg(long)]
     config: PathBuf,
-    /// Camera id (a `[[camera]]` of the config).
-    #[arg(long)]
-    camera: String,
+    /// Camera id (a `[[camera]]` of the config), or several separated by commas
+    /// (or given again): one process then serves them all, one thread each.
+    #[arg(long, value_delimiter = ',', required = true)]
+    camera: Vec<String>,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    let result = start("gate", &args.config, Some(&args.camera)).and_then(run);
-    finish("gate", result)
+    run_cameras("gate", &args.config, &args.camera, run)
 }
 
 /// Counters of the hybrid scheme.

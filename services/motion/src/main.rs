@@ -13,7 +13,7 @@ use isochron_motion::pairing::{FrameInfo, Pairing, pair};
 use isochron_shared::config::{CameraConfig, MotionConfig};
 use isochron_shared::health::{Health, exit, notify_ready};
 use isochron_shared::ipc::{Frames, Ipc, Ipc2, Motion, ReceivedSample, StreamPublisher};
-use isochron_shared::service::{Fatal, ServiceContext, finish, start};
+use isochron_shared::service::{Fatal, ServiceContext, run_cameras};
 use isochron_shared::wire::{
     BlockMotion, CameraId, FLAG_END_OF_STREAM, FLAG_ILLUMINATION, FrameHeader, MotionHeader,
     PixelFormat, Preamble, Stream,
@@ -26,9 +26,10 @@ struct Args {
     /// Site configuration file.
     #[arg(long)]
     config: PathBuf,
-    /// Camera id (a `[[camera]]` of the config).
-    #[arg(long)]
-    camera: String,
+    /// Camera id (a `[[camera]]` of the config), or several separated by commas
+    /// (or given again): one process then serves them all, one thread each.
+    #[arg(long, value_delimiter = ',', required = true)]
+    camera: Vec<String>,
 }
 
 /// Longest wait for a frame before the loop feeds the watchdog and reports anyway.
@@ -41,8 +42,7 @@ const WARN_EVERY: Duration = Duration::from_secs(5);
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    let result = start("motion", &args.config, Some(&args.camera)).and_then(run);
-    finish("motion", result)
+    run_cameras("motion", &args.config, &args.camera, run)
 }
 
 fn run(ctx: ServiceContext) -> Result<(), Fatal> {
