@@ -106,7 +106,8 @@ pub struct GateConfig {
     pub detect_per_event: u32,
     /// Instead: one detection every this many seconds while an event lasts.
     pub detect_every_s: Option<f64>,
-    /// Recent frames kept for the detector. Default 32.
+    /// Recent frames kept for the detector: the last frame of each of the latest
+    /// this many seconds (a detection looks at the last frame of a second). Default 32.
     pub ring_frames: usize,
     /// The detector.
     pub detector: DetectorConfig,

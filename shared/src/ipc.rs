@@ -548,6 +548,13 @@ impl<S: StreamType> StreamSubscriber<S> {
             .map_err(|e| err(format!("receiving a {} sample", S::STREAM))(&e))
     }
 
+    /// True when a sample is waiting (without taking it).
+    pub fn has_samples(&self) -> Result<bool, IpcError> {
+        self.subscriber
+            .has_samples()
+            .map_err(|e| err(format!("checking for {} samples", S::STREAM))(&e))
+    }
+
     /// Consumes pending wake-up notifications (call after the WaitSet woke up).
     pub fn drain_wakeups(&self) {
         let _ = self.listener.try_wait(|_| {});

@@ -14,8 +14,11 @@ use isochron_gate::detector::Detector;
 use isochron_gate::gate::{Action, Gate, GateSettings};
 use isochron_gate::ring::FrameRing;
 use isochron_gate::worker::{Outcome, Report, Worker};
+use isochron_shared::clock::NS_PER_S;
 use isochron_shared::health::{Health, exit, notify_ready};
-use isochron_shared::ipc::{Activity, Detections, Events, Frames, Ipc, StreamPublisher};
+use isochron_shared::ipc::{
+    Activity, Detections, Events, Frames, Ipc, ReceivedSample, StreamPublisher,
+};
 use isochron_shared::service::{Fatal, ServiceContext, run_cameras};
 use isochron_shared::wire::{
     CameraId, DetectionHeader, EventHeader, EventPhase, FLAG_END_OF_STREAM, PixelFormat, Preamble,
@@ -249,6 +252,12 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
     let mut health = Health::new("gate", &cam.id, Some(&ctx.ipc));
     let mut counters = Counters::default();
     let mut last_frame_sequence: Option<u64> = None;
+    // A detection job names the end of a second, so the detector only ever looks
+    // at the last frame of a second: the newest frame stays in shared memory and
+    // is copied into the ring only once it is known to be its second's last (a
+    // later second's frame arrived, or an activity sample did). One copy per
+    // second instead of one per frame.
+    let mut newest: Option<ReceivedSample<Frames>> = None;
     tracing::info!(camera = %cam.id, detector = detector_name, "gating the {detector_name} detector on events");
     notify_ready(&format!("gating {}", cam.id));
 
@@ -291,16 +300,27 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
             }
             last_frame_sequence = Some(h.preamble.sequence);
             counters.frames_seen += 1;
-            ring.lock().push(
-                h.preamble.capture_time_ns,
-                h.source_index,
-                h.width,
-                h.height,
-                sample.payload(),
-            );
+            let second = h.preamble.capture_time_ns.div_euclid(NS_PER_S);
+            if let Some(held) = newest.take()
+                && held
+                    .user_header()
+                    .preamble
+                    .capture_time_ns
+                    .div_euclid(NS_PER_S)
+                    != second
+            {
+                keep(&ring, &held); // the last frame of its second
+            }
+            newest = Some(sample);
         }
 
         activity.drain_wakeups();
+        if activity.has_samples().map_err(unavailable)?
+            && let Some(held) = newest.take()
+        {
+            // An activity sample ends a second: its last frame may be the newest.
+            keep(&ring, &held);
+        }
         while let Some(sample) = activity.receive().map_err(unavailable)? {
             let arrived = Instant::now();
             let h = *sample.user_header();
@@ -367,6 +387,18 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
         });
     }
     Ok(())
+}
+
+/// Copies a frame into the ring the detector reads.
+fn keep(ring: &Mutex<FrameRing>, sample: &ReceivedSample<Frames>) {
+    let h = sample.user_header();
+    ring.lock().push(
+        h.preamble.capture_time_ns,
+        h.source_index,
+        h.width,
+        h.height,
+        sample.payload(),
+    );
 }
 
 /// Carries out one action of the gate.
