@@ -152,6 +152,10 @@ pub struct DetectorConfig {
     /// Detection jobs that may wait for the worker; more are dropped and counted.
     /// Default 2.
     pub queue: usize,
+    /// Detections that run at once in one gate process, all its cameras together
+    /// (a multi-camera process shares them); a job that finds every one busy is
+    /// dropped and counted (a lossless replay waits instead). Default 1.
+    pub concurrent: usize,
 }
 
 impl Default for DetectorConfig {
@@ -164,6 +168,7 @@ impl Default for DetectorConfig {
             hog_upscale: 1.0,
             hog_hit_threshold: 0.0,
             queue: 2,
+            concurrent: 1,
         }
     }
 }
@@ -934,6 +939,7 @@ impl Config {
         )?;
         check_range("gate.detector.hog_upscale", d.hog_upscale, 0.25, 4.0)?;
         check_range("gate.detector.queue", d.queue as f64, 1.0, 64.0)?;
+        check_range("gate.detector.concurrent", d.concurrent as f64, 1.0, 64.0)?;
 
         if self.cameras.is_empty() {
             return Err(Invalid::new(

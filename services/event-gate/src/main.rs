@@ -13,7 +13,7 @@ use iceoryx2::waitset::WaitSetRunResult;
 use isochron_gate::detector::Detector;
 use isochron_gate::gate::{Action, Gate, GateSettings};
 use isochron_gate::ring::FrameRing;
-use isochron_gate::worker::{Outcome, Report, Worker};
+use isochron_gate::worker::{DetectorSlots, Outcome, Report, Worker};
 use isochron_shared::clock::NS_PER_S;
 use isochron_shared::health::{Health, exit, notify_ready};
 use isochron_shared::ipc::{
@@ -56,7 +56,16 @@ struct Counters {
     frames_detected: u64,
     detector_total_us: u64,
     frames_gone: u64,
+    detector_busy: u64,
     detector_errors: u64,
+}
+
+impl Counters {
+    /// Accepted jobs that never ran: their frame left the ring, or every detector
+    /// slot of the process was busy.
+    fn jobs_lost(&self) -> u64 {
+        self.frames_gone + self.detector_busy
+    }
 }
 
 /// The output side: event and detection publishers.
@@ -208,10 +217,13 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
     } else {
         config.gate.detector.queue
     };
+    let slots = DetectorSlots::of_process(config.gate.detector.concurrent);
     let (mut worker, detector_name) = Worker::start(
         move || Detector::from_config(&detector_config, &base_dir),
         ring.clone(),
         queue,
+        slots,
+        lossless,
     )
     .map_err(|e| Fatal::new(exit::CONFIG, e))?;
     let mut gate = Gate::new(
@@ -346,7 +358,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
                     )?;
                 }
                 drain_detector(&mut worker, &mut counters, &mut outputs, DRAIN_TIMEOUT)?;
-                let dropped = worker.dropped + counters.frames_gone;
+                let dropped = worker.dropped + counters.jobs_lost();
                 outputs.publish_end_of_stream(h.preamble.capture_time_ns, &counters, dropped)?;
                 tracing::info!(
                     "end of stream: {} events, detector ran on {} of {} frames",
@@ -382,7 +394,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
                 counters.frames_seen,
                 counters.frames_detected,
                 counters.detector_total_us / 1000,
-                worker.dropped + counters.frames_gone
+                worker.dropped + counters.jobs_lost()
             )
         });
     }
@@ -446,13 +458,20 @@ fn handle_report(
         Report::Done(outcome) => {
             c.frames_detected += 1;
             c.detector_total_us += outcome.detector_us;
-            outputs.publish_detections(&outcome, c, dropped + c.frames_gone)?;
+            outputs.publish_detections(&outcome, c, dropped + c.jobs_lost())?;
         }
         Report::FrameGone(job) => {
             c.frames_gone += 1;
             tracing::debug!(
                 event = job.event_id,
                 "the gated frame left the ring before the detector got to it"
+            );
+        }
+        Report::Busy(job) => {
+            c.detector_busy += 1;
+            tracing::debug!(
+                event = job.event_id,
+                "every detector slot of the process was busy: detection dropped"
             );
         }
         Report::Failed(job, e) => {

@@ -1,15 +1,17 @@
 //! The detector runs on its own thread, fed through a short queue: when the queue
 //! is full a new job is dropped and counted, so a slow detector never delays the
 //! activity path (events are published as activity arrives, whatever the detector
-//! is doing).
+//! is doing). The detectors of all cameras of one gate process share a few slots
+//! ([`DetectorSlots`]), so that the costly detector's CPU stays bounded however many
+//! cameras the process serves.
 
-use std::sync::Arc;
 use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, TrySendError, sync_channel};
+use std::sync::{Arc, OnceLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use isochron_shared::wire::Detection;
-use parking_lot::Mutex;
+use parking_lot::{Condvar, Mutex};
 
 use crate::detector::Detector;
 use crate::ring::{FrameRing, StoredFrame};
@@ -38,11 +40,63 @@ pub struct Outcome {
     pub detector_us: u64,
 }
 
+/// The detections that may run at once in this process, shared by the detector
+/// threads of all its cameras.
+pub struct DetectorSlots {
+    running: Mutex<usize>,
+    freed: Condvar,
+    limit: usize,
+}
+
+/// A running detection's slot, given back when dropped.
+pub struct Slot<'a>(&'a DetectorSlots);
+
+impl DetectorSlots {
+    /// Slots for `limit` detections at once.
+    pub fn new(limit: usize) -> Self {
+        DetectorSlots {
+            running: Mutex::new(0),
+            freed: Condvar::new(),
+            limit: limit.max(1),
+        }
+    }
+
+    /// The process's slots; the first caller sets the limit.
+    pub fn of_process(limit: usize) -> Arc<DetectorSlots> {
+        static SLOTS: OnceLock<Arc<DetectorSlots>> = OnceLock::new();
+        SLOTS
+            .get_or_init(|| Arc::new(DetectorSlots::new(limit)))
+            .clone()
+    }
+
+    /// A free slot; `None` if all are taken, unless `wait`, which waits for one.
+    pub fn acquire(&self, wait: bool) -> Option<Slot<'_>> {
+        let mut running = self.running.lock();
+        while *running >= self.limit {
+            if !wait {
+                return None;
+            }
+            self.freed.wait(&mut running);
+        }
+        *running += 1;
+        Some(Slot(self))
+    }
+}
+
+impl Drop for Slot<'_> {
+    fn drop(&mut self) {
+        *self.0.running.lock() -= 1;
+        self.0.freed.notify_one();
+    }
+}
+
 /// What the worker thread sends back.
 #[derive(Debug)]
 pub enum Report {
     /// A detection ran.
     Done(Outcome),
+    /// Every detector slot of the process was busy: the job was dropped.
+    Busy(Job),
     /// The job's frame was no longer in the ring.
     FrameGone(Job),
     /// The detector failed on a frame.
@@ -67,10 +121,14 @@ impl Worker {
     /// the thread that made them). Fails if the detector cannot be built. With a
     /// `queue` of 0 a job is handed over only when the detector takes it, so the
     /// frame it names is copied out of the ring before anything can replace it.
+    /// A job runs only in a free slot of `slots`; when none is free it is dropped,
+    /// or, with `wait_for_slot` (lossless replays), it waits for one.
     pub fn start(
         make: impl FnOnce() -> Result<Detector, String> + Send + 'static,
         ring: Arc<Mutex<FrameRing>>,
         queue: usize,
+        slots: Arc<DetectorSlots>,
+        wait_for_slot: bool,
     ) -> Result<(Worker, &'static str), String> {
         let (jobs_tx, jobs_rx) = sync_channel::<Job>(queue);
         let (reports_tx, reports_rx) = sync_channel::<Report>(1024);
@@ -90,6 +148,12 @@ impl Worker {
                 };
                 let mut frame = StoredFrame::default();
                 while let Ok(job) = jobs_rx.recv() {
+                    let Some(_slot) = slots.acquire(wait_for_slot) else {
+                        if reports_tx.send(Report::Busy(job)).is_err() {
+                            break;
+                        }
+                        continue;
+                    };
                     let found = ring.lock().copy_latest_at(job.time_ns, &mut frame);
                     let report = if !found {
                         Report::FrameGone(job)
@@ -191,5 +255,34 @@ impl Drop for Worker {
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn detector_slots_bound_what_runs_at_once() {
+        let slots = DetectorSlots::new(2);
+        let a = slots.acquire(false).expect("first slot");
+        let _b = slots.acquire(false).expect("second slot");
+        assert!(slots.acquire(false).is_none(), "both slots busy: dropped");
+        drop(a);
+        assert!(slots.acquire(false).is_some(), "a freed slot is reused");
+    }
+
+    #[test]
+    fn a_waiting_job_gets_the_next_free_slot() {
+        let slots = Arc::new(DetectorSlots::new(1));
+        let held = slots.acquire(false).expect("slot");
+        let waiter = {
+            let slots = slots.clone();
+            std::thread::spawn(move || slots.acquire(true).is_some())
+        };
+        std::thread::sleep(Duration::from_millis(50));
+        assert!(!waiter.is_finished(), "it waits while the slot is taken");
+        drop(held);
+        assert!(waiter.join().unwrap());
     }
 }
