@@ -107,7 +107,7 @@ pub struct GateConfig {
     /// Instead: one detection every this many seconds while an event lasts.
     pub detect_every_s: Option<f64>,
     /// Recent frames kept for the detector: the last frame of each of the latest
-    /// this many seconds (a detection looks at the last frame of a second). Default 32.
+    /// this many seconds (a detection looks at the last frame of a second). Default 8.
     pub ring_frames: usize,
     /// The detector.
     pub detector: DetectorConfig,
@@ -123,7 +123,7 @@ impl Default for GateConfig {
             hold_s: 3.0,
             detect_per_event: 1,
             detect_every_s: None,
-            ring_frames: 32,
+            ring_frames: 8,
             detector: DetectorConfig::default(),
         }
     }
