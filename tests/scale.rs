@@ -110,3 +110,52 @@ fn one_process_per_stage_serves_several_cameras_and_a_broken_one_stops_alone() {
         capture.stderr()
     );
 }
+
+#[test]
+fn sigterm_stops_every_camera_of_a_multi_camera_process_at_once() {
+    let video = vtest().display().to_string();
+    let cameras: String = ["cam01", "cam02", "cam03"]
+        .iter()
+        .map(|id| format!("[[camera]]\nid = \"{id}\"\nsource = \"{video}\"\nloop = true\n\n"))
+        .collect();
+    let site = TestSite::new("scale-term", &cameras);
+    let list = ["--camera", "cam01,cam02,cam03"];
+    let mut procs: Vec<_> = [
+        "isochron-gate",
+        "isochron-cascade",
+        "isochron-motion",
+        "isochron-capture",
+    ]
+    .into_iter()
+    .map(|binary| (binary, site.spawn(binary, &list)))
+    .collect();
+    let ours = |names: &[String]| -> usize {
+        names
+            .iter()
+            .filter(|n| n.starts_with(&format!("{}/", site.prefix)))
+            .count()
+    };
+    eventually(Duration::from_secs(30), || {
+        (ours(&node_census(false).ok()?.alive) == 12).then_some(())
+    })
+    .expect("a node per camera and stage");
+    std::thread::sleep(Duration::from_secs(1)); // frames flowing
+
+    for (binary, proc) in &mut procs {
+        proc.signal(libc::SIGTERM);
+        let asked = Instant::now();
+        let status = proc
+            .wait(Duration::from_secs(5))
+            .unwrap_or_else(|| panic!("{binary} did not stop on SIGTERM\n{}", proc.stderr()));
+        println!("{binary}: stopped in {:?}", asked.elapsed());
+        assert_eq!(status.code(), Some(0), "{binary}\n{}", proc.stderr());
+        assert!(
+            asked.elapsed() < Duration::from_secs(2),
+            "{binary}: every camera thread stops at once, took {:?}",
+            asked.elapsed()
+        );
+    }
+    let census = node_census(false).unwrap();
+    assert_eq!(ours(&census.alive), 0, "nodes left: {:?}", census.alive);
+    assert_eq!(ours(&census.dead_left), 0, "stale: {:?}", census.dead_left);
+}

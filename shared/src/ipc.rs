@@ -35,6 +35,7 @@ use iceoryx2::sample_mut_uninit::SampleMutUninit;
 use iceoryx2::service::port_factory::PortFactory as _;
 use iceoryx2::service::port_factory::event::PortFactory as PortFactoryEvent;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
+use iceoryx2::waitset::WaitSetRunResult;
 
 use crate::config::IpcConfig;
 use crate::names::ServiceNames;
@@ -137,6 +138,19 @@ static STOP_REQUESTED: AtomicBool = AtomicBool::new(false);
 /// termination request): every [`Ipc::should_stop`] answers true from now on.
 pub fn request_stop() {
     STOP_REQUESTED.store(true, Ordering::Relaxed);
+}
+
+/// True if a WaitSet's `result` asks the process to stop (SIGINT, SIGTERM); it
+/// then also makes [`Ipc::should_stop`] true in every thread of the process.
+pub fn stop_requested_by(result: &WaitSetRunResult) -> bool {
+    let stop = matches!(
+        result,
+        WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt
+    );
+    if stop {
+        request_stop();
+    }
+    stop
 }
 
 impl Ipc {

@@ -8,13 +8,12 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use iceoryx2::prelude::*;
-use iceoryx2::waitset::WaitSetRunResult;
 use isochron_cascade::{
     Cascade, Grid, Params, PushError, REJECT_LOG_EVERY, Reject, SecondOut, TimedStore,
 };
 use isochron_shared::clock::{SiteClock, wall_now_ns};
 use isochron_shared::health::{Health, exit, notify_ready};
-use isochron_shared::ipc::{Activity, Ipc, Motion, StreamPublisher};
+use isochron_shared::ipc::{Activity, Ipc, Motion, StreamPublisher, stop_requested_by};
 use isochron_shared::service::{Fatal, ServiceContext, run_cameras};
 use isochron_shared::store::{Store, StoreError, StoreMeta, store_path};
 use isochron_shared::wire::{
@@ -124,7 +123,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
     let mut received_since_tick = 0u32;
     'outer: loop {
         match waitset.wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, TICK) {
-            Ok(WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) => break,
+            Ok(result) if stop_requested_by(&result) => break,
             Ok(_) => {}
             Err(e) => {
                 return Err(Fatal::new(

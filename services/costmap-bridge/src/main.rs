@@ -9,7 +9,6 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use iceoryx2::prelude::*;
-use iceoryx2::waitset::WaitSetRunResult;
 use isochron_costmap::bridge::Bridge;
 use isochron_costmap::delta::{DeltaTracker, Output};
 use isochron_costmap::grid::MapGrid;
@@ -24,7 +23,7 @@ use isochron_costmap::snapshot::{self, FloorPlan, Snapshot};
 use isochron_shared::clock::{Cycle, SiteClock, format_rfc3339, timestamp, wall_now_ns};
 use isochron_shared::config::LoadedConfig;
 use isochron_shared::health::{Health, exit, notify_ready};
-use isochron_shared::ipc::{Activity, Detections, IpcError};
+use isochron_shared::ipc::{Activity, Detections, IpcError, stop_requested_by};
 use isochron_shared::service::{Fatal, ServiceContext, finish, start};
 use isochron_shared::wire::{PlanKind, PlanRequest, PlanResponse, PlanStatus};
 
@@ -203,10 +202,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
             .clamp(Duration::from_millis(1), MAX_WAIT);
         let result =
             waitset.wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, wait);
-        if matches!(
-            result,
-            Ok(WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt)
-        ) {
+        if result.as_ref().is_ok_and(stop_requested_by) {
             break;
         }
 

@@ -9,7 +9,6 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use iceoryx2::prelude::*;
-use iceoryx2::waitset::WaitSetRunResult;
 use isochron_gate::detector::Detector;
 use isochron_gate::gate::{Action, Gate, GateSettings};
 use isochron_gate::ring::FrameRing;
@@ -17,7 +16,7 @@ use isochron_gate::worker::{DetectorSlots, Outcome, Report, Worker};
 use isochron_shared::clock::NS_PER_S;
 use isochron_shared::health::{Health, exit, notify_ready};
 use isochron_shared::ipc::{
-    Activity, Detections, Events, Frames, Ipc, ReceivedSample, StreamPublisher,
+    Activity, Detections, Events, Frames, Ipc, ReceivedSample, StreamPublisher, stop_requested_by,
 };
 use isochron_shared::service::{Fatal, ServiceContext, run_cameras};
 use isochron_shared::wire::{
@@ -278,10 +277,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
             |_| CallbackProgression::Continue,
             Duration::from_millis(100),
         );
-        if matches!(
-            result,
-            Ok(WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt)
-        ) {
+        if result.as_ref().is_ok_and(stop_requested_by) {
             break;
         }
 

@@ -7,12 +7,13 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use iceoryx2::prelude::*;
-use iceoryx2::waitset::WaitSetRunResult;
 use isochron_motion::detector::{FrameReport, MotionDetector};
 use isochron_motion::pairing::{FrameInfo, Pairing, pair};
 use isochron_shared::config::{CameraConfig, MotionConfig};
 use isochron_shared::health::{Health, exit, notify_ready};
-use isochron_shared::ipc::{Frames, Ipc, Ipc2, Motion, ReceivedSample, StreamPublisher};
+use isochron_shared::ipc::{
+    Frames, Ipc, Ipc2, Motion, ReceivedSample, StreamPublisher, stop_requested_by,
+};
 use isochron_shared::service::{Fatal, ServiceContext, run_cameras};
 use isochron_shared::wire::{
     BlockMotion, CameraId, FLAG_END_OF_STREAM, FLAG_ILLUMINATION, FrameHeader, MotionHeader,
@@ -77,10 +78,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
         let woke = waitset
             .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, IDLE_TICK)
             .map_err(|e| Fatal::new(exit::UNAVAILABLE, format!("waiting for frames: {e:?}")))?;
-        if matches!(
-            woke,
-            WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt
-        ) {
+        if stop_requested_by(&woke) {
             break;
         }
         // Drain first, then receive: a frame arriving in between wakes the next wait.
