@@ -36,7 +36,7 @@
 //! or after `cargo build --release --workspace --bins`:
 //! `cargo bench -p isochron-tests --bench group -- [OPTIONS]`. Options:
 //! `--mode predecoded|decode|both` (both), `--per-process P` (cameras per service
-//! process, 16), `--start N` (8), `--max N` (256), `--warmup S` (6), `--seconds S`
+//! process, 32), `--start N` (8), `--max N` (256), `--warmup S` (30), `--seconds S`
 //! (10). The last line printed is one JSON object.
 
 use std::fmt::Write as _;
@@ -130,10 +130,12 @@ impl Default for Options {
     fn default() -> Self {
         Options {
             modes: vec![Mode::Predecoded, Mode::Decode],
-            per_process: 16,
+            per_process: 32,
             start: 8,
             max: 256,
-            warmup: Duration::from_secs(6),
+            // Every camera replays the same video, so their first events (and
+            // detections) start together: let that burst pass before measuring.
+            warmup: Duration::from_secs(30),
             seconds: Duration::from_secs(10),
         }
     }
