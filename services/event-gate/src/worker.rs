@@ -5,6 +5,7 @@
 //! ([`DetectorSlots`]), so that the costly detector's CPU stays bounded however many
 //! cameras the process serves.
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, TrySendError, sync_channel};
 use std::sync::{Arc, OnceLock};
 use std::thread::JoinHandle;
@@ -106,6 +107,8 @@ pub enum Report {
 /// Handle to the detector thread.
 pub struct Worker {
     jobs: Option<SyncSender<Job>>,
+    /// Set when the worker is dropped: queued jobs are abandoned.
+    closed: Arc<AtomicBool>,
     reports: Receiver<Report>,
     thread: Option<JoinHandle<()>>,
     /// Jobs accepted.
@@ -133,6 +136,8 @@ impl Worker {
         let (jobs_tx, jobs_rx) = sync_channel::<Job>(queue);
         let (reports_tx, reports_rx) = sync_channel::<Report>(1024);
         let (ready_tx, ready_rx) = sync_channel::<Result<&'static str, String>>(1);
+        let closed = Arc::new(AtomicBool::new(false));
+        let closing = closed.clone();
         let thread = std::thread::Builder::new()
             .name("detector".into())
             .spawn(move || {
@@ -148,6 +153,9 @@ impl Worker {
                 };
                 let mut frame = StoredFrame::default();
                 while let Ok(job) = jobs_rx.recv() {
+                    if closing.load(Ordering::Relaxed) {
+                        break; // stopping: what is still queued is abandoned
+                    }
                     let Some(_slot) = slots.acquire(wait_for_slot) else {
                         if reports_tx.send(Report::Busy(job)).is_err() {
                             break;
@@ -182,6 +190,7 @@ impl Worker {
         Ok((
             Worker {
                 jobs: Some(jobs_tx),
+                closed,
                 reports: reports_rx,
                 thread: Some(thread),
                 submitted: 0,
@@ -250,7 +259,9 @@ impl Worker {
 
 impl Drop for Worker {
     fn drop(&mut self) {
-        // Closing the queue ends the thread after its current job.
+        // The thread ends after its current job; queued jobs are abandoned (a
+        // process with many cameras must stop in time, not run them all first).
+        self.closed.store(true, Ordering::Relaxed);
         self.jobs = None;
         if let Some(t) = self.thread.take() {
             let _ = t.join();
@@ -270,6 +281,62 @@ mod tests {
         assert!(slots.acquire(false).is_none(), "both slots busy: dropped");
         drop(a);
         assert!(slots.acquire(false).is_some(), "a freed slot is reused");
+    }
+
+    #[test]
+    fn a_dropped_worker_abandons_its_queued_jobs() {
+        // A full-HD frame: each HOG run takes a good fraction of a second.
+        let (w, h) = (1920u32, 1080u32);
+        let pixels: Vec<u8> = (0..w * h).map(|i| ((i % w) ^ (i / w)) as u8).collect();
+        let ring = Arc::new(Mutex::new(FrameRing::new(1)));
+        ring.lock().push(0, 0, w, h, &pixels);
+        let slots = Arc::new(DetectorSlots::new(1));
+        let held = slots.acquire(false).expect("the only slot");
+        let config = isochron_shared::config::DetectorConfig::default();
+        let (mut worker, _) = Worker::start(
+            move || Detector::from_config(&config, std::path::Path::new(".")),
+            ring,
+            8,
+            slots.clone(),
+            true,
+        )
+        .expect("HOG detector");
+        // The first job waits for the slot; eight more wait in the queue.
+        let job = Job {
+            event_id: 1,
+            time_ns: 0,
+        };
+        assert!(worker.submit(job));
+        std::thread::sleep(Duration::from_millis(50));
+        for _ in 0..8 {
+            assert!(worker.submit(job));
+        }
+        let t0 = Instant::now();
+        let one_run = std::thread::scope(|scope| {
+            scope.spawn(move || {
+                std::thread::sleep(Duration::from_millis(100));
+                drop(held);
+            });
+            drop(worker);
+            t0.elapsed()
+        });
+        // The job that had the slot runs; the eight queued ones do not.
+        let per_run = {
+            let slots = DetectorSlots::new(1);
+            let _s = slots.acquire(false);
+            let mut d = Detector::from_config(
+                &isochron_shared::config::DetectorConfig::default(),
+                std::path::Path::new("."),
+            )
+            .unwrap();
+            let t = Instant::now();
+            d.detect(&pixels, w, h).unwrap();
+            t.elapsed()
+        };
+        assert!(
+            one_run < Duration::from_millis(100) + per_run * 4,
+            "stopping took {one_run:?}; one detection takes {per_run:?}"
+        );
     }
 
     #[test]
