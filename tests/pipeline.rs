@@ -85,6 +85,17 @@ fn vtest_through_all_stages_gates_the_detector_onto_people() {
 
     let detections = read_jsonl(&site.path("out/detections.jsonl"));
     assert_eq!(detections.len() as u64, count("detections"));
+    let gate = &summary["gate"];
+    assert_eq!(
+        gate["frames_seen"].as_u64(),
+        Some(VTEST_FRAMES),
+        "a lossless replay: the gate's final counters saw every frame: {summary}"
+    );
+    assert_eq!(
+        gate["frames_detected"].as_u64(),
+        Some(detections.len() as u64),
+        "{summary}"
+    );
     let gated = detections.len();
     assert!(
         gated >= 20 && (gated as u64) < VTEST_FRAMES / 10,

@@ -26,7 +26,7 @@ use isochron_shared::ipc::{
     Activity, Detections, Events, Frames, Ipc, Motion, StreamSubscriber, StreamType,
 };
 use isochron_shared::names::ServiceNames;
-use isochron_shared::wire::{ActivityKind, EventPhase, Stream};
+use isochron_shared::wire::{ActivityKind, DetectionHeader, EventPhase, Stream};
 use serde_json::json;
 
 use crate::launch::{ServiceSpec, State, Supervisor, group_specs, installed_stages};
@@ -353,9 +353,19 @@ struct Tally {
 
 /// Receives every pending sample of `subscriber`; calls `each` for data samples.
 /// Returns (data samples, saw end of stream).
+/// The hybrid scheme's counters as a detections header states them.
+fn gate_summary(h: &DetectionHeader) -> serde_json::Value {
+    json!({
+        "frames_seen": h.frames_seen,
+        "frames_detected": h.frames_detected,
+        "jobs_dropped": h.jobs_dropped,
+        "detector_total_ms": h.detector_total_us as f64 / 1e3,
+    })
+}
+
 fn drain_one<S: StreamType>(
     subscriber: &StreamSubscriber<S>,
-    end: impl Fn(&S::Header) -> bool,
+    mut end: impl FnMut(&S::Header) -> bool,
     mut each: impl FnMut(&S::Header, &[S::Element]) -> anyhow::Result<()>,
 ) -> anyhow::Result<(u64, bool)> {
     subscriber.drain_wakeups();
@@ -459,10 +469,17 @@ impl Tally {
         if let Some(s) = &subs.detections {
             let camera = &self.camera;
             let out = &mut self.detections_out;
-            let gate = &mut self.gate;
+            let (mut final_counters, mut last_counters) = (None, None);
             let r = drain_one(
                 s,
-                |h| h.preamble.is_end_of_stream(),
+                |h| {
+                    // The end of stream carries the gate's final counters.
+                    let end = h.preamble.is_end_of_stream();
+                    if end {
+                        final_counters = Some(gate_summary(h));
+                    }
+                    end
+                },
                 |h, dets| {
                     let line = json!({
                         "camera": camera,
@@ -475,15 +492,13 @@ impl Tally {
                         })).collect::<Vec<_>>(),
                     });
                     writeln!(out, "{line}")?;
-                    *gate = json!({
-                        "frames_seen": h.frames_seen,
-                        "frames_detected": h.frames_detected,
-                        "jobs_dropped": h.jobs_dropped,
-                        "detector_total_ms": h.detector_total_us as f64 / 1e3,
-                    });
+                    last_counters = Some(gate_summary(h));
                     Ok(())
                 },
             )?;
+            if let Some(summary) = final_counters.or(last_counters) {
+                self.gate = summary;
+            }
             self.add(Stream::Detections, r);
         }
         Ok(())
