@@ -1,7 +1,7 @@
 //! What every service binary does first: logging, config, camera, iceoryx2 node —
 //! each failure mapped to a clear message and an exit code a supervisor understands.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use crate::config::{CameraConfig, Config, LoadedConfig};
 use crate::health::exit;
@@ -59,7 +59,19 @@ pub fn start(stage: &str, config: &Path, camera: Option<&str>) -> Result<Service
     context(stage, loaded, camera)
 }
 
-/// Runs a per-camera service for each of `cameras` and returns the exit code.
+/// The command line every per-camera service shares.
+#[derive(Debug, clap::Args)]
+pub struct CameraArgs {
+    /// Site configuration file.
+    #[arg(long)]
+    pub config: PathBuf,
+    /// Camera id (a `[[camera]]` of the config), or several separated by commas
+    /// (or given again): one process then serves them all, one thread each.
+    #[arg(long, value_delimiter = ',', required = true)]
+    pub camera: Vec<String>,
+}
+
+/// Runs a per-camera service for each of `args.camera` and returns the exit code.
 ///
 /// One camera runs on the main thread. Several run one thread each, every one with
 /// its own node `<prefix>/<stage>/<camera>` (so `iox2 node list` and
@@ -71,14 +83,13 @@ pub fn start(stage: &str, config: &Path, camera: Option<&str>) -> Result<Service
 /// supervisor restarts it.
 pub fn run_cameras(
     stage: &'static str,
-    config: &Path,
-    cameras: &[String],
+    args: &CameraArgs,
     run: fn(ServiceContext) -> Result<(), Fatal>,
 ) -> std::process::ExitCode {
     crate::logging::init(&format!("isochron-{stage}"));
-    let result = load(config).and_then(|loaded| {
+    let result = load(&args.config).and_then(|loaded| {
         let mut chosen: Vec<CameraConfig> = Vec::new();
-        for id in cameras {
+        for id in &args.camera {
             let cam = loaded.camera(id).map_err(|e| Fatal::new(exit::CONFIG, e))?;
             if !chosen.iter().any(|c| c.id == cam.id) {
                 chosen.push(cam.clone());

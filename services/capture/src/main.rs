@@ -1,6 +1,5 @@
 //! isochron-capture: config → source → node → `frames` publisher → read/publish loop.
 
-use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
@@ -11,7 +10,7 @@ use isochron_shared::clock::{format_rfc3339, parse_rfc3339, wall_now_ns};
 use isochron_shared::config::{SourceKind, Speed};
 use isochron_shared::health::{Health, exit, notify_ready};
 use isochron_shared::ipc::{Frames, Ipc, StreamPublisher};
-use isochron_shared::service::{Fatal, ServiceContext, run_cameras};
+use isochron_shared::service::{CameraArgs, Fatal, ServiceContext, run_cameras};
 use isochron_shared::wire::{
     CameraId, FLAG_DISCONTINUITY, FLAG_END_OF_STREAM, FrameHeader, Preamble, Stream,
 };
@@ -20,18 +19,13 @@ use isochron_shared::wire::{
 #[derive(Parser)]
 #[command(version)]
 struct Args {
-    /// Site configuration file.
-    #[arg(long)]
-    config: PathBuf,
-    /// Camera id (a `[[camera]]` of the config), or several separated by commas
-    /// (or given again): one process then serves them all, one thread each.
-    #[arg(long, value_delimiter = ',', required = true)]
-    camera: Vec<String>,
+    #[command(flatten)]
+    service: CameraArgs,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run_cameras("capture", &args.config, &args.camera, run)
+    run_cameras("capture", &args.service, run)
 }
 
 fn run(ctx: ServiceContext) -> Result<(), Fatal> {

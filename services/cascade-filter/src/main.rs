@@ -2,7 +2,7 @@
 //! publisher → wait/receive/filter/publish loop.
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
@@ -14,7 +14,7 @@ use isochron_cascade::{
 use isochron_shared::clock::{SiteClock, wall_now_ns};
 use isochron_shared::health::{Health, exit, notify_ready};
 use isochron_shared::ipc::{Activity, Ipc, Motion, StreamPublisher, stop_requested_by};
-use isochron_shared::service::{Fatal, ServiceContext, run_cameras};
+use isochron_shared::service::{CameraArgs, Fatal, ServiceContext, run_cameras};
 use isochron_shared::store::{Store, StoreError, StoreMeta, store_path};
 use isochron_shared::wire::{
     ActivityHeader, BlockActivity, CameraId, FLAG_END_OF_STREAM, MotionHeader, Preamble, Stream,
@@ -24,13 +24,8 @@ use isochron_shared::wire::{
 #[derive(Parser)]
 #[command(version)]
 struct Args {
-    /// Site configuration file.
-    #[arg(long)]
-    config: PathBuf,
-    /// Camera id (a `[[camera]]` of the config), or several separated by commas
-    /// (or given again): one process then serves them all, one thread each.
-    #[arg(long, value_delimiter = ',', required = true)]
-    camera: Vec<String>,
+    #[command(flatten)]
+    service: CameraArgs,
 }
 
 /// The WaitSet wakes at least this often, so health reports and the watchdog tick.
@@ -41,7 +36,7 @@ const GRID_MISMATCH_LIMIT: u32 = 30;
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run_cameras("cascade", &args.config, &args.camera, run)
+    run_cameras("cascade", &args.service, run)
 }
 
 fn run(ctx: ServiceContext) -> Result<(), Fatal> {

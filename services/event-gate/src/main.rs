@@ -2,7 +2,6 @@
 //! out → loop. Frames go into the ring; activity drives the event trackers; the
 //! detector thread runs on the gated frames.
 
-use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -18,7 +17,7 @@ use isochron_shared::health::{Health, exit, notify_ready};
 use isochron_shared::ipc::{
     Activity, Detections, Events, Frames, Ipc, ReceivedSample, StreamPublisher, stop_requested_by,
 };
-use isochron_shared::service::{Fatal, ServiceContext, run_cameras};
+use isochron_shared::service::{CameraArgs, Fatal, ServiceContext, run_cameras};
 use isochron_shared::wire::{
     CameraId, DetectionHeader, EventHeader, EventPhase, FLAG_END_OF_STREAM, PixelFormat, Preamble,
     Stream, ZONE_NAME_LEN, to_fixed,
@@ -34,18 +33,13 @@ const DRAIN_TIMEOUT: Duration = Duration::from_secs(60);
 #[derive(Parser)]
 #[command(version)]
 struct Args {
-    /// Site configuration file.
-    #[arg(long)]
-    config: PathBuf,
-    /// Camera id (a `[[camera]]` of the config), or several separated by commas
-    /// (or given again): one process then serves them all, one thread each.
-    #[arg(long, value_delimiter = ',', required = true)]
-    camera: Vec<String>,
+    #[command(flatten)]
+    service: CameraArgs,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run_cameras("gate", &args.config, &args.camera, run)
+    run_cameras("gate", &args.service, run)
 }
 
 /// Counters of the hybrid scheme.

@@ -1,7 +1,6 @@
 //! isochron-motion: config → node → `frames` subscriber + `motion` publisher →
 //! WaitSet loop computing per-block motion features of every frame pair.
 
-use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
@@ -14,7 +13,7 @@ use isochron_shared::health::{Health, exit, notify_ready};
 use isochron_shared::ipc::{
     Frames, Ipc, Ipc2, Motion, ReceivedSample, StreamPublisher, stop_requested_by,
 };
-use isochron_shared::service::{Fatal, ServiceContext, run_cameras};
+use isochron_shared::service::{CameraArgs, Fatal, ServiceContext, run_cameras};
 use isochron_shared::wire::{
     BlockMotion, CameraId, FLAG_END_OF_STREAM, FLAG_ILLUMINATION, FrameHeader, MotionHeader,
     PixelFormat, Preamble, Stream,
@@ -24,13 +23,8 @@ use isochron_shared::wire::{
 #[derive(Parser)]
 #[command(version)]
 struct Args {
-    /// Site configuration file.
-    #[arg(long)]
-    config: PathBuf,
-    /// Camera id (a `[[camera]]` of the config), or several separated by commas
-    /// (or given again): one process then serves them all, one thread each.
-    #[arg(long, value_delimiter = ',', required = true)]
-    camera: Vec<String>,
+    #[command(flatten)]
+    service: CameraArgs,
 }
 
 /// Longest wait for a frame before the loop feeds the watchdog and reports anyway.
@@ -43,7 +37,7 @@ const WARN_EVERY: Duration = Duration::from_secs(5);
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run_cameras("motion", &args.config, &args.camera, run)
+    run_cameras("motion", &args.service, run)
 }
 
 fn run(ctx: ServiceContext) -> Result<(), Fatal> {
