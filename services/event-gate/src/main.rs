@@ -15,7 +15,8 @@ use isochron_gate::worker::{DetectorSlots, Outcome, Report, Worker};
 use isochron_shared::clock::NS_PER_S;
 use isochron_shared::health::{Health, exit, notify_ready};
 use isochron_shared::ipc::{
-    Activity, Detections, Events, Frames, Ipc, ReceivedSample, StreamPublisher, stop_requested_by,
+    Activity, Detections, Events, Frames, Ipc, ReceivedSample, StreamPublisher, StreamSubscriber,
+    stop_requested_by,
 };
 use isochron_shared::service::{CameraArgs, Fatal, ServiceContext, run_cameras};
 use isochron_shared::wire::{
@@ -256,13 +257,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
 
     let mut health = Health::new("gate", &cam.id, Some(&ctx.ipc));
     let mut counters = Counters::default();
-    let mut last_frame_sequence: Option<u64> = None;
-    // A detection job names the end of a second, so the detector only ever looks
-    // at the last frame of a second: the newest frame stays in shared memory and
-    // is copied into the ring only once it is known to be its second's last (a
-    // later second's frame arrived, or an activity sample did). One copy per
-    // second instead of one per frame.
-    let mut newest: Option<ReceivedSample<Frames>> = None;
+    let mut intake = FrameIntake::default();
     tracing::info!(camera = %cam.id, detector = detector_name, "gating the {detector_name} detector on events");
     notify_ready(&format!("gating {}", cam.id));
 
@@ -276,54 +271,14 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
         }
 
         frames.drain_wakeups();
-        while let Some(sample) = frames.receive().map_err(unavailable)? {
-            let h = sample.user_header();
-            if let Err(e) = h.validate(&camera_id, sample.payload().len()) {
-                tracing::warn!("rejected a frames sample: {e}");
-                health.rejected();
-                continue;
-            }
-            if h.preamble.is_end_of_stream() {
-                continue;
-            }
-            if h.format() != PixelFormat::Gray8 {
-                tracing::warn!(
-                    "rejected a {:?} frame: the gate reads GRAY8 frames",
-                    h.format()
-                );
-                health.rejected();
-                continue;
-            }
-            if let Some(last) = last_frame_sequence
-                && h.preamble.sequence > last + 1
-            {
-                // Frames lost on the way (live mode overwrote them).
-                health.dropped(h.preamble.sequence - last - 1);
-            }
-            last_frame_sequence = Some(h.preamble.sequence);
-            counters.frames_seen += 1;
-            let second = h.preamble.capture_time_ns.div_euclid(NS_PER_S);
-            if let Some(held) = newest.take()
-                && held
-                    .user_header()
-                    .preamble
-                    .capture_time_ns
-                    .div_euclid(NS_PER_S)
-                    != second
-            {
-                keep(&ring, &held); // the last frame of its second
-            }
-            newest = Some(sample);
-        }
+        intake.drain(&frames, &camera_id, &ring, &mut health, &mut counters)?;
 
         activity.drain_wakeups();
-        if activity.has_samples().map_err(unavailable)?
-            && let Some(held) = newest.take()
-        {
-            // An activity sample ends a second: its last frame may be the newest.
-            keep(&ring, &held);
-        }
         while let Some(sample) = activity.receive().map_err(unavailable)? {
+            // Frames take a shorter path than activity, but a gate that waited on
+            // its detector may have left some queued: take them first, so the
+            // frames a job names are in the ring.
+            intake.drain(&frames, &camera_id, &ring, &mut health, &mut counters)?;
             let arrived = Instant::now();
             let h = *sample.user_header();
             if let Err(e) = h.validate(&camera_id, sample.payload().len()) {
@@ -334,6 +289,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
             health.received(h.preamble.sequence);
             let grid_len = (h.grid_w * h.grid_h) as usize;
             if h.preamble.is_end_of_stream() {
+                intake.finish(&frames, &camera_id, &ring, &mut health, &mut counters)?;
                 for action in gate.finish() {
                     execute(
                         &action,
@@ -358,6 +314,8 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
                 );
                 continue;
             }
+            // An activity sample ends a second: its last frame may be the newest.
+            intake.keep_newest(&ring);
             for action in gate.on_activity(&h, sample.payload()) {
                 execute(
                     &action,
@@ -389,6 +347,113 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
         });
     }
     Ok(())
+}
+
+/// Takes the `frames` stream into the detector's ring.
+///
+/// A detection job names the end of a second, so the detector only ever looks
+/// at the last frame of a second: the newest frame stays in shared memory and
+/// is copied into the ring only once it is known to be its second's last (a
+/// later second's frame arrived, or an activity sample did). One copy per
+/// second instead of one per frame.
+#[derive(Default)]
+struct FrameIntake {
+    last_sequence: Option<u64>,
+    newest: Option<ReceivedSample<Frames>>,
+    ended: bool,
+}
+
+impl FrameIntake {
+    /// How long the end of the activity stream waits for the end of the frames.
+    const END_WAIT: Duration = Duration::from_secs(2);
+
+    /// Takes every frame queued now.
+    fn drain(
+        &mut self,
+        frames: &StreamSubscriber<Frames>,
+        camera_id: &CameraId,
+        ring: &Mutex<FrameRing>,
+        health: &mut Health,
+        counters: &mut Counters,
+    ) -> Result<(), Fatal> {
+        let unavailable =
+            |e: isochron_shared::ipc::IpcError| Fatal::new(exit::UNAVAILABLE, e.to_string());
+        while let Some(sample) = frames.receive().map_err(unavailable)? {
+            let h = sample.user_header();
+            if let Err(e) = h.validate(camera_id, sample.payload().len()) {
+                tracing::warn!("rejected a frames sample: {e}");
+                health.rejected();
+                continue;
+            }
+            if h.preamble.is_end_of_stream() {
+                self.ended = true;
+                continue;
+            }
+            self.ended = false;
+            if h.format() != PixelFormat::Gray8 {
+                tracing::warn!(
+                    "rejected a {:?} frame: the gate reads GRAY8 frames",
+                    h.format()
+                );
+                health.rejected();
+                continue;
+            }
+            if let Some(last) = self.last_sequence
+                && h.preamble.sequence > last + 1
+            {
+                // Frames lost on the way (live mode overwrote them).
+                health.dropped(h.preamble.sequence - last - 1);
+            }
+            self.last_sequence = Some(h.preamble.sequence);
+            counters.frames_seen += 1;
+            let second = h.preamble.capture_time_ns.div_euclid(NS_PER_S);
+            if let Some(held) = self.newest.take()
+                && held
+                    .user_header()
+                    .preamble
+                    .capture_time_ns
+                    .div_euclid(NS_PER_S)
+                    != second
+            {
+                keep(ring, &held); // the last frame of its second
+            }
+            self.newest = Some(sample);
+        }
+        Ok(())
+    }
+
+    /// Copies the newest frame into the ring: it is the last of its second.
+    fn keep_newest(&mut self, ring: &Mutex<FrameRing>) {
+        if let Some(held) = self.newest.take() {
+            keep(ring, &held);
+        }
+    }
+
+    /// At the end of the activity stream: takes the frames still on their way,
+    /// up to the end of the frames stream (capture sends it before motion can
+    /// end activity, but a full queue may hold it back for a moment).
+    fn finish(
+        &mut self,
+        frames: &StreamSubscriber<Frames>,
+        camera_id: &CameraId,
+        ring: &Mutex<FrameRing>,
+        health: &mut Health,
+        counters: &mut Counters,
+    ) -> Result<(), Fatal> {
+        let deadline = Instant::now() + Self::END_WAIT;
+        loop {
+            self.drain(frames, camera_id, ring, health, counters)?;
+            if self.ended || Instant::now() >= deadline {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        if !self.ended {
+            tracing::warn!("the activity stream ended before the frames stream did");
+        }
+        self.keep_newest(ring);
+        Ok(())
+    }
 }
 
 /// Copies a frame into the ring the detector reads.
