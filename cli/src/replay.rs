@@ -196,7 +196,7 @@ fn effective_config(
     out: &Path,
 ) -> anyhow::Result<(LoadedConfig, String)> {
     let mut config = match &args.config {
-        Some(path) => crate::common::load_config(Some(path.clone()))?.config,
+        Some(path) => crate::common::load_config(Some(path.clone()))?.with_absolute_paths(),
         None => Config::default(),
     };
     let mut camera = match &args.camera {

@@ -779,6 +779,36 @@ impl LoadedConfig {
             })
     }
 
+    /// The config with every relative file path (detector model, map YAML,
+    /// snapshot and state directories, camera files) made absolute, so that it
+    /// means the same when written elsewhere (as `isochron replay` does).
+    pub fn with_absolute_paths(&self) -> Config {
+        let base = self.base_dir();
+        let absolute = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        };
+        let mut config = self.config.clone();
+        absolute(&mut config.site.state_dir);
+        for path in [
+            config.gate.detector.model.as_mut(),
+            config.costmap.map_yaml.as_mut(),
+            config.costmap.snapshot_dir.as_mut(),
+        ]
+        .into_iter()
+        .flatten()
+        {
+            absolute(path);
+        }
+        for camera in &mut config.cameras {
+            if let SourceKind::File(path) = camera.source_kind(&base) {
+                camera.source = path.to_string_lossy().into_owned();
+            }
+        }
+        config
+    }
+
     /// `site.state_dir`, resolved against the config file's directory.
     pub fn state_dir(&self) -> PathBuf {
         let dir = &self.config.site.state_dir;
@@ -1506,6 +1536,25 @@ source = "rtsp://127.0.0.1/stream"
             c.cameras[0].source_kind(Path::new("/etc")),
             SourceKind::File("/etc/video.avi".into())
         );
+    }
+
+    #[test]
+    fn relative_paths_become_absolute_against_the_config_file() {
+        let text = format!(
+            "{GOOD}\n[gate.detector]\nmodel = \"models/yolo.onnx\"\n\n[costmap]\nmap_yaml = \"/maps/floor.yaml\"\nsnapshot_dir = \"snaps\"\n"
+        );
+        let loaded = LoadedConfig {
+            config: parse(&text).unwrap(),
+            path: PathBuf::from("/etc/isochron/site.toml"),
+        };
+        let c = loaded.with_absolute_paths();
+        let etc = Path::new("/etc/isochron");
+        assert_eq!(c.cameras[0].source, "/etc/isochron/video.avi");
+        assert_eq!(c.cameras[1].source, "rtsp://127.0.0.1/stream");
+        assert_eq!(c.gate.detector.model, Some(etc.join("models/yolo.onnx")));
+        assert_eq!(c.costmap.map_yaml, Some(PathBuf::from("/maps/floor.yaml")));
+        assert_eq!(c.costmap.snapshot_dir, Some(etc.join("snaps")));
+        assert_eq!(c.site.state_dir, PathBuf::from("/var/lib/isochron"));
     }
 
     #[test]
