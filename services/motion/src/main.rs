@@ -267,7 +267,7 @@ impl<'ipc> Stage<'ipc> {
                 &sample,
                 &header,
             ) {
-                Ok(Some(report)) => {
+                Ok(report) => {
                     health.sent(Some(arrived), header.preamble.origin_wall_ns);
                     if report.flags & FLAG_ILLUMINATION != 0 {
                         self.illumination_frames += 1;
@@ -282,7 +282,6 @@ impl<'ipc> Stage<'ipc> {
                         );
                     }
                 }
-                Ok(None) => health.dropped(1),
                 Err(SendError::Fatal(fatal)) => return Err(fatal),
                 Err(SendError::Skipped(e)) => {
                     health.dropped(1);
@@ -334,7 +333,7 @@ enum SendError {
 }
 
 /// Computes the motion of `prev → cur` straight into a loaned sample and publishes
-/// it. `Ok(None)`: no sample could be loaned (every one is held by subscribers).
+/// it.
 fn send_motion(
     detector: &mut MotionDetector,
     publisher: &mut StreamPublisher<Motion>,
@@ -342,15 +341,12 @@ fn send_motion(
     prev: &[u8],
     cur: &ReceivedSample<Frames>,
     header: &FrameHeader,
-) -> Result<Option<FrameReport>, SendError> {
+) -> Result<FrameReport, SendError> {
     let geom = *detector.geometry();
-    let mut sample = match publisher.loan(geom.blocks()) {
-        Ok(sample) => sample,
-        Err(e) => {
-            tracing::debug!("motion sample dropped: {e}");
-            return Ok(None);
-        }
-    };
+    // Every sample held by subscribers: this pair's motion is lost (and said so).
+    let mut sample = publisher
+        .loan(geom.blocks())
+        .map_err(|e| SendError::Skipped(format!("no motion sample to loan: {e}")))?;
     let report = detector
         .process_uninit(prev, cur.payload(), sample.payload_mut())
         .map_err(|e| SendError::Skipped(e.to_string()))?;
@@ -378,7 +374,7 @@ fn send_motion(
     publisher
         .send(sample)
         .map_err(|e| SendError::Fatal(Fatal::new(exit::UNAVAILABLE, e.to_string())))?;
-    Ok(Some(report))
+    Ok(report)
 }
 
 /// Warnings: the first [`WARN_BURST`] at once, then at most one per [`WARN_EVERY`]
