@@ -152,9 +152,9 @@ pub struct DetectorConfig {
     /// Detection jobs that may wait for the worker; more are dropped and counted.
     /// Default 2.
     pub queue: usize,
-    /// Detections that run at once in one gate process, all its cameras together
-    /// (a multi-camera process shares them); a job that finds every one busy is
-    /// dropped and counted (a lossless replay waits instead). Default 1.
+    /// Detections that run at once on the site, all cameras and gate processes
+    /// together; a job that finds every one busy is dropped and counted (a
+    /// lossless replay waits instead). Default 1.
     pub concurrent: usize,
 }
 

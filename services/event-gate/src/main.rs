@@ -211,7 +211,10 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
     } else {
         config.gate.detector.queue
     };
-    let slots = DetectorSlots::of_process(config.gate.detector.concurrent);
+    let slots =
+        DetectorSlots::of_site(&config.site.service_prefix, config.gate.detector.concurrent)
+            .map(Arc::new)
+            .map_err(|e| Fatal::new(exit::UNAVAILABLE, e.to_string()))?;
     let (mut worker, detector_name) = Worker::start(
         move || Detector::from_config(&detector_config, &base_dir),
         ring.clone(),

@@ -1,18 +1,20 @@
 //! The detector runs on its own thread, fed through a short queue: when the queue
 //! is full a new job is dropped and counted, so a slow detector never delays the
 //! activity path (events are published as activity arrives, whatever the detector
-//! is doing). The detectors of all cameras of one gate process share a few slots
+//! is doing). The detectors of all cameras of a site share a few slots
 //! ([`DetectorSlots`]), so that the costly detector's CPU stays bounded however many
-//! cameras the process serves.
+//! cameras and gate processes the site runs.
 
+use std::fs::{File, TryLockError};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, TrySendError, sync_channel};
-use std::sync::{Arc, OnceLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use isochron_shared::wire::Detection;
-use parking_lot::{Condvar, Mutex};
+use parking_lot::Mutex;
 
 use crate::detector::Detector;
 use crate::ring::{FrameRing, StoredFrame};
@@ -41,53 +43,88 @@ pub struct Outcome {
     pub detector_us: u64,
 }
 
-/// The detections that may run at once in this process, shared by the detector
-/// threads of all its cameras.
+/// The detections that may run at once on a site, shared by the detector threads
+/// of all its gate processes: `limit` lock files, one held (`flock`) per running
+/// detection. The kernel drops the lock of a process that dies, so a crash never
+/// leaks a slot.
 pub struct DetectorSlots {
-    running: Mutex<usize>,
-    freed: Condvar,
-    limit: usize,
+    files: Vec<PathBuf>,
 }
 
-/// A running detection's slot, given back when dropped.
-pub struct Slot<'a>(&'a DetectorSlots);
+/// A running detection's slot, given back when dropped (closing the file unlocks).
+pub struct Slot(#[allow(dead_code)] File);
 
 impl DetectorSlots {
-    /// Slots for `limit` detections at once.
-    pub fn new(limit: usize) -> Self {
-        DetectorSlots {
-            running: Mutex::new(0),
-            freed: Condvar::new(),
-            limit: limit.max(1),
-        }
+    /// How often a job that waits for a slot tries again.
+    const RETRY: Duration = Duration::from_millis(5);
+
+    /// The slots of the site whose services run under `service_prefix`: lock files
+    /// in `/dev/shm` (shared memory the services may write anyway), or the
+    /// temporary directory where there is none.
+    pub fn of_site(service_prefix: &str, limit: usize) -> std::io::Result<Self> {
+        let shm = Path::new("/dev/shm");
+        let dir = if shm.is_dir() {
+            shm.to_path_buf()
+        } else {
+            std::env::temp_dir()
+        };
+        let name: String = service_prefix
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || "-_.".contains(c) {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect();
+        Self::in_dir(&dir, &format!("{name}.detector-slot"), limit)
     }
 
-    /// The process's slots; the first caller sets the limit.
-    pub fn of_process(limit: usize) -> Arc<DetectorSlots> {
-        static SLOTS: OnceLock<Arc<DetectorSlots>> = OnceLock::new();
-        SLOTS
-            .get_or_init(|| Arc::new(DetectorSlots::new(limit)))
-            .clone()
+    /// `limit` slots as files `<dir>/<stem>.<n>`, created if missing.
+    pub fn in_dir(dir: &Path, stem: &str, limit: usize) -> std::io::Result<Self> {
+        let files: Vec<PathBuf> = (0..limit.max(1))
+            .map(|n| dir.join(format!("{stem}.{n}")))
+            .collect();
+        for file in &files {
+            File::options()
+                .create(true)
+                .truncate(false)
+                .write(true)
+                .open(file)
+                .map_err(|e| {
+                    std::io::Error::new(e.kind(), format!("detector slot {}: {e}", file.display()))
+                })?;
+        }
+        Ok(DetectorSlots { files })
     }
 
     /// A free slot; `None` if all are taken, unless `wait`, which waits for one.
-    pub fn acquire(&self, wait: bool) -> Option<Slot<'_>> {
-        let mut running = self.running.lock();
-        while *running >= self.limit {
+    pub fn acquire(&self, wait: bool) -> Option<Slot> {
+        loop {
+            for path in &self.files {
+                // A fresh open per try: a lock belongs to one open file, so two
+                // threads of one process exclude each other as processes do.
+                let file = match File::open(path) {
+                    Ok(f) => f,
+                    Err(e) => {
+                        tracing::warn!("detector slot {}: {e}", path.display());
+                        continue;
+                    }
+                };
+                match file.try_lock() {
+                    Ok(()) => return Some(Slot(file)),
+                    Err(TryLockError::WouldBlock) => {}
+                    Err(TryLockError::Error(e)) => {
+                        tracing::warn!("locking detector slot {}: {e}", path.display());
+                    }
+                }
+            }
             if !wait {
                 return None;
             }
-            self.freed.wait(&mut running);
+            std::thread::sleep(Self::RETRY);
         }
-        *running += 1;
-        Some(Slot(self))
-    }
-}
-
-impl Drop for Slot<'_> {
-    fn drop(&mut self) {
-        *self.0.running.lock() -= 1;
-        self.0.freed.notify_one();
     }
 }
 
@@ -273,14 +310,49 @@ impl Drop for Worker {
 mod tests {
     use super::*;
 
+    /// Slots in the temporary directory, private to one test.
+    fn test_slots(test: &str, limit: usize) -> DetectorSlots {
+        let stem = format!("isochron-{}-{test}", std::process::id());
+        DetectorSlots::in_dir(&std::env::temp_dir(), &stem, limit).expect("slot files")
+    }
+
     #[test]
     fn detector_slots_bound_what_runs_at_once() {
-        let slots = DetectorSlots::new(2);
+        let slots = test_slots("bound", 2);
         let a = slots.acquire(false).expect("first slot");
         let _b = slots.acquire(false).expect("second slot");
         assert!(slots.acquire(false).is_none(), "both slots busy: dropped");
         drop(a);
         assert!(slots.acquire(false).is_some(), "a freed slot is reused");
+    }
+
+    #[test]
+    fn the_site_shares_its_slots_and_a_dead_holder_frees_its_own() {
+        let slots = test_slots("site", 1);
+        // Another process holds the only slot, with flock(2) as a gate does.
+        let mut holder = std::process::Command::new("python3")
+            .args([
+                "-c",
+                "import fcntl, sys, time\nf = open(sys.argv[1])\nfcntl.flock(f, fcntl.LOCK_EX)\ntime.sleep(30)",
+            ])
+            .arg(&slots.files[0])
+            .spawn()
+            .expect("python3");
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while slots.acquire(false).is_some() {
+            assert!(Instant::now() < deadline, "the other process never locked");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        assert!(
+            test_slots("site", 1).acquire(false).is_none(),
+            "a second gate of the site sees the slot taken"
+        );
+        holder.kill().unwrap();
+        holder.wait().unwrap();
+        assert!(
+            slots.acquire(false).is_some(),
+            "the kernel released the dead holder's lock"
+        );
     }
 
     #[test]
@@ -290,7 +362,7 @@ mod tests {
         let pixels: Vec<u8> = (0..w * h).map(|i| ((i % w) ^ (i / w)) as u8).collect();
         let ring = Arc::new(Mutex::new(FrameRing::new(1)));
         ring.lock().push(0, 0, w, h, &pixels);
-        let slots = Arc::new(DetectorSlots::new(1));
+        let slots = Arc::new(test_slots("abandon", 1));
         let held = slots.acquire(false).expect("the only slot");
         let config = isochron_shared::config::DetectorConfig::default();
         let (mut worker, _) = Worker::start(
@@ -322,8 +394,6 @@ mod tests {
         });
         // The job that had the slot runs; the eight queued ones do not.
         let per_run = {
-            let slots = DetectorSlots::new(1);
-            let _s = slots.acquire(false);
             let mut d = Detector::from_config(
                 &isochron_shared::config::DetectorConfig::default(),
                 std::path::Path::new("."),
@@ -341,7 +411,7 @@ mod tests {
 
     #[test]
     fn a_waiting_job_gets_the_next_free_slot() {
-        let slots = Arc::new(DetectorSlots::new(1));
+        let slots = Arc::new(test_slots("wait", 1));
         let held = slots.acquire(false).expect("slot");
         let waiter = {
             let slots = slots.clone();
