@@ -286,12 +286,16 @@ impl Ipc {
             .notifier_builder()
             .create()
             .map_err(|e| err("creating a notifier")(&e))?;
-        Ok(StreamPublisher {
+        let publisher = StreamPublisher {
             publisher,
             notifier,
             service,
             sequence: 0,
-        })
+        };
+        if self.config.lossless && publisher.subscriber_count() > 0 {
+            publisher.let_subscribers_connect()?;
+        }
+        Ok(publisher)
     }
 
     /// A subscriber of stream `S` of `camera`.
@@ -528,6 +532,22 @@ impl<S: StreamType> StreamPublisher<S> {
     /// Subscribers currently connected.
     pub fn subscriber_count(&self) -> usize {
         self.service.dynamic_config().number_of_subscribers()
+    }
+
+    /// How long a new lossless publisher gives existing subscribers to connect.
+    const CONNECT_GRACE: Duration = Duration::from_millis(250);
+
+    /// A new publisher is connected to a subscriber that existed before it only
+    /// once that subscriber next reads; until then iceoryx2 drops what overflows
+    /// its queue, even in lossless mode (to avoid a deadlock on a dead reader).
+    /// So wake every subscriber (each read connects it) and give them a moment
+    /// before the first sample.
+    fn let_subscribers_connect(&self) -> Result<(), IpcError> {
+        self.notifier
+            .notify()
+            .map_err(|e| err(format!("notifying {} subscribers", S::STREAM))(&e))?;
+        std::thread::sleep(Self::CONNECT_GRACE);
+        Ok(())
     }
 }
 
