@@ -351,8 +351,6 @@ struct Tally {
     gate: serde_json::Value,
 }
 
-/// Receives every pending sample of `subscriber`; calls `each` for data samples.
-/// Returns (data samples, saw end of stream).
 /// The hybrid scheme's counters as a detections header states them.
 fn gate_summary(h: &DetectionHeader) -> serde_json::Value {
     json!({
@@ -363,6 +361,8 @@ fn gate_summary(h: &DetectionHeader) -> serde_json::Value {
     })
 }
 
+/// Receives every pending sample of `subscriber`; calls `each` for data samples.
+/// Returns (data samples, saw end of stream).
 fn drain_one<S: StreamType>(
     subscriber: &StreamSubscriber<S>,
     mut end: impl FnMut(&S::Header) -> bool,

@@ -515,9 +515,7 @@ impl<S: StreamType> StreamPublisher<S> {
         let n = sample
             .send()
             .map_err(|e| err(format!("sending a {} sample", S::STREAM))(&e))?;
-        self.notifier
-            .notify()
-            .map_err(|e| err(format!("notifying {} subscribers", S::STREAM))(&e))?;
+        self.wake_subscribers()?;
         Ok(n)
     }
 
@@ -543,11 +541,17 @@ impl<S: StreamType> StreamPublisher<S> {
     /// So wake every subscriber (each read connects it) and give them a moment
     /// before the first sample.
     fn let_subscribers_connect(&self) -> Result<(), IpcError> {
-        self.notifier
-            .notify()
-            .map_err(|e| err(format!("notifying {} subscribers", S::STREAM))(&e))?;
+        self.wake_subscribers()?;
         std::thread::sleep(Self::CONNECT_GRACE);
         Ok(())
+    }
+
+    /// Notifies the stream's event: every subscriber's WaitSet wakes.
+    fn wake_subscribers(&self) -> Result<(), IpcError> {
+        self.notifier
+            .notify()
+            .map(|_| ())
+            .map_err(|e| err(format!("notifying {} subscribers", S::STREAM))(&e))
     }
 }
 

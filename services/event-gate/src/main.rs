@@ -260,7 +260,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
 
     let mut health = Health::new("gate", &cam.id, Some(&ctx.ipc));
     let mut counters = Counters::default();
-    let mut intake = FrameIntake::default();
+    let mut intake = FrameIntake::new(camera_id, ring.clone());
     tracing::info!(camera = %cam.id, detector = detector_name, "gating the {detector_name} detector on events");
     notify_ready(&format!("gating {}", cam.id));
 
@@ -274,14 +274,14 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
         }
 
         frames.drain_wakeups();
-        intake.drain(&frames, &camera_id, &ring, &mut health, &mut counters)?;
+        intake.drain(&frames, &mut health, &mut counters)?;
 
         activity.drain_wakeups();
         while let Some(sample) = activity.receive().map_err(unavailable)? {
             // Frames take a shorter path than activity, but a gate that waited on
             // its detector may have left some queued: take them first, so the
             // frames a job names are in the ring.
-            intake.drain(&frames, &camera_id, &ring, &mut health, &mut counters)?;
+            intake.drain(&frames, &mut health, &mut counters)?;
             let arrived = Instant::now();
             let h = *sample.user_header();
             if let Err(e) = h.validate(&camera_id, sample.payload().len()) {
@@ -292,7 +292,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
             health.received(h.preamble.sequence);
             let grid_len = (h.grid_w * h.grid_h) as usize;
             if h.preamble.is_end_of_stream() {
-                intake.finish(&frames, &camera_id, &ring, &mut health, &mut counters)?;
+                intake.finish(&frames, &mut health, &mut counters)?;
                 for action in gate.finish() {
                     execute(
                         &action,
@@ -318,7 +318,7 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
                 continue;
             }
             // An activity sample ends a second: its last frame may be the newest.
-            intake.keep_newest(&ring);
+            intake.keep_newest();
             for action in gate.on_activity(&h, sample.payload()) {
                 execute(
                     &action,
@@ -359,8 +359,9 @@ fn run(ctx: ServiceContext) -> Result<(), Fatal> {
 /// is copied into the ring only once it is known to be its second's last (a
 /// later second's frame arrived, or an activity sample did). One copy per
 /// second instead of one per frame.
-#[derive(Default)]
 struct FrameIntake {
+    camera_id: CameraId,
+    ring: Arc<Mutex<FrameRing>>,
     last_sequence: Option<u64>,
     newest: Option<ReceivedSample<Frames>>,
     ended: bool,
@@ -370,12 +371,21 @@ impl FrameIntake {
     /// How long the end of the activity stream waits for the end of the frames.
     const END_WAIT: Duration = Duration::from_secs(2);
 
+    /// Intake of `camera_id`'s frames into `ring`.
+    fn new(camera_id: CameraId, ring: Arc<Mutex<FrameRing>>) -> Self {
+        FrameIntake {
+            camera_id,
+            ring,
+            last_sequence: None,
+            newest: None,
+            ended: false,
+        }
+    }
+
     /// Takes every frame queued now.
     fn drain(
         &mut self,
         frames: &StreamSubscriber<Frames>,
-        camera_id: &CameraId,
-        ring: &Mutex<FrameRing>,
         health: &mut Health,
         counters: &mut Counters,
     ) -> Result<(), Fatal> {
@@ -383,7 +393,7 @@ impl FrameIntake {
             |e: isochron_shared::ipc::IpcError| Fatal::new(exit::UNAVAILABLE, e.to_string());
         while let Some(sample) = frames.receive().map_err(unavailable)? {
             let h = sample.user_header();
-            if let Err(e) = h.validate(camera_id, sample.payload().len()) {
+            if let Err(e) = h.validate(&self.camera_id, sample.payload().len()) {
                 tracing::warn!("rejected a frames sample: {e}");
                 health.rejected();
                 continue;
@@ -418,7 +428,7 @@ impl FrameIntake {
                     .div_euclid(NS_PER_S)
                     != second
             {
-                keep(ring, &held); // the last frame of its second
+                self.keep(&held); // the last frame of its second
             }
             self.newest = Some(sample);
         }
@@ -426,10 +436,22 @@ impl FrameIntake {
     }
 
     /// Copies the newest frame into the ring: it is the last of its second.
-    fn keep_newest(&mut self, ring: &Mutex<FrameRing>) {
+    fn keep_newest(&mut self) {
         if let Some(held) = self.newest.take() {
-            keep(ring, &held);
+            self.keep(&held);
         }
+    }
+
+    /// Copies a frame into the ring the detector reads.
+    fn keep(&self, sample: &ReceivedSample<Frames>) {
+        let h = sample.user_header();
+        self.ring.lock().push(
+            h.preamble.capture_time_ns,
+            h.source_index,
+            h.width,
+            h.height,
+            sample.payload(),
+        );
     }
 
     /// At the end of the activity stream: takes the frames still on their way,
@@ -438,14 +460,12 @@ impl FrameIntake {
     fn finish(
         &mut self,
         frames: &StreamSubscriber<Frames>,
-        camera_id: &CameraId,
-        ring: &Mutex<FrameRing>,
         health: &mut Health,
         counters: &mut Counters,
     ) -> Result<(), Fatal> {
         let deadline = Instant::now() + Self::END_WAIT;
         loop {
-            self.drain(frames, camera_id, ring, health, counters)?;
+            self.drain(frames, health, counters)?;
             if self.ended || Instant::now() >= deadline {
                 break;
             }
@@ -454,21 +474,9 @@ impl FrameIntake {
         if !self.ended {
             tracing::warn!("the activity stream ended before the frames stream did");
         }
-        self.keep_newest(ring);
+        self.keep_newest();
         Ok(())
     }
-}
-
-/// Copies a frame into the ring the detector reads.
-fn keep(ring: &Mutex<FrameRing>, sample: &ReceivedSample<Frames>) {
-    let h = sample.user_header();
-    ring.lock().push(
-        h.preamble.capture_time_ns,
-        h.source_index,
-        h.width,
-        h.height,
-        sample.payload(),
-    );
 }
 
 /// Carries out one action of the gate.
