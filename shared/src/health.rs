@@ -11,27 +11,7 @@ use crate::wire::{
     CameraId, LAYOUT_VERSION, MAGIC, STAGE_NAME_LEN, STATUS_DETAIL_LEN, StageStatus, to_fixed,
 };
 
-/// Exit codes (sysexits.h). A supervisor must not restart a service that exits with
-/// a permanent code: the same input would fail the same way (no crash loop).
-pub mod exit {
-    /// Bad command line.
-    pub const USAGE: i32 = 64;
-    /// Input data is malformed (an undecodable video).
-    pub const DATA: i32 = 65;
-    /// Input does not exist (a missing video file).
-    pub const NO_INPUT: i32 = 66;
-    /// A needed service is unavailable (shared memory, iceoryx2).
-    pub const UNAVAILABLE: i32 = 69;
-    /// Internal error.
-    pub const SOFTWARE: i32 = 70;
-    /// Configuration error.
-    pub const CONFIG: i32 = 78;
-
-    /// True for codes that restarting cannot fix.
-    pub fn is_permanent(code: i32) -> bool {
-        matches!(code, USAGE | DATA | NO_INPUT | CONFIG)
-    }
-}
+pub use crate::exit;
 
 /// Loops that still have to call [`notify_ready`] before the process is ready.
 static READY_PENDING: AtomicUsize = AtomicUsize::new(1);
@@ -361,13 +341,5 @@ mod tests {
         assert_eq!(quantile(&v, 0.5), 51.0);
         assert_eq!(quantile(&v, 0.99), 99.0);
         assert_eq!(quantile(&[], 0.5), 0.0);
-    }
-
-    #[test]
-    fn permanent_exit_codes() {
-        assert!(exit::is_permanent(exit::CONFIG));
-        assert!(exit::is_permanent(exit::NO_INPUT));
-        assert!(!exit::is_permanent(1));
-        assert!(!exit::is_permanent(exit::UNAVAILABLE));
     }
 }

@@ -41,7 +41,7 @@ use crate::config::IpcConfig;
 use crate::names::ServiceNames;
 use crate::wire::{
     ActivityHeader, BlockActivity, BlockMotion, Detection, DetectionHeader, EventHeader,
-    FrameHeader, MotionHeader, StageStatus, Stream,
+    FrameHeader, MotionHeader, StageStatus, Stream, StreamHeader,
 };
 
 /// The iceoryx2 service flavour all isochron processes use: inter-process.
@@ -76,7 +76,7 @@ pub trait StreamType {
     /// The stream.
     const STREAM: Stream;
     /// The user header.
-    type Header: Debug + Default + ZeroCopySend + Copy + 'static;
+    type Header: StreamHeader + Debug + ZeroCopySend + 'static;
     /// One payload element.
     type Element: Debug + ZeroCopySend + Copy + 'static;
 }

@@ -9,12 +9,16 @@
 //!   the paper, and the non-cascade reference;
 //! * [`store`]: the crash-safe long-term (isochronal) store, one SQLite file per camera;
 //! * [`ipc`]: iceoryx2 node, publishers and subscribers, sized deliberately;
-//! * [`health`]: exit codes, systemd notifications, periodic status;
+//! * [`exit`]: exit codes, and the one rule that maps a library error to one;
+//! * [`health`]: systemd notifications, periodic status;
+//! * [`stage`]: the stage runtime, the one event loop every service runs;
+//! * [`topology`]: the stages, their binaries and the streams between them;
 //! * [`logging`]: `tracing` to journald or stderr;
 //! * [`service`]: the start-up every service binary shares.
 
 pub mod clock;
 pub mod config;
+pub mod exit;
 pub mod filters;
 pub mod geometry;
 pub mod health;
@@ -22,5 +26,7 @@ pub mod ipc;
 pub mod logging;
 pub mod names;
 pub mod service;
+pub mod stage;
 pub mod store;
+pub mod topology;
 pub mod wire;

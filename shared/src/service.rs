@@ -4,28 +4,12 @@
 use std::path::{Path, PathBuf};
 
 use crate::config::{CameraConfig, Config, LoadedConfig};
-use crate::health::exit;
+use crate::exit;
 use crate::ipc::Ipc;
 use crate::names::ServiceNames;
+use crate::topology::StageKind;
 
-/// A failure that ends the process with `code` after logging `message`.
-#[derive(Debug)]
-pub struct Fatal {
-    /// Exit code (see [`crate::health::exit`]).
-    pub code: i32,
-    /// What went wrong and what to do.
-    pub message: String,
-}
-
-impl Fatal {
-    /// A failure with `code`.
-    pub fn new(code: i32, message: impl Into<String>) -> Self {
-        Fatal {
-            code,
-            message: message.into(),
-        }
-    }
-}
+pub use crate::exit::Fatal;
 
 /// The started service: its config, its camera (if per-camera) and its node.
 pub struct ServiceContext {
@@ -49,14 +33,9 @@ impl ServiceContext {
 /// Initialises logging, loads the config, finds `camera`, and creates the node
 /// `<prefix>/<stage>/<camera>` (`<prefix>/<stage>` for site-wide stages), the name
 /// `iox2 node list` shows.
-pub fn start(stage: &str, config: &Path, camera: Option<&str>) -> Result<ServiceContext, Fatal> {
-    crate::logging::init(&format!("isochron-{stage}"));
-    let loaded = load(config)?;
-    let camera = camera
-        .map(|id| loaded.camera(id).cloned())
-        .transpose()
-        .map_err(|e| Fatal::new(exit::CONFIG, e))?;
-    context(stage, loaded, camera)
+pub fn start(stage: StageKind, config: &Path) -> Result<ServiceContext, Fatal> {
+    crate::logging::init(stage.binary());
+    context(stage, load(config)?, None)
 }
 
 /// The command line every per-camera service shares.
@@ -82,11 +61,11 @@ pub struct CameraArgs {
 /// (shared memory, iceoryx2, a bug) stops the whole process, so that its
 /// supervisor restarts it.
 pub fn run_cameras(
-    stage: &'static str,
+    stage: StageKind,
     args: &CameraArgs,
     run: fn(ServiceContext) -> Result<(), Fatal>,
 ) -> std::process::ExitCode {
-    crate::logging::init(&format!("isochron-{stage}"));
+    crate::logging::init(stage.binary());
     let result = load(&args.config).and_then(|loaded| {
         let mut chosen: Vec<CameraConfig> = Vec::new();
         for id in &args.camera {
@@ -113,7 +92,7 @@ pub fn run_cameras(
 
 /// Runs `run` for every camera on its own thread; see [`run_cameras`].
 fn run_threads(
-    stage: &'static str,
+    stage: StageKind,
     loaded: &LoadedConfig,
     cameras: Vec<CameraConfig>,
     run: fn(ServiceContext) -> Result<(), Fatal>,
@@ -176,12 +155,12 @@ fn run_threads(
 }
 
 fn load(config: &Path) -> Result<LoadedConfig, Fatal> {
-    Config::load(config).map_err(|e| Fatal::new(exit::CONFIG, e.to_string()))
+    Ok(Config::load(config)?)
 }
 
 /// The node of `stage` (for `camera`, if per-camera) on `loaded`'s site.
 fn context(
-    stage: &str,
+    stage: StageKind,
     loaded: LoadedConfig,
     camera: Option<CameraConfig>,
 ) -> Result<ServiceContext, Fatal> {
@@ -194,8 +173,7 @@ fn context(
         &node_name,
         ServiceNames::new(&loaded.config.site.service_prefix),
         loaded.config.ipc.clone(),
-    )
-    .map_err(|e| Fatal::new(exit::UNAVAILABLE, e.to_string()))?;
+    )?;
     Ok(ServiceContext {
         config: loaded,
         camera,
@@ -204,11 +182,11 @@ fn context(
 }
 
 /// Logs the outcome of `main`'s work and turns it into the process exit code.
-pub fn finish(stage: &str, result: Result<(), Fatal>) -> std::process::ExitCode {
+pub fn finish(stage: StageKind, result: Result<(), Fatal>) -> std::process::ExitCode {
     crate::health::notify_stopping();
     match result {
         Ok(()) => {
-            tracing::info!("isochron-{stage} stopped");
+            tracing::info!("{} stopped", stage.binary());
             std::process::ExitCode::SUCCESS
         }
         Err(fatal) => {

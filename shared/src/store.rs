@@ -179,14 +179,6 @@ pub enum StoreError {
     },
 }
 
-impl StoreError {
-    /// True for errors that retrying (or restarting) cannot fix: the file is foreign,
-    /// damaged, or made for another camera, grid, cycle or version.
-    pub fn is_permanent(&self) -> bool {
-        !matches!(self, StoreError::Io { .. } | StoreError::NotFound { .. })
-    }
-}
-
 /// What a store is about; fixed when it is created.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StoreMeta {
@@ -1041,6 +1033,7 @@ fn sql_err(path: &Path, e: rusqlite::Error) -> StoreError {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::exit::Classify;
 
     fn meta(camera: &str) -> StoreMeta {
         StoreMeta {

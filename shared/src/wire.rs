@@ -722,6 +722,41 @@ impl DetectionHeader {
     }
 }
 
+/// What every stream header has: a [`Preamble`] first, and a check against the
+/// payload it arrived with. The stage runtime validates, counts and forwards end of
+/// stream through it, whatever the stream.
+pub trait StreamHeader: Copy + Default {
+    /// The preamble.
+    fn preamble(&self) -> &Preamble;
+    /// The preamble, to fill in.
+    fn preamble_mut(&mut self) -> &mut Preamble;
+    /// Checks the header against `camera` and the real payload length.
+    fn validate(&self, camera: &CameraId, payload_len: usize) -> Result<(), WireError>;
+}
+
+macro_rules! stream_header {
+    ($($header:ty),*) => {$(
+        impl StreamHeader for $header {
+            fn preamble(&self) -> &Preamble {
+                &self.preamble
+            }
+            fn preamble_mut(&mut self) -> &mut Preamble {
+                &mut self.preamble
+            }
+            fn validate(&self, camera: &CameraId, payload_len: usize) -> Result<(), WireError> {
+                <$header>::validate(self, camera, payload_len)
+            }
+        }
+    )*};
+}
+stream_header!(
+    FrameHeader,
+    MotionHeader,
+    ActivityHeader,
+    EventHeader,
+    DetectionHeader
+);
+
 /// Longest stage name in a [`StageStatus`].
 pub const STAGE_NAME_LEN: usize = 16;
 /// Length of the free-text detail of a [`StageStatus`].

@@ -11,6 +11,7 @@ use isochron_shared::config::{SourceKind, Speed};
 use isochron_shared::health::{Health, exit, notify_ready};
 use isochron_shared::ipc::{Frames, Ipc, StreamPublisher};
 use isochron_shared::service::{CameraArgs, Fatal, ServiceContext, run_cameras};
+use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{
     CameraId, FLAG_DISCONTINUITY, FLAG_END_OF_STREAM, FrameHeader, Preamble, Stream,
 };
@@ -25,7 +26,7 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run_cameras("capture", &args.service, run)
+    run_cameras(StageKind::Capture, &args.service, run)
 }
 
 fn run(ctx: ServiceContext) -> Result<(), Fatal> {

@@ -16,6 +16,7 @@ use isochron_shared::health::{Health, exit, notify_ready};
 use isochron_shared::ipc::{Activity, Ipc, Motion, StreamPublisher, stop_requested_by};
 use isochron_shared::service::{CameraArgs, Fatal, ServiceContext, run_cameras};
 use isochron_shared::store::{Store, StoreError, StoreMeta, store_path};
+use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{
     ActivityHeader, BlockActivity, CameraId, FLAG_END_OF_STREAM, MotionHeader, Preamble, Stream,
 };
@@ -36,7 +37,7 @@ const GRID_MISMATCH_LIMIT: u32 = 30;
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run_cameras("cascade", &args.service, run)
+    run_cameras(StageKind::Cascade, &args.service, run)
 }
 
 fn run(ctx: ServiceContext) -> Result<(), Fatal> {

@@ -25,6 +25,7 @@ use isochron_shared::config::LoadedConfig;
 use isochron_shared::health::{Health, exit, notify_ready};
 use isochron_shared::ipc::{Activity, Detections, IpcError, stop_requested_by};
 use isochron_shared::service::{Fatal, ServiceContext, finish, start};
+use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{PlanKind, PlanRequest, PlanResponse, PlanStatus};
 
 /// The longest the loop sleeps: plan requests from clients that do not notify are
@@ -45,8 +46,8 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    let result = start("costmap", &args.config, None).and_then(run);
-    finish("costmap", result)
+    let result = start(StageKind::Costmap, &args.config).and_then(run);
+    finish(StageKind::Costmap, result)
 }
 
 /// Counters for the status line.

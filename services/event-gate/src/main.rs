@@ -19,6 +19,7 @@ use isochron_shared::ipc::{
     stop_requested_by,
 };
 use isochron_shared::service::{CameraArgs, Fatal, ServiceContext, run_cameras};
+use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{
     CameraId, DetectionHeader, EventHeader, EventPhase, FLAG_END_OF_STREAM, PixelFormat, Preamble,
     Stream, ZONE_NAME_LEN, to_fixed,
@@ -40,7 +41,7 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run_cameras("gate", &args.service, run)
+    run_cameras(StageKind::Gate, &args.service, run)
 }
 
 /// Counters of the hybrid scheme.

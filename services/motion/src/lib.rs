@@ -10,6 +10,7 @@
 //! * [`pairing`]: which consecutive frames may be differenced (restarts, gaps);
 //! * [`dis`]: the optional OpenCV DIS optical-flow backend, reduced to the same sums;
 //! * [`eval`]: scoring blocks against annotated people (MOT ground truth);
+//! * [`stage`]: the service's stage for the runtime (`frames` in, `motion` out);
 //! * [`detector`]: all of it for one camera, with the global illumination check —
 //!   what the service calls per frame, and what tests call without shared memory.
 //!
@@ -34,3 +35,4 @@ pub mod features;
 pub mod kernel;
 pub mod mask;
 pub mod pairing;
+pub mod stage;

@@ -1,0 +1,134 @@
+//! Exit codes (sysexits.h) and the one rule that maps a library error to one.
+//!
+//! Every library error type implements [`Classify`]; a binary turns any of them
+//! into a [`Fatal`] with `?` (the blanket `From`), so no call site chooses an exit
+//! code by hand. A supervisor must not restart a service that exits with a
+//! permanent code ([`is_permanent`]): the same input would fail the same way.
+
+/// Bad command line.
+pub const USAGE: i32 = 64;
+/// Input data is malformed (an undecodable video, a damaged store).
+pub const DATA: i32 = 65;
+/// Input does not exist (a missing video file).
+pub const NO_INPUT: i32 = 66;
+/// A needed service is unavailable (shared memory, iceoryx2, the disk).
+pub const UNAVAILABLE: i32 = 69;
+/// Internal error.
+pub const SOFTWARE: i32 = 70;
+/// Configuration error.
+pub const CONFIG: i32 = 78;
+
+/// True for codes that restarting cannot fix.
+pub fn is_permanent(code: i32) -> bool {
+    matches!(code, USAGE | DATA | NO_INPUT | CONFIG)
+}
+
+/// An error that knows which exit code it ends a process with.
+pub trait Classify: std::fmt::Display {
+    /// The sysexits code of this error.
+    fn exit_code(&self) -> i32;
+
+    /// True if restarting cannot fix it (see [`is_permanent`]).
+    fn is_permanent(&self) -> bool {
+        is_permanent(self.exit_code())
+    }
+}
+
+/// A failure that ends the process with `code` after logging `message`.
+#[derive(Debug)]
+pub struct Fatal {
+    /// Exit code (one of this module's constants).
+    pub code: i32,
+    /// What went wrong and what to do.
+    pub message: String,
+}
+
+impl Fatal {
+    /// A failure with `code`.
+    pub fn new(code: i32, message: impl Into<String>) -> Self {
+        Fatal {
+            code,
+            message: message.into(),
+        }
+    }
+
+    /// The same failure with `context` before its message (`context: message`).
+    pub fn context(self, context: impl std::fmt::Display) -> Self {
+        Fatal::new(self.code, format!("{context}: {}", self.message))
+    }
+}
+
+impl std::fmt::Display for Fatal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl<E: Classify> From<E> for Fatal {
+    fn from(e: E) -> Self {
+        Fatal::new(e.exit_code(), e.to_string())
+    }
+}
+
+impl Classify for crate::ipc::IpcError {
+    fn exit_code(&self) -> i32 {
+        UNAVAILABLE
+    }
+}
+
+impl Classify for crate::wire::WireError {
+    fn exit_code(&self) -> i32 {
+        DATA
+    }
+}
+
+impl Classify for crate::config::ConfigError {
+    fn exit_code(&self) -> i32 {
+        CONFIG
+    }
+}
+
+impl Classify for crate::store::StoreError {
+    /// Foreign, damaged or mismatched files are permanent (restarting cannot
+    /// help); I/O may pass.
+    fn exit_code(&self) -> i32 {
+        use crate::store::StoreError as E;
+        match self {
+            E::Damaged { .. } | E::NotSqlite { .. } => DATA,
+            E::Foreign { .. }
+            | E::Version { .. }
+            | E::Camera { .. }
+            | E::Grid { .. }
+            | E::Cycle { .. } => CONFIG,
+            E::Io { .. } | E::NotFound { .. } | E::ReadOnly { .. } => UNAVAILABLE,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn permanent_exit_codes() {
+        assert!(is_permanent(CONFIG));
+        assert!(is_permanent(NO_INPUT));
+        assert!(!is_permanent(1));
+        assert!(!is_permanent(UNAVAILABLE));
+    }
+
+    #[test]
+    fn library_errors_become_fatal_with_their_code() {
+        let e = crate::ipc::IpcError {
+            context: "opening".into(),
+            detail: "x".into(),
+        };
+        let f: Fatal = e.into();
+        assert_eq!(f.code, UNAVAILABLE);
+        assert_eq!(f.message, "iceoryx2: opening: x");
+        assert_eq!(
+            f.context("camera 'a'").message,
+            "camera 'a': iceoryx2: opening: x"
+        );
+    }
+}

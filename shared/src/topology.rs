@@ -1,0 +1,127 @@
+//! The pipeline's shape, spelled once: which stages exist, the binary of each, the
+//! streams each consumes and produces, and whether it runs per camera.
+//!
+//! The launcher (`isochron up`), `isochron replay`, health reports and node names
+//! take their stage names from here instead of string literals.
+
+use crate::wire::Stream;
+
+/// One service of the process group.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum StageKind {
+    /// Reads a camera or file, publishes `frames`.
+    Capture,
+    /// Per-block motion features of every frame pair.
+    Motion,
+    /// The cascade of temporal filters and the long-term store.
+    Cascade,
+    /// Zone events and the detector on gated frames.
+    Gate,
+    /// The site-wide cost map for robots and the planning service.
+    Costmap,
+}
+
+impl StageKind {
+    /// Every stage, in pipeline order (upstream first).
+    pub const ALL: [StageKind; 5] = [
+        StageKind::Capture,
+        StageKind::Motion,
+        StageKind::Cascade,
+        StageKind::Gate,
+        StageKind::Costmap,
+    ];
+
+    /// The stage's name, as in node names, status services and logs.
+    pub fn name(self) -> &'static str {
+        match self {
+            StageKind::Capture => "capture",
+            StageKind::Motion => "motion",
+            StageKind::Cascade => "cascade",
+            StageKind::Gate => "gate",
+            StageKind::Costmap => "costmap",
+        }
+    }
+
+    /// The stage named `name`, if any.
+    pub fn from_name(name: &str) -> Option<StageKind> {
+        StageKind::ALL.into_iter().find(|s| s.name() == name)
+    }
+
+    /// The binary that runs the stage.
+    pub fn binary(self) -> &'static str {
+        match self {
+            StageKind::Capture => "isochron-capture",
+            StageKind::Motion => "isochron-motion",
+            StageKind::Cascade => "isochron-cascade",
+            StageKind::Gate => "isochron-gate",
+            StageKind::Costmap => "isochron-costmap",
+        }
+    }
+
+    /// The streams the stage reads (of its camera, or of every camera if site-wide).
+    pub fn consumes(self) -> &'static [Stream] {
+        match self {
+            StageKind::Capture => &[],
+            StageKind::Motion => &[Stream::Frames],
+            StageKind::Cascade => &[Stream::Motion],
+            StageKind::Gate => &[Stream::Frames, Stream::Activity],
+            StageKind::Costmap => &[Stream::Activity, Stream::Detections],
+        }
+    }
+
+    /// The streams the stage publishes.
+    pub fn produces(self) -> &'static [Stream] {
+        match self {
+            StageKind::Capture => &[Stream::Frames],
+            StageKind::Motion => &[Stream::Motion],
+            StageKind::Cascade => &[Stream::Activity],
+            StageKind::Gate => &[Stream::Events, Stream::Detections],
+            StageKind::Costmap => &[],
+        }
+    }
+
+    /// The stream whose end of stream says the stage has finished a recording, if
+    /// the stage passes one on.
+    pub fn end_stream(self) -> Option<Stream> {
+        self.produces().first().copied()
+    }
+
+    /// True for stages that run once per camera; false for the site-wide costmap.
+    pub fn per_camera(self) -> bool {
+        !matches!(self, StageKind::Costmap)
+    }
+}
+
+impl std::fmt::Display for StageKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_consumed_stream_is_produced_upstream() {
+        for (i, stage) in StageKind::ALL.iter().enumerate() {
+            for stream in stage.consumes() {
+                assert!(
+                    StageKind::ALL[..i]
+                        .iter()
+                        .any(|up| up.produces().contains(stream)),
+                    "{stage} reads {stream}, which no stage before it produces"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn names_round_trip() {
+        for stage in StageKind::ALL {
+            assert_eq!(StageKind::from_name(stage.name()), Some(stage));
+            assert_eq!(stage.binary(), format!("isochron-{stage}"));
+        }
+        assert_eq!(StageKind::from_name("nope"), None);
+    }
+}
