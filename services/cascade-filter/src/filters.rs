@@ -40,7 +40,7 @@
 //! give the same outputs; both count their filter operations ([`OpCounts`]) and report
 //! their state ([`FilterBank::state_bytes`]) so the benchmark can compare them.
 
-use crate::wire::{BlockActivity, BlockMotion};
+use isochron_shared::wire::{BlockActivity, BlockMotion};
 
 /// α of a first-order IIR whose output decays to 10 % in `t_decay` (in the unit of
 /// time whose sample rate is `rate`): `α = 0.1^(1/(r·T))`.
