@@ -1,5 +1,5 @@
-//! The temporal filters of the cascade (DESIGN.md section 3), per block of a motion
-//! frame.
+//! The temporal filters of the cascade (see docs/ARCHITECTURE.md, section 'Filters'),
+//! per block of a motion frame.
 //!
 //! Names follow the paper so that a reader can hold the code against its equations:
 //! `f_l1` is the high-pass F_L1 at frame rate giving `M_L1`, `f_s1` the in-place
@@ -46,8 +46,8 @@ use isochron_shared::wire::{BlockActivity, BlockMotion};
 /// time whose sample rate is `rate`): `α = 0.1^(1/(r·T))`.
 ///
 /// F_L1: T = 1800 s at 30 fps → 0.999957; F_L2: T = 10 days at 1/day → 0.794;
-/// F_S1: T = 20 s at 1 Hz → 0.891 (DESIGN.md's corrected table; the paper prints the
-/// first two swapped).
+/// F_S1: T = 20 s at 1 Hz → 0.891 (the corrected table in docs/ARCHITECTURE.md,
+/// section 'Filters'; the paper prints the first two swapped).
 pub fn alpha(t_decay: f64, rate: f64) -> f64 {
     let n = rate * t_decay;
     if !(n.is_finite() && n > 0.0) {
@@ -617,7 +617,8 @@ mod tests {
 
     #[test]
     fn alpha_is_pinned_for_the_three_filters() {
-        // DESIGN.md's corrected table (the paper swaps the first two).
+        // The corrected table of docs/ARCHITECTURE.md, section 'Filters' (the paper
+        // swaps the first two).
         let l1 = alpha(30.0 * 60.0, 30.0);
         assert!(close(l1, 0.999957, 5e-7), "F_L1 α = {l1}");
         let l2 = alpha(10.0, 1.0);
