@@ -5,8 +5,6 @@
 //! * [`config`]: the site configuration, with errors located by file, line and key;
 //! * [`clock`]: capture time and isochronal time t*;
 //! * [`geometry`]: polygons and the block grid over a frame;
-//! * [`filters`]: the cascade's temporal filters (F_L1, F_S1, F_S2, F_L2), named as in
-//!   the paper, and the non-cascade reference;
 //! * [`store`]: the crash-safe long-term (isochronal) store, one SQLite file per camera;
 //! * [`ipc`]: iceoryx2 node, publishers and subscribers, sized deliberately;
 //! * [`exit`]: exit codes, and the one rule that maps a library error to one;
@@ -19,7 +17,6 @@
 pub mod clock;
 pub mod config;
 pub mod exit;
-pub mod filters;
 pub mod geometry;
 pub mod health;
 pub mod ipc;

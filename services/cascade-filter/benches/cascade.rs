@@ -12,9 +12,9 @@
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 
+use isochron_cascade::filters::{CascadeBank, FilterBank, NonCascadeBank};
 use isochron_cascade::{Cascade, Grid, LongTerm, MemoryModel, Params, SecondOut};
 use isochron_shared::clock::{Cycle, NS_PER_S, SiteClock, parse_rfc3339};
-use isochron_shared::filters::{CascadeBank, FilterBank, NonCascadeBank};
 use isochron_shared::store::{Baseline, Bin, MinuteCommit, Store, StoreMeta, store_path};
 use isochron_shared::wire::{BlockActivity, BlockMotion, CameraId, MotionHeader, Preamble, Stream};
 

@@ -9,7 +9,7 @@
 //! store in the service, [`MemoryModel`] in tests and benchmarks — in one atomic
 //! commit.
 //!
-//! The filter math is `isochron_shared::filters` (semantics documented there); this
+//! The filter math is [`filters`] (semantics documented there); this
 //! crate does the bookkeeping around it, all from header timestamps, never the wall
 //! clock:
 //!
@@ -32,21 +32,23 @@
 //! * **resuming**: a stored F_L1 baseline is taken up if the first frame comes at most
 //!   T_L1 after it; an older one is dropped (the scene may have changed).
 
+pub mod filters;
+
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
-use isochron_shared::clock::{NS_PER_S, SiteClock};
-use isochron_shared::config::CascadeConfig;
-use isochron_shared::filters::{
+use crate::filters::{
     CascadeBank, FilterBank, OpCounts, RateEstimator, SecondInput, alpha, f_l2, warmup_weight,
 };
+use isochron_shared::clock::{NS_PER_S, SiteClock};
+use isochron_shared::config::CascadeConfig;
 use isochron_shared::health::quantile;
 use isochron_shared::store::{Baseline, Bin, MinuteCommit, Progress, Store, StoreError};
 use isochron_shared::wire::{
     ActivityHeader, BlockActivity, BlockMotion, CameraId, MotionHeader, Preamble, Stream, WireError,
 };
 
-pub use isochron_shared::filters::NonCascadeBank;
+pub use crate::filters::NonCascadeBank;
 
 /// A backward time step up to this is an out-of-order frame (rejected); a larger one
 /// starts a new timeline.

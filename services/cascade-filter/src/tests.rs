@@ -133,6 +133,49 @@ fn run<B: FilterBank>(
     t_ns + (1e9 / fps) as i64
 }
 
+/// A cascade with the feed of its camera, an in-memory long-term model and the
+/// seconds it completed: what most tests drive.
+struct Rig {
+    c: Cascade,
+    feed: Feed,
+    model: MemoryModel,
+    outs: Vec<Out>,
+}
+
+impl Rig {
+    /// A default cascade on grid `g` and the UTC clock.
+    fn new(g: Grid) -> Self {
+        Rig::with_clock(g, utc())
+    }
+
+    /// A default cascade on grid `g` and `clock`.
+    fn with_clock(g: Grid, clock: SiteClock) -> Self {
+        Rig {
+            c: Cascade::new(camera(), Params::default(), clock, g, None),
+            feed: Feed::new(g),
+            model: MemoryModel::default(),
+            outs: Vec::new(),
+        }
+    }
+
+    /// [`push`] into this rig.
+    fn push(&mut self, h: &MotionHeader, blocks: &[BlockMotion]) {
+        push(&mut self.c, h, blocks, &mut self.model, &mut self.outs);
+    }
+
+    /// [`run`] on this rig.
+    fn run(
+        &mut self,
+        start_ns: i64,
+        seconds: f64,
+        fps: f64,
+        f: impl FnMut(f64, &mut [BlockMotion]),
+    ) -> i64 {
+        let (c, feed, model) = (&mut self.c, &mut self.feed, &mut self.model);
+        run(c, feed, model, start_ns, seconds, fps, f, &mut self.outs)
+    }
+}
+
 fn start() -> i64 {
     parse_rfc3339("2026-01-15T00:00:00Z").unwrap()
 }
@@ -141,47 +184,31 @@ fn start() -> i64 {
 fn a_constant_in_place_source_is_removed_by_f_l1_after_its_time_constant() {
     // Defaults: T_L1 = 30 min at 30 fps (α = 0.999957).
     let g = grid(2, 2);
-    let mut c: Cascade = Cascade::new(camera(), Params::default(), utc(), g, None);
-    let mut feed = Feed::new(g);
-    let mut model = MemoryModel::default();
-    let mut outs = Vec::new();
+    let mut r = Rig::new(g);
     // An hour without motion: the baseline is warm (and zero).
-    let t = run(
-        &mut c,
-        &mut feed,
-        &mut model,
-        start(),
-        3600.0,
-        30.0,
-        |_, _| {},
-        &mut outs,
+    let t = r.run(start(), 3600.0, 30.0, |_, _| {});
+    assert!((r.c.frame_rate().unwrap() - 30.0).abs() < 1e-6);
+    assert!(
+        (r.c.alpha_l1() - 0.999957).abs() < 5e-7,
+        "{}",
+        r.c.alpha_l1()
     );
-    assert!((c.frame_rate().unwrap() - 30.0).abs() < 1e-6);
-    assert!((c.alpha_l1() - 0.999957).abs() < 5e-7, "{}", c.alpha_l1());
     // Then a flashing light in block 0, forever: density 0.3 on every frame.
-    outs.clear();
-    run(
-        &mut c,
-        &mut feed,
-        &mut model,
-        t,
-        3.0 * 1800.0,
-        30.0,
-        |_, b| b[0] = still(0.3),
-        &mut outs,
-    );
-    let at = |s: usize| outs[s].blocks[0];
+    r.outs.clear();
+    r.run(t, 3.0 * 1800.0, 30.0, |_, b| b[0] = still(0.3));
+    let at = |s: usize| r.outs[s].blocks[0];
     // At first it passes almost whole and looks like someone staying there...
     assert!(at(60).s1 > 0.25, "{:?}", at(60));
     // ... after T_L1 only 10 % of it passes (M_L1 = 0.3·α^(r·T) = 0.03) ...
     let s1_t = at(1800).s1;
     assert!((s1_t - 0.03).abs() < 0.002, "S1 at T_L1: {s1_t}");
     // ... after 3·T_L1 0.1 %.
-    let s1_3t = outs.last().unwrap().blocks[0].s1;
+    let s1_3t = r.outs.last().unwrap().blocks[0].s1;
     assert!(s1_3t < 0.0005, "S1 at 3·T_L1: {s1_3t}");
     // The other blocks never saw anything.
     assert!(
-        outs.iter()
+        r.outs
+            .iter()
             .all(|o| o.blocks[1].s1 == 0.0 && o.blocks[1].s2 == 0.0)
     );
 }
@@ -189,47 +216,27 @@ fn a_constant_in_place_source_is_removed_by_f_l1_after_its_time_constant() {
 #[test]
 fn a_person_standing_still_is_in_place_and_a_person_walking_through_is_moving() {
     let g = grid(8, 1);
-    let mut c: Cascade = Cascade::new(camera(), Params::default(), utc(), g, None);
-    let mut feed = Feed::new(g);
-    let mut model = MemoryModel::default();
-    let mut outs = Vec::new();
+    let mut r = Rig::new(g);
     let fps = 10.0;
-    let t = run(
-        &mut c,
-        &mut feed,
-        &mut model,
-        start(),
-        600.0,
-        fps,
-        |_, _| {},
-        &mut outs,
-    );
-    outs.clear();
+    let t = r.run(start(), 600.0, fps, |_, _| {});
+    r.outs.clear();
     // A person stands in block 1 for 2 minutes (small motions: density 0.2..0.4);
     // at 100 s someone walks through blocks 3..8, half a second per block.
-    run(
-        &mut c,
-        &mut feed,
-        &mut model,
-        t,
-        120.0,
-        fps,
-        |s, b| {
-            let frame = (s * fps).round() as i64;
-            b[1] = moving(0.2 + 0.05 * (frame % 5) as f32, 0.2, -0.1);
-            if (100.0..102.5).contains(&s) {
-                let block = 3 + ((s - 100.0) * 2.0) as usize;
-                b[block] = moving(0.6, 1.0, 0.0);
-            }
-        },
-        &mut outs,
-    );
-    let last = outs.last().unwrap();
+    r.run(t, 120.0, fps, |s, b| {
+        let frame = (s * fps).round() as i64;
+        b[1] = moving(0.2 + 0.05 * (frame % 5) as f32, 0.2, -0.1);
+        if (100.0..102.5).contains(&s) {
+            let block = 3 + ((s - 100.0) * 2.0) as usize;
+            b[block] = moving(0.6, 1.0, 0.0);
+        }
+    });
+    let last = r.outs.last().unwrap();
     let stander = last.blocks[1];
     assert!(stander.s1 > 0.2, "{stander:?}");
     assert!(stander.s2 < 0.05 * stander.s1, "{stander:?}");
     // The walker: at the second the walker is in block 4, it is moving, not in place.
-    let s_walk = outs
+    let s_walk = r
+        .outs
         .iter()
         .find(|o| o.blocks[4].s2 > 0.0)
         .expect("the walker shows up");
@@ -240,7 +247,7 @@ fn a_person_standing_still_is_in_place_and_a_person_walking_through_is_moving() 
     assert!(w.s2_dx > 0.9 * w.s2 && w.s2_dy.abs() < 1e-6, "{w:?}");
     // And the stander is never mistaken for a walker after the first seconds.
     assert!(
-        outs[30..]
+        r.outs[30..]
             .iter()
             .all(|o| o.blocks[1].s2 < 0.1 * o.blocks[1].s1)
     );
@@ -355,10 +362,7 @@ fn cascade_and_non_cascade_give_the_same_outputs_on_a_long_random_stream() {
 fn minutes_teach_their_bin_only_with_enough_frames_and_t_star_is_local() {
     let g = grid(2, 1);
     let clock = SiteClock::new("Europe/Berlin", Cycle::Daily).unwrap();
-    let mut c: Cascade = Cascade::new(camera(), Params::default(), clock, g, None);
-    let mut feed = Feed::new(g);
-    let mut model = MemoryModel::default();
-    let mut outs = Vec::new();
+    let mut r = Rig::with_clock(g, clock);
     // 07:30-07:40 UTC (08:30 in Berlin in January) on three days, 4 fps, a person in
     // block 0 for one second every 10 s. On day 2 the camera is off 07:33:00-07:35:00
     // and again 07:37:30-07:38:00, so minute 07:37 has half its frames. (A camera that
@@ -379,27 +383,27 @@ fn minutes_teach_their_bin_only_with_enough_frames_and_t_star_is_local() {
             } else {
                 [still(0.0), still(0.0)]
             };
-            let h = feed.header(t0 + i * NS_PER_S / 4, 2);
-            push(&mut c, &h, &blocks, &mut model, &mut outs);
+            let h = r.feed.header(t0 + i * NS_PER_S / 4, 2);
+            r.push(&h, &blocks);
         }
-        let h = feed.end(t0 + 600 * NS_PER_S);
-        push(&mut c, &h, &[], &mut model, &mut outs);
+        let h = r.feed.end(t0 + 600 * NS_PER_S);
+        r.push(&h, &[]);
     }
     let berlin = 8 * 60 + 30;
-    assert_eq!(outs[0].second.t_star, berlin);
-    assert_eq!(model.bins.len(), 10);
+    assert_eq!(r.outs[0].second.t_star, berlin);
+    assert_eq!(r.model.bins.len(), 10);
     for m in 0..10u32 {
         let expected = if (3..5).contains(&m) || m == 7 { 2 } else { 3 };
-        assert_eq!(model.bins[&(berlin + m)].count, expected, "minute {m}");
+        assert_eq!(r.model.bins[&(berlin + m)].count, expected, "minute {m}");
     }
     // Minute 7 of day 2 had 50 % of its frames: below min_coverage = 0.8.
-    assert_eq!(c.stats().minutes_sparse, 1);
+    assert_eq!(r.c.stats().minutes_sparse, 1);
     // The model the activity reports is the one of its t*.
-    let day3 = &outs[outs.len() - 10];
+    let day3 = &r.outs[r.outs.len() - 10];
     assert_eq!(day3.second.model_days, 2);
     assert!(day3.blocks[0].lt_mean > 0.0);
     assert_eq!(
-        model.progress.last_minute,
+        r.model.progress.last_minute,
         Some(day0 / 60 / NS_PER_S + 2 * 1440 + 9)
     );
 }
@@ -407,44 +411,23 @@ fn minutes_teach_their_bin_only_with_enough_frames_and_t_star_is_local() {
 #[test]
 fn data_delivered_twice_never_counts_twice() {
     let g = grid(2, 1);
-    let mut c: Cascade = Cascade::new(camera(), Params::default(), utc(), g, None);
-    let mut feed = Feed::new(g);
-    let mut model = MemoryModel::default();
-    let mut outs = Vec::new();
+    let mut r = Rig::new(g);
     let pulse = |s: f64, b: &mut [BlockMotion]| {
         if (s as i64) % 7 == 0 {
             b[1] = still(0.4);
         }
     };
-    run(
-        &mut c,
-        &mut feed,
-        &mut model,
-        start(),
-        300.0,
-        5.0,
-        pulse,
-        &mut outs,
-    );
+    r.run(start(), 300.0, 5.0, pulse);
     // The same five minutes again: time goes back 5 minutes, a new timeline starts
     // (and finishes minute 4 of the first pass); the replay teaches nothing.
-    run(
-        &mut c,
-        &mut feed,
-        &mut model,
-        start(),
-        300.0,
-        5.0,
-        pulse,
-        &mut outs,
-    );
-    let h = feed.end(start() + 300 * NS_PER_S);
-    push(&mut c, &h, &[], &mut model, &mut outs);
-    assert_eq!(c.stats().timelines, 2);
-    assert_eq!(c.stats().minutes_learned, 5);
-    assert_eq!(c.stats().minutes_repeated, 5, "{:?}", c.stats());
-    assert_eq!(model.bins.len(), 5);
-    for (t_star, bin) in &model.bins {
+    r.run(start(), 300.0, 5.0, pulse);
+    let h = r.feed.end(start() + 300 * NS_PER_S);
+    r.push(&h, &[]);
+    assert_eq!(r.c.stats().timelines, 2);
+    assert_eq!(r.c.stats().minutes_learned, 5);
+    assert_eq!(r.c.stats().minutes_repeated, 5, "{:?}", r.c.stats());
+    assert_eq!(r.model.bins.len(), 5);
+    for (t_star, bin) in &r.model.bins {
         assert_eq!(bin.count, 1);
         assert_eq!(bin.last_minute, start() / 60 / NS_PER_S + *t_star as i64);
     }
@@ -529,87 +512,48 @@ fn bad_samples_are_rejected_and_change_nothing() {
 #[test]
 fn the_frame_rate_is_measured_from_headers_unless_configured() {
     let g = grid(1, 1);
-    let mut c: Cascade = Cascade::new(camera(), Params::default(), utc(), g, None);
-    let mut feed = Feed::new(g);
-    let mut model = MemoryModel::default();
-    let mut outs = Vec::new();
-    run(
-        &mut c,
-        &mut feed,
-        &mut model,
-        start(),
-        10.0,
-        25.0,
-        |_, _| {},
-        &mut outs,
-    );
-    let r = c.frame_rate().unwrap();
-    assert!((r - 25.0).abs() < 0.01, "{r}");
-    assert!((c.alpha_l1() - alpha(1800.0, 25.0)).abs() < 1e-12);
-    assert!((outs.last().unwrap().second.frame_rate - 25.0).abs() < 0.01);
-    assert_eq!(outs.last().unwrap().second.frames, 25);
+    let mut r = Rig::new(g);
+    r.run(start(), 10.0, 25.0, |_, _| {});
+    let rate = r.c.frame_rate().unwrap();
+    assert!((rate - 25.0).abs() < 0.01, "{rate}");
+    assert!((r.c.alpha_l1() - alpha(1800.0, 25.0)).abs() < 1e-12);
+    assert!((r.outs.last().unwrap().second.frame_rate - 25.0).abs() < 0.01);
+    assert_eq!(r.outs.last().unwrap().second.frames, 25);
     // The camera switches to 10 fps: α follows.
-    run(
-        &mut c,
-        &mut feed,
-        &mut model,
-        start() + 10 * NS_PER_S,
-        10.0,
-        10.0,
-        |_, _| {},
-        &mut outs,
-    );
-    assert!((c.frame_rate().unwrap() - 10.0).abs() < 0.01);
-    assert!((c.alpha_l1() - alpha(1800.0, 10.0)).abs() < 1e-12);
+    r.run(start() + 10 * NS_PER_S, 10.0, 10.0, |_, _| {});
+    assert!((r.c.frame_rate().unwrap() - 10.0).abs() < 0.01);
+    assert!((r.c.alpha_l1() - alpha(1800.0, 10.0)).abs() < 1e-12);
 
     let fixed = Params {
         frame_rate: Some(30.0),
         ..Params::default()
     };
-    let mut c: Cascade = Cascade::new(camera(), fixed, utc(), g, None);
-    run(
-        &mut c,
-        &mut feed,
-        &mut model,
-        start() + 100 * NS_PER_S,
-        5.0,
-        12.5,
-        |_, _| {},
-        &mut outs,
-    );
-    assert_eq!(c.frame_rate(), Some(30.0));
+    r.c = Cascade::new(camera(), fixed, utc(), g, None);
+    r.run(start() + 100 * NS_PER_S, 5.0, 12.5, |_, _| {});
+    assert_eq!(r.c.frame_rate(), Some(30.0));
 }
 
 #[test]
 fn end_of_stream_flushes_the_partial_second_and_a_covered_partial_minute() {
     let g = grid(1, 1);
-    let mut c: Cascade = Cascade::new(camera(), Params::default(), utc(), g, None);
-    let mut feed = Feed::new(g);
-    let mut model = MemoryModel::default();
-    let mut outs = Vec::new();
+    let mut r = Rig::new(g);
     // 59.5 s at 10 fps: the last second has 5 frames, the minute 595 of 600.
-    let t = run(
-        &mut c,
-        &mut feed,
-        &mut model,
-        start(),
-        59.5,
-        10.0,
-        |_, b| b[0] = still(0.2),
-        &mut outs,
+    let t = r.run(start(), 59.5, 10.0, |_, b| b[0] = still(0.2));
+    assert_eq!(r.outs.len(), 59);
+    assert!(r.model.bins.is_empty());
+    let h = r.feed.end(t);
+    let last =
+        r.c.push(&h, &[], &mut r.model)
+            .unwrap()
+            .expect("partial second");
+    assert_eq!(
+        (last.second, last.frames),
+        (r.outs[58].second.second + 1, 5)
     );
-    assert_eq!(outs.len(), 59);
-    assert!(model.bins.is_empty());
-    let h = feed.end(t);
-    let last = c
-        .push(&h, &[], &mut model)
-        .unwrap()
-        .expect("partial second");
-    assert_eq!((last.second, last.frames), (outs[58].second.second + 1, 5));
-    assert_eq!(model.bins.len(), 1);
-    assert_eq!(model.bins[&0].count, 1);
+    assert_eq!(r.model.bins.len(), 1);
+    assert_eq!(r.model.bins[&0].count, 1);
     // Nothing left to flush.
-    assert_eq!(c.push(&feed.end(t), &[], &mut model).unwrap(), None);
+    assert_eq!(r.c.push(&r.feed.end(t), &[], &mut r.model).unwrap(), None);
 }
 
 #[test]

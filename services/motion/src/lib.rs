@@ -1,10 +1,11 @@
 //! isochron-motion: per-block motion features (density, flow vector, direction) from
-//! consecutive GRAY8 frames — the first stage after capture (DESIGN.md section 2,
-//! the paper's "Motion Detection").
+//! consecutive GRAY8 frames — the first stage after capture (see docs/ARCHITECTURE.md,
+//! section 'Motion detection'; the paper's "Motion Detection").
 //!
 //! * [`kernel`]: the fused motion-flow kernel (temporal difference,
 //!   motion-pixel test, spatial gradient, normal-flow sums per block): scalar
-//!   reference, portable (LLVM-vectorised, NEON) and AVX2, dispatched at run time;
+//!   reference, portable (LLVM-vectorised) and AVX2, dispatched at run time (off
+//!   x86-64, and on x86-64 without AVX2, the portable kernel runs);
 //! * [`features`]: integer sums → density, coherence, flow vector, 8-way label;
 //! * [`mask`]: camera mask polygons → block mask;
 //! * [`pairing`]: which consecutive frames may be differenced (restarts, gaps);

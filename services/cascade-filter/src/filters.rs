@@ -1,5 +1,5 @@
-//! The temporal filters of the cascade (DESIGN.md section 3), per block of a motion
-//! frame.
+//! The temporal filters of the cascade (see docs/ARCHITECTURE.md, section 'Filters'),
+//! per block of a motion frame.
 //!
 //! Names follow the paper so that a reader can hold the code against its equations:
 //! `f_l1` is the high-pass F_L1 at frame rate giving `M_L1`, `f_s1` the in-place
@@ -40,14 +40,14 @@
 //! give the same outputs; both count their filter operations ([`OpCounts`]) and report
 //! their state ([`FilterBank::state_bytes`]) so the benchmark can compare them.
 
-use crate::wire::{BlockActivity, BlockMotion};
+use isochron_shared::wire::{BlockActivity, BlockMotion};
 
 /// α of a first-order IIR whose output decays to 10 % in `t_decay` (in the unit of
 /// time whose sample rate is `rate`): `α = 0.1^(1/(r·T))`.
 ///
 /// F_L1: T = 1800 s at 30 fps → 0.999957; F_L2: T = 10 days at 1/day → 0.794;
-/// F_S1: T = 20 s at 1 Hz → 0.891 (DESIGN.md's corrected table; the paper prints the
-/// first two swapped).
+/// F_S1: T = 20 s at 1 Hz → 0.891 (the corrected table in docs/ARCHITECTURE.md,
+/// section 'Filters'; the paper prints the first two swapped).
 pub fn alpha(t_decay: f64, rate: f64) -> f64 {
     let n = rate * t_decay;
     if !(n.is_finite() && n > 0.0) {
@@ -287,25 +287,19 @@ impl FilterBank for CascadeBank {
     }
 
     fn minute_mean(&mut self, frames: u32, out: &mut [f32]) {
-        let inv = 1.0 / frames.max(1) as f32;
-        for (o, m) in out.iter_mut().zip(self.min_m.iter_mut()) {
-            *o = *m * inv;
-            *m = 0.0;
-        }
+        take_minute_mean(&mut self.min_m, frames, out);
     }
 
     fn reset_short_term(&mut self) {
-        for v in [
+        zero([
             &mut self.sec_m,
             &mut self.sec_dx,
             &mut self.sec_dy,
             &mut self.s1,
             &mut self.s1_dx,
             &mut self.s1_dy,
-        ] {
-            v.fill(0.0);
-        }
-        self.min_m.fill(0.0);
+            &mut self.min_m,
+        ]);
     }
 
     fn baseline(&self) -> &[f32] {
@@ -313,8 +307,7 @@ impl FilterBank for CascadeBank {
     }
 
     fn set_baseline(&mut self, level: &[f32]) {
-        let n = self.level.len().min(level.len());
-        self.level[..n].copy_from_slice(&level[..n]);
+        copy_baseline(&mut self.level, level);
     }
 
     fn count_f_l2(&mut self, blocks: u64) {
@@ -326,7 +319,7 @@ impl FilterBank for CascadeBank {
     }
 
     fn state_bytes(&self) -> usize {
-        let f32s = [
+        f32_bytes(&[
             &self.level,
             &self.sec_m,
             &self.sec_dx,
@@ -335,11 +328,7 @@ impl FilterBank for CascadeBank {
             &self.s1_dx,
             &self.s1_dy,
             &self.min_m,
-        ]
-        .iter()
-        .map(|v| v.len())
-        .sum::<usize>();
-        f32s * std::mem::size_of::<f32>()
+        ])
     }
 }
 
@@ -459,15 +448,11 @@ impl FilterBank for NonCascadeBank {
     }
 
     fn minute_mean(&mut self, frames: u32, out: &mut [f32]) {
-        let inv = 1.0 / frames.max(1) as f32;
-        for (o, m) in out.iter_mut().zip(self.min_m.iter_mut()) {
-            *o = *m * inv;
-            *m = 0.0;
-        }
+        take_minute_mean(&mut self.min_m, frames, out);
     }
 
     fn reset_short_term(&mut self) {
-        for v in [
+        zero([
             &mut self.ip_m,
             &mut self.ip_dx,
             &mut self.ip_dy,
@@ -478,10 +463,8 @@ impl FilterBank for NonCascadeBank {
             &mut self.bp_dx,
             &mut self.bp_dy,
             &mut self.bp_low,
-        ] {
-            v.fill(0.0);
-        }
-        self.min_m.fill(0.0);
+            &mut self.min_m,
+        ]);
     }
 
     fn baseline(&self) -> &[f32] {
@@ -489,8 +472,7 @@ impl FilterBank for NonCascadeBank {
     }
 
     fn set_baseline(&mut self, level: &[f32]) {
-        let n = self.level.len().min(level.len());
-        self.level[..n].copy_from_slice(&level[..n]);
+        copy_baseline(&mut self.level, level);
     }
 
     fn count_f_l2(&mut self, blocks: u64) {
@@ -502,7 +484,7 @@ impl FilterBank for NonCascadeBank {
     }
 
     fn state_bytes(&self) -> usize {
-        let f32s = [
+        f32_bytes(&[
             &self.level,
             &self.ip_m,
             &self.ip_dx,
@@ -515,12 +497,37 @@ impl FilterBank for NonCascadeBank {
             &self.bp_dy,
             &self.bp_low,
             &self.min_m,
-        ]
-        .iter()
-        .map(|v| v.len())
-        .sum::<usize>();
-        f32s * std::mem::size_of::<f32>()
+        ])
     }
+}
+
+/// The completed minute's mean per block, `min_m / frames`, into `out`; zeroes the
+/// minute sums `min_m`.
+fn take_minute_mean(min_m: &mut [f32], frames: u32, out: &mut [f32]) {
+    let inv = 1.0 / frames.max(1) as f32;
+    for (o, m) in out.iter_mut().zip(min_m.iter_mut()) {
+        *o = *m * inv;
+        *m = 0.0;
+    }
+}
+
+/// Copies the stored baseline `from` into `level`, as far as both reach.
+fn copy_baseline(level: &mut [f32], from: &[f32]) {
+    let n = level.len().min(from.len());
+    level[..n].copy_from_slice(&from[..n]);
+}
+
+/// Sets every value of the per-block vectors `state` to zero.
+fn zero<const N: usize>(state: [&mut Vec<f32>; N]) {
+    for v in state {
+        v.fill(0.0);
+    }
+}
+
+/// Bytes held by the per-block vectors `state`.
+fn f32_bytes(state: &[&Vec<f32>]) -> usize {
+    let f32s = state.iter().map(|v| v.len()).sum::<usize>();
+    f32s * std::mem::size_of::<f32>()
 }
 
 /// Intervals the frame-rate estimate is the median of.
@@ -610,7 +617,8 @@ mod tests {
 
     #[test]
     fn alpha_is_pinned_for_the_three_filters() {
-        // DESIGN.md's corrected table (the paper swaps the first two).
+        // The corrected table of docs/ARCHITECTURE.md, section 'Filters' (the paper
+        // swaps the first two).
         let l1 = alpha(30.0 * 60.0, 30.0);
         assert!(close(l1, 0.999957, 5e-7), "F_L1 α = {l1}");
         let l2 = alpha(10.0, 1.0);
