@@ -79,7 +79,8 @@ pub trait Stage {
         Ok(())
     }
 
-    /// How often [`Stage::on_tick`] must run at least (default [`IDLE_TICK`]).
+    /// A period at which [`Stage::on_tick`] must run (default [`IDLE_TICK`]; it
+    /// also runs on every other pass, and at least every [`IDLE_TICK`]).
     fn timer(&self) -> Duration {
         IDLE_TICK
     }
@@ -127,10 +128,11 @@ pub fn run<S: Stage>(
                 .map_err(|e| ipc_error("attaching an input to the WaitSet", e))?,
         );
     }
-    let timer = stage.timer().min(IDLE_TICK);
-    let _tick = waitset
+    let timer = stage.timer();
+    let _timer = waitset
         .attach_interval(timer)
         .map_err(|e| ipc_error("attaching the timer to the WaitSet", e))?;
+    let idle = timer.min(IDLE_TICK);
     let mut cx = Context::new(S::KIND, camera, Some(ipc));
     notify_ready(&format!("{} {camera}", S::KIND));
 
@@ -138,7 +140,7 @@ pub fn run<S: Stage>(
     while !ipc.should_stop() {
         let mut woken = Woken::default();
         // After a full batch, samples are still waiting: look again at once.
-        let wait = if more { Duration::ZERO } else { timer };
+        let wait = if more { Duration::ZERO } else { idle };
         let result = waitset
             .wait_and_process_once_with_timeout(
                 |id| {
@@ -268,18 +270,34 @@ impl<I: Inputs> Inputs for Vec<I> {
     }
 }
 
-impl<A: Inputs, B: Inputs> Inputs for (A, B) {
+macro_rules! tuple_inputs {
+    ($($name:ident $k:tt),+) => {
+        impl<$($name: Inputs),+> Inputs for ($($name,)+) {
+            fn attachables(&self) -> Vec<&dyn Attachable> {
+                let mut v = Vec::new();
+                $(v.extend(self.$k.attachables());)+
+                v
+            }
+            fn drain_wakeups(&self) {
+                $(self.$k.drain_wakeups();)+
+            }
+            fn take_batch_full(&self) -> bool {
+                false $(| self.$k.take_batch_full())+
+            }
+        }
+    };
+}
+tuple_inputs!(A 0, B 1);
+tuple_inputs!(A 0, B 1, C 2);
+
+/// An input the stage reads (and drains the wake-ups of) by itself, such as a
+/// request-response server: the runtime only wakes the stage for it.
+#[derive(Debug)]
+pub struct Notified<T>(pub T);
+
+impl<T: Attachable> Inputs for Notified<T> {
     fn attachables(&self) -> Vec<&dyn Attachable> {
-        let mut v = self.0.attachables();
-        v.extend(self.1.attachables());
-        v
-    }
-    fn drain_wakeups(&self) {
-        self.0.drain_wakeups();
-        self.1.drain_wakeups();
-    }
-    fn take_batch_full(&self) -> bool {
-        self.0.take_batch_full() | self.1.take_batch_full()
+        vec![&self.0 as &dyn Attachable]
     }
 }
 

@@ -4,9 +4,11 @@
 //! * [`Stamper`]: capture times — the wall clock for live sources, `start + i/fps`
 //!   for files so recordings replay on a simulated clock;
 //! * [`Pacer`]: real-time (or `speed`×) pacing of file playback;
-//! * [`Backoff`]: exponential reconnect delays for sources that drop out.
+//! * [`Backoff`]: exponential reconnect delays for sources that drop out;
+//! * [`stage`]: the service loop (source → `frames`), paced, stoppable.
 
 pub mod source;
+pub mod stage;
 
 use std::time::{Duration, Instant};
 

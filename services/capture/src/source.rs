@@ -34,6 +34,18 @@ pub enum SourceError {
     OpenCv(#[from] opencv::Error),
 }
 
+impl isochron_shared::exit::Classify for SourceError {
+    /// A missing or undecodable file is permanent; a camera may come back.
+    fn exit_code(&self) -> i32 {
+        use isochron_shared::exit;
+        match self {
+            SourceError::Missing(_) => exit::NO_INPUT,
+            SourceError::Undecodable(_) => exit::DATA,
+            _ => exit::UNAVAILABLE,
+        }
+    }
+}
+
 /// What a read produced.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ReadOutcome {

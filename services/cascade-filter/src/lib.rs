@@ -33,9 +33,10 @@
 //!   T_L1 after it; an older one is dropped (the scene may have changed).
 
 pub mod filters;
+pub mod stage;
 
 use std::collections::HashMap;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use crate::filters::{
     CascadeBank, FilterBank, OpCounts, RateEstimator, SecondInput, alpha, f_l2, warmup_weight,
@@ -760,9 +761,6 @@ fn check_values(blocks: &[BlockMotion]) -> Result<(), Reject> {
         ),
     })
 }
-
-/// How long a reject message is suppressed after it was logged, per kind.
-pub const REJECT_LOG_EVERY: Duration = Duration::from_secs(10);
 
 #[cfg(test)]
 mod tests;

@@ -14,6 +14,8 @@
 //! * [`msgs`], [`ros`]: `nav_msgs/OccupancyGrid` and `map_msgs/OccupancyGridUpdate`
 //!   over DDS in pure Rust (feature `ros2`);
 //! * [`snapshot`]: `map_server` PGM + YAML and a PNG picture;
+//! * [`stage`]: the service's stage for the runtime (every camera's `activity` and
+//!   `detections` in, the cost map out, planning requests answered);
 //! * [`plan`], [`planner`]: `cost1`, `cost2`, segments, routes and the long-term
 //!   store; [`plan_service`]: the same over iceoryx2 request-response.
 //!
@@ -33,3 +35,5 @@ pub mod raster;
 #[cfg(feature = "ros2")]
 pub mod ros;
 pub mod snapshot;
+#[cfg(feature = "ros2")]
+pub mod stage;

@@ -9,10 +9,13 @@
 //!   detect (N per event, or one every M seconds while an event lasts);
 //! * [`ring`]: the recent frames the detector reads;
 //! * [`detector`]: OpenCV's HOG people detector, or an ONNX model via OpenCV dnn;
-//! * [`worker`]: the detector thread, so a slow detector never stalls activity.
+//! * [`worker`]: the detector thread, so a slow detector never stalls activity;
+//! * [`stage`]: the service's stage for the runtime (`frames` + `activity` in,
+//!   `events` + `detections` out).
 
 pub mod detector;
 pub mod events;
 pub mod gate;
 pub mod ring;
+pub mod stage;
 pub mod worker;

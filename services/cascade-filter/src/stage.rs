@@ -1,0 +1,290 @@
+//! The cascade stage: `motion` in, 1-Hz `activity` out, the long-term store
+//! updated once per completed minute — run by the stage runtime
+//! ([`isochron_shared::stage`]).
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use isochron_shared::clock::{SiteClock, wall_now_ns};
+use isochron_shared::config::{CameraConfig, LoadedConfig};
+use isochron_shared::exit::{self, Fatal};
+use isochron_shared::ipc::{Activity, Ipc, Motion};
+use isochron_shared::stage::{Context, Input, Output, Stage, Woken};
+use isochron_shared::store::{Store, StoreMeta, store_path};
+use isochron_shared::topology::StageKind;
+use isochron_shared::wire::{CameraId, MotionHeader};
+
+use crate::{Cascade, Grid, Params, PushError, Reject, SecondOut, TimedStore};
+
+/// Consecutive samples of another grid after which the cascade gives up: motion runs
+/// with other settings for good, and the store cannot follow.
+const GRID_MISMATCH_LIMIT: u32 = 30;
+
+/// The cascade of one camera with its store and output.
+pub struct CascadeStage<'ipc> {
+    camera: String,
+    camera_id: CameraId,
+    params: Params,
+    clock: SiteClock,
+    cycle: isochron_shared::clock::Cycle,
+    path: PathBuf,
+    store: Option<TimedStore>,
+    resume: Option<isochron_shared::store::Baseline>,
+    cascade: Option<Cascade>,
+    output: Output<'ipc, Activity>,
+    grid_mismatches: u32,
+}
+
+impl<'ipc> CascadeStage<'ipc> {
+    /// The stage of `camera` on `loaded`'s site, publishing through `ipc`, and its
+    /// input. An existing store is checked now: a foreign or damaged file is a
+    /// clear error at start-up, not after the first motion sample.
+    pub fn open(
+        ipc: &'ipc Ipc,
+        loaded: &LoadedConfig,
+        camera: &CameraConfig,
+    ) -> Result<(Self, Input<Motion>), Fatal> {
+        let input = Input::open(ipc, &camera.id)?;
+        let stage = Self::new(loaded, camera, Output::new(ipc, &camera.id))?;
+        Ok((stage, input))
+    }
+
+    /// The stage of `camera` writing into `output`.
+    pub fn new(
+        loaded: &LoadedConfig,
+        camera: &CameraConfig,
+        mut output: Output<'ipc, Activity>,
+    ) -> Result<Self, Fatal> {
+        let config = &loaded.config;
+        let clock = SiteClock::new(&config.site.time_zone, config.cascade.cycle)
+            .map_err(|e| Fatal::new(exit::CONFIG, format!("site.time_zone: {e}")))?;
+        let params = Params::from(&config.cascade);
+        let path = store_path(&loaded.state_dir(), &camera.id);
+        let store = if path.exists() {
+            let s = Store::open_writer(&path, &camera.id, config.cascade.cycle)?;
+            let p = s.progress()?;
+            tracing::info!(
+                "long-term store {}: {} grid, {} minutes learned, {} skipped",
+                path.display(),
+                s.meta().grid(),
+                p.committed,
+                p.skipped
+            );
+            output.reserve(s.meta().blocks())?;
+            Some(TimedStore::new(s))
+        } else {
+            tracing::info!(
+                "no long-term store yet; {} is created when motion arrives",
+                path.display()
+            );
+            None
+        };
+        let resume = match &store {
+            Some(s) => s.store.read_baseline()?,
+            None => None,
+        };
+        tracing::info!(
+            camera = %camera.id,
+            "filtering motion: T_L1 = {} s, T_S1 = {} s, T_L2 = {} days, r = {}, cycle {:?}, min coverage {}",
+            params.t_l1_s,
+            params.t_s1_s,
+            params.t_l2_days,
+            params
+                .frame_rate
+                .map_or("measured".to_string(), |r| format!("{r} frames/s")),
+            config.cascade.cycle,
+            params.min_coverage
+        );
+        Ok(CascadeStage {
+            camera: camera.id.clone(),
+            camera_id: CameraId::new(&camera.id).unwrap_or_default(),
+            params,
+            clock,
+            cycle: config.cascade.cycle,
+            path,
+            store,
+            resume,
+            cascade: None,
+            output,
+            grid_mismatches: 0,
+        })
+    }
+
+    /// The first data sample fixes the grid: store, publisher and cascade.
+    fn start(&mut self, header: &MotionHeader) -> Result<(), Fatal> {
+        let grid = Grid::of(header);
+        let store = match self.store.take() {
+            Some(s) => {
+                s.store.check_grid(grid.grid_w, grid.grid_h)?;
+                s
+            }
+            None => {
+                let meta = StoreMeta {
+                    camera: self.camera.clone(),
+                    grid_w: grid.grid_w,
+                    grid_h: grid.grid_h,
+                    block_px: grid.block_px,
+                    frame_width: grid.frame_width,
+                    frame_height: grid.frame_height,
+                    cycle: self.cycle,
+                    created_ns: wall_now_ns(),
+                };
+                let store = Store::open_or_create(&self.path, &meta)?;
+                tracing::info!(
+                    "created the long-term store {} ({grid})",
+                    self.path.display()
+                );
+                TimedStore::new(store)
+            }
+        };
+        self.store = Some(store);
+        self.output.reserve(grid.blocks())?;
+        self.cascade = Some(Cascade::new(
+            self.camera_id,
+            self.params.clone(),
+            self.clock.clone(),
+            grid,
+            self.resume.take(),
+        ));
+        Ok(())
+    }
+
+    /// Handles one motion sample.
+    fn on_motion(
+        &mut self,
+        header: &MotionHeader,
+        blocks: &[isochron_shared::wire::BlockMotion],
+        cx: &mut Context,
+    ) -> Result<(), Fatal> {
+        let arrived = Instant::now();
+        let end = header.preamble.is_end_of_stream();
+        if self.cascade.is_none() && !end {
+            self.start(header)?;
+        }
+        let (Some(c), Some(s)) = (self.cascade.as_mut(), self.store.as_mut()) else {
+            // End of stream before any data: pass it on.
+            self.output.end_of_stream(&header.preamble, |_| {})?;
+            return Ok(());
+        };
+        match c.push(header, blocks, s) {
+            Ok(done) => {
+                self.grid_mismatches = 0;
+                if let Some(second) = done {
+                    publish_second(&mut self.output, &second, c, cx, arrived);
+                }
+            }
+            Err(PushError::Reject(r)) => {
+                cx.health.rejected();
+                cx.warnings
+                    .warn(reject_kind(&r), || format!("rejected motion sample: {r}"));
+                if matches!(r, Reject::Grid { .. }) {
+                    self.grid_mismatches += 1;
+                    if self.grid_mismatches >= GRID_MISMATCH_LIMIT {
+                        return Err(Fatal::new(
+                            exit::CONFIG,
+                            format!(
+                                "{r}; {GRID_MISMATCH_LIMIT} samples in a row: the long-term store {} is for {}; restart the cascade after moving the store away to start a new model, or restore the motion settings",
+                                self.path.display(),
+                                c.grid()
+                            ),
+                        ));
+                    }
+                }
+                return Ok(());
+            }
+            Err(PushError::Store(e)) => return Err(e.into()),
+        }
+        if end {
+            let grid = *c.grid();
+            self.output.end_of_stream(&header.preamble, |h| {
+                h.grid_w = grid.grid_w;
+                h.grid_h = grid.grid_h;
+                h.block_px = grid.block_px;
+                h.frame_width = grid.frame_width;
+                h.frame_height = grid.frame_height;
+            })?;
+            let stats = c.stats();
+            let (p50, p99) = s.latency_ms();
+            tracing::info!(
+                "end of stream: {} frames, {} seconds, minutes learned {} / too sparse {} / repeated {}; store commit p50 {p50:.2} ms, p99 {p99:.2} ms; waiting for more",
+                stats.frames,
+                stats.seconds,
+                stats.minutes_learned,
+                stats.minutes_sparse,
+                stats.minutes_repeated
+            );
+        }
+        Ok(())
+    }
+}
+
+/// Publishes one completed second. A failed send drops the sample (counted).
+fn publish_second(
+    output: &mut Output<Activity>,
+    second: &SecondOut,
+    cascade: &Cascade,
+    cx: &mut Context,
+    arrived: Instant,
+) {
+    let blocks = cascade.activity();
+    let mut header = second.header(CameraId::default(), cascade.grid(), 0);
+    header.preamble = output.preamble(blocks.len(), &header.preamble);
+    match output.send_copy(header, blocks) {
+        Ok(()) => cx.health.sent(Some(arrived), second.origin_wall_ns),
+        Err(e) => {
+            tracing::warn!("activity sample dropped: {e}");
+            cx.health.dropped(1);
+        }
+    }
+}
+
+/// The kind of a reject, for rate-limited warnings.
+fn reject_kind(r: &Reject) -> &'static str {
+    match r {
+        Reject::Wire(_) => "header",
+        Reject::Grid { .. } => "grid",
+        Reject::Value { .. } => "value",
+        Reject::Time(_) => "time",
+        Reject::Backwards { .. } => "backwards",
+    }
+}
+
+impl Stage for CascadeStage<'_> {
+    type Inputs = Input<Motion>;
+    const KIND: StageKind = StageKind::Cascade;
+
+    fn on_wake(
+        &mut self,
+        motion: &Input<Motion>,
+        _woken: &Woken,
+        cx: &mut Context,
+    ) -> Result<(), Fatal> {
+        while let Some(sample) = motion.next(cx) {
+            let header = *sample.header();
+            self.on_motion(&header, sample.payload(), cx)?;
+        }
+        Ok(())
+    }
+
+    /// The minute in progress is not complete: it is not learned (a crash would
+    /// lose it the same way).
+    fn detail(&self) -> String {
+        let mut s = String::new();
+        if let Some(c) = &self.cascade {
+            let st = c.stats();
+            s += &format!(
+                "seconds={} learned={} sparse={} repeated={} r={:.2}",
+                st.seconds,
+                st.minutes_learned,
+                st.minutes_sparse,
+                st.minutes_repeated,
+                c.frame_rate().unwrap_or(0.0)
+            );
+        }
+        if let Some(t) = &self.store {
+            let (p50, p99) = t.latency_ms();
+            s += &format!(" commits={} commit_ms={p50:.2}/{p99:.2}", t.commits);
+        }
+        s
+    }
+}

@@ -1,0 +1,527 @@
+//! The cost-map stage: `activity` and `detections` of every camera in, the ROS 2
+//! `OccupancyGrid` (+ updates) out, snapshots, and `<prefix>/plan` answered — run
+//! by the stage runtime ([`isochron_shared::stage`]). Runs once per site.
+
+use std::hash::{Hash, Hasher};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use isochron_shared::clock::{Cycle, SiteClock, format_rfc3339, timestamp, wall_now_ns};
+use isochron_shared::config::LoadedConfig;
+use isochron_shared::exit::{self, Fatal};
+use isochron_shared::ipc::{Activity, Detections, Ipc};
+use isochron_shared::stage::{Context, Input, Notified, Stage, Woken};
+use isochron_shared::topology::StageKind;
+use isochron_shared::wire::{PlanKind, PlanRequest, PlanResponse, PlanStatus};
+
+use crate::bridge::Bridge;
+use crate::delta::{DeltaTracker, Output};
+use crate::grid::MapGrid;
+use crate::msgs::{
+    Header, MapMetaData, OccupancyGrid, OccupancyGridUpdate, Point, Pose, Quaternion, Time,
+};
+use crate::plan::DayRange;
+use crate::plan_service::{PlanServer, answer_now, answer_offline};
+use crate::planner::Planner;
+use crate::ros::{RosOutput, RosSettings, domain_id, interfaces, limit_dds_logging};
+use crate::snapshot::{self, FloorPlan, Snapshot};
+
+/// How long a read long-term model is trusted before the store is checked again.
+const STORE_REFRESH: Duration = Duration::from_secs(60);
+
+/// Counters for the status line.
+#[derive(Default)]
+struct Counters {
+    grids: u64,
+    updates: u64,
+    publish_errors: u64,
+    plans: u64,
+    snapshots: u64,
+    confirmed: u64,
+}
+
+/// The ROS 2 side: the output and what was sent.
+struct Ros {
+    output: RosOutput,
+    tracker: DeltaTracker,
+    geometry: u64,
+    frame_id: String,
+}
+
+/// The cost-map stage's inputs: every camera's activity, every camera's
+/// detections, and planning requests.
+pub type CostmapInputs = (
+    Vec<Input<Activity>>,
+    Vec<Input<Detections>>,
+    Notified<PlanServer>,
+);
+
+/// The site's cost map: the bridge from blocks to floor cells, the ROS 2 output,
+/// the planner, snapshots.
+pub struct CostmapStage {
+    loaded: LoadedConfig,
+    bridge: Bridge,
+    planner: Planner,
+    clock: SiteClock,
+    floor_plan: Option<FloorPlan>,
+    snapshot_dir: PathBuf,
+    ros: Option<Ros>,
+    counters: Counters,
+    period: Duration,
+    snapshot_every: Option<Duration>,
+    next_publish: Instant,
+    next_snapshot: Option<Instant>,
+    newest_arrival: Option<(Instant, i64)>,
+}
+
+impl CostmapStage {
+    /// The cost map of `loaded`'s site and its inputs (every configured camera).
+    pub fn open(ipc: &Ipc, loaded: &LoadedConfig) -> Result<(Self, CostmapInputs), Fatal> {
+        let config = &loaded.config;
+        let c = &config.costmap;
+        let config_error =
+            |e: String| Fatal::new(exit::CONFIG, format!("{}: {e}", loaded.path.display()));
+
+        let grid = MapGrid::from_config(loaded).map_err(|e| config_error(e.to_string()))?;
+        let bridge = Bridge::new(loaded, grid).map_err(config_error)?;
+        let mut planner = Planner::new(loaded).map_err(|e| config_error(e.to_string()))?;
+        planner.refresh_every = STORE_REFRESH;
+        let clock = SiteClock::new(&config.site.time_zone, config.cascade.cycle)
+            .map_err(|e| config_error(format!("site.time_zone: {e}")))?;
+        for cam in &bridge.cameras {
+            match &cam.homography {
+                Some(_) => {
+                    tracing::info!(camera = %cam.id, "floor mapping fitted, RMS error {:.3} m at its points", cam.homography_rms_m)
+                }
+                None => {
+                    tracing::info!(camera = %cam.id, "no floor_points: the camera is not on the cost map")
+                }
+            }
+        }
+        let floor_plan = load_floor_plan(loaded, bridge.grid.as_ref());
+        let snapshot_dir = c
+            .snapshot_dir
+            .as_ref()
+            .map(|d| {
+                if d.is_absolute() {
+                    d.clone()
+                } else {
+                    loaded.base_dir().join(d)
+                }
+            })
+            .unwrap_or_else(|| loaded.state_dir().join("costmap"));
+
+        let ros = match &bridge.grid {
+            Some(grid) => {
+                let settings = RosSettings {
+                    domain_id: domain_id(c.ros_domain_id).map_err(config_error)?,
+                    interfaces: interfaces(
+                        &c.dds_interfaces
+                            .iter()
+                            .filter_map(|a| a.parse().ok())
+                            .collect::<Vec<_>>(),
+                    ),
+                    topic: c.topic.clone(),
+                    updates_topic: c.updates_topic(),
+                };
+                limit_dds_logging();
+                let output = RosOutput::start(&settings)
+                    .map_err(|e| Fatal::new(exit::UNAVAILABLE, e.to_string()))?;
+                tracing::info!(
+                    "publishing a {}x{} grid of {} m on {} (+ {}), frame '{}', ROS domain {}, {}",
+                    grid.width,
+                    grid.height,
+                    grid.resolution,
+                    settings.topic,
+                    settings.updates_topic,
+                    c.frame_id,
+                    settings.domain_id,
+                    if settings.interfaces.is_empty() {
+                        "all interfaces".to_string()
+                    } else {
+                        format!("interfaces {:?}", settings.interfaces)
+                    }
+                );
+                Some(Ros {
+                    output,
+                    tracker: DeltaTracker::new(Duration::from_secs_f64(c.full_every_s)),
+                    geometry: geometry_key(grid),
+                    frame_id: c.frame_id.clone(),
+                })
+            }
+            None => {
+                tracing::warn!(
+                    "no [costmap] grid (map_yaml or width_cells/height_cells): nothing is published to ROS 2; planning only"
+                );
+                None
+            }
+        };
+
+        let mut activity = Vec::new();
+        let mut detections = Vec::new();
+        for cam in &config.cameras {
+            activity.push(Input::open(ipc, &cam.id)?);
+            detections.push(Input::open(ipc, &cam.id)?);
+        }
+        let inputs = (activity, detections, Notified(PlanServer::new(ipc)?));
+        let snapshot_every =
+            (c.snapshot_every_s > 0.0).then(|| Duration::from_secs_f64(c.snapshot_every_s));
+        let now = Instant::now();
+        let stage = CostmapStage {
+            loaded: loaded.clone(),
+            bridge,
+            planner,
+            clock,
+            floor_plan,
+            snapshot_dir,
+            ros,
+            counters: Counters::default(),
+            period: Duration::from_secs_f64(1.0 / c.publish_hz),
+            snapshot_every,
+            next_publish: now,
+            next_snapshot: snapshot_every.map(|e| now + e),
+            newest_arrival: None,
+        };
+        Ok((stage, inputs))
+    }
+}
+
+impl Stage for CostmapStage {
+    type Inputs = CostmapInputs;
+    const KIND: StageKind = StageKind::Costmap;
+
+    fn on_wake(
+        &mut self,
+        (activity, detections, plans): &CostmapInputs,
+        _woken: &Woken,
+        cx: &mut Context,
+    ) -> Result<(), Fatal> {
+        for (k, input) in activity.iter().enumerate() {
+            while let Some(sample) = input.next(cx) {
+                let arrived = Instant::now();
+                let h = *sample.header();
+                if h.preamble.is_end_of_stream() {
+                    continue;
+                }
+                self.bridge.on_activity(k, &h, sample.payload(), arrived);
+                self.newest_arrival = Some((arrived, h.preamble.origin_wall_ns));
+            }
+        }
+        for (k, input) in detections.iter().enumerate() {
+            while let Some(sample) = input.next(cx) {
+                let h = *sample.header();
+                if !h.preamble.is_end_of_stream() {
+                    self.counters.confirmed +=
+                        self.bridge.on_detections(k, &h, sample.payload()) as u64;
+                }
+            }
+        }
+        let mut rejected = 0;
+        let served = plans.0.serve(
+            |kind, request| {
+                answer(
+                    kind,
+                    request,
+                    &mut self.planner,
+                    &self.bridge,
+                    &self.clock,
+                    &self.snapshot_dir,
+                    self.floor_plan.as_ref(),
+                    &self.loaded,
+                    &mut self.counters,
+                )
+            },
+            &mut rejected,
+        )?;
+        self.counters.plans += served as u64;
+        for _ in 0..rejected {
+            cx.health.rejected();
+        }
+        Ok(())
+    }
+
+    fn on_tick(&mut self, cx: &mut Context) -> Result<(), Fatal> {
+        let now = Instant::now();
+        if now >= self.next_publish {
+            self.next_publish += self.period;
+            if self.next_publish < now {
+                // Fell behind (a slow plan, a stalled DDS write): do not burst.
+                self.next_publish = now + self.period;
+            }
+            if let (Some(ros), Some(grid)) = (&mut self.ros, &self.bridge.grid)
+                && let Some(cells) = self.bridge.compose(now)
+            {
+                let stamp_ns = self.bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
+                if publish(ros, grid, &cells, stamp_ns, now, &mut self.counters) {
+                    let (arrived, origin) =
+                        self.newest_arrival.map_or((None, 0), |(a, o)| (Some(a), o));
+                    cx.health.sent(arrived, origin);
+                }
+            }
+        }
+        if let Some(at) = self.next_snapshot
+            && now >= at
+        {
+            self.next_snapshot = self.snapshot_every.map(|e| now + e);
+            match write_snapshot(
+                &self.bridge,
+                &self.loaded,
+                &self.snapshot_dir,
+                self.floor_plan.as_ref(),
+                now,
+            ) {
+                Ok(path) => {
+                    self.counters.snapshots += 1;
+                    tracing::debug!("snapshot {path}");
+                }
+                Err(e) => tracing::warn!("periodic snapshot failed: {e}"),
+            }
+        }
+        Ok(())
+    }
+
+    /// The publish period: the grid goes out on time.
+    fn timer(&self) -> Duration {
+        self.period
+    }
+
+    fn detail(&self) -> String {
+        let now = Instant::now();
+        let bridge = &self.bridge;
+        let live = (0..bridge.cameras.len())
+            .filter(|&k| bridge.is_live(k, now))
+            .count();
+        let c = &self.counters;
+        format!(
+            "cameras_live={live}/{} grids={} updates={} ros_subscribers={} publish_errors={} plans={} snapshots={} confirmed={}",
+            bridge.cameras.len(),
+            c.grids,
+            c.updates,
+            self.ros.as_ref().map_or(0, |r| r.output.grid_subscribers()),
+            c.publish_errors,
+            c.plans,
+            c.snapshots,
+            c.confirmed
+        )
+    }
+}
+
+/// A hash of what makes two grids incompatible (size, resolution, origin).
+fn geometry_key(grid: &MapGrid) -> u64 {
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    (grid.width, grid.height).hash(&mut h);
+    for v in [grid.resolution, grid.origin_x, grid.origin_y, grid.yaw] {
+        v.to_bits().hash(&mut h);
+    }
+    h.finish()
+}
+
+/// Publishes what the tracker decides; true if something went out.
+fn publish(
+    ros: &mut Ros,
+    grid: &MapGrid,
+    cells: &[i8],
+    stamp_ns: i64,
+    now: Instant,
+    counters: &mut Counters,
+) -> bool {
+    let header = Header {
+        stamp: Time::from_utc_ns(stamp_ns),
+        frame_id: ros.frame_id.clone(),
+    };
+    let result = match ros.tracker.next(cells, grid.width, ros.geometry, now) {
+        Output::Nothing => return false,
+        Output::Full => {
+            counters.grids += 1;
+            ros.output.publish_grid(OccupancyGrid {
+                header: header.clone(),
+                info: MapMetaData {
+                    map_load_time: header.stamp,
+                    resolution: grid.resolution as f32,
+                    width: grid.width,
+                    height: grid.height,
+                    origin: Pose {
+                        position: Point {
+                            x: grid.origin_x,
+                            y: grid.origin_y,
+                            z: 0.0,
+                        },
+                        orientation: Quaternion::from_yaw(grid.yaw),
+                    },
+                },
+                data: cells.to_vec(),
+            })
+        }
+        Output::Update {
+            x,
+            y,
+            width,
+            height,
+            data,
+        } => {
+            counters.updates += 1;
+            ros.output.publish_update(OccupancyGridUpdate {
+                header,
+                x: x as i32,
+                y: y as i32,
+                width,
+                height,
+                data,
+            })
+        }
+    };
+    if let Err(e) = result {
+        counters.publish_errors += 1;
+        // Subscribers must not miss a delta: the next tick sends the full grid.
+        ros.tracker.reset();
+        tracing::warn!("publishing to ROS 2 failed: {e}");
+        return false;
+    }
+    true
+}
+
+/// The map_yaml image as the snapshot's floor plan, if any.
+fn load_floor_plan(loaded: &LoadedConfig, grid: Option<&MapGrid>) -> Option<FloorPlan> {
+    let yaml = loaded.config.costmap.map_yaml.as_ref()?;
+    let yaml = if yaml.is_absolute() {
+        yaml.clone()
+    } else {
+        loaded.base_dir().join(yaml)
+    };
+    let text = std::fs::read_to_string(&yaml).ok()?;
+    let image = text
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("image:"))
+        .map(|s| s.trim().trim_matches(['"', '\'']).to_string())?;
+    let image = yaml
+        .parent()
+        .unwrap_or(std::path::Path::new("."))
+        .join(image);
+    match FloorPlan::load(&image) {
+        Ok(plan) if grid.is_some_and(|g| g.width == plan.width && g.height == plan.height) => {
+            Some(plan)
+        }
+        Ok(_) => None,
+        Err(e) => {
+            tracing::warn!("the floor plan is left out of pictures: {e}");
+            None
+        }
+    }
+}
+
+/// Writes a snapshot of the current cost map; returns the YAML's path.
+fn write_snapshot(
+    bridge: &Bridge,
+    loaded: &LoadedConfig,
+    dir: &std::path::Path,
+    floor_plan: Option<&FloorPlan>,
+    now: Instant,
+) -> Result<String, String> {
+    let grid = bridge
+        .grid
+        .as_ref()
+        .ok_or("no [costmap] grid is configured (map_yaml or width_cells/height_cells)")?;
+    let cells = bridge.compose(now).ok_or("no grid")?;
+    let stamp_ns = bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
+    let ts = timestamp(stamp_ns);
+    let stem = format!(
+        "activity-{}{:03}Z",
+        ts.strftime("%Y%m%dT%H%M%S."),
+        ts.subsec_millisecond()
+    );
+    let coverage = bridge.coverage();
+    let polygons: Vec<&[[f64; 2]]> = loaded
+        .config
+        .costmap
+        .segments
+        .iter()
+        .filter_map(|s| s.polygon_m.as_deref())
+        .collect();
+    let stamp = format_rfc3339(stamp_ns);
+    let files = snapshot::write(
+        dir,
+        &stem,
+        &Snapshot {
+            grid,
+            cells: &cells,
+            floor_plan,
+            coverage: &coverage,
+            segments: &polygons,
+            stamp: &stamp,
+        },
+    )?;
+    snapshot::prune(dir, "activity-", loaded.config.costmap.snapshot_keep)?;
+    Ok(files.yaml.display().to_string())
+}
+
+/// Answers one planning request.
+#[allow(clippy::too_many_arguments)]
+fn answer(
+    kind: PlanKind,
+    request: &PlanRequest,
+    planner: &mut Planner,
+    bridge: &Bridge,
+    clock: &SiteClock,
+    snapshot_dir: &std::path::Path,
+    floor_plan: Option<&FloorPlan>,
+    loaded: &LoadedConfig,
+    counters: &mut Counters,
+) -> PlanResponse {
+    let now = Instant::now();
+    let failed =
+        |status: PlanStatus, message: String| PlanResponse::new(kind as u32, status, &message);
+    let status_of = |e: &crate::plan::PlanError| match e {
+        crate::plan::PlanError::UnknownRoute(..) => PlanStatus::UnknownRoute,
+        crate::plan::PlanError::NoData(_) | crate::plan::PlanError::EmptySegment(_) => {
+            PlanStatus::NoData
+        }
+        _ => PlanStatus::Failed,
+    };
+    // "Now" is the time of the newest activity (header time), else the wall clock.
+    let now_ns = bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
+    match kind {
+        PlanKind::Offline => {
+            let route = request.route_names().remove(0);
+            let cycle_offset = match planner.cycle() {
+                Cycle::Daily => 0,
+                Cycle::Weekly => {
+                    let day = if request.weekday == 7 {
+                        clock.t_star(now_ns) / 1440
+                    } else {
+                        request.weekday
+                    };
+                    day * 1440
+                }
+            };
+            let range = DayRange {
+                start: request.start_minute,
+                end: request.end_minute,
+                step: request.step_min,
+                cycle_offset,
+            };
+            match planner.offline(&route, range) {
+                Ok(plan) => answer_offline(&plan),
+                Err(e) => failed(status_of(&e), e.to_string()),
+            }
+        }
+        PlanKind::Now => {
+            let t_star = bridge
+                .newest(now)
+                .map_or_else(|| clock.t_star(now_ns), |(_, t)| t);
+            let live = bridge.live(now);
+            match planner.now(&request.route_names(), &live, t_star) {
+                Ok(ranked) => answer_now(&ranked, t_star),
+                Err(e) => failed(status_of(&e), e.to_string()),
+            }
+        }
+        PlanKind::Snapshot => match write_snapshot(bridge, loaded, snapshot_dir, floor_plan, now) {
+            Ok(path) => {
+                counters.snapshots += 1;
+                tracing::info!("snapshot written: {path}");
+                PlanResponse::new(kind as u32, PlanStatus::Ok, &path)
+            }
+            Err(e) if bridge.grid.is_none() => failed(PlanStatus::NoData, e),
+            Err(e) => failed(PlanStatus::Failed, e),
+        },
+    }
+}

@@ -1,0 +1,461 @@
+//! The gate stage: `frames` and `activity` in, `events` and `detections` out — run
+//! by the stage runtime ([`isochron_shared::stage`]). Frames go into the ring;
+//! activity drives the event trackers; the detector thread runs on gated frames.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use isochron_shared::clock::NS_PER_S;
+use isochron_shared::config::{CameraConfig, LoadedConfig};
+use isochron_shared::exit::{self, Fatal};
+use isochron_shared::ipc::{Activity, Detections, Events, Frames, Ipc};
+use isochron_shared::stage::{Context, Input, Output, Received, Stage, Woken};
+use isochron_shared::topology::StageKind;
+use isochron_shared::wire::{
+    DetectionHeader, EventHeader, EventPhase, PixelFormat, Preamble, ZONE_NAME_LEN, to_fixed,
+};
+use parking_lot::Mutex;
+
+use crate::detector::Detector;
+use crate::events::Event;
+use crate::gate::{Action, Gate, GateSettings};
+use crate::ring::FrameRing;
+use crate::worker::{DetectorSlots, Outcome, Report, Worker};
+
+/// Most detections published for one frame.
+const MAX_DETECTIONS: usize = 256;
+/// How long the end of a stream waits for queued detections.
+const DRAIN_TIMEOUT: Duration = Duration::from_secs(60);
+
+/// Counters of the hybrid scheme.
+#[derive(Default)]
+struct Counters {
+    frames_seen: u64,
+    frames_detected: u64,
+    detector_total_us: u64,
+    frames_gone: u64,
+    detector_busy: u64,
+    detector_errors: u64,
+}
+
+impl Counters {
+    /// Accepted jobs that never ran: their frame left the ring, or every detector
+    /// slot of the process was busy.
+    fn jobs_lost(&self) -> u64 {
+        self.frames_gone + self.detector_busy
+    }
+}
+
+/// The gate of one camera: event trackers, frame intake, detector worker, outputs.
+pub struct GateStage<'ipc> {
+    gate: Gate,
+    worker: Worker,
+    detector_name: &'static str,
+    lossless: bool,
+    intake: FrameIntake,
+    counters: Counters,
+    events: Output<'ipc, Events>,
+    detections: Output<'ipc, Detections>,
+}
+
+/// The gate's inputs: frames first (they are taken before each activity sample).
+pub type GateInputs = (Input<Frames>, Input<Activity>);
+
+impl<'ipc> GateStage<'ipc> {
+    /// The gate of `camera` on `loaded`'s site, publishing through `ipc`, and its
+    /// inputs.
+    pub fn open(
+        ipc: &'ipc Ipc,
+        loaded: &LoadedConfig,
+        camera: &CameraConfig,
+    ) -> Result<(Self, GateInputs), Fatal> {
+        let config = &loaded.config;
+        let ring = Arc::new(Mutex::new(FrameRing::new(config.gate.ring_frames)));
+        let detector_config = config.gate.detector.clone();
+        let base_dir = loaded.base_dir();
+        // Live, a busy detector loses work instead of delaying events; a lossless
+        // replay detects every gated frame, at the detector's pace.
+        let lossless = config.ipc.lossless;
+        let queue = if lossless {
+            0
+        } else {
+            config.gate.detector.queue
+        };
+        let slots =
+            DetectorSlots::of_site(&config.site.service_prefix, config.gate.detector.concurrent)
+                .map(Arc::new)
+                .map_err(|e| Fatal::new(exit::UNAVAILABLE, e.to_string()))?;
+        let (worker, detector_name) = Worker::start(
+            move || Detector::from_config(&detector_config, &base_dir),
+            ring.clone(),
+            queue,
+            slots,
+            lossless,
+        )
+        .map_err(|e| Fatal::new(exit::CONFIG, e))?;
+        let gate = Gate::new(
+            GateSettings {
+                gate: config.gate.clone(),
+                warm_days: config.cascade.warm_days,
+            },
+            camera.zones.clone(),
+        );
+        let inputs = (Input::open(ipc, &camera.id)?, Input::open(ipc, &camera.id)?);
+        let mut detections = Output::new(ipc, &camera.id);
+        detections.reserve(MAX_DETECTIONS)?;
+        tracing::info!(camera = %camera.id, detector = detector_name, "gating the {detector_name} detector on events");
+        let stage = GateStage {
+            gate,
+            worker,
+            detector_name,
+            lossless,
+            intake: FrameIntake::new(ring),
+            counters: Counters::default(),
+            events: Output::new(ipc, &camera.id),
+            detections,
+        };
+        Ok((stage, inputs))
+    }
+
+    /// Handles one activity sample (frames queued before it are taken first).
+    fn on_activity(
+        &mut self,
+        sample: Received<Activity>,
+        frames: &Input<Frames>,
+        cx: &mut Context,
+    ) -> Result<(), Fatal> {
+        let arrived = Instant::now();
+        let h = *sample.header();
+        let grid_len = (h.grid_w * h.grid_h) as usize;
+        if h.preamble.is_end_of_stream() {
+            self.intake.finish(frames, cx, &mut self.counters);
+            let end = Preamble {
+                capture_time_ns: h.preamble.capture_time_ns,
+                ..Preamble::default()
+            };
+            for action in self.gate.finish() {
+                self.execute(&action, &end, grid_len.max(1), cx, arrived)?;
+            }
+            self.drain_detector(DRAIN_TIMEOUT)?;
+            self.publish_end_of_stream(&h.preamble)?;
+            tracing::info!(
+                "end of stream: {} events, detector ran on {} of {} frames",
+                self.gate.events_started(),
+                self.counters.frames_detected,
+                self.counters.frames_seen
+            );
+            return Ok(());
+        }
+        // An activity sample ends a second: its last frame may be the newest.
+        self.intake.keep_newest();
+        for action in self.gate.on_activity(&h, sample.payload()) {
+            self.execute(&action, &h.preamble, grid_len, cx, arrived)?;
+        }
+        Ok(())
+    }
+
+    /// Carries out one action of the gate.
+    fn execute(
+        &mut self,
+        action: &Action,
+        from: &Preamble,
+        grid_len: usize,
+        cx: &mut Context,
+        arrived: Instant,
+    ) -> Result<(), Fatal> {
+        match action {
+            Action::Event { phase, zone, event } => {
+                self.publish_event(*phase, zone, event, from, grid_len)?;
+                cx.health.sent(Some(arrived), from.origin_wall_ns);
+                if *phase == EventPhase::Start {
+                    tracing::info!(event = event.id, zone = %zone, kind = event.kind.name(), "event started");
+                }
+            }
+            Action::Detect(job) => {
+                let queued = if self.lossless {
+                    self.worker.submit_wait(*job)
+                } else {
+                    self.worker.submit(*job)
+                };
+                if !queued {
+                    tracing::debug!(event = job.event_id, "detector busy: detection dropped");
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn publish_event(
+        &mut self,
+        phase: EventPhase,
+        zone: &str,
+        event: &Event,
+        from: &Preamble,
+        grid_len: usize,
+    ) -> Result<(), Fatal> {
+        // The publisher is sized for the grid, which the first activity sample tells.
+        self.events.reserve(grid_len)?;
+        let ended = phase == EventPhase::End;
+        let header = EventHeader {
+            preamble: self.events.preamble(event.blocks.len(), from),
+            event_id: event.id,
+            zone: to_fixed::<ZONE_NAME_LEN>(zone),
+            kind: event.kind as u32,
+            phase: phase as u32,
+            start_ns: event.start_ns,
+            end_ns: if ended { event.end_ns } else { 0 },
+            start_frame: event.start_frame,
+            end_frame: if ended { event.end_frame } else { 0 },
+            peak: event.peak,
+            threshold: event.threshold,
+        };
+        Ok(self.events.send_copy(header, &event.blocks)?)
+    }
+
+    /// Jobs dropped so far: refused by a busy worker, or lost after acceptance.
+    fn jobs_dropped(&self) -> u64 {
+        self.worker.dropped + self.counters.jobs_lost()
+    }
+
+    fn handle_report(&mut self, report: Report) -> Result<(), Fatal> {
+        let c = &mut self.counters;
+        match report {
+            Report::Done(outcome) => {
+                c.frames_detected += 1;
+                c.detector_total_us += outcome.detector_us;
+                self.publish_detections(&outcome)?;
+            }
+            Report::FrameGone(job) => {
+                c.frames_gone += 1;
+                tracing::debug!(
+                    event = job.event_id,
+                    "the gated frame left the ring before the detector got to it"
+                );
+            }
+            Report::Busy(job) => {
+                c.detector_busy += 1;
+                tracing::debug!(
+                    event = job.event_id,
+                    "every detector slot of the process was busy: detection dropped"
+                );
+            }
+            Report::Failed(job, e) => {
+                c.detector_errors += 1;
+                tracing::warn!(event = job.event_id, "detector failed: {e}");
+            }
+        }
+        Ok(())
+    }
+
+    fn publish_detections(&mut self, o: &Outcome) -> Result<(), Fatal> {
+        let n = o.detections.len().min(MAX_DETECTIONS);
+        let from = Preamble {
+            capture_time_ns: o.capture_time_ns,
+            ..Preamble::default()
+        };
+        let header = DetectionHeader {
+            preamble: self.detections.preamble(n, &from),
+            event_id: o.event_id,
+            source_index: o.source_index,
+            detector_us: o.detector_us,
+            ..self.totals()
+        };
+        Ok(self.detections.send_copy(header, &o.detections[..n])?)
+    }
+
+    /// A detections header carrying the running totals.
+    fn totals(&self) -> DetectionHeader {
+        DetectionHeader {
+            frames_seen: self.counters.frames_seen,
+            frames_detected: self.counters.frames_detected,
+            jobs_dropped: self.jobs_dropped(),
+            detector_total_us: self.counters.detector_total_us,
+            ..DetectionHeader::default()
+        }
+    }
+
+    /// Passes the end of stream on, detections (with the final totals) first.
+    fn publish_end_of_stream(&mut self, from: &Preamble) -> Result<(), Fatal> {
+        let from = Preamble {
+            capture_time_ns: from.capture_time_ns,
+            ..Preamble::default()
+        };
+        let totals = self.totals();
+        self.detections.end_of_stream(&from, |h| {
+            *h = DetectionHeader {
+                preamble: h.preamble,
+                ..totals
+            }
+        })?;
+        self.events.end_of_stream(&from, |_| {})?;
+        Ok(())
+    }
+
+    /// Waits (up to `timeout`) for every queued detection and publishes the results.
+    fn drain_detector(&mut self, timeout: Duration) -> Result<(), Fatal> {
+        let end = Instant::now() + timeout;
+        while self.worker.pending() > 0 {
+            let left = end.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                tracing::warn!(
+                    "{} detections still pending at the end of the stream",
+                    self.worker.pending()
+                );
+                break;
+            }
+            if let Some(report) = self.worker.wait_report(left) {
+                self.handle_report(report)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Stage for GateStage<'_> {
+    type Inputs = GateInputs;
+    const KIND: StageKind = StageKind::Gate;
+
+    fn on_wake(
+        &mut self,
+        (frames, activity): &GateInputs,
+        _woken: &Woken,
+        cx: &mut Context,
+    ) -> Result<(), Fatal> {
+        self.intake.drain(frames, cx, &mut self.counters);
+        while let Some(sample) = activity.next(cx) {
+            // Frames take a shorter path than activity, but a gate that waited on
+            // its detector may have left some queued: take them first, so the
+            // frames a job names are in the ring.
+            self.intake.drain(frames, cx, &mut self.counters);
+            self.on_activity(sample, frames, cx)?;
+        }
+        for report in self.worker.reports() {
+            self.handle_report(report)?;
+        }
+        Ok(())
+    }
+
+    /// Detector reports are published within this.
+    fn timer(&self) -> Duration {
+        Duration::from_millis(100)
+    }
+
+    fn detail(&self) -> String {
+        format!(
+            "detector={} events={} open={} frames_seen={} detected={} detector_ms={} jobs_dropped={}",
+            self.detector_name,
+            self.gate.events_started(),
+            self.gate.open_events(),
+            self.counters.frames_seen,
+            self.counters.frames_detected,
+            self.counters.detector_total_us / 1000,
+            self.jobs_dropped()
+        )
+    }
+}
+
+/// Takes the `frames` stream into the detector's ring.
+///
+/// A detection job names the end of a second, so the detector only ever looks
+/// at the last frame of a second: the newest frame stays in shared memory and
+/// is copied into the ring only once it is known to be its second's last (a
+/// later second's frame arrived, or an activity sample did). One copy per
+/// second instead of one per frame.
+struct FrameIntake {
+    ring: Arc<Mutex<FrameRing>>,
+    newest: Option<Received<Frames>>,
+    ended: bool,
+}
+
+impl FrameIntake {
+    /// How long the end of the activity stream waits for the end of the frames.
+    const END_WAIT: Duration = Duration::from_secs(2);
+
+    /// Intake into `ring`.
+    fn new(ring: Arc<Mutex<FrameRing>>) -> Self {
+        FrameIntake {
+            ring,
+            newest: None,
+            ended: false,
+        }
+    }
+
+    /// Takes every frame queued now.
+    fn drain(&mut self, frames: &Input<Frames>, cx: &mut Context, counters: &mut Counters) {
+        // A full batch leaves frames queued: take them all, the ring needs them.
+        loop {
+            let mut took = false;
+            while let Some(sample) = frames.next(cx) {
+                took = true;
+                self.take(sample, cx, counters);
+            }
+            if !took {
+                break;
+            }
+        }
+    }
+
+    fn take(&mut self, sample: Received<Frames>, cx: &mut Context, counters: &mut Counters) {
+        let h = *sample.header();
+        if h.preamble.is_end_of_stream() {
+            self.ended = true;
+            return;
+        }
+        self.ended = false;
+        if h.format() != PixelFormat::Gray8 {
+            cx.health.rejected();
+            cx.warnings.warn("format", || {
+                format!(
+                    "rejected a {:?} frame: the gate reads GRAY8 frames",
+                    h.format()
+                )
+            });
+            return;
+        }
+        counters.frames_seen += 1;
+        let second = h.preamble.capture_time_ns.div_euclid(NS_PER_S);
+        if let Some(held) = self.newest.take()
+            && held.header().preamble.capture_time_ns.div_euclid(NS_PER_S) != second
+        {
+            self.keep(&held); // the last frame of its second
+        }
+        self.newest = Some(sample);
+    }
+
+    /// Copies the newest frame into the ring: it is the last of its second.
+    fn keep_newest(&mut self) {
+        if let Some(held) = self.newest.take() {
+            self.keep(&held);
+        }
+    }
+
+    /// Copies a frame into the ring the detector reads.
+    fn keep(&self, sample: &Received<Frames>) {
+        let h = sample.header();
+        self.ring.lock().push(
+            h.preamble.capture_time_ns,
+            h.source_index,
+            h.width,
+            h.height,
+            sample.payload(),
+        );
+    }
+
+    /// At the end of the activity stream: takes the frames still on their way,
+    /// up to the end of the frames stream (capture sends it before motion can
+    /// end activity, but a full queue may hold it back for a moment).
+    fn finish(&mut self, frames: &Input<Frames>, cx: &mut Context, counters: &mut Counters) {
+        let deadline = Instant::now() + Self::END_WAIT;
+        loop {
+            self.drain(frames, cx, counters);
+            if self.ended || Instant::now() >= deadline {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        if !self.ended {
+            tracing::warn!("the activity stream ended before the frames stream did");
+        }
+        self.keep_newest();
+    }
+}
