@@ -11,7 +11,7 @@
 //!   pixels. Class 0 must be "person" (COCO order); other classes are ignored.
 //!   Export e.g. with `yolo export model=yolov8n.pt format=onnx opset=12`.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use isochron_shared::config::DetectorConfig;
 use isochron_shared::wire::Detection;
@@ -47,15 +47,51 @@ pub enum Detector {
     },
 }
 
+/// Why the detector could not be built or started.
+#[derive(Debug, thiserror::Error)]
+pub enum DetectorError {
+    /// OpenCV could not make the HOG people detector.
+    #[error("creating the HOG people detector: {0}")]
+    Hog(opencv::Error),
+    /// The configured model file does not exist.
+    #[error("gate.detector.model: {} does not exist", .0.display())]
+    MissingModel(PathBuf),
+    /// OpenCV could not load the model.
+    #[error("gate.detector.model: OpenCV cannot load {}: {source}", path.display())]
+    Model {
+        /// The model file.
+        path: PathBuf,
+        /// OpenCV's error.
+        source: opencv::Error,
+    },
+    /// The detector thread could not be started.
+    #[error("starting the detector thread: {0}")]
+    Thread(std::io::Error),
+    /// The detector thread ended before it said it was ready.
+    #[error("the detector thread died while starting")]
+    ThreadDied,
+}
+
+impl isochron_shared::exit::Classify for DetectorError {
+    /// A model that cannot be loaded is a configuration error; a thread that
+    /// cannot start may start next time.
+    fn exit_code(&self) -> i32 {
+        use isochron_shared::exit;
+        match self {
+            DetectorError::Thread(_) | DetectorError::ThreadDied => exit::UNAVAILABLE,
+            _ => exit::CONFIG,
+        }
+    }
+}
+
 impl Detector {
     /// Builds the configured detector; `base_dir` resolves a relative model path.
-    pub fn from_config(config: &DetectorConfig, base_dir: &Path) -> Result<Self, String> {
+    pub fn from_config(config: &DetectorConfig, base_dir: &Path) -> Result<Self, DetectorError> {
         match &config.model {
             None => {
-                let mut hog = objdetect::HOGDescriptor::default()
-                    .map_err(|e| format!("creating the HOG descriptor: {e}"))?;
+                let mut hog = objdetect::HOGDescriptor::default().map_err(DetectorError::Hog)?;
                 let svm = objdetect::HOGDescriptor::get_default_people_detector()
-                    .map_err(|e| format!("loading OpenCV's people detector: {e}"))?;
+                    .map_err(DetectorError::Hog)?;
                 hog.set_svm_detector(svm);
                 Ok(Detector::Hog {
                     hog,
@@ -71,17 +107,12 @@ impl Detector {
                     base_dir.join(model)
                 };
                 if !path.is_file() {
-                    return Err(format!(
-                        "gate.detector.model: {} does not exist",
-                        path.display()
-                    ));
+                    return Err(DetectorError::MissingModel(path));
                 }
-                let net = dnn::read_net_from_onnx(path.as_os_str()).map_err(|e| {
-                    format!(
-                        "gate.detector.model: OpenCV cannot load {}: {e}",
-                        path.display()
-                    )
-                })?;
+                let net = match dnn::read_net_from_onnx(path.as_os_str()) {
+                    Ok(net) => net,
+                    Err(source) => return Err(DetectorError::Model { path, source }),
+                };
                 Ok(Detector::Onnx {
                     net,
                     input_px: config.input_px as i32,
@@ -397,7 +428,8 @@ mod tests {
         };
         let err = Detector::from_config(&config, Path::new("/tmp"))
             .err()
-            .unwrap();
+            .unwrap()
+            .to_string();
         assert!(err.contains("/tmp/nope.onnx does not exist"), "{err}");
     }
 }

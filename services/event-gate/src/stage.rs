@@ -91,8 +91,7 @@ impl<'ipc> GateStage<'ipc> {
             queue,
             slots,
             lossless,
-        )
-        .map_err(|e| Fatal::new(exit::CONFIG, e))?;
+        )?;
         let gate = Gate::new(
             GateSettings {
                 gate: config.gate.clone(),

@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use isochron_shared::wire::Detection;
 use parking_lot::Mutex;
 
-use crate::detector::Detector;
+use crate::detector::{Detector, DetectorError};
 use crate::ring::{FrameRing, StoredFrame};
 
 /// A request to run the detector on the latest frame at or before `time_ns`.
@@ -164,15 +164,15 @@ impl Worker {
     /// A job runs only in a free slot of `slots`; when none is free it is dropped,
     /// or, with `wait_for_slot` (lossless replays), it waits for one.
     pub fn start(
-        make: impl FnOnce() -> Result<Detector, String> + Send + 'static,
+        make: impl FnOnce() -> Result<Detector, DetectorError> + Send + 'static,
         ring: Arc<Mutex<FrameRing>>,
         queue: usize,
         slots: Arc<DetectorSlots>,
         wait_for_slot: bool,
-    ) -> Result<(Worker, &'static str), String> {
+    ) -> Result<(Worker, &'static str), DetectorError> {
         let (jobs_tx, jobs_rx) = sync_channel::<Job>(queue);
         let (reports_tx, reports_rx) = sync_channel::<Report>(1024);
-        let (ready_tx, ready_rx) = sync_channel::<Result<&'static str, String>>(1);
+        let (ready_tx, ready_rx) = sync_channel::<Result<&'static str, DetectorError>>(1);
         let closed = Arc::new(AtomicBool::new(false));
         let closing = closed.clone();
         let thread = std::thread::Builder::new()
@@ -220,10 +220,8 @@ impl Worker {
                     }
                 }
             })
-            .map_err(|e| format!("starting the detector thread: {e}"))?;
-        let name = ready_rx
-            .recv()
-            .map_err(|_| "the detector thread died while starting".to_string())??;
+            .map_err(DetectorError::Thread)?;
+        let name = ready_rx.recv().map_err(|_| DetectorError::ThreadDied)??;
         Ok((
             Worker {
                 jobs: Some(jobs_tx),
