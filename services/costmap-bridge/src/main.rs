@@ -11,21 +11,21 @@ use clap::Parser;
 use iceoryx2::prelude::*;
 use isochron_costmap::bridge::Bridge;
 use isochron_costmap::delta::{DeltaTracker, Output};
-use isochron_costmap::grid::MapGrid;
 use isochron_costmap::msgs::{
     Header, MapMetaData, OccupancyGrid, OccupancyGridUpdate, Point, Pose, Quaternion, Time,
 };
-use isochron_costmap::plan::DayRange;
-use isochron_costmap::plan_service::{PlanServer, answer_now, answer_offline};
-use isochron_costmap::planner::Planner;
 use isochron_costmap::ros::{RosOutput, RosSettings, domain_id, interfaces, limit_dds_logging};
 use isochron_costmap::snapshot::{self, FloorPlan, Snapshot};
+use isochron_planning::grid::MapGrid;
+use isochron_planning::plan::{DayRange, PlanError};
+use isochron_planning::plan_service::{PlanServer, answer_now, answer_offline};
+use isochron_planning::planner::Planner;
+use isochron_planning::query::{PlanKind, PlanRequest, PlanResponse, PlanStatus};
 use isochron_shared::clock::{Cycle, SiteClock, format_rfc3339, timestamp, wall_now_ns};
 use isochron_shared::config::LoadedConfig;
 use isochron_shared::health::{Health, exit, notify_ready};
 use isochron_shared::ipc::{Activity, Detections, IpcError, stop_requested_by};
 use isochron_shared::service::{Fatal, ServiceContext, finish, start};
-use isochron_shared::wire::{PlanKind, PlanRequest, PlanResponse, PlanStatus};
 
 /// The longest the loop sleeps: plan requests from clients that do not notify are
 /// answered within this, and the watchdog is fed.
@@ -490,10 +490,9 @@ fn answer(
     let now = Instant::now();
     let failed =
         |status: PlanStatus, message: String| PlanResponse::new(kind as u32, status, &message);
-    let status_of = |e: &isochron_costmap::plan::PlanError| match e {
-        isochron_costmap::plan::PlanError::UnknownRoute(..) => PlanStatus::UnknownRoute,
-        isochron_costmap::plan::PlanError::NoData(_)
-        | isochron_costmap::plan::PlanError::EmptySegment(_) => PlanStatus::NoData,
+    let status_of = |e: &PlanError| match e {
+        PlanError::UnknownRoute(..) => PlanStatus::UnknownRoute,
+        PlanError::NoData(_) | PlanError::EmptySegment(_) => PlanStatus::NoData,
         _ => PlanStatus::Failed,
     };
     // "Now" is the time of the newest activity (header time), else the wall clock.
