@@ -75,11 +75,10 @@ fn snapshot(args: SnapshotArgs) -> anyhow::Result<ExitCode> {
         loaded.config.ipc.clone(),
     )?;
     let client = PlanClient::new(&ipc)?;
-    let response = client
-        .request(
-            PlanRequest::new(PlanKind::Snapshot, &[]),
-            Duration::from_secs_f64(args.timeout.max(0.1)),
-        )?;
+    let response = client.request(
+        PlanRequest::new(PlanKind::Snapshot, &[]),
+        Duration::from_secs_f64(args.timeout.max(0.1)),
+    )?;
     if response.validate()? != PlanStatus::Ok {
         bail!("isochron-costmap wrote no snapshot: {}", response.message());
     }

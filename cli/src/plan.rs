@@ -315,11 +315,10 @@ fn now(args: NowArgs) -> anyhow::Result<ExitCode> {
     )?;
     let client = PlanClient::new(&ipc)?;
     let names: Vec<&str> = args.routes.iter().map(String::as_str).collect();
-    let response = client
-        .request(
-            PlanRequest::new(PlanKind::Now, &names),
-            Duration::from_secs_f64(args.timeout.max(0.1)),
-        )?;
+    let response = client.request(
+        PlanRequest::new(PlanKind::Now, &names),
+        Duration::from_secs_f64(args.timeout.max(0.1)),
+    )?;
     match response.validate()? {
         PlanStatus::Ok => {}
         status => bail!(

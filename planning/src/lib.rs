@@ -18,6 +18,8 @@
 //! * [`query`]: the fixed-size plan request and response types;
 //! * [`plan_service`]: both ends of the plan query over iceoryx2 request-response.
 
+#![warn(missing_docs)]
+
 pub mod cost;
 pub mod grid;
 pub mod homography;

@@ -35,9 +35,7 @@ const MAX_CLIENTS: usize = 16;
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RequestError {
     /// No server on `<prefix>/plan` within the timeout.
-    #[error(
-        "no isochron-costmap is serving plans on this site: is it running (isochron status)?"
-    )]
+    #[error("no isochron-costmap is serving plans on this site: is it running (isochron status)?")]
     NoServer,
     /// The request could not be sent.
     #[error("sending the plan request: {0}")]

@@ -15,11 +15,11 @@ use isochron_shared::wire::BlockActivity;
 
 use crate::cost::CostParams;
 use crate::homography::Homography;
-use crate::profile::{ProfilePoint, daily_profile};
 use crate::plan::{
     CameraGeometry, DayRange, OfflinePlan, PlanError, RouteNow, SegmentBlocks, SegmentProfile,
     plan_now, plan_offline, resolve_segment, route_profiles, segment_now, store_block_grid,
 };
+use crate::profile::{ProfilePoint, daily_profile};
 
 /// A camera's latest live activity.
 #[derive(Debug, Clone, Copy)]

@@ -132,7 +132,10 @@ mod tests {
         let b = model(Cycle::Weekly, 1440 + 10, 1, vec![0.4; 4], vec![0.0; 4]);
         let p = daily_profile(&[(&a, &[0]), (&b, &[0, 1, 2])], 10080);
         assert_eq!(p.len(), 10080);
-        assert!((p[10].mean.unwrap() - 0.2).abs() < 1e-6, "b has not learned day 0");
+        assert!(
+            (p[10].mean.unwrap() - 0.2).abs() < 1e-6,
+            "b has not learned day 0"
+        );
         assert!((p[1440 + 10].mean.unwrap() - 0.35).abs() < 1e-6);
         assert_eq!(p[1440 + 10].count, 4);
         let untaught = model(Cycle::Daily, 3, 0, vec![1.0; 4], vec![0.0; 4]);
