@@ -498,6 +498,32 @@ segments = ["door", "west"]
     }
 
     #[test]
+    fn segment_daily_counts_negative_means_as_zero() {
+        // West drifted a little below zero (rounding), east is a little busy.
+        let (_dir, loaded) = site(|t| {
+            (t < 60).then(|| {
+                (0..300)
+                    .map(|b| if west(b) { -0.01 } else { 0.02 })
+                    .collect()
+            })
+        });
+        let mut planner = Planner::new(&loaded).unwrap();
+        let west = planner.segment_daily("west").unwrap();
+        assert_eq!(west.points.len(), 1440);
+        assert_eq!(west.points[0].mean, Some(0.0));
+        assert_eq!(
+            (west.points[0].sigma, west.points[0].count),
+            (Some(0.0), 10)
+        );
+        assert_eq!((west.points[60].mean, west.points[60].count), (None, 0));
+        assert_eq!(west.profile.m_p[0], Some(0.0));
+        assert!(!west.profile.m_prime);
+        let east = planner.segment_daily("east").unwrap();
+        assert!((east.points[0].mean.unwrap() - 0.02).abs() < 1e-6);
+        assert!(east.profile.m_prime);
+    }
+
+    #[test]
     fn a_missing_store_says_where_it_was_looked_for() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("site.toml");
