@@ -4,7 +4,8 @@
 //! * `isochron store export --store PATH --camera ID [--block X,Y] [--out FILE]`: the
 //!   isochronal profile as CSV `minute_of_day,mean,sigma,count` (`minute_of_week` for
 //!   a weekly store), one row per minute bin. Over all blocks: `mean` is the mean of
-//!   the block means (the camera view's mean `M_L1` in that minute), `sigma` the root
+//!   the block means (the camera view's mean `M_L1` in that minute; a block mean
+//!   below zero counts as 0, as everywhere profiles are taken), `sigma` the root
 //!   mean square of the block sigmas (the typical day-to-day spread of one block);
 //!   with `--block X,Y`, that block's own mean and sigma. `count` is the number of
 //!   days (weeks) that taught the bin; bins that never learned anything have empty
