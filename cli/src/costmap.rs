@@ -13,15 +13,15 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{Context, bail};
-use isochron_costmap::grid::MapGrid;
-use isochron_costmap::homography::Homography;
-use isochron_costmap::plan_service::PlanClient;
-use isochron_costmap::raster::Footprint;
+use isochron_planning::grid::MapGrid;
+use isochron_planning::homography::Homography;
+use isochron_planning::plan_service::PlanClient;
+use isochron_planning::query::{PlanKind, PlanRequest, PlanStatus};
+use isochron_planning::raster::Footprint;
 use isochron_shared::geometry::BlockGrid;
 use isochron_shared::ipc::Ipc;
 use isochron_shared::names::ServiceNames;
 use isochron_shared::store::{Store, store_path};
-use isochron_shared::wire::{PlanKind, PlanRequest, PlanStatus};
 
 use crate::common::load_config;
 
@@ -75,12 +75,10 @@ fn snapshot(args: SnapshotArgs) -> anyhow::Result<ExitCode> {
         loaded.config.ipc.clone(),
     )?;
     let client = PlanClient::new(&ipc)?;
-    let response = client
-        .request(
-            PlanRequest::new(PlanKind::Snapshot, &[]),
-            Duration::from_secs_f64(args.timeout.max(0.1)),
-        )
-        .map_err(anyhow::Error::msg)?;
+    let response = client.request(
+        PlanRequest::new(PlanKind::Snapshot, &[]),
+        Duration::from_secs_f64(args.timeout.max(0.1)),
+    )?;
     if response.validate()? != PlanStatus::Ok {
         bail!("isochron-costmap wrote no snapshot: {}", response.message());
     }

@@ -13,16 +13,16 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{Context, bail};
-use isochron_costmap::plan::{DayRange, OfflinePlan, RouteNow};
-use isochron_costmap::plan_service::{PlanClient, ranking_of};
-use isochron_costmap::planner::Planner;
+use isochron_planning::plan::{DayRange, OfflinePlan, RouteNow};
+use isochron_planning::plan_service::{PlanClient, ranking_of};
+use isochron_planning::planner::Planner;
+use isochron_planning::query::{PLAN_MAX_ROUTES, PlanKind, PlanRequest, PlanStatus};
 use isochron_shared::clock::{
     Cycle, MINUTES_PER_DAY, SiteClock, format_t_star, parse_hhmm, wall_now_ns,
 };
 use isochron_shared::config::LoadedConfig;
 use isochron_shared::ipc::Ipc;
 use isochron_shared::names::ServiceNames;
-use isochron_shared::wire::{PlanKind, PlanRequest, PlanStatus};
 use serde_json::json;
 
 use crate::common::load_config;
@@ -305,11 +305,8 @@ fn now(args: NowArgs) -> anyhow::Result<ExitCode> {
             );
         }
     }
-    if args.routes.len() > isochron_shared::wire::PLAN_MAX_ROUTES {
-        bail!(
-            "--routes: at most {} routes at once",
-            isochron_shared::wire::PLAN_MAX_ROUTES
-        );
+    if args.routes.len() > PLAN_MAX_ROUTES {
+        bail!("--routes: at most {PLAN_MAX_ROUTES} routes at once");
     }
     let ipc = Ipc::new(
         &format!("isochron-plan-{}", std::process::id()),
@@ -318,12 +315,10 @@ fn now(args: NowArgs) -> anyhow::Result<ExitCode> {
     )?;
     let client = PlanClient::new(&ipc)?;
     let names: Vec<&str> = args.routes.iter().map(String::as_str).collect();
-    let response = client
-        .request(
-            PlanRequest::new(PlanKind::Now, &names),
-            Duration::from_secs_f64(args.timeout.max(0.1)),
-        )
-        .map_err(anyhow::Error::msg)?;
+    let response = client.request(
+        PlanRequest::new(PlanKind::Now, &names),
+        Duration::from_secs_f64(args.timeout.max(0.1)),
+    )?;
     match response.validate()? {
         PlanStatus::Ok => {}
         status => bail!(
@@ -400,49 +395,6 @@ fn print_now(ranked: &[RouteNow], t_star: u32, loaded: &LoadedConfig) {
             notes.join("; ")
         );
     }
-}
-
-/// The long-term activity of a path segment over the day, for
-/// `isochron plot daily --segment NAME`, and the plot's default title. A weekly
-/// cycle is folded onto one day (weighted by the days that taught each minute).
-pub fn segment_daily(
-    config: Option<PathBuf>,
-    segment: &str,
-) -> anyhow::Result<(crate::plot::Daily, String)> {
-    let loaded = load_config(config)?;
-    let mut planner = Planner::new(&loaded)?;
-    let seg = planner.segment_daily(segment)?;
-    let points: Vec<crate::store::ProfilePoint> = (0..seg.count.len())
-        .map(|t| crate::store::ProfilePoint {
-            t_star: t as u32,
-            mean: seg.profile.m_p[t],
-            sigma: seg.sigma[t],
-            count: seg.count[t],
-        })
-        .collect();
-    let daily = crate::plot::Daily::from_profile(&points);
-    if daily.days == 0 {
-        bail!("segment '{segment}' has no long-term data yet: nothing to plot");
-    }
-    let c = &loaded.config.costmap;
-    let title = format!(
-        "Isochronal activity M_p(t*), segment {segment}, {} {}{} (Cost = 100·M/{}, cap {}){}",
-        daily.days,
-        if daily.days == 1 { "day" } else { "days" },
-        if planner.cycle() == Cycle::Weekly {
-            ", week folded onto a day"
-        } else {
-            ""
-        },
-        c.cost_scale,
-        c.cap,
-        if seg.profile.m_prime {
-            ""
-        } else {
-            " — never active: M'_p = 0"
-        }
-    );
-    Ok((daily, title))
 }
 
 #[cfg(test)]

@@ -17,13 +17,16 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{Context, bail};
+use isochron_planning::planner::Planner;
+use isochron_planning::profile::ProfilePoint;
 use isochron_shared::clock::{Cycle, MINUTES_PER_DAY, format_t_star};
 use isochron_shared::store::Model;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 
-use crate::store::{ProfilePoint, Selection, StoreArgs, open, profile};
+use crate::common::load_config;
+use crate::store::{Selection, StoreArgs, open, profile};
 
 /// Plot a camera's long-term activity.
 #[derive(clap::Args)]
@@ -200,7 +203,7 @@ fn daily(args: DailyArgs) -> anyhow::Result<ExitCode> {
     let day_end = isochron_shared::clock::parse_hhmm(&args.day_end)
         .with_context(|| format!("--day-end: expected HH:MM, found '{}'", args.day_end))?;
     if let Some(segment) = &args.segment {
-        let (daily, title) = crate::plan::segment_daily(args.config.clone(), segment)?;
+        let (daily, title) = segment_daily(args.config.clone(), segment)?;
         let title = args.title.clone().unwrap_or(title);
         return render(&args, format, day_start, day_end, &daily, &title);
     }
@@ -235,6 +238,38 @@ fn daily(args: DailyArgs) -> anyhow::Result<ExitCode> {
         )
     });
     render(&args, format, day_start, day_end, &daily, &title)
+}
+
+/// The long-term activity of a path segment over the day, for
+/// `isochron plot daily --segment NAME`, and the plot's default title. A weekly
+/// cycle is folded onto one day (weighted by the days that taught each minute).
+fn segment_daily(config: Option<PathBuf>, segment: &str) -> anyhow::Result<(Daily, String)> {
+    let loaded = load_config(config)?;
+    let mut planner = Planner::new(&loaded)?;
+    let seg = planner.segment_daily(segment)?;
+    let daily = Daily::from_profile(&seg.points);
+    if daily.days == 0 {
+        bail!("segment '{segment}' has no long-term data yet: nothing to plot");
+    }
+    let c = &loaded.config.costmap;
+    let title = format!(
+        "Isochronal activity M_p(t*), segment {segment}, {} {}{} (Cost = 100·M/{}, cap {}){}",
+        daily.days,
+        if daily.days == 1 { "day" } else { "days" },
+        if planner.cycle() == Cycle::Weekly {
+            ", week folded onto a day"
+        } else {
+            ""
+        },
+        c.cost_scale,
+        c.cap,
+        if seg.profile.m_prime {
+            ""
+        } else {
+            " — never active: M'_p = 0"
+        }
+    );
+    Ok((daily, title))
 }
 
 /// Draws `daily` into `args.out` and reports the quiet times.

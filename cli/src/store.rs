@@ -4,7 +4,8 @@
 //! * `isochron store export --store PATH --camera ID [--block X,Y] [--out FILE]`: the
 //!   isochronal profile as CSV `minute_of_day,mean,sigma,count` (`minute_of_week` for
 //!   a weekly store), one row per minute bin. Over all blocks: `mean` is the mean of
-//!   the block means (the camera view's mean `M_L1` in that minute), `sigma` the root
+//!   the block means (the camera view's mean `M_L1` in that minute; a block mean
+//!   below zero counts as 0, as everywhere profiles are taken), `sigma` the root
 //!   mean square of the block sigmas (the typical day-to-day spread of one block);
 //!   with `--block X,Y`, that block's own mean and sigma. `count` is the number of
 //!   days (weeks) that taught the bin; bins that never learned anything have empty
@@ -17,6 +18,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{Context, bail};
+use isochron_planning::profile::{ProfilePoint, daily_profile};
 use isochron_shared::clock::{Cycle, format_rfc3339, format_t_star};
 use isochron_shared::store::{Model, Store};
 
@@ -91,16 +93,16 @@ impl Selection {
     }
 
     /// The row-major block indices of the selection on a `grid_w` × `grid_h` grid.
-    pub fn blocks(&self, grid_w: u32, grid_h: u32) -> anyhow::Result<Vec<usize>> {
+    pub fn blocks(&self, grid_w: u32, grid_h: u32) -> anyhow::Result<Vec<u32>> {
         match *self {
-            Selection::All => Ok((0..(grid_w * grid_h) as usize).collect()),
+            Selection::All => Ok((0..grid_w * grid_h).collect()),
             Selection::Block(x, y) => {
                 if x >= grid_w || y >= grid_h {
                     bail!(
                         "--block {x},{y} is outside the store's {grid_w}x{grid_h} grid (columns 0..{grid_w}, rows 0..{grid_h})"
                     );
                 }
-                Ok(vec![(y * grid_w + x) as usize])
+                Ok(vec![y * grid_w + x])
             }
         }
     }
@@ -114,50 +116,10 @@ impl Selection {
     }
 }
 
-/// One bin of a profile.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ProfilePoint {
-    /// Minute of the cycle.
-    pub t_star: u32,
-    /// Mean over the selected blocks of their long-term means (`None`: never taught).
-    pub mean: Option<f64>,
-    /// Root mean square of the selected blocks' sigmas.
-    pub sigma: Option<f64>,
-    /// Days (cycles) that taught the bin.
-    pub count: u32,
-}
-
 /// The isochronal profile of `selection`: one point per bin of the cycle.
 pub fn profile(model: &Model, selection: &Selection) -> anyhow::Result<Vec<ProfilePoint>> {
     let blocks = selection.blocks(model.meta.grid_w, model.meta.grid_h)?;
-    let n = blocks.len().max(1) as f64;
-    Ok(model
-        .bins
-        .iter()
-        .enumerate()
-        .map(|(t, bin)| match bin {
-            Some(b) if b.count > 0 => {
-                let mean = blocks.iter().map(|&k| b.mean[k] as f64).sum::<f64>() / n;
-                let var = blocks
-                    .iter()
-                    .map(|&k| b.var[k].max(0.0) as f64)
-                    .sum::<f64>()
-                    / n;
-                ProfilePoint {
-                    t_star: t as u32,
-                    mean: Some(mean),
-                    sigma: Some(var.sqrt()),
-                    count: b.count,
-                }
-            }
-            _ => ProfilePoint {
-                t_star: t as u32,
-                mean: None,
-                sigma: None,
-                count: 0,
-            },
-        })
-        .collect())
+    Ok(daily_profile(&[(model, &blocks)], model.bins.len()))
 }
 
 /// Opens a store read-only with the error naming the file.

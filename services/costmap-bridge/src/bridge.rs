@@ -6,16 +6,15 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
+use isochron_planning::cost::{CostParams, Layer, compose};
+use isochron_planning::grid::MapGrid;
+use isochron_planning::homography::Homography;
+use isochron_planning::planner::LiveCamera;
+use isochron_planning::raster::Footprint;
 use isochron_shared::clock::NS_PER_S;
 use isochron_shared::config::{LoadedConfig, Polygon};
 use isochron_shared::geometry::BlockGrid;
 use isochron_shared::wire::{ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader};
-
-use crate::cost::{CostParams, Layer, compose};
-use crate::grid::MapGrid;
-use crate::homography::Homography;
-use crate::planner::LiveCamera;
-use crate::raster::Footprint;
 
 /// Class id of a person in [`Detection::class`].
 pub const PERSON: u32 = 0;

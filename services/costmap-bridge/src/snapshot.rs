@@ -16,8 +16,8 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use crate::grid::{MapGrid, pgm_header};
-use crate::raster::NOT_SEEN;
+use isochron_planning::grid::{MapGrid, pgm_header};
+use isochron_planning::raster::NOT_SEEN;
 
 /// A grey image of the floor plan, one value per grid cell, rows top (last grid
 /// row) first — the layout of a `map_server` image.

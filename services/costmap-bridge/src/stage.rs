@@ -12,17 +12,17 @@ use isochron_shared::exit::{self, Fatal};
 use isochron_shared::ipc::{Activity, Detections, Ipc};
 use isochron_shared::stage::{Context, Input, Notified, Stage, Woken};
 use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{PlanKind, PlanRequest, PlanResponse, PlanStatus};
+use isochron_planning::grid::MapGrid;
+use isochron_planning::plan::{DayRange, PlanError};
+use isochron_planning::plan_service::{PlanServer, answer_now, answer_offline};
+use isochron_planning::planner::Planner;
+use isochron_planning::query::{PlanKind, PlanRequest, PlanResponse, PlanStatus};
 
 use crate::bridge::Bridge;
 use crate::delta::{DeltaTracker, Output};
-use crate::grid::MapGrid;
 use crate::msgs::{
     Header, MapMetaData, OccupancyGrid, OccupancyGridUpdate, Point, Pose, Quaternion, Time,
 };
-use crate::plan::DayRange;
-use crate::plan_service::{PlanServer, answer_now, answer_offline};
-use crate::planner::Planner;
 use crate::ros::{RosOutput, RosSettings, domain_id, interfaces, limit_dds_logging};
 use crate::snapshot::{self, FloorPlan, Snapshot};
 
@@ -470,9 +470,9 @@ fn answer(
     let now = Instant::now();
     let failed =
         |status: PlanStatus, message: String| PlanResponse::new(kind as u32, status, &message);
-    let status_of = |e: &crate::plan::PlanError| match e {
-        crate::plan::PlanError::UnknownRoute(..) => PlanStatus::UnknownRoute,
-        crate::plan::PlanError::NoData(_) | crate::plan::PlanError::EmptySegment(_) => {
+    let status_of = |e: &PlanError| match e {
+        PlanError::UnknownRoute(..) => PlanStatus::UnknownRoute,
+        PlanError::NoData(_) | PlanError::EmptySegment(_) => {
             PlanStatus::NoData
         }
         _ => PlanStatus::Failed,

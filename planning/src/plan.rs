@@ -29,6 +29,7 @@ use isochron_shared::store::Model;
 
 use crate::cost::CostParams;
 use crate::homography::Homography;
+use crate::profile::{ProfilePoint, daily_profile};
 
 /// Why a plan cannot be made.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -81,6 +82,15 @@ impl SegmentBlocks {
     /// True if no block.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
+    }
+
+    /// The segment's blocks paired with their camera's model (`models[k]` for camera
+    /// `k`), as [`daily_profile`] takes them; cameras without a model are left out.
+    pub fn model_blocks<'a>(&'a self, models: &[Option<&'a Model>]) -> Vec<(&'a Model, &'a [u32])> {
+        self.blocks
+            .iter()
+            .filter_map(|(k, blocks)| Some((models.get(*k).copied().flatten()?, blocks.as_slice())))
+            .collect()
     }
 }
 
@@ -160,33 +170,16 @@ impl SegmentProfile {
         bins: usize,
         min_activity: f64,
     ) -> SegmentProfile {
-        let mut m_p = vec![None; bins];
-        for (t, slot) in m_p.iter_mut().enumerate() {
-            let (mut sum, mut n) = (0.0f64, 0usize);
-            for (k, blocks) in &segment.blocks {
-                let Some(Some(model)) = models.get(*k) else {
-                    continue;
-                };
-                // A daily store serves every day of a weekly cycle.
-                let Some(bin) = model.bin(t as u32 % model.meta.bins().max(1)) else {
-                    continue;
-                };
-                for &b in blocks {
-                    if let Some(&m) = bin.mean.get(b as usize)
-                        && m.is_finite()
-                    {
-                        sum += (m as f64).max(0.0);
-                        n += 1;
-                    }
-                }
-            }
-            if n > 0 {
-                *slot = Some(sum / n as f64);
-            }
-        }
+        let points = daily_profile(&segment.model_blocks(models), bins);
+        SegmentProfile::from_points(&segment.name, &points, min_activity)
+    }
+
+    /// The profile of segment `name` from its [`daily_profile`].
+    pub fn from_points(name: &str, points: &[ProfilePoint], min_activity: f64) -> SegmentProfile {
+        let m_p: Vec<Option<f64>> = points.iter().map(|p| p.mean).collect();
         let m_prime = m_p.iter().flatten().any(|&m| m > min_activity);
         SegmentProfile {
-            name: segment.name.clone(),
+            name: name.to_string(),
             m_p,
             m_prime,
         }

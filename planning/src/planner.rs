@@ -19,6 +19,7 @@ use crate::plan::{
     CameraGeometry, DayRange, OfflinePlan, PlanError, RouteNow, SegmentBlocks, SegmentProfile,
     plan_now, plan_offline, resolve_segment, route_profiles, segment_now, store_block_grid,
 };
+use crate::profile::{ProfilePoint, daily_profile};
 
 /// A camera's latest live activity.
 #[derive(Debug, Clone, Copy)]
@@ -34,10 +35,10 @@ pub struct LiveCamera<'a> {
 pub struct SegmentDaily {
     /// `M_p(t*)` and `M'_p`.
     pub profile: SegmentProfile,
-    /// Day-to-day spread per bin: root mean square of the block sigmas.
-    pub sigma: Vec<Option<f64>>,
-    /// Days (cycles) that taught each bin (the most over the segment's cameras).
-    pub count: Vec<u32>,
+    /// Per bin: `M_p(t*)` again, the day-to-day spread (root mean square of the
+    /// block sigmas) and the days (cycles) that taught it (the most over the
+    /// segment's cameras).
+    pub points: Vec<ProfilePoint>,
 }
 
 /// A camera's long-term model as last read.
@@ -199,6 +200,14 @@ impl Planner {
         ))
     }
 
+    /// Each camera's long-term model as last read (`None`: no store).
+    fn loaded_models(&self) -> Vec<Option<&Model>> {
+        self.models
+            .iter()
+            .map(|m| m.as_ref().map(|c| &c.model))
+            .collect()
+    }
+
     /// The long-term profiles of the segments named by `names`.
     pub fn profiles(
         &mut self,
@@ -206,11 +215,7 @@ impl Planner {
     ) -> Result<BTreeMap<String, SegmentProfile>, PlanError> {
         self.refresh()?;
         let segments = self.long_term_segments(names)?;
-        let models: Vec<Option<&Model>> = self
-            .models
-            .iter()
-            .map(|m| m.as_ref().map(|c| &c.model))
-            .collect();
+        let models = self.loaded_models();
         let bins = self.cycle.bins() as usize;
         Ok(segments
             .iter()
@@ -289,36 +294,13 @@ impl Planner {
     /// The long-term profile of one segment over the cycle: what
     /// `isochron plot daily --segment` draws.
     pub fn segment_daily(&mut self, name: &str) -> Result<SegmentDaily, PlanError> {
-        let profiles = self.profiles(&[name])?;
-        let profile = profiles.into_values().next().expect("one segment");
+        self.refresh()?;
         let segment = self.long_term_segments(&[name])?.remove(0);
-        let bins = self.cycle.bins() as usize;
-        let mut sigma = vec![None; bins];
-        let mut count = vec![0u32; bins];
-        for t in 0..bins {
-            let (mut sum, mut n) = (0.0, 0usize);
-            for (k, blocks) in &segment.blocks {
-                let Some(Some(c)) = self.models.get(*k) else {
-                    continue;
-                };
-                let Some(bin) = c.model.bin(t as u32 % c.model.meta.bins().max(1)) else {
-                    continue;
-                };
-                count[t] = count[t].max(bin.count);
-                for &b in blocks {
-                    let s = bin.sigma(b as usize) as f64;
-                    sum += s * s;
-                    n += 1;
-                }
-            }
-            if n > 0 {
-                sigma[t] = Some((sum / n as f64).sqrt());
-            }
-        }
+        let models = self.loaded_models();
+        let points = daily_profile(&segment.model_blocks(&models), self.cycle.bins() as usize);
         Ok(SegmentDaily {
-            profile,
-            sigma,
-            count,
+            profile: SegmentProfile::from_points(&segment.name, &points, self.config.min_activity),
+            points,
         })
     }
 
@@ -513,6 +495,32 @@ segments = ["door", "west"]
         // via-door: door is all crowded → capped at 100.
         assert!((ranked[1].short_term - (100.0 + 100.0 * west_now / 0.1)).abs() < 1e-3);
         assert!(!ranked[0].estimated);
+    }
+
+    #[test]
+    fn segment_daily_counts_negative_means_as_zero() {
+        // West drifted a little below zero (rounding), east is a little busy.
+        let (_dir, loaded) = site(|t| {
+            (t < 60).then(|| {
+                (0..300)
+                    .map(|b| if west(b) { -0.01 } else { 0.02 })
+                    .collect()
+            })
+        });
+        let mut planner = Planner::new(&loaded).unwrap();
+        let west = planner.segment_daily("west").unwrap();
+        assert_eq!(west.points.len(), 1440);
+        assert_eq!(west.points[0].mean, Some(0.0));
+        assert_eq!(
+            (west.points[0].sigma, west.points[0].count),
+            (Some(0.0), 10)
+        );
+        assert_eq!((west.points[60].mean, west.points[60].count), (None, 0));
+        assert_eq!(west.profile.m_p[0], Some(0.0));
+        assert!(!west.profile.m_prime);
+        let east = planner.segment_daily("east").unwrap();
+        assert!((east.points[0].mean.unwrap() - 0.02).abs() < 1e-6);
+        assert!(east.profile.m_prime);
     }
 
     #[test]

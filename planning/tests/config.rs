@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use isochron_costmap::grid::MapGrid;
+use isochron_planning::grid::MapGrid;
 use isochron_shared::config::{Config, ConfigError};
 
 const CAMERA: &str = r#"

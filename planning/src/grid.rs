@@ -120,7 +120,7 @@ impl MapGrid {
         } else {
             path.parent().unwrap_or(Path::new(".")).join(&yaml.image)
         };
-        let (width, height) = image_size(&image).map_err(|e| GridError::new(KEY, e))?;
+        let (width, height) = image_size(&image).map_err(|e| GridError::new(KEY, e.to_string()))?;
         let grid = MapGrid {
             origin_x: yaml.origin[0],
             origin_y: yaml.origin[1],
@@ -233,9 +233,34 @@ impl MapGrid {
     }
 }
 
+/// Why [`image_size`] cannot tell an image's size.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageError {
+    /// The file cannot be read.
+    #[error("cannot read {}: {source}", path.display())]
+    Read {
+        /// The image.
+        path: PathBuf,
+        /// What reading said.
+        source: std::io::Error,
+    },
+    /// A PGM whose header does not parse.
+    #[error("{}: damaged PGM header", .0.display())]
+    DamagedPgm(PathBuf),
+    /// Neither PGM nor PNG.
+    #[error(
+        "{}: the map image must be PGM or PNG (set the grid keys instead of map_yaml for other formats)",
+        .0.display()
+    )]
+    Format(PathBuf),
+}
+
 /// Width and height of a PGM (P2/P5) or PNG image, from its header.
-pub fn image_size(path: &Path) -> Result<(u32, u32), String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+pub fn image_size(path: &Path) -> Result<(u32, u32), ImageError> {
+    let bytes = std::fs::read(path).map_err(|source| ImageError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
     if bytes.starts_with(b"\x89PNG\r\n\x1a\n") && bytes.len() >= 24 {
         let w = u32::from_be_bytes([bytes[16], bytes[17], bytes[18], bytes[19]]);
         let h = u32::from_be_bytes([bytes[20], bytes[21], bytes[22], bytes[23]]);
@@ -243,13 +268,10 @@ pub fn image_size(path: &Path) -> Result<(u32, u32), String> {
     }
     if bytes.starts_with(b"P5") || bytes.starts_with(b"P2") {
         let header =
-            pgm_header(&bytes).ok_or_else(|| format!("{}: damaged PGM header", path.display()))?;
+            pgm_header(&bytes).ok_or_else(|| ImageError::DamagedPgm(path.to_path_buf()))?;
         return Ok((header.width, header.height));
     }
-    Err(format!(
-        "{}: the map image must be PGM or PNG (set the grid keys instead of map_yaml for other formats)",
-        path.display()
-    ))
+    Err(ImageError::Format(path.to_path_buf()))
 }
 
 /// A parsed PGM header.

@@ -1,7 +1,8 @@
 //! The planning service over iceoryx2: request-response on `<prefix>/plan`
-//! ([`PlanRequest`] → [`PlanResponse`], fixed-size `#[repr(C)]` types from
-//! `isochron_shared::wire`), served by the cost map bridge, for `isochron plan now`
-//! and for robot-side processes on the same box.
+//! ([`PlanRequest`] → [`PlanResponse`], the fixed-size `#[repr(C)]` types of
+//! [`crate::query`]), served by the cost map bridge ([`PlanServer`]), asked by
+//! `isochron plan now`, `isochron costmap snapshot` and robot-side processes on the
+//! same box ([`PlanClient`]). Both ends of the protocol live here.
 //!
 //! An event service of the same name wakes the bridge when a client notifies it
 //! after sending a request ([`PlanClient`] does); clients that do not are answered
@@ -18,16 +19,40 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::PortFactory as _;
 use iceoryx2::service::port_factory::request_response::PortFactory;
 use isochron_shared::ipc::{Ipc, Ipc2, IpcError};
-use isochron_shared::wire::{
-    PLAN_CURVE_LEN, PLAN_FLAG_ESTIMATED, PLAN_FLAG_INFINITE, PLAN_FLAG_NO_LONG_TERM,
-    PLAN_MAX_ROUTES, PLAN_MAX_WINDOWS, PLAN_NAME_LEN, PlanKind, PlanRequest, PlanResponse,
-    PlanRouteCost, PlanStatus, PlanWindow, fixed_str, to_fixed,
-};
+use isochron_shared::wire::{WireError, fixed_str, to_fixed};
 
 use crate::plan::{CurvePoint, DayRange, OfflinePlan, RouteNow, Window};
+use crate::query::{
+    PLAN_CURVE_LEN, PLAN_FLAG_ESTIMATED, PLAN_FLAG_INFINITE, PLAN_FLAG_NO_LONG_TERM,
+    PLAN_MAX_ROUTES, PLAN_MAX_WINDOWS, PLAN_NAME_LEN, PlanKind, PlanRequest, PlanResponse,
+    PlanRouteCost, PlanStatus, PlanWindow,
+};
 
 /// Most clients connected at once.
 const MAX_CLIENTS: usize = 16;
+
+/// Why [`PlanClient::request`] got no usable answer.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RequestError {
+    /// No server on `<prefix>/plan` within the timeout.
+    #[error("no isochron-costmap is serving plans on this site: is it running (isochron status)?")]
+    NoServer,
+    /// The request could not be sent.
+    #[error("sending the plan request: {0}")]
+    Send(String),
+    /// The response could not be received.
+    #[error("receiving the plan response: {0}")]
+    Receive(String),
+    /// The response arrived but does not validate.
+    #[error("the plan response is malformed: {0}")]
+    Malformed(WireError),
+    /// The server went away without answering.
+    #[error("isochron-costmap dropped the request without an answer")]
+    Dropped,
+    /// No answer within the timeout.
+    #[error("no answer from isochron-costmap within {0:?}")]
+    Timeout(Duration),
+}
 
 type Factory = PortFactory<Ipc2, PlanRequest, (), PlanResponse, ()>;
 
@@ -174,38 +199,38 @@ impl PlanClient {
     }
 
     /// Sends `request` and waits up to `timeout` for the answer.
-    pub fn request(&self, request: PlanRequest, timeout: Duration) -> Result<PlanResponse, String> {
+    pub fn request(
+        &self,
+        request: PlanRequest,
+        timeout: Duration,
+    ) -> Result<PlanResponse, RequestError> {
         let deadline = Instant::now() + timeout;
         // The server may still be starting: wait for it within the timeout.
         while self.service.dynamic_config().number_of_servers() == 0 {
             if Instant::now() >= deadline {
-                return Err("no isochron-costmap is serving plans on this site: is it running (isochron status)?".into());
+                return Err(RequestError::NoServer);
             }
             std::thread::sleep(Duration::from_millis(20));
         }
         let pending = self
             .client
             .send_copy(request)
-            .map_err(|e| format!("sending the plan request: {e:?}"))?;
+            .map_err(|e| RequestError::Send(format!("{e:?}")))?;
         let _ = self.notifier.notify();
         loop {
             if let Some(response) = pending
                 .receive()
-                .map_err(|e| format!("receiving the plan response: {e:?}"))?
+                .map_err(|e| RequestError::Receive(format!("{e:?}")))?
             {
                 let response = *response.payload();
-                response
-                    .validate()
-                    .map_err(|e| format!("the plan response is malformed: {e}"))?;
+                response.validate().map_err(RequestError::Malformed)?;
                 return Ok(response);
             }
             if !pending.is_connected() {
-                return Err("isochron-costmap dropped the request without an answer".into());
+                return Err(RequestError::Dropped);
             }
             if Instant::now() >= deadline {
-                return Err(format!(
-                    "no answer from isochron-costmap within {timeout:?}"
-                ));
+                return Err(RequestError::Timeout(timeout));
             }
             std::thread::sleep(Duration::from_millis(5));
         }
@@ -419,25 +444,5 @@ mod tests {
         let r = answer_now(&ranked, 870);
         assert_eq!(r.t_star, 870);
         assert_eq!(ranking_of(&r), ranked);
-    }
-
-    #[test]
-    fn malformed_requests_are_refused() {
-        let mut req = PlanRequest::new(PlanKind::Offline, &["a", "b"]);
-        assert!(req.validate().is_err(), "off-line takes one route");
-        req = PlanRequest::new(PlanKind::Offline, &["a"]);
-        assert_eq!(req.validate(), Ok(PlanKind::Offline));
-        req.step_min = 0;
-        assert!(req.validate().is_err());
-        let mut req = PlanRequest::new(PlanKind::Now, &["a"]);
-        req.kind = 99;
-        assert!(req.validate().is_err());
-        let mut req = PlanRequest::new(PlanKind::Now, &["a"]);
-        req.magic = 0;
-        assert!(req.validate().is_err());
-        assert_eq!(
-            PlanRequest::new(PlanKind::Now, &["x", "y"]).route_names(),
-            ["x", "y"]
-        );
     }
 }

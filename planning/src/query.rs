@@ -1,0 +1,358 @@
+//! The plan query: the fixed-size `#[repr(C)]` request and response of the cost
+//! map bridge's request-response service `<prefix>/plan` ([`PlanRequest`] →
+//! [`PlanResponse`]), as both of its ends (see [`crate::plan_service`]) and any
+//! foreign client read them.
+//!
+//! They share the magic and layout version of the stream headers
+//! (`isochron_shared::wire`), so a foreign or outdated peer is refused with the same
+//! [`WireError`], and are pinned by `#[type_name]` for iceoryx2's type check.
+
+use iceoryx2::prelude::ZeroCopySend;
+use isochron_shared::wire::{LAYOUT_VERSION, MAGIC, WireError, fixed_str, to_fixed};
+
+/// Longest route or segment name in planning requests and responses, bytes (the
+/// same limit the site config puts on route and segment names).
+pub use isochron_shared::wire::PLAN_NAME_LEN;
+/// Most routes one planning request may name.
+pub const PLAN_MAX_ROUTES: usize = 16;
+/// Most points of an off-line cost curve (one per minute of the day).
+pub const PLAN_CURVE_LEN: usize = 1440;
+/// Most cheapest windows in an off-line answer.
+pub const PLAN_MAX_WINDOWS: usize = 8;
+/// Length of a planning response's text (an error, or where a snapshot went).
+pub const PLAN_MESSAGE_LEN: usize = 256;
+
+/// What a [`PlanRequest`] asks the cost map bridge for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum PlanKind {
+    /// Off-line: Cost1 of one route over the day, and its cheapest departure times.
+    Offline = 1,
+    /// Real-time: Cost2 of each named route now, ranked.
+    Now = 2,
+    /// Write a snapshot of the current cost map (PGM + YAML + PNG).
+    Snapshot = 3,
+}
+
+impl PlanKind {
+    /// Parses the `u32` of a request.
+    pub fn from_u32(v: u32) -> Option<PlanKind> {
+        match v {
+            1 => Some(PlanKind::Offline),
+            2 => Some(PlanKind::Now),
+            3 => Some(PlanKind::Snapshot),
+            _ => None,
+        }
+    }
+}
+
+/// Outcome of a planning request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum PlanStatus {
+    /// Answered.
+    Ok = 0,
+    /// The request is malformed (kind, counts, minutes); see the message.
+    BadRequest = 1,
+    /// A route the site config does not have.
+    UnknownRoute = 2,
+    /// The data to answer is missing (no long-term store, no grid); see the message.
+    NoData = 3,
+    /// Something failed on the service's side; see the message.
+    Failed = 4,
+}
+
+impl PlanStatus {
+    /// Parses the `u32` of a response.
+    pub fn from_u32(v: u32) -> Option<PlanStatus> {
+        match v {
+            0 => Some(PlanStatus::Ok),
+            1 => Some(PlanStatus::BadRequest),
+            2 => Some(PlanStatus::UnknownRoute),
+            3 => Some(PlanStatus::NoData),
+            4 => Some(PlanStatus::Failed),
+            _ => None,
+        }
+    }
+}
+
+/// A request to the cost map bridge's request-response service `<prefix>/plan`.
+/// After sending it, a client may notify the event service of the same name to
+/// be answered at once (otherwise within the bridge's loop period, ≤ 250 ms).
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[type_name("isochron::PlanRequest")]
+#[repr(C)]
+pub struct PlanRequest {
+    /// Always [`MAGIC`].
+    pub magic: u32,
+    /// Always [`LAYOUT_VERSION`].
+    pub layout_version: u16,
+    /// Zero.
+    pub reserved: u16,
+    /// A [`PlanKind`] as `u32`.
+    pub kind: u32,
+    /// Number of valid entries in `routes`.
+    pub route_count: u32,
+    /// Route names, zero-padded (off-line: exactly one).
+    pub routes: [[u8; PLAN_NAME_LEN]; PLAN_MAX_ROUTES],
+    /// Off-line: first minute of the day considered (0..1440).
+    pub start_minute: u32,
+    /// Off-line: end minute, exclusive (1..=1440); below `start_minute` the range
+    /// wraps past midnight.
+    pub end_minute: u32,
+    /// Off-line: minutes per curve point (1..=1440).
+    pub step_min: u32,
+    /// Off-line, weekly stores: the day, 0 = Monday .. 6 = Sunday; 7 = today.
+    pub weekday: u32,
+}
+
+impl PlanRequest {
+    /// A request of `kind` for `routes` (names longer than [`PLAN_NAME_LEN`] or
+    /// beyond [`PLAN_MAX_ROUTES`] are cut; validate names first), over the whole day
+    /// in steps of 5 minutes, today.
+    pub fn new(kind: PlanKind, routes: &[&str]) -> PlanRequest {
+        let mut names = [[0u8; PLAN_NAME_LEN]; PLAN_MAX_ROUTES];
+        for (slot, name) in names.iter_mut().zip(routes) {
+            *slot = to_fixed::<PLAN_NAME_LEN>(name);
+        }
+        PlanRequest {
+            magic: MAGIC,
+            layout_version: LAYOUT_VERSION,
+            reserved: 0,
+            kind: kind as u32,
+            route_count: routes.len().min(PLAN_MAX_ROUTES) as u32,
+            routes: names,
+            start_minute: 0,
+            end_minute: 1440,
+            step_min: 5,
+            weekday: 7,
+        }
+    }
+
+    /// Checks magic, version, kind, counts and minutes.
+    pub fn validate(&self) -> Result<PlanKind, WireError> {
+        if self.magic != MAGIC {
+            return Err(WireError::Magic { found: self.magic });
+        }
+        if self.layout_version != LAYOUT_VERSION {
+            return Err(WireError::Version {
+                found: self.layout_version,
+            });
+        }
+        let kind = PlanKind::from_u32(self.kind).ok_or(WireError::Field {
+            field: "kind",
+            reason: format!("unknown value {}", self.kind),
+        })?;
+        let field = |field: &'static str, reason: String| Err(WireError::Field { field, reason });
+        if self.route_count as usize > PLAN_MAX_ROUTES {
+            return field(
+                "route_count",
+                format!("{} routes, at most {PLAN_MAX_ROUTES}", self.route_count),
+            );
+        }
+        match kind {
+            PlanKind::Offline if self.route_count != 1 => {
+                return field(
+                    "route_count",
+                    format!("off-line plans take 1 route, found {}", self.route_count),
+                );
+            }
+            PlanKind::Now if self.route_count == 0 => {
+                return field("route_count", "name at least one route".into());
+            }
+            _ => {}
+        }
+        if kind == PlanKind::Offline {
+            if self.start_minute >= 1440 || self.end_minute == 0 || self.end_minute > 1440 {
+                return field(
+                    "start_minute",
+                    format!(
+                        "minutes {}..{} are outside the day",
+                        self.start_minute, self.end_minute
+                    ),
+                );
+            }
+            if self.step_min == 0 || self.step_min > 1440 {
+                return field(
+                    "step_min",
+                    format!("{} is not 1 to 1440 minutes", self.step_min),
+                );
+            }
+            if self.weekday > 7 {
+                return field(
+                    "weekday",
+                    format!("{} is not 0 (Monday) to 7 (today)", self.weekday),
+                );
+            }
+        }
+        Ok(kind)
+    }
+
+    /// The valid route names.
+    pub fn route_names(&self) -> Vec<String> {
+        self.routes[..(self.route_count as usize).min(PLAN_MAX_ROUTES)]
+            .iter()
+            .map(|r| fixed_str(r))
+            .collect()
+    }
+}
+
+/// [`PlanRouteCost::flags`]: a segment of the route never saw activity (M'_p = 0),
+/// so the route's cost is infinite.
+pub const PLAN_FLAG_INFINITE: u32 = 1 << 0;
+/// [`PlanRouteCost::flags`]: no live activity for some segment; its long-term
+/// mean stood in for the short-term activity.
+pub const PLAN_FLAG_ESTIMATED: u32 = 1 << 1;
+/// [`PlanRouteCost::flags`]: the long-term model has no data at this t* for some
+/// segment; the long-term cost is unknown (NaN).
+pub const PLAN_FLAG_NO_LONG_TERM: u32 = 1 << 2;
+
+/// The cost of one route in a [`PlanResponse`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("isochron::PlanRouteCost")]
+#[repr(C)]
+pub struct PlanRouteCost {
+    /// Route name, zero-padded.
+    pub name: [u8; PLAN_NAME_LEN],
+    /// Now: `w1·cost1 + w2·short_term`. Off-line: the lowest Cost1 of the curve.
+    pub cost2: f32,
+    /// Cost1 at t* = now (off-line: at the cheapest time); infinite if a segment
+    /// never saw activity.
+    pub cost1: f32,
+    /// Σ Cost(M_p(now)) over the route's segments.
+    pub short_term: f32,
+    /// `PLAN_FLAG_*` bits.
+    pub flags: u32,
+}
+
+/// A run of curve points within a small margin of the cheapest cost.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("isochron::PlanWindow")]
+#[repr(C)]
+pub struct PlanWindow {
+    /// First minute of the day.
+    pub start_minute: u32,
+    /// End minute, exclusive (may exceed 1440 past midnight).
+    pub end_minute: u32,
+    /// Mean Cost1 over the window.
+    pub cost: f32,
+    /// Zero.
+    pub reserved: u32,
+}
+
+/// The answer of the cost map bridge to a [`PlanRequest`].
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[type_name("isochron::PlanResponse")]
+#[repr(C)]
+pub struct PlanResponse {
+    /// Always [`MAGIC`].
+    pub magic: u32,
+    /// Always [`LAYOUT_VERSION`].
+    pub layout_version: u16,
+    /// Zero.
+    pub reserved: u16,
+    /// The request's [`PlanKind`] as `u32`.
+    pub kind: u32,
+    /// A [`PlanStatus`] as `u32`.
+    pub status: u32,
+    /// Why the request failed, or (snapshot) the files written; zero-padded.
+    pub message: [u8; PLAN_MESSAGE_LEN],
+    /// The t* the answer is for (now: the current minute of the cycle).
+    pub t_star: u32,
+    /// Number of valid entries in `routes`.
+    pub route_count: u32,
+    /// Now: the routes, cheapest first. Off-line: the route.
+    pub routes: [PlanRouteCost; PLAN_MAX_ROUTES],
+    /// Off-line: minute of the day of the first curve point.
+    pub curve_start_minute: u32,
+    /// Off-line: minutes between curve points.
+    pub curve_step_min: u32,
+    /// Off-line: number of valid curve points.
+    pub curve_len: u32,
+    /// Off-line: Cost1 per point (mean over its step); infinite if a segment never
+    /// saw activity, NaN where the long-term model has no data.
+    pub curve: [f32; PLAN_CURVE_LEN],
+    /// Off-line: number of valid windows.
+    pub window_count: u32,
+    /// Off-line: the cheapest windows, cheapest first.
+    pub windows: [PlanWindow; PLAN_MAX_WINDOWS],
+}
+
+impl PlanResponse {
+    /// An empty answer to a request of `kind` with `status` and `message`.
+    pub fn new(kind: u32, status: PlanStatus, message: &str) -> PlanResponse {
+        PlanResponse {
+            magic: MAGIC,
+            layout_version: LAYOUT_VERSION,
+            reserved: 0,
+            kind,
+            status: status as u32,
+            message: to_fixed::<PLAN_MESSAGE_LEN>(message),
+            t_star: 0,
+            route_count: 0,
+            routes: [PlanRouteCost::default(); PLAN_MAX_ROUTES],
+            curve_start_minute: 0,
+            curve_step_min: 0,
+            curve_len: 0,
+            curve: [0.0; PLAN_CURVE_LEN],
+            window_count: 0,
+            windows: [PlanWindow::default(); PLAN_MAX_WINDOWS],
+        }
+    }
+
+    /// Checks magic, version, status and counts.
+    pub fn validate(&self) -> Result<PlanStatus, WireError> {
+        if self.magic != MAGIC {
+            return Err(WireError::Magic { found: self.magic });
+        }
+        if self.layout_version != LAYOUT_VERSION {
+            return Err(WireError::Version {
+                found: self.layout_version,
+            });
+        }
+        let status = PlanStatus::from_u32(self.status).ok_or(WireError::Field {
+            field: "status",
+            reason: format!("unknown value {}", self.status),
+        })?;
+        if self.route_count as usize > PLAN_MAX_ROUTES
+            || self.curve_len as usize > PLAN_CURVE_LEN
+            || self.window_count as usize > PLAN_MAX_WINDOWS
+        {
+            return Err(WireError::Field {
+                field: "route_count",
+                reason: "a count exceeds its array".into(),
+            });
+        }
+        Ok(status)
+    }
+
+    /// The response's text.
+    pub fn message(&self) -> String {
+        fixed_str(&self.message)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn malformed_requests_are_refused() {
+        let mut req = PlanRequest::new(PlanKind::Offline, &["a", "b"]);
+        assert!(req.validate().is_err(), "off-line takes one route");
+        req = PlanRequest::new(PlanKind::Offline, &["a"]);
+        assert_eq!(req.validate(), Ok(PlanKind::Offline));
+        req.step_min = 0;
+        assert!(req.validate().is_err());
+        let mut req = PlanRequest::new(PlanKind::Now, &["a"]);
+        req.kind = 99;
+        assert!(req.validate().is_err());
+        let mut req = PlanRequest::new(PlanKind::Now, &["a"]);
+        req.magic = 0;
+        assert!(req.validate().is_err());
+        assert_eq!(
+            PlanRequest::new(PlanKind::Now, &["x", "y"]).route_names(),
+            ["x", "y"]
+        );
+    }
+}
