@@ -1611,10 +1611,10 @@ source = "rtsp://127.0.0.1/stream"
     #[test]
     fn the_shipped_configs_are_valid() {
         for (name, text) in [
-            ("config/demo.toml", include_str!("../../config/demo.toml")),
+            ("config/demo.toml", include_str!("../../../config/demo.toml")),
             (
                 "config/site.example.toml",
-                include_str!("../../config/site.example.toml"),
+                include_str!("../../../config/site.example.toml"),
             ),
         ] {
             if let Err(e) = Config::parse(text, Path::new(name)) {
