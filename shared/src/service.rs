@@ -55,7 +55,7 @@ pub fn start(stage: &str, config: &Path, camera: Option<&str>) -> Result<Service
     let camera = camera
         .map(|id| loaded.camera(id).cloned())
         .transpose()
-        .map_err(|e| Fatal::new(exit::CONFIG, e))?;
+        .map_err(|e| Fatal::new(exit::CONFIG, e.to_string()))?;
     context(stage, loaded, camera)
 }
 
@@ -90,7 +90,9 @@ pub fn run_cameras(
     let result = load(&args.config).and_then(|loaded| {
         let mut chosen: Vec<CameraConfig> = Vec::new();
         for id in &args.camera {
-            let cam = loaded.camera(id).map_err(|e| Fatal::new(exit::CONFIG, e))?;
+            let cam = loaded
+                .camera(id)
+                .map_err(|e| Fatal::new(exit::CONFIG, e.to_string()))?;
             if !chosen.iter().any(|c| c.id == cam.id) {
                 chosen.push(cam.clone());
             }

@@ -124,18 +124,15 @@ impl LoadedConfig {
     }
 
     /// The camera with `id`, or an error listing the configured ones.
-    pub fn camera(&self, id: &str) -> Result<&CameraConfig, String> {
+    pub fn camera(&self, id: &str) -> Result<&CameraConfig, UnknownCamera> {
         self.config
             .cameras
             .iter()
             .find(|c| c.id == id)
-            .ok_or_else(|| {
-                let ids: Vec<_> = self.config.cameras.iter().map(|c| c.id.as_str()).collect();
-                format!(
-                    "no camera '{id}' in {} (configured: {})",
-                    self.path.display(),
-                    ids.join(", ")
-                )
+            .ok_or_else(|| UnknownCamera {
+                id: id.to_string(),
+                file: self.path.clone(),
+                configured: self.config.cameras.iter().map(|c| c.id.clone()).collect(),
             })
     }
 
@@ -178,6 +175,18 @@ impl LoadedConfig {
             self.base_dir().join(dir)
         }
     }
+}
+
+/// [`LoadedConfig::camera`] found no camera with the id asked for.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("no camera '{id}' in {} (configured: {})", .file.display(), .configured.join(", "))]
+pub struct UnknownCamera {
+    /// The id asked for.
+    pub id: String,
+    /// The config file.
+    pub file: PathBuf,
+    /// The ids of the configured cameras, in the file's order.
+    pub configured: Vec<String>,
 }
 
 impl Config {

@@ -138,3 +138,17 @@ fn speed_parses() {
     let err = parse(&text).unwrap_err();
     assert_eq!(err.key.as_deref(), Some("camera[0].speed"));
 }
+
+#[test]
+fn unknown_camera_lists_the_configured_ones() {
+    let loaded = LoadedConfig {
+        config: parse(GOOD).unwrap(),
+        path: PathBuf::from("/etc/isochron/site.toml"),
+    };
+    assert_eq!(loaded.camera("cam02").unwrap().id, "cam02");
+    let err = loaded.camera("cam03").unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "no camera 'cam03' in /etc/isochron/site.toml (configured: cam01, cam02)"
+    );
+}
