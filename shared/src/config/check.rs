@@ -1,4 +1,4 @@
-//! Checks the sections' `validate` share.
+//! Value checks the sections' `validate` share.
 
 use super::{Invalid, Polygon};
 
