@@ -88,6 +88,12 @@ impl Classify for crate::config::ConfigError {
     }
 }
 
+impl Classify for crate::config::UnknownCamera {
+    fn exit_code(&self) -> i32 {
+        CONFIG
+    }
+}
+
 impl Classify for crate::store::StoreError {
     /// Foreign, damaged or mismatched files are permanent (restarting cannot
     /// help); I/O may pass.

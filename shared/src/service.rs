@@ -69,7 +69,7 @@ pub fn run_cameras(
     let result = load(&args.config).and_then(|loaded| {
         let mut chosen: Vec<CameraConfig> = Vec::new();
         for id in &args.camera {
-            let cam = loaded.camera(id).map_err(|e| Fatal::new(exit::CONFIG, e))?;
+            let cam = loaded.camera(id)?;
             if !chosen.iter().any(|c| c.id == cam.id) {
                 chosen.push(cam.clone());
             }

@@ -6,17 +6,17 @@ use std::hash::{Hash, Hasher};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
+use isochron_planning::grid::MapGrid;
+use isochron_planning::plan::{DayRange, PlanError};
+use isochron_planning::plan_service::{PlanServer, answer_now, answer_offline};
+use isochron_planning::planner::Planner;
+use isochron_planning::query::{PlanKind, PlanRequest, PlanResponse, PlanStatus};
 use isochron_shared::clock::{Cycle, SiteClock, format_rfc3339, timestamp, wall_now_ns};
 use isochron_shared::config::LoadedConfig;
 use isochron_shared::exit::{self, Fatal};
 use isochron_shared::ipc::{Activity, Detections, Ipc};
 use isochron_shared::stage::{Context, Input, Notified, Stage, Woken};
 use isochron_shared::topology::StageKind;
-use isochron_planning::grid::MapGrid;
-use isochron_planning::plan::{DayRange, PlanError};
-use isochron_planning::plan_service::{PlanServer, answer_now, answer_offline};
-use isochron_planning::planner::Planner;
-use isochron_planning::query::{PlanKind, PlanRequest, PlanResponse, PlanStatus};
 
 use crate::bridge::Bridge;
 use crate::delta::{DeltaTracker, Output};
@@ -472,9 +472,7 @@ fn answer(
         |status: PlanStatus, message: String| PlanResponse::new(kind as u32, status, &message);
     let status_of = |e: &PlanError| match e {
         PlanError::UnknownRoute(..) => PlanStatus::UnknownRoute,
-        PlanError::NoData(_) | PlanError::EmptySegment(_) => {
-            PlanStatus::NoData
-        }
+        PlanError::NoData(_) | PlanError::EmptySegment(_) => PlanStatus::NoData,
         _ => PlanStatus::Failed,
     };
     // "Now" is the time of the newest activity (header time), else the wall clock.

@@ -1,0 +1,456 @@
+//! `[[camera]]`: the cameras, their sources, masks, zones and floor points.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use super::{Invalid, check_polygon, check_range};
+use crate::wire::{PixelFormat, is_valid_camera_id};
+
+/// Playback speed of a file source.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Speed {
+    /// As fast as consumers keep up, without dropping a frame.
+    Max,
+    /// A multiple of the file's frame rate (1 = real time).
+    Factor(f64),
+}
+
+impl Speed {
+    /// Parses `max` or a positive number.
+    pub fn parse(s: &str) -> Option<Speed> {
+        if s.eq_ignore_ascii_case("max") {
+            return Some(Speed::Max);
+        }
+        s.parse::<f64>()
+            .ok()
+            .filter(|f| f.is_finite() && *f > 0.0)
+            .map(Speed::Factor)
+    }
+}
+
+impl fmt::Display for Speed {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Speed::Max => f.write_str("max"),
+            Speed::Factor(x) => write!(f, "{x}"),
+        }
+    }
+}
+
+impl Serialize for Speed {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            Speed::Max => s.serialize_str("max"),
+            Speed::Factor(x) => s.serialize_f64(*x),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for Speed {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            Number(f64),
+            Text(String),
+        }
+        let bad = || serde::de::Error::custom("expected \"max\" or a number > 0");
+        match Raw::deserialize(d)? {
+            Raw::Number(x) if x.is_finite() && x > 0.0 => Ok(Speed::Factor(x)),
+            Raw::Number(_) => Err(bad()),
+            Raw::Text(s) => Speed::parse(&s).ok_or_else(bad),
+        }
+    }
+}
+
+/// A polygon in frame pixel coordinates (analysis size), as `[[x, y], ...]`.
+pub type Polygon = Vec<[f64; 2]>;
+
+/// A named region of a camera's view.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ZoneConfig {
+    /// Zone name (at most 32 bytes), unique per camera.
+    pub name: String,
+    /// Outline in frame pixels, at least 3 points.
+    pub polygon: Polygon,
+}
+
+/// `[[camera]]`: one fixed camera.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraConfig {
+    /// Camera id: 1..=24 characters of `[A-Za-z0-9_-]`, unique on the site.
+    pub id: String,
+    /// Video source: a file path (relative to the config file), a V4L2 device
+    /// (`/dev/video0` or `v4l2:0`), an `rtsp://`/`http://`/`https://` URL, or a
+    /// GStreamer pipeline ending in `appsink` (`gst:...`).
+    pub source: String,
+    /// Analysis width in pixels; default: the source's width.
+    #[serde(default)]
+    pub width: Option<u32>,
+    /// Analysis height in pixels; default: the source's height.
+    #[serde(default)]
+    pub height: Option<u32>,
+    /// Published pixel format, `"gray8"` (default) or `"bgr8"`.
+    #[serde(default = "default_pixel_format")]
+    pub pixel_format: String,
+    /// Frame rate of a file source, overriding what the container states.
+    #[serde(default)]
+    pub fps: Option<f64>,
+    /// Capture time of a file's first frame (RFC 3339); default: when capture starts.
+    #[serde(default)]
+    pub start: Option<String>,
+    /// Playback speed of a file source: `"max"` or a factor. Default 1 (real time).
+    #[serde(default = "default_speed")]
+    pub speed: Speed,
+    /// Play a file source again from the start when it ends. Default `false`.
+    #[serde(default, rename = "loop")]
+    pub loop_file: bool,
+    /// File sources only: decode the first this many frames once into memory and
+    /// publish them in a loop, with proper timestamps — a source that costs no
+    /// decoding, to measure the stages apart from the decoder. Cameras of one
+    /// capture process with the same file share the decoded frames.
+    #[serde(default)]
+    pub preload_frames: Option<u32>,
+    /// First reconnect delay after a live source drops out, seconds. Default 0.5.
+    #[serde(default = "default_reconnect_initial_s")]
+    pub reconnect_initial_s: f64,
+    /// Longest reconnect delay (the backoff doubles up to it), seconds. Default 30.
+    #[serde(default = "default_reconnect_max_s")]
+    pub reconnect_max_s: f64,
+    /// Regions that never matter (polygons in frame pixels); their blocks report no
+    /// motion.
+    #[serde(default)]
+    pub mask: Vec<Polygon>,
+    /// Zones for events; default one zone `"all"` covering the whole view.
+    #[serde(default, rename = "zone")]
+    pub zones: Vec<ZoneConfig>,
+    /// Where the view lies on the floor: at least 4 pairs of an image point and the
+    /// same point on the floor, `{ image_px = [x, y], floor_m = [x, y] }`; the cost
+    /// map bridge fits a homography to them (least squares for more than 4). Image
+    /// points are frame pixels at the analysis size (like masks and zones), floor
+    /// points metres in the robots' map frame. No two points alike and no three on
+    /// a line (for exactly 4). Default: none — the camera is not on the cost map.
+    #[serde(default)]
+    pub floor_points: Vec<FloorPoint>,
+}
+
+/// One image ↔ floor correspondence of a camera (`[[camera]].floor_points`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FloorPoint {
+    /// The point in the image, `[x, y]`, frame pixels at the analysis size.
+    pub image_px: [f64; 2],
+    /// The same point on the floor, `[x, y]`, metres in the robots' map frame.
+    pub floor_m: [f64; 2],
+}
+
+fn default_pixel_format() -> String {
+    "gray8".into()
+}
+fn default_speed() -> Speed {
+    Speed::Factor(1.0)
+}
+fn default_reconnect_initial_s() -> f64 {
+    0.5
+}
+fn default_reconnect_max_s() -> f64 {
+    30.0
+}
+
+/// What kind of source a camera's `source` names.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SourceKind {
+    /// A video file.
+    File(PathBuf),
+    /// A V4L2 device index.
+    Device(i32),
+    /// A network URL (RTSP/HTTP).
+    Url(String),
+    /// A GStreamer pipeline.
+    GStreamer(String),
+}
+
+impl SourceKind {
+    /// True for sources that run out (files).
+    pub fn is_file(&self) -> bool {
+        matches!(self, SourceKind::File(_))
+    }
+}
+
+impl CameraConfig {
+    /// Classifies `source`; relative file paths are resolved against `base_dir`.
+    pub fn source_kind(&self, base_dir: &Path) -> SourceKind {
+        let s = self.source.trim();
+        if let Some(pipeline) = s.strip_prefix("gst:") {
+            return SourceKind::GStreamer(pipeline.trim().to_string());
+        }
+        if let Some(index) = s.strip_prefix("v4l2:")
+            && let Ok(i) = index.parse()
+        {
+            return SourceKind::Device(i);
+        }
+        if let Some(index) = s.strip_prefix("/dev/video")
+            && let Ok(i) = index.parse()
+        {
+            return SourceKind::Device(i);
+        }
+        if [
+            "rtsp://", "rtsps://", "http://", "https://", "udp://", "tcp://",
+        ]
+        .iter()
+        .any(|p| s.starts_with(p))
+        {
+            return SourceKind::Url(s.to_string());
+        }
+        let path = PathBuf::from(s);
+        SourceKind::File(if path.is_absolute() {
+            path
+        } else {
+            base_dir.join(path)
+        })
+    }
+
+    /// The configured pixel format (valid after validation).
+    pub fn format(&self) -> PixelFormat {
+        if self.pixel_format == "bgr8" {
+            PixelFormat::Bgr8
+        } else {
+            PixelFormat::Gray8
+        }
+    }
+
+    /// Zones, with the default whole-view zone when none are configured.
+    pub fn zones_or_default(&self, width: u32, height: u32) -> Vec<ZoneConfig> {
+        if !self.zones.is_empty() {
+            return self.zones.clone();
+        }
+        let (w, h) = (width as f64, height as f64);
+        vec![ZoneConfig {
+            name: "all".into(),
+            polygon: vec![[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]],
+        }]
+    }
+}
+
+/// Checks the `[[camera]]` tables: at least one, ids unique, and each camera's keys.
+pub(super) fn validate_cameras(cameras: &[CameraConfig]) -> Result<(), Invalid> {
+    if cameras.is_empty() {
+        return Err(Invalid::new(
+            "camera",
+            "expected at least one [[camera]] table with `id` and `source`",
+        ));
+    }
+    for (i, cam) in cameras.iter().enumerate() {
+        cam.validate(i, &cameras[..i])?;
+    }
+    Ok(())
+}
+
+impl CameraConfig {
+    /// Checks the keys of this camera, `camera[i]`; `earlier` are the cameras
+    /// before it (its id must differ from theirs).
+    fn validate(&self, i: usize, earlier: &[CameraConfig]) -> Result<(), Invalid> {
+        let key = |k: &str| format!("camera[{i}].{k}");
+        if !is_valid_camera_id(&self.id) {
+            return Err(Invalid::new(
+                key("id"),
+                format!(
+                    "expected 1 to 24 characters of letters, digits, '_' or '-', found \"{}\"",
+                    self.id
+                ),
+            ));
+        }
+        if earlier.iter().any(|c| c.id == self.id) {
+            return Err(Invalid::new(
+                key("id"),
+                format!("camera id \"{}\" is used twice", self.id),
+            ));
+        }
+        if self.source.trim().is_empty() {
+            return Err(Invalid::new(
+                key("source"),
+                "expected a file path, device, URL or gst: pipeline",
+            ));
+        }
+        for (name, v) in [("width", self.width), ("height", self.height)] {
+            if let Some(v) = v {
+                check_range(&key(name), v as f64, 16.0, 8192.0)?;
+            }
+        }
+        if self.width.is_some() != self.height.is_some() {
+            return Err(Invalid::new(
+                key(if self.width.is_some() {
+                    "height"
+                } else {
+                    "width"
+                }),
+                "expected both width and height, or neither",
+            ));
+        }
+        if !matches!(self.pixel_format.as_str(), "gray8" | "bgr8") {
+            return Err(Invalid::new(
+                key("pixel_format"),
+                format!(
+                    "expected \"gray8\" or \"bgr8\", found \"{}\"",
+                    self.pixel_format
+                ),
+            ));
+        }
+        if let Some(fps) = self.fps {
+            check_range(&key("fps"), fps, 0.01, 1000.0)?;
+        }
+        if let Some(start) = &self.start
+            && crate::clock::parse_rfc3339(start).is_err()
+        {
+            return Err(Invalid::new(
+                key("start"),
+                format!(
+                    "expected an RFC 3339 time such as \"2026-03-02T07:00:00Z\", found \"{start}\""
+                ),
+            ));
+        }
+        if let Some(n) = self.preload_frames {
+            check_range(&key("preload_frames"), n as f64, 2.0, 100_000.0)?;
+            if !self.source_kind(Path::new(".")).is_file() {
+                return Err(Invalid::new(
+                    key("preload_frames"),
+                    "expected only for file sources (live sources cannot be preloaded)",
+                ));
+            }
+        }
+        check_range(
+            &key("reconnect_initial_s"),
+            self.reconnect_initial_s,
+            1e-3,
+            3600.0,
+        )?;
+        if self.reconnect_max_s < self.reconnect_initial_s {
+            return Err(Invalid::new(
+                key("reconnect_max_s"),
+                format!(
+                    "expected a number >= reconnect_initial_s ({}), found {}",
+                    self.reconnect_initial_s, self.reconnect_max_s
+                ),
+            ));
+        }
+        for (j, poly) in self.mask.iter().enumerate() {
+            check_polygon(&format!("camera[{i}].mask[{j}]"), poly)?;
+        }
+        for (j, zone) in self.zones.iter().enumerate() {
+            let zkey = format!("camera[{i}].zone[{j}]");
+            if zone.name.is_empty() || zone.name.len() > crate::wire::ZONE_NAME_LEN {
+                return Err(Invalid::new(
+                    format!("{zkey}.name"),
+                    "expected a name of 1 to 32 bytes",
+                ));
+            }
+            if self.zones[..j].iter().any(|z| z.name == zone.name) {
+                return Err(Invalid::new(
+                    format!("{zkey}.name"),
+                    format!("zone name \"{}\" is used twice", zone.name),
+                ));
+            }
+            check_polygon(&format!("{zkey}.polygon"), &zone.polygon)?;
+        }
+        check_floor_points(&key("floor_points"), &self.floor_points)?;
+        Ok(())
+    }
+}
+
+/// Checks a camera's floor points: none, or at least 4 finite pairs that can define
+/// a homography (no duplicates, not all on a line, no three on a line when 4).
+fn check_floor_points(key: &str, points: &[FloorPoint]) -> Result<(), Invalid> {
+    if points.is_empty() {
+        return Ok(());
+    }
+    if points.len() < 4 {
+        return Err(Invalid::new(
+            key,
+            format!(
+                "expected at least 4 {{ image_px = [x, y], floor_m = [x, y] }} pairs, found {}",
+                points.len()
+            ),
+        ));
+    }
+    for (side, pick) in [
+        (
+            "image_px",
+            (|p: &FloorPoint| p.image_px) as fn(&FloorPoint) -> [f64; 2],
+        ),
+        ("floor_m", |p: &FloorPoint| p.floor_m),
+    ] {
+        let pts: Vec<[f64; 2]> = points.iter().map(pick).collect();
+        if pts.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(Invalid::new(
+                key,
+                format!("expected finite {side} coordinates"),
+            ));
+        }
+        if let Some(reason) = degenerate_points(&pts) {
+            return Err(Invalid::new(
+                key,
+                format!("the {side} points cannot define a homography: {reason}"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Why `pts` (at least 4) cannot be one side of a homography, if they cannot:
+/// two points alike, all on one line, or (for exactly 4) three on one line.
+pub fn degenerate_points(pts: &[[f64; 2]]) -> Option<String> {
+    let extent = pts
+        .iter()
+        .flat_map(|a| pts.iter().map(move |b| (a[0] - b[0]).hypot(a[1] - b[1])))
+        .fold(0.0, f64::max);
+    if extent == 0.0 {
+        return Some("all points are the same".into());
+    }
+    let eps = 1e-9 * extent;
+    for i in 0..pts.len() {
+        for j in i + 1..pts.len() {
+            if (pts[i][0] - pts[j][0]).hypot(pts[i][1] - pts[j][1]) <= eps {
+                return Some(format!(
+                    "points {} and {} are the same ({:?})",
+                    i + 1,
+                    j + 1,
+                    pts[i]
+                ));
+            }
+        }
+    }
+    // |cross| / extent² is twice a triangle's area relative to the set's size.
+    let collinear = |a: [f64; 2], b: [f64; 2], c: [f64; 2]| {
+        let cross = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+        cross.abs() <= 1e-6 * extent * extent
+    };
+    if pts.len() == 4 {
+        for (i, j, k) in [(0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3)] {
+            if collinear(pts[i], pts[j], pts[k]) {
+                return Some(format!(
+                    "points {}, {} and {} are on one line",
+                    i + 1,
+                    j + 1,
+                    k + 1
+                ));
+            }
+        }
+    }
+    // The two points farthest apart span the line any other point would be on.
+    let (a, b) = pts
+        .iter()
+        .flat_map(|a| pts.iter().map(move |b| (*a, *b)))
+        .max_by(|x, y| {
+            let d = |(a, b): &([f64; 2], [f64; 2])| (a[0] - b[0]).hypot(a[1] - b[1]);
+            d(x).total_cmp(&d(y))
+        })
+        .expect("at least two points");
+    if pts.iter().all(|&c| collinear(a, b, c)) {
+        return Some("all points are on one line".into());
+    }
+    None
+}

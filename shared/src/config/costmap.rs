@@ -1,0 +1,434 @@
+//! `[costmap]`, `[[costmap.segment]]` and `[[costmap.route]]`: the cost map on the
+//! robots' floor, its ROS 2 output, snapshots, and path planning.
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+use super::{CameraConfig, Invalid, check_polygon, check_positive, check_range};
+
+/// `[costmap]`: block activity on the robots' map as a ROS 2 `OccupancyGrid`
+/// (DESIGN.md section 5), snapshots, and path planning on segments and routes.
+///
+/// The grid is configured either by `map_yaml` (a `map_server` YAML: origin and
+/// resolution from it, size from its image, so the activity lines up with the
+/// robots' map) or by `resolution_m`, `width_cells`, `height_cells` and the
+/// `origin_*` keys. Without a grid the bridge publishes nothing to ROS 2 and only
+/// answers planning requests.
+///
+/// Cost of a cell seen by a camera: `min(cap, round(100 · (weight_in_place·S1 +
+/// weight_moving·S2 + weight_long_term·M(t*)) / cost_scale))` over the block that
+/// covers it (the highest over cameras that overlap), -1 where no camera sees.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CostmapConfig {
+    /// `map_server` YAML of the robots' map (relative to this file); its `origin`
+    /// and `resolution` and its image's size define the grid. Default: none.
+    pub map_yaml: Option<PathBuf>,
+    /// Grid cell edge, metres (without `map_yaml`). Default 0.1.
+    pub resolution_m: Option<f64>,
+    /// Grid cells per row (without `map_yaml`).
+    pub width_cells: Option<u32>,
+    /// Grid rows (without `map_yaml`).
+    pub height_cells: Option<u32>,
+    /// x of the grid's corner (cell (0, 0)) in the map frame, metres. Default 0.
+    pub origin_x_m: Option<f64>,
+    /// y of the grid's corner in the map frame, metres. Default 0.
+    pub origin_y_m: Option<f64>,
+    /// Rotation of the grid about z, radians. Default 0.
+    pub origin_yaw_rad: Option<f64>,
+    /// `header.frame_id` of the grid. Default `"map"`.
+    pub frame_id: String,
+    /// ROS 2 topic of the grid (`nav_msgs/msg/OccupancyGrid`, reliable,
+    /// transient-local). Default `"/isochron/activity_costmap"`.
+    pub topic: String,
+    /// ROS 2 topic of the deltas (`map_msgs/msg/OccupancyGridUpdate`). Default
+    /// `<topic>_updates`, where Nav2's StaticLayer looks for them.
+    pub updates_topic: Option<String>,
+    /// Publish rate, Hz. Default 1.
+    pub publish_hz: f64,
+    /// The full grid is republished at least this often, seconds, while deltas went
+    /// out since the last one (so a late joiner's grid is at most this old);
+    /// between, only the changed rectangle goes out. Default 10.
+    pub full_every_s: f64,
+    /// DDS domain (ROS_DOMAIN_ID), 0 to 232. Default: `$ROS_DOMAIN_ID`, else 0.
+    pub ros_domain_id: Option<u16>,
+    /// IP addresses of the network interfaces DDS may use, e.g. `["127.0.0.1"]` to
+    /// stay on this machine. Default: all (loopback only when `ROS_LOCALHOST_ONLY=1`).
+    pub dds_interfaces: Vec<String>,
+    /// Weight of in-place activity S1 in the cost. Default 1.
+    pub weight_in_place: f64,
+    /// Weight of moving activity S2 in the cost. Default 1.
+    pub weight_moving: f64,
+    /// Weight of the long-term mean M(t*) at the current t* in the cost. Default 0.5.
+    pub weight_long_term: f64,
+    /// The weighted activity (density units) that costs 100. Default 0.2 (on the
+    /// PETS demo: a median active cell costs about 10, the busiest 5 % reach 100);
+    /// tune per site with `isochron costmap snapshot`.
+    pub cost_scale: f64,
+    /// Highest cost activity can give a cell, 1 to 100 (Nav2 reads 100 as lethal,
+    /// the paper's "people cost as much as walls"; lower it to make busy areas
+    /// expensive but passable). Default 100.
+    pub cap: u8,
+    /// A person the detector confirmed raises the cells within this radius of their
+    /// feet, metres. Default 0.5.
+    pub confirm_radius_m: f64,
+    /// ... for this long after the detected frame (capture time), seconds. Default 5.
+    pub confirm_hold_s: f64,
+    /// ... to at least this cost, 0 to 100. Default: `cap`.
+    pub confirm_cost: Option<u8>,
+    /// A camera whose activity stopped arriving this long ago (wall clock) no
+    /// longer counts as seeing: its cells turn unknown (-1), seconds. Default 10.
+    pub stale_s: f64,
+    /// Directory for snapshots (PGM + YAML + PNG), relative to this file. Default
+    /// `<site.state_dir>/costmap`.
+    pub snapshot_dir: Option<PathBuf>,
+    /// Also write a snapshot this often, seconds; 0: only on request
+    /// (`isochron costmap snapshot`). Default 0.
+    pub snapshot_every_s: f64,
+    /// Snapshots kept in `snapshot_dir`; older ones are deleted. Default 100.
+    pub snapshot_keep: usize,
+    /// Planning: weight of the long-term cost Cost1(t* = now) in Cost2. Default 1.
+    pub w1: f64,
+    /// Planning: weight of the short-term cost Σ Cost(M_p(now)) in Cost2. Default 1.
+    pub w2: f64,
+    /// Planning: a segment whose long-term activity never exceeded this at any t*
+    /// has M'_p = 0 (people never go there) and makes every route through it
+    /// infinitely expensive. Default 0 (the paper: any activity at all).
+    pub min_activity: f64,
+    /// Path segments (`[[costmap.segment]]`).
+    #[serde(rename = "segment")]
+    pub segments: Vec<SegmentConfig>,
+    /// Routes (`[[costmap.route]]`).
+    #[serde(rename = "route")]
+    pub routes: Vec<RouteConfig>,
+}
+
+impl Default for CostmapConfig {
+    fn default() -> Self {
+        CostmapConfig {
+            map_yaml: None,
+            resolution_m: None,
+            width_cells: None,
+            height_cells: None,
+            origin_x_m: None,
+            origin_y_m: None,
+            origin_yaw_rad: None,
+            frame_id: "map".into(),
+            topic: "/isochron/activity_costmap".into(),
+            updates_topic: None,
+            publish_hz: 1.0,
+            full_every_s: 10.0,
+            ros_domain_id: None,
+            dds_interfaces: Vec::new(),
+            weight_in_place: 1.0,
+            weight_moving: 1.0,
+            weight_long_term: 0.5,
+            cost_scale: 0.2,
+            cap: 100,
+            confirm_radius_m: 0.5,
+            confirm_hold_s: 5.0,
+            confirm_cost: None,
+            stale_s: 10.0,
+            snapshot_dir: None,
+            snapshot_every_s: 0.0,
+            snapshot_keep: 100,
+            w1: 1.0,
+            w2: 1.0,
+            min_activity: 0.0,
+            segments: Vec::new(),
+            routes: Vec::new(),
+        }
+    }
+}
+
+impl CostmapConfig {
+    /// True if a grid is configured (`map_yaml` or `width_cells`).
+    pub fn has_grid(&self) -> bool {
+        self.map_yaml.is_some() || self.width_cells.is_some()
+    }
+
+    /// The updates topic: `updates_topic`, else `<topic>_updates`.
+    pub fn updates_topic(&self) -> String {
+        self.updates_topic
+            .clone()
+            .unwrap_or_else(|| format!("{}_updates", self.topic))
+    }
+
+    /// The cost a confirmed person gives: `confirm_cost`, else `cap`.
+    pub fn confirm_cost(&self) -> u8 {
+        self.confirm_cost.unwrap_or(self.cap)
+    }
+
+    /// The segment named `name`.
+    pub fn segment(&self, name: &str) -> Option<&SegmentConfig> {
+        self.segments.iter().find(|s| s.name == name)
+    }
+
+    /// The route named `name`.
+    pub fn route(&self, name: &str) -> Option<&RouteConfig> {
+        self.routes.iter().find(|r| r.name == name)
+    }
+}
+
+/// `[[costmap.segment]]`: a path segment p — a floor polygon, or a camera's zone.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SegmentConfig {
+    /// Name (1 to 32 bytes), unique.
+    pub name: String,
+    /// Outline on the floor, `[[x, y], ...]`, metres in the map frame (at least 3
+    /// points); its blocks are those of every camera whose centre lands inside.
+    #[serde(default)]
+    pub polygon_m: Option<Vec<[f64; 2]>>,
+    /// Instead of `polygon_m`: a camera ...
+    #[serde(default)]
+    pub camera: Option<String>,
+    /// ... and one of its zones (`"all"` for a camera without zones).
+    #[serde(default)]
+    pub zone: Option<String>,
+}
+
+/// `[[costmap.route]]`: a route, the ordered path segments a robot passes.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RouteConfig {
+    /// Name (1 to 32 bytes), unique.
+    pub name: String,
+    /// Segment names, in the order the robot passes them (at least one).
+    pub segments: Vec<String>,
+}
+
+/// Longest segment or route name, in bytes (the planning service's fixed width).
+pub const PLAN_NAME_LEN: usize = crate::wire::PLAN_NAME_LEN;
+
+/// Most cells of a grid: 1 MB per `OccupancyGrid` message.
+pub const MAX_GRID_CELLS: u64 = 1 << 20;
+
+/// True if `topic` is a ROS 2 topic name this bridge can publish on: `/`-separated
+/// tokens of letters, digits and `_`, each starting with a letter or `_`.
+pub fn is_valid_ros_topic(topic: &str) -> bool {
+    let rest = topic.strip_prefix('/').unwrap_or(topic);
+    !rest.is_empty()
+        && rest.split('/').all(|tok| {
+            !tok.is_empty()
+                && !tok.contains("__")
+                && tok.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_')
+                && tok.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+        })
+}
+
+impl CostmapConfig {
+    /// Checks the `costmap.*` keys, and its segments and routes against `cameras`.
+    pub(super) fn validate(&self, cameras: &[CameraConfig]) -> Result<(), Invalid> {
+        if self.map_yaml.is_some() {
+            for (name, given) in [
+                ("resolution_m", self.resolution_m.is_some()),
+                ("width_cells", self.width_cells.is_some()),
+                ("height_cells", self.height_cells.is_some()),
+                ("origin_x_m", self.origin_x_m.is_some()),
+                ("origin_y_m", self.origin_y_m.is_some()),
+                ("origin_yaw_rad", self.origin_yaw_rad.is_some()),
+            ] {
+                if given {
+                    return Err(Invalid::new(
+                        format!("costmap.{name}"),
+                        "the grid comes from costmap.map_yaml: set either map_yaml or the grid keys, not both",
+                    ));
+                }
+            }
+        } else if self.width_cells.is_some() || self.height_cells.is_some() {
+            let key = if self.width_cells.is_none() {
+                "costmap.width_cells"
+            } else {
+                "costmap.height_cells"
+            };
+            let (w, h) = (
+                self.width_cells.unwrap_or(0),
+                self.height_cells.unwrap_or(0),
+            );
+            if self.width_cells.is_none() || self.height_cells.is_none() {
+                return Err(Invalid::new(
+                    key,
+                    "expected both width_cells and height_cells",
+                ));
+            }
+            check_range("costmap.width_cells", w as f64, 1.0, 10_000.0)?;
+            check_range("costmap.height_cells", h as f64, 1.0, 10_000.0)?;
+            if w as u64 * h as u64 > MAX_GRID_CELLS {
+                return Err(Invalid::new(
+                    "costmap.width_cells",
+                    format!(
+                        "a {w}x{h} grid has {} cells; at most {MAX_GRID_CELLS} (1 MB per grid message) are allowed: use a coarser resolution_m or a smaller area",
+                        w as u64 * h as u64
+                    ),
+                ));
+            }
+        } else if self.resolution_m.is_some()
+            || self.origin_x_m.is_some()
+            || self.origin_y_m.is_some()
+        {
+            return Err(Invalid::new(
+                "costmap.width_cells",
+                "expected width_cells and height_cells with the other grid keys (or map_yaml)",
+            ));
+        }
+        if let Some(r) = self.resolution_m {
+            check_range("costmap.resolution_m", r, 0.001, 100.0)?;
+        }
+        for (name, v) in [
+            ("origin_x_m", self.origin_x_m),
+            ("origin_y_m", self.origin_y_m),
+            ("origin_yaw_rad", self.origin_yaw_rad),
+        ] {
+            if let Some(v) = v {
+                check_range(&format!("costmap.{name}"), v, -1e6, 1e6)?;
+            }
+        }
+        if self.frame_id.trim().is_empty() {
+            return Err(Invalid::new(
+                "costmap.frame_id",
+                "expected a frame name such as \"map\"",
+            ));
+        }
+        for (key, topic) in [
+            ("costmap.topic", Some(&self.topic)),
+            ("costmap.updates_topic", self.updates_topic.as_ref()),
+        ] {
+            if let Some(topic) = topic
+                && !is_valid_ros_topic(topic)
+            {
+                return Err(Invalid::new(
+                    key,
+                    format!(
+                        "expected a ROS 2 topic name such as \"/isochron/activity_costmap\" (letters, digits, '_', '/'), found \"{topic}\""
+                    ),
+                ));
+            }
+        }
+        check_range("costmap.publish_hz", self.publish_hz, 0.01, 100.0)?;
+        check_range("costmap.full_every_s", self.full_every_s, 0.0, 86_400.0)?;
+        if let Some(d) = self.ros_domain_id {
+            check_range("costmap.ros_domain_id", d as f64, 0.0, 232.0)?;
+        }
+        for (i, addr) in self.dds_interfaces.iter().enumerate() {
+            if addr.parse::<std::net::IpAddr>().is_err() {
+                return Err(Invalid::new(
+                    format!("costmap.dds_interfaces[{i}]"),
+                    format!(
+                        "expected the IP address of a network interface such as \"127.0.0.1\", found \"{addr}\""
+                    ),
+                ));
+            }
+        }
+        for (name, v) in [
+            ("weight_in_place", self.weight_in_place),
+            ("weight_moving", self.weight_moving),
+            ("weight_long_term", self.weight_long_term),
+            ("w1", self.w1),
+            ("w2", self.w2),
+            ("min_activity", self.min_activity),
+        ] {
+            check_range(&format!("costmap.{name}"), v, 0.0, 1e6)?;
+        }
+        check_positive("costmap.cost_scale", self.cost_scale)?;
+        check_range("costmap.cap", self.cap as f64, 1.0, 100.0)?;
+        check_range(
+            "costmap.confirm_radius_m",
+            self.confirm_radius_m,
+            0.0,
+            100.0,
+        )?;
+        check_range("costmap.confirm_hold_s", self.confirm_hold_s, 0.0, 3600.0)?;
+        if let Some(v) = self.confirm_cost {
+            check_range("costmap.confirm_cost", v as f64, 0.0, 100.0)?;
+        }
+        check_positive("costmap.stale_s", self.stale_s)?;
+        check_range("costmap.snapshot_every_s", self.snapshot_every_s, 0.0, 1e7)?;
+        check_range("costmap.snapshot_keep", self.snapshot_keep as f64, 1.0, 1e6)?;
+
+        let located = cameras.iter().any(|cam| !cam.floor_points.is_empty());
+        for (i, seg) in self.segments.iter().enumerate() {
+            let key = |k: &str| format!("costmap.segment[{i}].{k}");
+            if seg.name.is_empty() || seg.name.len() > PLAN_NAME_LEN || seg.name.contains(',') {
+                return Err(Invalid::new(
+                    key("name"),
+                    "expected a name of 1 to 32 bytes without ','",
+                ));
+            }
+            if self.segments[..i].iter().any(|s| s.name == seg.name) {
+                return Err(Invalid::new(
+                    key("name"),
+                    format!("segment name \"{}\" is used twice", seg.name),
+                ));
+            }
+            match (&seg.polygon_m, &seg.camera, &seg.zone) {
+                (Some(poly), None, None) => {
+                    check_polygon(&key("polygon_m"), poly)?;
+                    if !located {
+                        return Err(Invalid::new(
+                            key("polygon_m"),
+                            "a floor polygon needs cameras on the floor: give at least one [[camera]] floor_points",
+                        ));
+                    }
+                }
+                (None, Some(camera), Some(zone)) => {
+                    let Some(cam) = cameras.iter().find(|cam| &cam.id == camera) else {
+                        return Err(Invalid::new(
+                            key("camera"),
+                            format!("no [[camera]] with id \"{camera}\""),
+                        ));
+                    };
+                    let known = if cam.zones.is_empty() {
+                        zone == "all"
+                    } else {
+                        cam.zones.iter().any(|z| &z.name == zone)
+                    };
+                    if !known {
+                        return Err(Invalid::new(
+                            key("zone"),
+                            format!("camera \"{camera}\" has no zone \"{zone}\""),
+                        ));
+                    }
+                }
+                _ => {
+                    return Err(Invalid::new(
+                        key("name"),
+                        "expected either polygon_m, or camera and zone",
+                    ));
+                }
+            }
+        }
+        for (i, route) in self.routes.iter().enumerate() {
+            let key = |k: &str| format!("costmap.route[{i}].{k}");
+            if route.name.is_empty() || route.name.len() > PLAN_NAME_LEN || route.name.contains(',')
+            {
+                return Err(Invalid::new(
+                    key("name"),
+                    "expected a name of 1 to 32 bytes without ','",
+                ));
+            }
+            if self.routes[..i].iter().any(|r| r.name == route.name) {
+                return Err(Invalid::new(
+                    key("name"),
+                    format!("route name \"{}\" is used twice", route.name),
+                ));
+            }
+            if route.segments.is_empty() {
+                return Err(Invalid::new(
+                    key("segments"),
+                    "expected at least one segment name",
+                ));
+            }
+            for (j, name) in route.segments.iter().enumerate() {
+                if self.segment(name).is_none() {
+                    return Err(Invalid::new(
+                        format!("costmap.route[{i}].segments[{j}]"),
+                        format!("no [[costmap.segment]] named \"{name}\""),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,155 @@
+//! `[gate]` and `[gate.detector]`: events from short-term activity, and the
+//! detector they gate.
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+use super::{Invalid, check_positive, check_range};
+
+/// `[gate]`: events from short-term activity, and the detector they gate.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GateConfig {
+    /// An event starts when a zone's S1 or S2 sum exceeds the long-term mean plus
+    /// this many standard deviations (once the model is warm). Default 3.
+    pub k_sigma: f32,
+    /// Threshold on a zone's activity sum while the long-term model is cold (fewer
+    /// than `cascade.warm_days` days at this t*). Default 0.5.
+    pub floor: f32,
+    /// Lowest threshold once the model is warm (a quiet night has sigma ≈ 0).
+    /// Default 0.2.
+    pub min_threshold: f32,
+    /// In-place activity counts a block only where its own S1 is at least this
+    /// (density): a place with lasting activity. People walking by leave each
+    /// block a small, decaying S1 tail that, summed over a zone, would otherwise
+    /// look like in-place activity. Default 0.05.
+    pub in_place_block_min: f32,
+    /// An event ends after its activity stayed below the threshold this long,
+    /// seconds. Default 3.
+    pub hold_s: f64,
+    /// Frames the detector runs on per event (the first when the event starts, then
+    /// one per later second). Default 1.
+    pub detect_per_event: u32,
+    /// Instead: one detection every this many seconds while an event lasts.
+    pub detect_every_s: Option<f64>,
+    /// Recent frames kept for the detector: the last frame of each of the latest
+    /// this many seconds (a detection looks at the last frame of a second). Default 8.
+    pub ring_frames: usize,
+    /// The detector.
+    pub detector: DetectorConfig,
+}
+
+impl Default for GateConfig {
+    fn default() -> Self {
+        GateConfig {
+            k_sigma: 3.0,
+            floor: 0.5,
+            min_threshold: 0.2,
+            in_place_block_min: 0.05,
+            hold_s: 3.0,
+            detect_per_event: 1,
+            detect_every_s: None,
+            ring_frames: 8,
+            detector: DetectorConfig::default(),
+        }
+    }
+}
+
+/// `[gate.detector]`: OpenCV's HOG people detector (default, needs no download),
+/// or an ONNX model through OpenCV's dnn module when `model` is set.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DetectorConfig {
+    /// ONNX model file (a YOLOv5/YOLOv8 export; see the README); relative to the
+    /// config file. Default: none (HOG).
+    pub model: Option<PathBuf>,
+    /// Square input size of the ONNX model, pixels. Default 640.
+    pub input_px: u32,
+    /// Lowest score of a kept detection (ONNX: class score; HOG: SVM margin).
+    /// Default 0.4 (ONNX) — HOG uses `hog_hit_threshold`.
+    pub score_threshold: f32,
+    /// Overlap (IoU) above which the weaker of two boxes is suppressed. Default 0.45.
+    pub nms_threshold: f32,
+    /// HOG: upscale frames by this factor first (its window finds people ≥ ~100 px
+    /// tall). Default 1.0.
+    pub hog_upscale: f64,
+    /// HOG: SVM hit threshold. Default 0.
+    pub hog_hit_threshold: f64,
+    /// Detection jobs that may wait for the worker; more are dropped and counted.
+    /// Default 2.
+    pub queue: usize,
+    /// Detections that run at once on the site, all cameras and gate processes
+    /// together; a job that finds every one busy is dropped and counted (a
+    /// lossless replay waits instead). Default 1.
+    pub concurrent: usize,
+}
+
+impl Default for DetectorConfig {
+    fn default() -> Self {
+        DetectorConfig {
+            model: None,
+            input_px: 640,
+            score_threshold: 0.4,
+            nms_threshold: 0.45,
+            hog_upscale: 1.0,
+            hog_hit_threshold: 0.0,
+            queue: 2,
+            concurrent: 1,
+        }
+    }
+}
+
+impl GateConfig {
+    /// Checks the `gate.*` keys, then `gate.detector.*`.
+    pub(super) fn validate(&self) -> Result<(), Invalid> {
+        check_range("gate.k_sigma", self.k_sigma as f64, 0.0, 100.0)?;
+        check_positive("gate.floor", self.floor as f64)?;
+        check_positive("gate.min_threshold", self.min_threshold as f64)?;
+        check_range(
+            "gate.in_place_block_min",
+            self.in_place_block_min as f64,
+            0.0,
+            1.0,
+        )?;
+        check_range("gate.hold_s", self.hold_s, 0.0, 3600.0)?;
+        check_range(
+            "gate.detect_per_event",
+            self.detect_per_event as f64,
+            0.0,
+            1e6,
+        )?;
+        if let Some(every) = self.detect_every_s {
+            check_positive("gate.detect_every_s", every)?;
+        }
+        check_range("gate.ring_frames", self.ring_frames as f64, 1.0, 4096.0)?;
+        self.detector.validate()
+    }
+}
+
+impl DetectorConfig {
+    /// Checks the `gate.detector.*` keys.
+    fn validate(&self) -> Result<(), Invalid> {
+        check_range("gate.detector.input_px", self.input_px as f64, 32.0, 4096.0)?;
+        check_range(
+            "gate.detector.score_threshold",
+            self.score_threshold as f64,
+            0.0,
+            1.0,
+        )?;
+        check_range(
+            "gate.detector.nms_threshold",
+            self.nms_threshold as f64,
+            0.0,
+            1.0,
+        )?;
+        check_range("gate.detector.hog_upscale", self.hog_upscale, 0.25, 4.0)?;
+        check_range("gate.detector.queue", self.queue as f64, 1.0, 64.0)?;
+        check_range(
+            "gate.detector.concurrent",
+            self.concurrent as f64,
+            1.0,
+            64.0,
+        )
+    }
+}

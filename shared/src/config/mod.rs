@@ -1,0 +1,307 @@
+//! Configuration: one TOML file describes a site (its cameras and every stage).
+//!
+//! [`Config::load`] parses and validates; every error names the file, the line, the
+//! key, and what was expected, e.g.
+//! `config/site.toml:12: camera[0].fps: expected a number > 0, found -3`.
+//! Each key is documented on its field with its default; units are in the names
+//! (`_s`, `_px`, `_days`).
+//!
+//! Each section is a module of its own that holds its keys and checks them; they
+//! are all re-exported here.
+
+mod camera;
+mod cascade;
+mod check;
+mod costmap;
+mod gate;
+mod ipc;
+mod motion;
+mod site;
+#[cfg(test)]
+mod tests;
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+pub use camera::{
+    CameraConfig, FloorPoint, Polygon, SourceKind, Speed, ZoneConfig, degenerate_points,
+};
+pub use cascade::CascadeConfig;
+use check::check_polygon;
+pub use check::{check_positive, check_range};
+pub use costmap::{
+    CostmapConfig, MAX_GRID_CELLS, PLAN_NAME_LEN, RouteConfig, SegmentConfig, is_valid_ros_topic,
+};
+pub use gate::{DetectorConfig, GateConfig};
+pub use ipc::IpcConfig;
+pub use motion::{MotionBackend, MotionConfig};
+pub use site::SiteConfig;
+
+/// A configuration error located in its file.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub struct ConfigError {
+    /// The file.
+    pub file: PathBuf,
+    /// 1-based line, when known.
+    pub line: Option<usize>,
+    /// Dotted key path (`camera[0].fps`), when known.
+    pub key: Option<String>,
+    /// What is wrong and what was expected.
+    pub message: String,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file.display())?;
+        if let Some(line) = self.line {
+            write!(f, ":{line}")?;
+        }
+        if let Some(key) = &self.key {
+            write!(f, ": key `{key}`")?;
+        }
+        write!(f, ": {}", self.message)
+    }
+}
+
+/// A semantic error found by validation, before it is located in the file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Invalid {
+    /// Dotted key path, e.g. `camera[0].fps`.
+    pub key: String,
+    /// What is wrong and what was expected.
+    pub message: String,
+}
+
+impl Invalid {
+    /// An error at `key`.
+    pub fn new(key: impl Into<String>, message: impl Into<String>) -> Self {
+        Invalid {
+            key: key.into(),
+            message: message.into(),
+        }
+    }
+}
+
+/// The whole configuration of one site.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// Site-wide settings.
+    pub site: SiteConfig,
+    /// Shared-memory transport settings.
+    pub ipc: IpcConfig,
+    /// The cameras (`[[camera]]` tables); at least one.
+    #[serde(rename = "camera")]
+    pub cameras: Vec<CameraConfig>,
+    /// The motion stage.
+    pub motion: MotionConfig,
+    /// The cascade filter and long-term store.
+    pub cascade: CascadeConfig,
+    /// The event gate and its detector.
+    pub gate: GateConfig,
+    /// The cost map on the robots' floor, its ROS 2 output, and path planning.
+    pub costmap: CostmapConfig,
+}
+
+/// A loaded configuration and where it came from.
+#[derive(Debug, Clone)]
+pub struct LoadedConfig {
+    /// The validated configuration.
+    pub config: Config,
+    /// The file it was read from.
+    pub path: PathBuf,
+}
+
+impl LoadedConfig {
+    /// Directory relative paths in the config are resolved against.
+    pub fn base_dir(&self) -> PathBuf {
+        self.path
+            .parent()
+            .map(Path::to_path_buf)
+            .unwrap_or_else(|| PathBuf::from("."))
+    }
+
+    /// The camera with `id`, or an error listing the configured ones.
+    pub fn camera(&self, id: &str) -> Result<&CameraConfig, UnknownCamera> {
+        self.config
+            .cameras
+            .iter()
+            .find(|c| c.id == id)
+            .ok_or_else(|| UnknownCamera {
+                id: id.to_string(),
+                file: self.path.clone(),
+                configured: self.config.cameras.iter().map(|c| c.id.clone()).collect(),
+            })
+    }
+
+    /// The config with every relative file path (detector model, map YAML,
+    /// snapshot and state directories, camera files) made absolute, so that it
+    /// means the same when written elsewhere (as `isochron replay` does).
+    pub fn with_absolute_paths(&self) -> Config {
+        let base = self.base_dir();
+        let absolute = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        };
+        let mut config = self.config.clone();
+        absolute(&mut config.site.state_dir);
+        for path in [
+            config.gate.detector.model.as_mut(),
+            config.costmap.map_yaml.as_mut(),
+            config.costmap.snapshot_dir.as_mut(),
+        ]
+        .into_iter()
+        .flatten()
+        {
+            absolute(path);
+        }
+        for camera in &mut config.cameras {
+            if let SourceKind::File(path) = camera.source_kind(&base) {
+                camera.source = path.to_string_lossy().into_owned();
+            }
+        }
+        config
+    }
+
+    /// `site.state_dir`, resolved against the config file's directory.
+    pub fn state_dir(&self) -> PathBuf {
+        let dir = &self.config.site.state_dir;
+        if dir.is_absolute() {
+            dir.clone()
+        } else {
+            self.base_dir().join(dir)
+        }
+    }
+}
+
+/// [`LoadedConfig::camera`] found no camera with the id asked for.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("no camera '{id}' in {} (configured: {})", .file.display(), .configured.join(", "))]
+pub struct UnknownCamera {
+    /// The id asked for.
+    pub id: String,
+    /// The config file.
+    pub file: PathBuf,
+    /// The ids of the configured cameras, in the file's order.
+    pub configured: Vec<String>,
+}
+
+impl Config {
+    /// Reads, parses and validates a config file.
+    pub fn load(path: &Path) -> Result<LoadedConfig, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+            file: path.to_path_buf(),
+            line: None,
+            key: None,
+            message: format!("cannot read the config file: {e}"),
+        })?;
+        let config = Config::parse(&text, path)?;
+        Ok(LoadedConfig {
+            config,
+            path: path.to_path_buf(),
+        })
+    }
+
+    /// Parses and validates TOML text; `path` is only used in errors.
+    pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
+        let located = |line: Option<usize>, key: Option<String>, message: String| ConfigError {
+            file: path.to_path_buf(),
+            line,
+            key,
+            message,
+        };
+        let deserializer = toml::Deserializer::parse(text).map_err(|e| {
+            located(
+                e.span().map(|s| line_at(text, s.start)),
+                None,
+                e.message().to_string(),
+            )
+        })?;
+        let config: Config = serde_path_to_error::deserialize(deserializer).map_err(|e| {
+            let key = e.path().to_string();
+            let inner = e.into_inner();
+            let line = inner
+                .span()
+                .map(|s| line_at(text, s.start))
+                .or_else(|| line_of_key(text, &key));
+            let key = (key != ".").then_some(key);
+            located(line, key, inner.message().to_string())
+        })?;
+        if let Err(invalid) = config.validate() {
+            let line = line_of_key(text, &invalid.key).or_else(|| {
+                // The key is absent (a default was invalid or a required section is
+                // missing): point at its table instead.
+                parent_key(&invalid.key).and_then(|p| line_of_key(text, p))
+            });
+            return Err(located(line, Some(invalid.key), invalid.message));
+        }
+        Ok(config)
+    }
+
+    /// Checks values that parse but make no sense, section by section; the first
+    /// error found is returned.
+    pub fn validate(&self) -> Result<(), Invalid> {
+        self.site.validate()?;
+        self.ipc.validate()?;
+        self.motion.validate()?;
+        self.cascade.validate()?;
+        self.gate.validate()?;
+        camera::validate_cameras(&self.cameras)?;
+        self.costmap.validate(&self.cameras)
+    }
+}
+
+/// 1-based line of byte `offset` in `text`.
+fn line_at(text: &str, offset: usize) -> usize {
+    text.as_bytes()[..offset.min(text.len())]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
+/// `a.b[2].c` → `a.b[2]`; `a` → `None`.
+fn parent_key(key: &str) -> Option<&str> {
+    let cut = key.rfind(['.', '['])?;
+    Some(&key[..cut])
+}
+
+/// The 1-based line where dotted key path `key` (`camera[0].fps`) is written, or of
+/// the deepest part of it that exists.
+pub fn line_of_key(text: &str, key: &str) -> Option<usize> {
+    use toml_edit::{Item, TableLike, Value};
+    let doc = toml_edit::Document::parse(text).ok()?;
+    let mut table: &dyn TableLike = doc.as_item().as_table_like()?;
+    let mut span = None;
+    let mut segments = key.split('.').peekable();
+    while let Some(segment) = segments.next() {
+        let (name, indices) = segment.split_at(segment.find('[').unwrap_or(segment.len()));
+        let (k, item) = table.get_key_value(name)?;
+        span = k.span().or_else(|| item.span()).or(span);
+        // Walk `[i]` indices: into arrays of tables or inline arrays.
+        let mut next_table = item.as_table_like();
+        let mut value: Option<&Value> = item.as_value();
+        for index in indices.split(['[', ']']).filter(|s| !s.is_empty()) {
+            let index: usize = index.parse().ok()?;
+            if let Item::ArrayOfTables(a) = item
+                && value.is_none()
+            {
+                let t = a.get(index)?;
+                span = t.span().or(span);
+                next_table = Some(t as &dyn TableLike);
+                continue;
+            }
+            let v = value?.as_array()?.get(index)?;
+            span = v.span().or(span);
+            next_table = v.as_inline_table().map(|t| t as &dyn TableLike);
+            value = Some(v);
+        }
+        if segments.peek().is_some() {
+            table = next_table?;
+        }
+    }
+    span.map(|s| line_at(text, s.start))
+}

@@ -1,0 +1,69 @@
+//! `[site]`: settings for the whole site.
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+use super::{Invalid, check_range};
+use crate::names::is_valid_prefix;
+
+/// `[site]`: settings for the whole site.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SiteConfig {
+    /// Name for people and logs. Default `"site"`.
+    pub name: String,
+    /// IANA time zone of the site, used for isochronal time t*. Default `"UTC"`.
+    pub time_zone: String,
+    /// Start of every iceoryx2 service name. Default `"isochron"`.
+    pub service_prefix: String,
+    /// Directory for state (the long-term store). Default `"/var/lib/isochron"`;
+    /// relative paths are relative to the config file.
+    pub state_dir: PathBuf,
+    /// Cameras one process of a per-camera stage serves, when `isochron up` starts
+    /// the group (each camera on its own thread; see the README's "Scale"). Default
+    /// 1: one process per camera and stage.
+    pub cameras_per_process: usize,
+}
+
+impl Default for SiteConfig {
+    fn default() -> Self {
+        SiteConfig {
+            name: "site".into(),
+            time_zone: "UTC".into(),
+            service_prefix: crate::names::DEFAULT_PREFIX.into(),
+            state_dir: PathBuf::from("/var/lib/isochron"),
+            cameras_per_process: 1,
+        }
+    }
+}
+
+impl SiteConfig {
+    /// Checks the `site.*` keys.
+    pub(super) fn validate(&self) -> Result<(), Invalid> {
+        if jiff::tz::TimeZone::get(&self.time_zone).is_err() {
+            return Err(Invalid::new(
+                "site.time_zone",
+                format!(
+                    "expected an IANA time zone such as \"Europe/Berlin\" or \"UTC\", found \"{}\"",
+                    self.time_zone
+                ),
+            ));
+        }
+        if !is_valid_prefix(&self.service_prefix) {
+            return Err(Invalid::new(
+                "site.service_prefix",
+                format!(
+                    "expected letters, digits, '_', '-', '.', '/' (not at either end), found \"{}\"",
+                    self.service_prefix
+                ),
+            ));
+        }
+        check_range(
+            "site.cameras_per_process",
+            self.cameras_per_process as f64,
+            1.0,
+            1024.0,
+        )
+    }
+}

@@ -1,0 +1,154 @@
+//! Parsing, validation and error locations, end to end.
+
+use super::*;
+
+const GOOD: &str = r#"
+[site]
+name = "test"
+time_zone = "Europe/Berlin"
+
+[[camera]]
+id = "cam01"
+source = "video.avi"
+fps = 10
+
+[[camera]]
+id = "cam02"
+source = "rtsp://127.0.0.1/stream"
+"#;
+
+fn parse(text: &str) -> Result<Config, ConfigError> {
+    Config::parse(text, Path::new("site.toml"))
+}
+
+#[test]
+fn good_config_parses_with_defaults() {
+    let c = parse(GOOD).unwrap();
+    assert_eq!(c.site.time_zone, "Europe/Berlin");
+    assert_eq!(c.site.service_prefix, "isochron");
+    assert_eq!(c.cameras.len(), 2);
+    assert_eq!(c.cameras[0].speed, Speed::Factor(1.0));
+    assert_eq!(c.ipc.max_subscribers, 5);
+    assert_eq!(
+        c.cameras[1].source_kind(Path::new("/etc")),
+        SourceKind::Url("rtsp://127.0.0.1/stream".into())
+    );
+    assert_eq!(
+        c.cameras[0].source_kind(Path::new("/etc")),
+        SourceKind::File("/etc/video.avi".into())
+    );
+}
+
+#[test]
+fn relative_paths_become_absolute_against_the_config_file() {
+    let text = format!(
+        "{GOOD}\n[gate.detector]\nmodel = \"models/yolo.onnx\"\n\n[costmap]\nmap_yaml = \"/maps/floor.yaml\"\nsnapshot_dir = \"snaps\"\n"
+    );
+    let loaded = LoadedConfig {
+        config: parse(&text).unwrap(),
+        path: PathBuf::from("/etc/isochron/site.toml"),
+    };
+    let c = loaded.with_absolute_paths();
+    let etc = Path::new("/etc/isochron");
+    assert_eq!(c.cameras[0].source, "/etc/isochron/video.avi");
+    assert_eq!(c.cameras[1].source, "rtsp://127.0.0.1/stream");
+    assert_eq!(c.gate.detector.model, Some(etc.join("models/yolo.onnx")));
+    assert_eq!(c.costmap.map_yaml, Some(PathBuf::from("/maps/floor.yaml")));
+    assert_eq!(c.costmap.snapshot_dir, Some(etc.join("snaps")));
+    assert_eq!(c.site.state_dir, PathBuf::from("/var/lib/isochron"));
+}
+
+#[test]
+fn syntax_error_names_the_line() {
+    let err = parse("[site]\nname = \"x\"\ntime_zone = = 3\n").unwrap_err();
+    assert_eq!(err.line, Some(3), "{err}");
+    assert!(err.to_string().starts_with("site.toml:3:"), "{err}");
+}
+
+#[test]
+fn wrong_type_names_line_and_key() {
+    let text = GOOD.replace("fps = 10", "fps = \"fast\"");
+    let err = parse(&text).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("camera[0].fps"), "{err}");
+    assert_eq!(err.line, Some(9), "{err}");
+    assert!(err.message.contains("expected"), "{err}");
+}
+
+#[test]
+fn unknown_key_is_rejected_with_its_line() {
+    let text = GOOD.replace("fps = 10", "fsp = 10");
+    let err = parse(&text).unwrap_err();
+    assert_eq!(err.line, Some(9), "{err}");
+    assert!(err.message.contains("fsp"), "{err}");
+}
+
+#[test]
+fn invalid_values_name_line_key_and_expectation() {
+    let text = GOOD.replace("fps = 10", "fps = -3");
+    let err = parse(&text).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("camera[0].fps"));
+    assert_eq!(err.line, Some(9));
+    assert!(err.message.contains("expected a number"), "{err}");
+
+    let text = GOOD.replace("Europe/Berlin", "Mars/Olympus");
+    let err = parse(&text).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("site.time_zone"));
+    assert_eq!(err.line, Some(4));
+
+    let text = GOOD.replace("id = \"cam02\"", "id = \"cam01\"");
+    let err = parse(&text).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("camera[1].id"));
+    assert_eq!(err.line, Some(12));
+    assert!(err.message.contains("used twice"));
+}
+
+#[test]
+fn missing_cameras_is_an_error() {
+    let err = parse("[site]\nname = \"x\"\n").unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("camera"));
+    assert!(err.message.contains("[[camera]]"));
+}
+
+#[test]
+fn the_shipped_configs_are_valid() {
+    for (name, text) in [
+        (
+            "config/demo.toml",
+            include_str!("../../../config/demo.toml"),
+        ),
+        (
+            "config/site.example.toml",
+            include_str!("../../../config/site.example.toml"),
+        ),
+    ] {
+        if let Err(e) = Config::parse(text, Path::new(name)) {
+            panic!("{e}");
+        }
+    }
+}
+
+#[test]
+fn speed_parses() {
+    assert_eq!(Speed::parse("max"), Some(Speed::Max));
+    assert_eq!(Speed::parse("2.5"), Some(Speed::Factor(2.5)));
+    assert_eq!(Speed::parse("-1"), None);
+    let text = GOOD.replace("fps = 10", "speed = \"max\"");
+    assert_eq!(parse(&text).unwrap().cameras[0].speed, Speed::Max);
+    let text = GOOD.replace("fps = 10", "speed = \"fast\"");
+    let err = parse(&text).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("camera[0].speed"));
+}
+
+#[test]
+fn unknown_camera_lists_the_configured_ones() {
+    let loaded = LoadedConfig {
+        config: parse(GOOD).unwrap(),
+        path: PathBuf::from("/etc/isochron/site.toml"),
+    };
+    assert_eq!(loaded.camera("cam02").unwrap().id, "cam02");
+    let err = loaded.camera("cam03").unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "no camera 'cam03' in /etc/isochron/site.toml (configured: cam01, cam02)"
+    );
+}
