@@ -29,7 +29,7 @@ pub const FLAG_ILLUMINATION: u32 = 1 << 1;
 /// Header flag (frames): the frame follows a source reconnect or a gap in capture.
 pub const FLAG_DISCONTINUITY: u32 = 1 << 2;
 
-/// The streams of one camera, as named in DESIGN.md section 1.
+/// The streams of one camera, as named in docs/ARCHITECTURE.md, "Processes and streams".
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 #[repr(u16)]
 pub enum Stream {

@@ -4,7 +4,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Invalid, check_positive, check_range};
 
-/// `[cascade]`: the cascade of temporal filters (DESIGN.md section 3). Filters are
+/// `[cascade]`: the cascade of temporal filters (docs/ARCHITECTURE.md, "Filters"). Filters are
 /// configured by their 10 %-decay duration T and rate r; α = 0.1^(1/(r·T)).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

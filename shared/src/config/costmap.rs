@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use super::{CameraConfig, Invalid, check_polygon, check_positive, check_range};
 
 /// `[costmap]`: block activity on the robots' map as a ROS 2 `OccupancyGrid`
-/// (DESIGN.md section 5), snapshots, and path planning on segments and routes.
+/// (docs/ARCHITECTURE.md, "Cost map and planning"), snapshots, and path planning on segments and routes.
 ///
 /// The grid is configured either by `map_yaml` (a `map_server` YAML: origin and
 /// resolution from it, size from its image, so the activity lines up with the
