@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use isochron_shared::config::LoadedConfig;
-use isochron_shared::health::exit;
+use isochron_shared::exit;
 use isochron_shared::topology::StageKind;
 
 /// Directory of the service binaries: `$ISOCHRON_BIN_DIR`, else next to this binary.

@@ -27,7 +27,7 @@ use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use isochron_shared::clock::{NS_PER_S, format_rfc3339, parse_rfc3339, wall_now_ns};
 use isochron_shared::config::{CameraConfig, Config, IpcConfig};
-use isochron_shared::health::exit;
+use isochron_shared::exit;
 use isochron_shared::ipc::{Activity, Ipc, Motion, StreamPublisher};
 use isochron_shared::names::ServiceNames;
 use isochron_shared::store::{Store, store_path};
