@@ -7,9 +7,11 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use isochron_shared::config::{Config, LoadedConfig, SourceKind};
+use isochron_shared::exit;
 use isochron_shared::ipc::{Ipc, node_census, publisher_segment_bytes};
 use isochron_shared::names::ServiceNames;
 use isochron_shared::store::{Store, store_path};
+use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{BlockActivity, BlockMotion, Stream};
 
 use crate::common::config_path;
@@ -143,9 +145,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .filter(|r| r.state() != "running")
         .map(|r| {
             let who = if r.camera.is_empty() {
-                r.stage.to_string()
+                r.stage.name().to_string()
             } else {
-                format!("{}@{}", r.stage, r.camera)
+                format!("{}@{}", r.stage.name(), r.camera)
             };
             format!("{who} {}", r.state())
         })
@@ -180,8 +182,10 @@ fn check_sources(loaded: &LoadedConfig, report: &mut Report) {
                 Level::Fail,
                 &what,
                 format!(
-                    "{} does not exist (capture exits with code 66)",
-                    p.display()
+                    "{} does not exist ({} exits with code {})",
+                    p.display(),
+                    StageKind::Capture,
+                    exit::NO_INPUT
                 ),
             ),
             SourceKind::Device(i) => {

@@ -14,16 +14,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use isochron_shared::config::LoadedConfig;
-use isochron_shared::health::exit;
-
-/// The pipeline stages, upstream first, and their binaries.
-pub const STAGES: [(&str, &str); 5] = [
-    ("capture", "isochron-capture"),
-    ("motion", "isochron-motion"),
-    ("cascade", "isochron-cascade"),
-    ("gate", "isochron-gate"),
-    ("costmap", "isochron-costmap"),
-];
+use isochron_shared::exit;
+use isochron_shared::topology::StageKind;
 
 /// Directory of the service binaries: `$ISOCHRON_BIN_DIR`, else next to this binary.
 pub fn bin_dir() -> PathBuf {
@@ -37,11 +29,11 @@ pub fn bin_dir() -> PathBuf {
 }
 
 /// The stages whose binaries are installed, in pipeline order.
-pub fn installed_stages() -> Vec<(&'static str, PathBuf)> {
+pub fn installed_stages() -> Vec<(StageKind, PathBuf)> {
     let dir = bin_dir();
-    STAGES
-        .iter()
-        .map(|(stage, bin)| (*stage, dir.join(bin)))
+    StageKind::ALL
+        .into_iter()
+        .map(|stage| (stage, dir.join(stage.binary())))
         .filter(|(_, path)| path.is_file())
         .collect()
 }
@@ -52,7 +44,7 @@ pub struct ServiceSpec {
     /// Unique name, `stage/camera` or `stage`.
     pub name: String,
     /// The stage.
-    pub stage: &'static str,
+    pub stage: StageKind,
     /// Program.
     pub program: PathBuf,
     /// Arguments.
@@ -71,9 +63,9 @@ pub fn group_specs(config: &LoadedConfig) -> Vec<ServiceSpec> {
     );
     let mut specs = Vec::new();
     for (stage, program) in installed_stages().into_iter().rev() {
-        if stage == "costmap" {
+        if !stage.per_camera() {
             specs.push(ServiceSpec {
-                name: stage.to_string(),
+                name: stage.name().to_string(),
                 stage,
                 program,
                 args: vec!["--config".into(), config_arg.clone()],

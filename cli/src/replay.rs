@@ -26,6 +26,7 @@ use isochron_shared::ipc::{
     Activity, Detections, Events, Frames, Ipc, Motion, StreamSubscriber, StreamType,
 };
 use isochron_shared::names::ServiceNames;
+use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{ActivityKind, DetectionHeader, EventPhase, Stream};
 use serde_json::json;
 
@@ -57,28 +58,6 @@ pub struct Args {
     stall_timeout_s: f64,
 }
 
-/// The stream each stage produces.
-fn stream_of(stage: &str) -> Option<Stream> {
-    match stage {
-        "capture" => Some(Stream::Frames),
-        "motion" => Some(Stream::Motion),
-        "cascade" => Some(Stream::Activity),
-        "gate" => Some(Stream::Events),
-        _ => None,
-    }
-}
-
-/// The streams each stage consumes (how many subscribers to wait for).
-fn inputs_of(stage: &str) -> &'static [Stream] {
-    match stage {
-        "motion" => &[Stream::Frames],
-        "cascade" => &[Stream::Motion],
-        "gate" => &[Stream::Frames, Stream::Activity],
-        "costmap" => &[Stream::Activity, Stream::Detections],
-        _ => &[],
-    }
-}
-
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let video = args
         .video
@@ -96,9 +75,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 
     let (loaded, camera) = effective_config(&args, &video, speed, &out)?;
     let stages = installed_stages();
-    if !stages.iter().any(|(s, _)| *s == "capture") {
+    if !stages.iter().any(|(s, _)| *s == StageKind::Capture) {
         bail!(
-            "isochron-capture is not installed next to this binary ({})",
+            "{} is not installed next to this binary ({})",
+            StageKind::Capture.binary(),
             crate::launch::bin_dir().display()
         );
     }
@@ -114,8 +94,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let mut supervisor = Supervisor::new(false, Duration::from_secs(60), Some(out.join("logs")))?;
     let started = Instant::now();
     // Consumers first; the producer only once everything downstream listens.
-    let (capture, rest): (Vec<ServiceSpec>, Vec<ServiceSpec>) =
-        specs.into_iter().partition(|s| s.stage == "capture");
+    let (capture, rest): (Vec<ServiceSpec>, Vec<ServiceSpec>) = specs
+        .into_iter()
+        .partition(|s| s.stage == StageKind::Capture);
     for spec in rest {
         supervisor.add(spec)?;
     }
@@ -238,12 +219,12 @@ source = """#,
 fn wait_for_consumers(
     ipc: &Ipc,
     camera: &str,
-    stages: &[(&'static str, PathBuf)],
+    stages: &[(StageKind, PathBuf)],
     supervisor: &mut Supervisor,
 ) -> anyhow::Result<()> {
     let mut expected: BTreeMap<Stream, usize> = BTreeMap::new();
     for (stage, _) in stages {
-        for input in inputs_of(stage) {
+        for input in stage.consumes() {
             *expected.entry(*input).or_insert(1) += 1;
         }
     }
@@ -287,14 +268,12 @@ struct Subscribers {
 }
 
 impl Subscribers {
-    fn open(ipc: &Ipc, camera: &str, stages: &[(&'static str, PathBuf)]) -> anyhow::Result<Self> {
+    fn open(ipc: &Ipc, camera: &str, stages: &[(StageKind, PathBuf)]) -> anyhow::Result<Self> {
         let has = |stream: Stream| {
             stages
                 .iter()
-                .any(|(stage, _)| stream_of(stage) == Some(stream))
+                .any(|(stage, _)| stage.produces().contains(&stream))
         };
-        // The gate publishes detections as well as events.
-        let gate = has(Stream::Events);
         Ok(Subscribers {
             frames: ipc.subscriber(camera)?,
             motion: has(Stream::Motion)
@@ -303,8 +282,12 @@ impl Subscribers {
             activity: has(Stream::Activity)
                 .then(|| ipc.subscriber(camera))
                 .transpose()?,
-            events: gate.then(|| ipc.subscriber(camera)).transpose()?,
-            detections: gate.then(|| ipc.subscriber(camera)).transpose()?,
+            events: has(Stream::Events)
+                .then(|| ipc.subscriber(camera))
+                .transpose()?,
+            detections: has(Stream::Detections)
+                .then(|| ipc.subscriber(camera))
+                .transpose()?,
         })
     }
 

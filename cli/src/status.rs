@@ -8,6 +8,7 @@ use std::time::Duration;
 use isochron_shared::clock::wall_now_ns;
 use isochron_shared::ipc::Ipc;
 use isochron_shared::names::ServiceNames;
+use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{StageStatus, fixed_str};
 use serde_json::json;
 
@@ -30,8 +31,8 @@ const STALE_AFTER_S: f64 = 15.0;
 
 /// One row: a service and what it last reported.
 pub struct Row {
-    /// Stage name.
-    pub stage: &'static str,
+    /// The stage.
+    pub stage: StageKind,
     /// Camera id ("" for site-wide stages).
     pub camera: String,
     /// The last report, if any.
@@ -59,13 +60,13 @@ impl Row {
 pub fn collect(ipc: &Ipc, cameras: &[String]) -> anyhow::Result<Vec<Row>> {
     let mut readers = Vec::new();
     for (stage, _) in installed_stages() {
-        let targets: Vec<String> = if stage == "costmap" {
-            vec![String::new()]
-        } else {
+        let targets: Vec<String> = if stage.per_camera() {
             cameras.to_vec()
+        } else {
+            vec![String::new()]
         };
         for camera in targets {
-            let reader = ipc.status_subscriber(&camera, stage)?;
+            let reader = ipc.status_subscriber(&camera, stage.name())?;
             readers.push((stage, camera, reader));
         }
     }
@@ -92,7 +93,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let rows = collect(&ipc, &cameras)?;
     if args.json {
         for row in &rows {
-            let mut o = json!({"stage": row.stage, "camera": row.camera, "state": row.state()});
+            let mut o =
+                json!({"stage": row.stage.name(), "camera": row.camera, "state": row.state()});
             if let Some(s) = &row.status {
                 o["pid"] = json!(s.pid);
                 o["age_s"] = json!(row.age_s());
@@ -131,10 +133,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 row.camera.as_str()
             };
             match &row.status {
-                None => println!("{:<8} {:<10} {:<12}", row.stage, camera, row.state()),
+                None => println!("{:<8} {:<10} {:<12}", row.stage.name(), camera, row.state()),
                 Some(s) => println!(
                     "{:<8} {:<10} {:<12} {:>7} {:>9.1} {:>9.1} {:>8} {:>8} {:>9.2} {:>6.1}/{:<6.1}  {}",
-                    row.stage,
+                    row.stage.name(),
                     camera,
                     row.state(),
                     s.pid,

@@ -27,10 +27,11 @@ use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use isochron_shared::clock::{NS_PER_S, format_rfc3339, parse_rfc3339, wall_now_ns};
 use isochron_shared::config::{CameraConfig, Config, IpcConfig};
-use isochron_shared::health::exit;
+use isochron_shared::exit;
 use isochron_shared::ipc::{Activity, Ipc, Motion, StreamPublisher};
 use isochron_shared::names::ServiceNames;
 use isochron_shared::store::{Store, store_path};
+use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{
     BlockMotion, CameraId, DIRECTION_NONE, FLAG_END_OF_STREAM, MotionHeader, Preamble, Stream,
     is_valid_camera_id,
@@ -620,7 +621,7 @@ struct CascadeProc {
 
 impl CascadeProc {
     fn new(config: &Path, camera: &str, log: &Path) -> anyhow::Result<Self> {
-        let program = crate::launch::bin_dir().join("isochron-cascade");
+        let program = crate::launch::bin_dir().join(StageKind::Cascade.binary());
         if !program.is_file() {
             bail!(
                 "{} is not installed (build it with `cargo build --bins`, or set ISOCHRON_BIN_DIR)",
@@ -674,7 +675,8 @@ impl CascadeProc {
             self.check(motion, pb)?;
             if Instant::now() > deadline {
                 bail!(
-                    "isochron-cascade did not subscribe within 60 s; see {}",
+                    "{} did not subscribe within 60 s; see {}",
+                    StageKind::Cascade.binary(),
                     self.log.display()
                 );
             }
@@ -703,7 +705,8 @@ impl CascadeProc {
         ) {
             (Some(code), _) if exit::is_permanent(code) => {
                 bail!(
-                    "isochron-cascade failed with exit code {code}:\n{}",
+                    "{} failed with exit code {code}:\n{}",
+                    StageKind::Cascade.binary(),
                     log_tail(&self.log)
                 );
             }
@@ -717,7 +720,8 @@ impl CascadeProc {
             self.quick_failures += 1;
             if self.quick_failures >= 5 {
                 bail!(
-                    "isochron-cascade keeps dying right after start ({how}):\n{}",
+                    "{} keeps dying right after start ({how}):\n{}",
+                    StageKind::Cascade.binary(),
                     log_tail(&self.log)
                 );
             }

@@ -305,10 +305,11 @@ pub fn quantile(values: &[f32], q: f64) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::topology::StageKind;
 
     #[test]
     fn sequence_gaps_count_as_dropped() {
-        let mut h = Health::new("motion", "cam01", None);
+        let mut h = Health::new(StageKind::Motion.name(), "cam01", None);
         for s in [0, 1, 2, 5, 6] {
             h.received(s);
         }

@@ -64,6 +64,7 @@ pub fn is_valid_prefix(prefix: &str) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::topology::StageKind;
 
     #[test]
     fn names_follow_the_design() {
@@ -73,8 +74,14 @@ mod tests {
             n.stream("cam01", Stream::Activity),
             "isochron/cam01/activity"
         );
-        assert_eq!(n.status("cam01", "motion"), "isochron/cam01/status/motion");
-        assert_eq!(n.status("", "costmap"), "isochron/status/costmap");
+        assert_eq!(
+            n.status("cam01", StageKind::Motion.name()),
+            "isochron/cam01/status/motion"
+        );
+        assert_eq!(
+            n.status("", StageKind::Costmap.name()),
+            "isochron/status/costmap"
+        );
         let t = ServiceNames::new("test-42");
         assert_eq!(t.stream("c", Stream::Events), "test-42/c/events");
     }
