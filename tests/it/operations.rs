@@ -6,8 +6,9 @@
 //! * a hung service (SIGSTOP) is caught by the launcher's watchdog;
 //! * a subscriber that never reads does not slow its publisher;
 //! * a foreign process publishing malformed samples cannot crash a consumer;
-//! * soak (ignored by default: `cargo test -p isochron-tests --test operations --
-//!   --ignored soak`): 30 minutes at full rate, RSS and shared memory stay flat.
+//! * soak (ignored by default: `cargo test -p isochron-tests --test it --
+//!   --ignored operations::soak`): 30 minutes at full rate, RSS and shared memory
+//!   stay flat.
 
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
