@@ -76,13 +76,19 @@ fn publishes_every_frame_with_file_clock_and_opencv_pixels() {
     assert!(status.success(), "{}", capture.stderr());
 }
 
+/// Capture exits within `timeout` with `code`, saying `message`, without a panic.
+fn assert_capture_fails(site: &TestSite, timeout: Duration, code: i32, message: &str) {
+    let (exit, stderr) = site.exit_of("isochron-capture", timeout);
+    assert_eq!(exit, Some(code), "{stderr}");
+    assert!(stderr.contains(message), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
 #[test]
 fn missing_file_is_a_clear_permanent_error() {
     let site = TestSite::with_source("missing", "", "nope.avi");
-    let (code, stderr) = site.exit_of("isochron-capture", Duration::from_secs(20));
-    assert_eq!(code, Some(66), "{stderr}");
-    assert!(stderr.contains("nope.avi does not exist"), "{stderr}");
-    assert!(!stderr.contains("panicked"), "{stderr}");
+    let timeout = Duration::from_secs(20);
+    assert_capture_fails(&site, timeout, 66, "nope.avi does not exist");
 }
 
 #[test]
@@ -97,10 +103,8 @@ fn corrupt_file_is_a_clear_permanent_error() {
         })
         .collect();
     std::fs::write(site.path("corrupt.avi"), noise).unwrap();
-    let (code, stderr) = site.exit_of("isochron-capture", Duration::from_secs(30));
-    assert_eq!(code, Some(65), "{stderr}");
-    assert!(stderr.contains("cannot decode video file"), "{stderr}");
-    assert!(!stderr.contains("panicked"), "{stderr}");
+    let timeout = Duration::from_secs(30);
+    assert_capture_fails(&site, timeout, 65, "cannot decode video file");
 }
 
 #[test]
