@@ -48,22 +48,31 @@ pub fn repo_root() -> PathBuf {
         .to_path_buf()
 }
 
-/// The PETS 2009 sample video (`data/vtest.avi`, fetched by `cargo xtask setup`).
-pub fn vtest() -> PathBuf {
-    let path = std::env::var_os("ISOCHRON_VTEST")
+/// A file `cargo xtask setup` provides: `$var` if set, else `default` under the
+/// repository root. Fails, saying to run the setup (`why` tells what for), when
+/// it is missing.
+pub fn setup_file(var: &str, default: &str, why: &str) -> PathBuf {
+    let path = std::env::var_os(var)
         .map(PathBuf::from)
-        .unwrap_or_else(|| repo_root().join("data/vtest.avi"));
+        .unwrap_or_else(|| repo_root().join(default));
     assert!(
         path.is_file(),
-        "{} is missing: run `cargo xtask setup` to fetch it",
+        "{} is missing: run `cargo xtask setup` {why}",
         path.display()
     );
     path
 }
 
+/// The PETS 2009 sample video (`data/vtest.avi`, fetched by `cargo xtask setup`).
+pub fn vtest() -> PathBuf {
+    setup_file("ISOCHRON_VTEST", "data/vtest.avi", "to fetch it")
+}
+
 /// Frames in vtest.avi.
 pub const VTEST_FRAMES: u64 = 795;
 
+/// Sites made by this process so far: with the pid, a prefix no other test of any
+/// test process uses (the tests of every area run in parallel in one process).
 static NEXT_SITE: AtomicU32 = AtomicU32::new(0);
 
 /// A private site for one test: a temp directory with `site.toml`, and an iceoryx2
@@ -91,6 +100,42 @@ impl TestSite {
         let site = TestSite { dir, prefix };
         site.write_config(body);
         site
+    }
+
+    /// A site with `sections` (such as `[ipc]`; empty for none) and one camera,
+    /// cam01, of which only the `source` is set: a file the test makes, or one that
+    /// is never opened (the test publishes cam01's streams itself, or replay
+    /// replaces it).
+    pub fn with_source(name: &str, sections: &str, source: &str) -> TestSite {
+        let sections = if sections.is_empty() {
+            String::new()
+        } else {
+            format!("{sections}\n\n")
+        };
+        TestSite::new(
+            name,
+            &format!("{sections}[[camera]]\nid = \"cam01\"\nsource = \"{source}\"\n"),
+        )
+    }
+
+    /// A site replaying vtest.avi as cam01 in a loop at `speed`.
+    pub fn looping_vtest(name: &str, speed: &str) -> TestSite {
+        TestSite::new(
+            name,
+            &format!(
+                "[[camera]]\nid = \"cam01\"\nsource = \"{}\"\nspeed = {speed}\nloop = true\n",
+                vtest().display()
+            ),
+        )
+    }
+
+    /// A site replaying vtest.avi as cam01 at full speed from `start`, losslessly:
+    /// a subscriber made before the producer starts gets every sample.
+    pub fn lossless_vtest(name: &str, start: &str) -> TestSite {
+        TestSite::new(
+            name,
+            &format!("[ipc]\nlossless = true\n\n{}", vtest_camera("max", start)),
+        )
     }
 
     /// Rewrites `site.toml` with `body`.
@@ -138,9 +183,17 @@ impl TestSite {
         Proc::spawn(&bin(binary), &all)
     }
 
+    /// Runs service `binary` for cam01 until it exits, which it must do within
+    /// `timeout`: its exit code and stderr.
+    pub fn exit_of(&self, binary: &str, timeout: Duration) -> (Option<i32>, String) {
+        let done = self.spawn(binary, &["--camera", "cam01"]).finish(timeout);
+        (done.status.code(), done.stderr)
+    }
+
     /// Runs `isochron <args>` to completion (with a timeout) and returns it.
-    pub fn isochron(&self, args: &[&str], timeout: Duration) -> Finished {
-        let mut proc = Proc::spawn(&bin("isochron"), args);
+    pub fn isochron(&self, args: &[impl AsRef<str>], timeout: Duration) -> Finished {
+        let args: Vec<&str> = args.iter().map(AsRef::as_ref).collect();
+        let mut proc = Proc::spawn(&bin("isochron"), &args);
         let status = proc.wait(timeout).unwrap_or_else(|| {
             panic!(
                 "isochron {args:?} did not finish in {timeout:?}\nstdout:\n{}\nstderr:\n{}",
@@ -153,6 +206,29 @@ impl TestSite {
             stdout: proc.stdout(),
             stderr: proc.stderr(),
         }
+    }
+
+    /// The arguments of `isochron tap cam01 frames` on this site: print `count`
+    /// frames, give up after `timeout_s`.
+    pub fn tap_frames_args(&self, count: u32, timeout_s: u32) -> Vec<String> {
+        let config = self.config_path().display().to_string();
+        let (count, timeout_s) = (count.to_string(), timeout_s.to_string());
+        ["tap", "cam01", "frames", "--config", &config]
+            .into_iter()
+            .chain(["--count", &count, "--timeout", &timeout_s])
+            .map(str::to_string)
+            .collect()
+    }
+
+    /// Starts `isochron up` on this site (no periodic status, logs in `logs/`),
+    /// with `options` (such as `--watchdog-s`).
+    pub fn up(&self, options: &[&str]) -> Proc {
+        let config = self.config_path().display().to_string();
+        let logs = self.path("logs").display().to_string();
+        let mut args = vec!["up", "--config", &config, "--status-every-s", "0"];
+        args.extend(options);
+        args.extend(["--log-dir", &logs]);
+        Proc::spawn(&bin("isochron"), &args)
     }
 }
 
@@ -169,6 +245,7 @@ pub struct Finished {
 
 /// A child process, killed when dropped. Its output is collected line by line.
 pub struct Proc {
+    program: PathBuf,
     child: Child,
     stdout_lines: Receiver<String>,
     stdout: Vec<String>,
@@ -200,6 +277,7 @@ impl Proc {
             }
         });
         Proc {
+            program: program.to_path_buf(),
             child,
             stdout_lines: rx,
             stdout: Vec::new(),
@@ -228,6 +306,34 @@ impl Proc {
             }
             std::thread::sleep(Duration::from_millis(10));
         }
+    }
+
+    /// Waits up to `timeout` for the exit, which must come, and returns it.
+    pub fn finish(&mut self, timeout: Duration) -> Finished {
+        let status = self.wait(timeout).unwrap_or_else(|| {
+            panic!(
+                "{} did not exit in {timeout:?}\nstderr:\n{}",
+                self.program.display(),
+                self.stderr()
+            )
+        });
+        Finished {
+            status,
+            stdout: self.stdout(),
+            stderr: self.stderr(),
+        }
+    }
+
+    /// Sends SIGTERM and waits up to `timeout` for the exit, which must come.
+    pub fn terminate(&mut self, timeout: Duration) -> ExitStatus {
+        self.signal(libc::SIGTERM);
+        self.wait(timeout).unwrap_or_else(|| {
+            panic!(
+                "{} did not stop on SIGTERM in {timeout:?}\nstderr:\n{}",
+                self.program.display(),
+                self.stderr()
+            )
+        })
     }
 
     /// Sends `signal` (e.g. `libc::SIGTERM`).
@@ -326,4 +432,13 @@ pub fn vtest_camera(speed: &str, start: &str) -> String {
         "[[camera]]\nid = \"cam01\"\nsource = \"{}\"\nspeed = \"{speed}\"\nstart = \"{start}\"\n",
         vtest().display()
     )
+}
+
+/// The pid in a launcher line such as `up: capture/cam01 started pid=123`.
+pub fn pid_in(line: &str) -> u32 {
+    line.rsplit("pid=")
+        .next()
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no pid in '{line}'"))
 }

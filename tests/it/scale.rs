@@ -100,19 +100,17 @@ fn one_process_per_stage_serves_several_cameras_and_a_broken_one_stops_alone() {
             motion.stderr()
         );
     }
-    let status = capture
-        .wait(Duration::from_secs(30))
-        .expect("capture exits once its cameras are done");
+    let done = capture.finish(Duration::from_secs(30));
     assert_eq!(
-        status.code(),
+        done.status.code(),
         Some(exit::NO_INPUT),
         "the missing file decides the exit code\n{}",
-        capture.stderr()
+        done.stderr
     );
     assert!(
-        capture.stderr().contains("missing.avi"),
+        done.stderr.contains("missing.avi"),
         "the error names the file\n{}",
-        capture.stderr()
+        done.stderr
     );
 }
 

@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 use isochron_shared::clock::{NS_PER_S, parse_rfc3339};
 use isochron_shared::ipc::Frames;
 use isochron_shared::wire::{CameraId, FrameHeader, MAGIC, Preamble, Stream};
-use isochron_tests::{TestSite, VTEST_FRAMES, vtest, vtest_camera};
+use isochron_tests::{Proc, TestSite, VTEST_FRAMES, bin, eventually, vtest};
 use opencv::prelude::*;
 use opencv::{imgproc, videoio};
 
@@ -26,10 +26,7 @@ fn opencv_reference_checksums() -> Vec<u32> {
 
 #[test]
 fn publishes_every_frame_with_file_clock_and_opencv_pixels() {
-    let site = TestSite::new(
-        "capture-all",
-        &format!("[ipc]\nlossless = true\n\n{}", vtest_camera("max", START)),
-    );
+    let site = TestSite::lossless_vtest("capture-all", START);
     let ipc = site.ipc("subscriber");
     // Subscribe before the producer starts: lossless delivery counts from here.
     let frames = ipc.subscriber::<Frames>("cam01").unwrap();
@@ -79,30 +76,24 @@ fn publishes_every_frame_with_file_clock_and_opencv_pixels() {
     assert!(status.success(), "{}", capture.stderr());
 }
 
-fn run_capture(site: &TestSite, timeout: Duration) -> (Option<i32>, String) {
-    let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
-    let status = capture.wait(timeout).expect("capture should exit");
-    (status.code(), capture.stderr())
-}
-
-#[test]
-fn missing_file_is_a_clear_permanent_error() {
-    let site = TestSite::new(
-        "missing",
-        "[[camera]]\nid = \"cam01\"\nsource = \"nope.avi\"\n",
-    );
-    let (code, stderr) = run_capture(&site, Duration::from_secs(20));
-    assert_eq!(code, Some(66), "{stderr}");
-    assert!(stderr.contains("nope.avi does not exist"), "{stderr}");
+/// Capture exits within `timeout` with `code`, saying `message`, without a panic.
+fn assert_capture_fails(site: &TestSite, timeout: Duration, code: i32, message: &str) {
+    let (exit, stderr) = site.exit_of("isochron-capture", timeout);
+    assert_eq!(exit, Some(code), "{stderr}");
+    assert!(stderr.contains(message), "{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
 }
 
 #[test]
+fn missing_file_is_a_clear_permanent_error() {
+    let site = TestSite::with_source("missing", "", "nope.avi");
+    let timeout = Duration::from_secs(20);
+    assert_capture_fails(&site, timeout, 66, "nope.avi does not exist");
+}
+
+#[test]
 fn corrupt_file_is_a_clear_permanent_error() {
-    let site = TestSite::new(
-        "corrupt",
-        "[[camera]]\nid = \"cam01\"\nsource = \"corrupt.avi\"\n",
-    );
+    let site = TestSite::with_source("corrupt", "", "corrupt.avi");
     // Deterministic noise, 1 MB.
     let mut x: u32 = 12345;
     let noise: Vec<u8> = (0..1 << 20)
@@ -112,10 +103,8 @@ fn corrupt_file_is_a_clear_permanent_error() {
         })
         .collect();
     std::fs::write(site.path("corrupt.avi"), noise).unwrap();
-    let (code, stderr) = run_capture(&site, Duration::from_secs(30));
-    assert_eq!(code, Some(65), "{stderr}");
-    assert!(stderr.contains("cannot decode video file"), "{stderr}");
-    assert!(!stderr.contains("panicked"), "{stderr}");
+    let timeout = Duration::from_secs(30);
+    assert_capture_fails(&site, timeout, 65, "cannot decode video file");
 }
 
 #[test]
@@ -148,13 +137,9 @@ fn truncated_file_publishes_what_it_can_then_ends() {
         n > 100 && n < VTEST_FRAMES,
         "{n} frames from 40 % of the file"
     );
-    let status = capture.wait(Duration::from_secs(10)).unwrap();
-    assert!(status.success());
-    assert!(
-        capture.stderr().contains("truncated"),
-        "{}",
-        capture.stderr()
-    );
+    let done = capture.finish(Duration::from_secs(10));
+    assert!(done.status.success());
+    assert!(done.stderr.contains("truncated"), "{}", done.stderr);
 }
 
 #[test]
@@ -180,10 +165,7 @@ fn unopenable_device_reconnects_with_backoff_until_stopped() {
     ] {
         assert!(stderr.contains(delay), "{stderr}");
     }
-    capture.signal(libc::SIGTERM);
-    let status = capture
-        .wait(Duration::from_secs(5))
-        .expect("stops on SIGTERM");
+    let status = capture.terminate(Duration::from_secs(5));
     assert!(status.success(), "{}", capture.stderr());
     assert!(!capture.stderr().contains("panicked"));
 }
@@ -191,12 +173,12 @@ fn unopenable_device_reconnects_with_backoff_until_stopped() {
 #[test]
 fn malformed_and_invalid_config_name_line_and_key() {
     let site = TestSite::new("badconfig", "[[camera]]\nid = \"cam01\"\nsource = = 3\n");
-    let (code, stderr) = run_capture(&site, Duration::from_secs(10));
+    let (code, stderr) = site.exit_of("isochron-capture", Duration::from_secs(10));
     assert_eq!(code, Some(78), "{stderr}");
     assert!(stderr.contains("site.toml:8"), "{stderr}");
 
     site.write_config("[[camera]]\nid = \"cam01\"\nsource = \"x.avi\"\nfps = -1\n");
-    let (code, stderr) = run_capture(&site, Duration::from_secs(10));
+    let (code, stderr) = site.exit_of("isochron-capture", Duration::from_secs(10));
     assert_eq!(code, Some(78), "{stderr}");
     assert!(
         stderr.contains("site.toml:9: key `camera[0].fps`"),
@@ -205,7 +187,7 @@ fn malformed_and_invalid_config_name_line_and_key() {
     assert!(stderr.contains("expected a number"), "{stderr}");
 
     site.write_config("[[camera]]\nid = \"cam01\"\nsource = \"x.avi\"\nspeeed = 2\n");
-    let (code, stderr) = run_capture(&site, Duration::from_secs(10));
+    let (code, stderr) = site.exit_of("isochron-capture", Duration::from_secs(10));
     assert_eq!(code, Some(78), "{stderr}");
     assert!(stderr.contains("site.toml:9"), "{stderr}");
     assert!(stderr.contains("speeed"), "{stderr}");
@@ -214,28 +196,12 @@ fn malformed_and_invalid_config_name_line_and_key() {
 #[test]
 fn samples_with_wrong_magic_version_or_size_are_rejected_clearly() {
     // A buffer deep enough that the tap sees all four samples sent back to back.
-    let site = TestSite::new(
-        "foreign",
-        "[ipc]\nframe_buffer = 8\n\n[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\n",
-    );
+    let site = TestSite::with_source("foreign", "[ipc]\nframe_buffer = 8", "unused.avi");
     let ipc = site.ipc("foreign-publisher");
     let mut publisher = ipc.publisher::<Frames>("cam01", 64 * 48).unwrap();
-    let mut tap = isochron_tests::Proc::spawn(
-        &isochron_tests::bin("isochron"),
-        &[
-            "tap",
-            "cam01",
-            "frames",
-            "--config",
-            site.config_path().to_str().unwrap(),
-            "--count",
-            "1",
-            "--timeout",
-            "30",
-        ],
-    );
+    let mut tap = Proc::spawn(&bin("isochron"), &site.tap_frames_args(1, 30));
     // The tap subscribes asynchronously: wait for it.
-    isochron_tests::eventually(Duration::from_secs(10), || {
+    eventually(Duration::from_secs(10), || {
         (publisher.subscriber_count() > 0).then_some(())
     })
     .expect("tap subscribed");

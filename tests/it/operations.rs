@@ -6,8 +6,9 @@
 //! * a hung service (SIGSTOP) is caught by the launcher's watchdog;
 //! * a subscriber that never reads does not slow its publisher;
 //! * a foreign process publishing malformed samples cannot crash a consumer;
-//! * soak (ignored by default: `cargo test -p isochron-tests --test operations --
-//!   --ignored soak`): 30 minutes at full rate, RSS and shared memory stay flat.
+//! * soak (ignored by default: `cargo test -p isochron-tests --test it --
+//!   --ignored operations::soak`): 30 minutes at full rate, RSS and shared memory
+//!   stay flat.
 
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
@@ -16,42 +17,10 @@ use isochron_shared::ipc::{Activity, Events, Frames, Ipc, Motion, StatusSubscrib
 use isochron_shared::ipc::{StreamSubscriber, StreamType, node_census};
 use isochron_shared::store::{Store, store_path};
 use isochron_shared::wire::{CameraId, FrameHeader, MAGIC, PixelFormat, Preamble, Stream};
-use isochron_tests::{Proc, TestSite, bin, eventually, vtest};
-
-/// A site replaying vtest.avi in a loop at `speed`.
-fn looping_site(name: &str, speed: &str) -> TestSite {
-    TestSite::new(
-        name,
-        &format!(
-            "[[camera]]\nid = \"cam01\"\nsource = \"{}\"\nspeed = {speed}\nloop = true\n",
-            vtest().display()
-        ),
-    )
-}
+use isochron_tests::{Proc, TestSite, eventually, pid_in};
 
 fn up(site: &TestSite, watchdog_s: &str) -> Proc {
-    Proc::spawn(
-        &bin("isochron"),
-        &[
-            "up",
-            "--config",
-            site.config_path().to_str().unwrap(),
-            "--status-every-s",
-            "0",
-            "--watchdog-s",
-            watchdog_s,
-            "--log-dir",
-            site.path("logs").to_str().unwrap(),
-        ],
-    )
-}
-
-fn pid_of(line: &str) -> u32 {
-    line.rsplit("pid=")
-        .next()
-        .and_then(|s| s.split_whitespace().next())
-        .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| panic!("no pid in '{line}'"))
+    site.up(&["--watchdog-s", watchdog_s])
 }
 
 fn alive(pid: u32) -> bool {
@@ -69,7 +38,7 @@ fn started(up: &mut Proc) -> HashMap<String, u32> {
                 && line.contains(" started pid=")
             {
                 let name = rest.split_whitespace().next().unwrap().to_string();
-                pids.insert(name, pid_of(line));
+                pids.insert(name, pid_in(line));
             }
         }
         let ready = text.lines().filter(|l| l.ends_with(" ready")).count();
@@ -94,7 +63,7 @@ fn next_sample<S: StreamType>(sub: &StreamSubscriber<S>, timeout: Duration) -> O
 
 #[test]
 fn killing_each_service_in_turn_leaves_the_others_running_and_it_comes_back() {
-    let site = looping_site("ops-kill", "2");
+    let site = TestSite::looping_vtest("ops-kill", "2");
     let mut up = up(&site, "10");
     let mut pids = started(&mut up);
     let ipc = site.ipc("watcher");
@@ -123,7 +92,7 @@ fn killing_each_service_in_turn_leaves_the_others_running_and_it_comes_back() {
         let line = up
             .wait_for_line(&format!("{name} restarted pid="), Duration::from_secs(10))
             .unwrap_or_else(|| panic!("{name} was not restarted:\n{}", up.stdout()));
-        let new_pid = pid_of(&line);
+        let new_pid = pid_in(&line);
         up.wait_for_line(&format!("{name} ready"), Duration::from_secs(10))
             .unwrap_or_else(|| panic!("{name} did not become ready again"));
         // Its own output flows again.
@@ -176,7 +145,7 @@ fn killing_each_service_in_turn_leaves_the_others_running_and_it_comes_back() {
 
 #[test]
 fn sigterm_exits_cleanly_and_leaves_no_stale_node() {
-    let site = looping_site("ops-term", "2");
+    let site = TestSite::looping_vtest("ops-term", "2");
     let mut up = up(&site, "10");
     let pids = started(&mut up);
     for (name, pid) in &pids {
@@ -199,7 +168,7 @@ fn sigterm_exits_cleanly_and_leaves_no_stale_node() {
 
 #[test]
 fn a_hung_service_is_caught_by_the_watchdog() {
-    let site = looping_site("ops-hang", "2");
+    let site = TestSite::looping_vtest("ops-hang", "2");
     let mut up = up(&site, "2");
     let pids = started(&mut up);
     let name = pids
@@ -228,7 +197,7 @@ fn a_hung_service_is_caught_by_the_watchdog() {
 #[test]
 fn a_subscriber_that_stops_reading_does_not_slow_its_publisher() {
     // Capture at 5× real time: 50 frames/s.
-    let site = looping_site("ops-stall", "5");
+    let site = TestSite::looping_vtest("ops-stall", "5");
     let ipc = site.ipc("stalled");
     let _never_read = ipc.subscriber::<Frames>("cam01").unwrap();
     let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
@@ -252,12 +221,7 @@ fn a_subscriber_that_stops_reading_does_not_slow_its_publisher() {
         "the stalled subscriber slowed capture to {rate:.1} frames/s"
     );
     assert!(alive(capture.pid()));
-    capture.signal(libc::SIGTERM);
-    assert!(
-        capture
-            .wait(Duration::from_secs(10))
-            .is_some_and(|s| s.success())
-    );
+    assert!(capture.terminate(Duration::from_secs(10)).success());
 }
 
 /// A malformed frames sample: wrong magic, or a header that lies about its size.
@@ -291,10 +255,7 @@ fn send_garbage(publisher: &mut isochron_shared::ipc::StreamPublisher<Frames>, n
 
 #[test]
 fn a_foreign_publisher_of_malformed_samples_does_not_crash_consumers() {
-    let site = TestSite::new(
-        "ops-foreign",
-        "[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\n",
-    );
+    let site = TestSite::with_source("ops-foreign", "", "unused.avi");
     let ipc = site.ipc("foreign");
     let mut publisher = ipc.publisher::<Frames>("cam01", 64 * 48).unwrap();
     let mut motion = site.spawn("isochron-motion", &["--camera", "cam01"]);
@@ -359,7 +320,7 @@ fn soak() {
         .ok()
         .and_then(|m| m.parse().ok())
         .unwrap_or(30);
-    let site = looping_site("ops-soak", "\"max\"");
+    let site = TestSite::looping_vtest("ops-soak", "\"max\"");
     let mut up = up(&site, "10");
     let pids = started(&mut up);
     // Warm-up: allocations settle, shared memory is touched.

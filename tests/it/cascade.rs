@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use isochron_shared::clock::{Cycle, NS_PER_S, parse_rfc3339};
 use isochron_shared::config::Config;
-use isochron_shared::ipc::{Activity, Ipc, Motion};
+use isochron_shared::ipc::{Activity, Ipc, Motion, StreamPublisher};
 use isochron_shared::names::ServiceNames;
 use isochron_shared::store::{Store, StoreMeta, store_path};
 use isochron_shared::wire::{
@@ -64,8 +64,9 @@ fn office_at(minute: f64) -> f64 {
 
 /// Runs `isochron args` to completion and returns its stdout; panics with its output
 /// if it fails.
-fn isochron(site: &TestSite, args: &[&str], timeout: Duration) -> String {
-    let done = site.isochron(args, timeout);
+fn isochron(site: &TestSite, args: &[impl AsRef<str>], timeout: Duration) -> String {
+    let args: Vec<&str> = args.iter().map(AsRef::as_ref).collect();
+    let done = site.isochron(&args, timeout);
     assert!(
         done.status.success(),
         "isochron {args:?} failed ({}):\nstdout:\n{}\nstderr:\n{}",
@@ -74,6 +75,46 @@ fn isochron(site: &TestSite, args: &[&str], timeout: Duration) -> String {
         done.stderr
     );
     done.stdout
+}
+
+/// A site with the [`OFFICE`] profile in `office.csv`, and the directory synth
+/// writes into (`run/`).
+fn office_site(name: &str) -> (TestSite, PathBuf) {
+    let site = TestSite::new(name, "");
+    std::fs::write(site.path("office.csv"), OFFICE).unwrap();
+    let out = site.path("run");
+    (site, out)
+}
+
+/// The arguments of `isochron synth` of cam01 on the office profile of `site`
+/// into `out`: `days` at `fps` on a `grid` of blocks, then `options`.
+fn synth_args(
+    site: &TestSite,
+    out: &Path,
+    (days, fps, grid): (&str, &str, &str),
+    options: &[&str],
+) -> Vec<String> {
+    let profile = site.path("office.csv").display().to_string();
+    let out = out.display().to_string();
+    let args = ["synth", "--camera", "cam01", "--profile", &profile];
+    args.into_iter()
+        .chain(["--days", days, "--out", &out, "--fps", fps, "--grid", grid])
+        .chain(options.iter().copied())
+        .map(str::to_string)
+        .collect()
+}
+
+/// Runs `isochron <command> --store <store> --camera cam01 <options>`; returns its
+/// stdout.
+fn store_command(site: &TestSite, command: &[&str], store: &Path, options: &[&str]) -> String {
+    let store = store.display().to_string();
+    let args: Vec<&str> = command
+        .iter()
+        .copied()
+        .chain(["--store", &store, "--camera", "cam01"])
+        .chain(options.iter().copied())
+        .collect();
+    isochron(site, &args, Duration::from_secs(60))
 }
 
 /// Parses `minute_of_day,mean,sigma,count` rows.
@@ -108,31 +149,16 @@ fn commit_latency(log: &Path) -> String {
 
 #[test]
 fn fourteen_simulated_days_of_an_office_are_learned() {
-    let site = TestSite::new("synth14", "");
-    std::fs::write(site.path("office.csv"), OFFICE).unwrap();
-    let out = site.path("run");
+    let (site, out) = office_site("synth14");
     let started = Instant::now();
     let stdout = isochron(
         &site,
-        &[
-            "synth",
-            "--camera",
-            "cam01",
-            "--profile",
-            site.path("office.csv").to_str().unwrap(),
-            "--days",
-            "14",
-            "--out",
-            out.to_str().unwrap(),
-            "--fps",
-            "2",
-            "--grid",
-            "16x12",
-            "--arrivals-per-min",
-            "60",
-            "--seed",
-            "7",
-        ],
+        &synth_args(
+            &site,
+            &out,
+            ("14", "2", "16x12"),
+            &["--arrivals-per-min", "60", "--seed", "7"],
+        ),
         Duration::from_secs(900),
     );
     let wall = started.elapsed();
@@ -144,18 +170,7 @@ fn fourteen_simulated_days_of_an_office_are_learned() {
     // Lossless: every minute of every day had all its frames and taught its bin.
     assert_eq!((progress.committed, progress.skipped), (14 * 1440, 0));
 
-    let csv = isochron(
-        &site,
-        &[
-            "store",
-            "export",
-            "--store",
-            store.to_str().unwrap(),
-            "--camera",
-            "cam01",
-        ],
-        Duration::from_secs(60),
-    );
+    let csv = store_command(&site, &["store", "export"], &store, &[]);
     let rows = parse_export(&csv);
     assert_eq!(rows.len(), 1440);
     assert!(rows.iter().all(|r| r.3 == 14), "every bin learned 14 days");
@@ -209,50 +224,23 @@ fn fourteen_simulated_days_of_an_office_are_learned() {
     // The same as a plot, PNG and SVG, and one block as CSV.
     for name in ["office.png", "office.svg"] {
         let image = site.path(name);
-        let said = isochron(
+        let said = store_command(
             &site,
-            &[
-                "plot",
-                "daily",
-                "--store",
-                store.to_str().unwrap(),
-                "--camera",
-                "cam01",
-                "--out",
-                image.to_str().unwrap(),
-            ],
-            Duration::from_secs(60),
+            &["plot", "daily"],
+            &store,
+            &["--out", image.to_str().unwrap()],
         );
         assert!(said.contains("quiet times of the working day: 1"), "{said}");
         assert!(std::fs::metadata(&image).unwrap().len() > 10_000);
     }
-    let one = parse_export(&isochron(
+    let one = parse_export(&store_command(
         &site,
-        &[
-            "store",
-            "export",
-            "--store",
-            store.to_str().unwrap(),
-            "--camera",
-            "cam01",
-            "--block",
-            "8,6",
-        ],
-        Duration::from_secs(60),
+        &["store", "export"],
+        &store,
+        &["--block", "8,6"],
     ));
     assert!(one.iter().any(|r| r.1.unwrap() > 0.0));
-    let info = isochron(
-        &site,
-        &[
-            "store",
-            "info",
-            "--store",
-            store.to_str().unwrap(),
-            "--camera",
-            "cam01",
-        ],
-        Duration::from_secs(60),
-    );
+    let info = store_command(&site, &["store", "info"], &store, &[]);
     assert!(
         info.contains("1440 learned") && info.contains("days/bin    14..14"),
         "{info}"
@@ -363,28 +351,15 @@ impl Lcg {
 #[test]
 fn killing_the_cascade_at_random_moments_loses_at_most_the_minute_in_progress() {
     const KILLS: usize = 15;
-    let site = TestSite::new("kill", "");
-    std::fs::write(site.path("office.csv"), OFFICE).unwrap();
-    let out = site.path("run");
+    let (site, out) = office_site("kill");
     let mut synth = Proc::spawn(
         &bin("isochron"),
-        &[
-            "synth",
-            "--camera",
-            "cam01",
-            "--profile",
-            site.path("office.csv").to_str().unwrap(),
-            "--days",
-            "4",
-            "--out",
-            out.to_str().unwrap(),
-            "--fps",
-            "2",
-            "--grid",
-            "16x12",
-            "--start",
-            "2026-03-02T06:00:00Z",
-        ],
+        &synth_args(
+            &site,
+            &out,
+            ("4", "2", "16x12"),
+            &["--start", "2026-03-02T06:00:00Z"],
+        ),
     );
     let mut pid = cascade_pid(&mut synth, None, Duration::from_secs(60))
         .unwrap_or_else(|| panic!("synth did not start the cascade:\n{}", synth.stderr()));
@@ -534,31 +509,16 @@ fn killing_the_cascade_at_random_moments_loses_at_most_the_minute_in_progress() 
 
 #[test]
 fn a_restarted_cascade_resumes_from_the_store() {
-    let site = TestSite::new("resume", "");
-    std::fs::write(site.path("office.csv"), OFFICE).unwrap();
-    let out = site.path("run");
+    let (site, out) = office_site("resume");
     let synth = |start: &str, seed: &str| {
         isochron(
             &site,
-            &[
-                "synth",
-                "--camera",
-                "cam01",
-                "--profile",
-                site.path("office.csv").to_str().unwrap(),
-                "--days",
-                "1",
-                "--out",
-                out.to_str().unwrap(),
-                "--fps",
-                "1",
-                "--grid",
-                "8x6",
-                "--start",
-                start,
-                "--seed",
-                seed,
-            ],
+            &synth_args(
+                &site,
+                &out,
+                ("1", "1", "8x6"),
+                &["--start", start, "--seed", seed],
+            ),
             Duration::from_secs(300),
         )
     };
@@ -592,6 +552,22 @@ fn a_restarted_cascade_resumes_from_the_store() {
     assert!(b.mean != a.mean && b.var.iter().any(|&v| v > 0.0));
 }
 
+/// Starts the cascade of `site`, fed by this test on `publisher` (cam01's motion,
+/// made first so that the test may subscribe before the cascade starts), and
+/// waits until it subscribed.
+fn start_fed_cascade(site: &TestSite, publisher: &StreamPublisher<Motion>) -> (Proc, MotionFeed) {
+    let cascade = site.spawn("isochron-cascade", &["--camera", "cam01"]);
+    eventually(Duration::from_secs(30), || {
+        (publisher.subscriber_count() > 0).then_some(())
+    })
+    .unwrap_or_else(|| panic!("the cascade did not subscribe:\n{}", cascade.stderr()));
+    let feed = MotionFeed {
+        sequence: 0,
+        camera: CameraId::new("cam01").unwrap(),
+    };
+    (cascade, feed)
+}
+
 /// Motion published by this test.
 struct MotionFeed {
     sequence: u64,
@@ -620,22 +596,11 @@ impl MotionFeed {
 
 #[test]
 fn the_service_filters_shared_memory_rejects_bad_samples_and_passes_end_of_stream() {
-    let site = TestSite::new(
-        "cascade-svc",
-        "[ipc]\nlossless = true\n\n[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\n",
-    );
+    let site = TestSite::with_source("cascade-svc", "[ipc]\nlossless = true", "unused.avi");
     let ipc = site.ipc("feeder");
     let publisher = ipc.publisher::<Motion>("cam01", 8).unwrap();
     let activity = ipc.subscriber::<Activity>("cam01").unwrap();
-    let mut cascade = site.spawn("isochron-cascade", &["--camera", "cam01"]);
-    eventually(Duration::from_secs(30), || {
-        (publisher.subscriber_count() > 0).then_some(())
-    })
-    .unwrap_or_else(|| panic!("the cascade did not subscribe:\n{}", cascade.stderr()));
-    let mut feed = MotionFeed {
-        sequence: 0,
-        camera: CameraId::new("cam01").unwrap(),
-    };
+    let (mut cascade, mut feed) = start_fed_cascade(&site, &publisher);
     let t0 = parse_rfc3339("2026-03-02T08:00:00Z").unwrap();
     let walker = |i: i64| -> Vec<BlockMotion> {
         let mut b = vec![BlockMotion::default(); 8];
@@ -731,10 +696,7 @@ fn the_service_filters_shared_memory_rejects_bad_samples_and_passes_end_of_strea
         "{stderr}"
     );
     assert!(stderr.contains("payload size mismatch"), "{stderr}");
-    cascade.signal(libc::SIGTERM);
-    let status = cascade
-        .wait(Duration::from_secs(10))
-        .expect("stops on SIGTERM");
+    let status = cascade.terminate(Duration::from_secs(10));
     assert!(status.success(), "{}", cascade.stderr());
     assert!(!cascade.stderr().contains("panicked"));
     // The store of the half minute exists (nothing learned: too few frames).
@@ -759,18 +721,11 @@ fn write_store_for(path: &Path, camera: &str, (grid_w, grid_h): (u32, u32)) {
 
 #[test]
 fn foreign_or_damaged_stores_stop_the_service_with_a_clear_error() {
-    let site = TestSite::new(
-        "cascade-foreign",
-        "[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\n",
-    );
+    let site = TestSite::with_source("cascade-foreign", "", "unused.avi");
     let state: PathBuf = site.path("state");
     std::fs::create_dir_all(&state).unwrap();
     let store = state.join("cam01.isochron.sqlite");
-    let run = |site: &TestSite| {
-        let mut p = site.spawn("isochron-cascade", &["--camera", "cam01"]);
-        let status = p.wait(Duration::from_secs(30)).expect("the cascade exits");
-        (status.code(), p.stderr())
-    };
+    let run = |site: &TestSite| site.exit_of("isochron-cascade", Duration::from_secs(30));
 
     std::fs::write(&store, "this is not a database at all").unwrap();
     let (code, stderr) = run(&site);
@@ -807,15 +762,7 @@ fn foreign_or_damaged_stores_stop_the_service_with_a_clear_error() {
     write_store_for(&store, "cam01", (5, 5));
     let ipc = site.ipc("feeder");
     let publisher = ipc.publisher::<Motion>("cam01", 8).unwrap();
-    let mut cascade = site.spawn("isochron-cascade", &["--camera", "cam01"]);
-    eventually(Duration::from_secs(30), || {
-        (publisher.subscriber_count() > 0).then_some(())
-    })
-    .unwrap_or_else(|| panic!("the cascade did not subscribe:\n{}", cascade.stderr()));
-    let mut feed = MotionFeed {
-        sequence: 0,
-        camera: CameraId::new("cam01").unwrap(),
-    };
+    let (mut cascade, mut feed) = start_fed_cascade(&site, &publisher);
     let t0 = parse_rfc3339("2026-03-02T08:00:00Z").unwrap();
     publisher
         .send_copy(feed.header(t0, 8, 0), &[BlockMotion::default(); 8])

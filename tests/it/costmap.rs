@@ -16,7 +16,7 @@ use isochron_shared::clock::{Cycle, NS_PER_S, parse_rfc3339, wall_now_ns};
 use isochron_shared::ipc::{Activity, Ipc, StreamPublisher};
 use isochron_shared::store::{Bin, MinuteCommit, Store, StoreMeta, store_path};
 use isochron_shared::wire::{ActivityHeader, BlockActivity, CameraId, Preamble, Stream};
-use isochron_tests::{Proc, TestSite, bin, repo_root};
+use isochron_tests::{Proc, TestSite, bin, repo_root, setup_file};
 use serde_json::Value;
 
 /// The frame: 320×240 in 16-px blocks (20×15).
@@ -57,13 +57,10 @@ fn dds_domain() -> u16 {
 
 /// The Python of the venv with `cyclonedds`; fails with what to do when missing.
 fn python() -> PathBuf {
-    let path = std::env::var_os("ISOCHRON_ROS2_PYTHON")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| repo_root().join("target/ros2-venv/bin/python3"));
-    assert!(
-        path.is_file(),
-        "{} is missing: run `cargo xtask setup` (it makes a Python venv with the cyclonedds package for the ROS 2 interoperability test)",
-        path.display()
+    let path = setup_file(
+        "ISOCHRON_ROS2_PYTHON",
+        "target/ros2-venv/bin/python3",
+        "(it makes a Python venv with the cyclonedds package for the ROS 2 interoperability test)",
     );
     let ok = std::process::Command::new(&path)
         .args(["-c", "import cyclonedds.domain"])

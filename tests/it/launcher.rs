@@ -2,55 +2,20 @@
 
 use std::time::{Duration, Instant};
 
-use isochron_tests::{Proc, TestSite, bin, vtest};
+use isochron_tests::{TestSite, pid_in};
 
 fn tap_frames(site: &TestSite, count: u32, timeout_s: u32) -> bool {
     let out = site.isochron(
-        &[
-            "tap",
-            "cam01",
-            "frames",
-            "--config",
-            site.config_path().to_str().unwrap(),
-            "--count",
-            &count.to_string(),
-            "--timeout",
-            &timeout_s.to_string(),
-        ],
+        &site.tap_frames_args(count, timeout_s),
         Duration::from_secs(timeout_s as u64 + 20),
     );
     out.status.success() && out.stdout.lines().count() == count as usize
 }
 
-fn pid_in(line: &str) -> u32 {
-    line.rsplit("pid=")
-        .next()
-        .and_then(|s| s.split_whitespace().next())
-        .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| panic!("no pid in '{line}'"))
-}
-
 #[test]
 fn up_restarts_a_killed_capture_and_frames_flow_again() {
-    let site = TestSite::new(
-        "up",
-        &format!(
-            "[[camera]]\nid = \"cam01\"\nsource = \"{}\"\nspeed = 2\nloop = true\n",
-            vtest().display()
-        ),
-    );
-    let mut up = Proc::spawn(
-        &bin("isochron"),
-        &[
-            "up",
-            "--config",
-            site.config_path().to_str().unwrap(),
-            "--status-every-s",
-            "0",
-            "--log-dir",
-            site.path("logs").to_str().unwrap(),
-        ],
-    );
+    let site = TestSite::looping_vtest("up", "2");
+    let mut up = site.up(&[]);
     let started = up
         .wait_for_line("up: capture/cam01 started pid=", Duration::from_secs(20))
         .expect("capture started");

@@ -4,12 +4,14 @@
 use std::time::{Duration, Instant};
 
 use isochron_shared::clock::NS_PER_S;
-use isochron_shared::ipc::{Activity, Detections, Events, Frames, Ipc, StreamPublisher};
+use isochron_shared::ipc::{
+    Activity, Detections, Events, Frames, Ipc, StreamPublisher, StreamSubscriber,
+};
 use isochron_shared::wire::{
     ActivityHeader, BlockActivity, CameraId, EventPhase, FLAG_END_OF_STREAM, FrameHeader,
     PixelFormat, Preamble, Stream,
 };
-use isochron_tests::{TestSite, eventually};
+use isochron_tests::{Proc, TestSite, eventually};
 
 const BLOCK_PX: u32 = 16;
 
@@ -126,37 +128,59 @@ impl Feeder {
 /// A site whose gate runs in live mode (a busy detector drops work) or, when
 /// `lossless`, in replay mode (every gated frame is detected).
 fn site(name: &str, lossless: bool, gate: &str) -> TestSite {
-    TestSite::new(
+    TestSite::with_source(
         name,
-        &format!(
-            "[ipc]\nlossless = {lossless}\nframe_buffer = 4\n\n[gate]\n{gate}\n\n[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\n"
-        ),
+        &format!("[ipc]\nlossless = {lossless}\nframe_buffer = 4\n\n[gate]\n{gate}"),
+        "unused.avi",
     )
+}
+
+/// The gate of a site, fed by a [`Feeder`] of `width × height` frames, watched
+/// through its events and detections (subscribed to before it starts).
+struct Fed {
+    // Dropped in this order: the gate stops first, the node goes last.
+    _gate: Proc,
+    feeder: Feeder,
+    detections: StreamSubscriber<Detections>,
+    events: StreamSubscriber<Events>,
+    _ipc: Ipc,
+}
+
+/// Starts the gate of `site` and waits until it subscribed to the feeder.
+fn start_gate(site: &TestSite, width: u32, height: u32) -> Fed {
+    let ipc = site.ipc("feeder");
+    let events = ipc.subscriber::<Events>("cam01").unwrap();
+    let detections = ipc.subscriber::<Detections>("cam01").unwrap();
+    let feeder = Feeder::new(&ipc, width, height);
+    let gate = site.spawn("isochron-gate", &["--camera", "cam01"]);
+    feeder.wait_for_gate();
+    Fed {
+        _gate: gate,
+        feeder,
+        detections,
+        events,
+        _ipc: ipc,
+    }
 }
 
 #[test]
 fn events_start_and_end_with_hysteresis_and_the_detector_runs_once_per_event() {
     let site = site("gate-events", true, "hold_s = 2.0");
-    let ipc = site.ipc("feeder");
-    let events = ipc.subscriber::<Events>("cam01").unwrap();
-    let detections = ipc.subscriber::<Detections>("cam01").unwrap();
-    let mut feeder = Feeder::new(&ipc, 320, 240);
-    let _gate = site.spawn("isochron-gate", &["--camera", "cam01"]);
-    feeder.wait_for_gate();
+    let mut fed = start_gate(&site, 320, 240);
 
     // Quiet, active 5..10 s, a 1-s dip at 7 (shorter than the hold), quiet again.
     for s in 0..20 {
         let active = (5..10).contains(&s) && s != 7;
-        feeder.second(s, if active { 1.0 } else { 0.0 });
+        fed.feeder.second(s, if active { 1.0 } else { 0.0 });
         std::thread::sleep(Duration::from_millis(20));
     }
-    feeder.end_of_stream(20 * NS_PER_S);
+    fed.feeder.end_of_stream(20 * NS_PER_S);
 
     let (mut records, mut dets, mut ended) = (Vec::new(), Vec::new(), (false, false));
     let deadline = Instant::now() + Duration::from_secs(60);
     while !(ended.0 && ended.1) && Instant::now() < deadline {
-        events.wait(Duration::from_millis(100));
-        while let Some(s) = events.receive().unwrap() {
+        fed.events.wait(Duration::from_millis(100));
+        while let Some(s) = fed.events.receive().unwrap() {
             let h = *s.user_header();
             if h.preamble.is_end_of_stream() {
                 ended.0 = true;
@@ -164,7 +188,7 @@ fn events_start_and_end_with_hysteresis_and_the_detector_runs_once_per_event() {
                 records.push((h, s.payload().to_vec()));
             }
         }
-        while let Some(s) = detections.receive().unwrap() {
+        while let Some(s) = fed.detections.receive().unwrap() {
             let h = *s.user_header();
             if h.preamble.is_end_of_stream() {
                 ended.1 = true;
@@ -210,21 +234,16 @@ fn a_slow_detector_does_not_delay_events() {
         false,
         "hold_s = 0.0\n\n[gate.detector]\nhog_upscale = 2.0\nqueue = 1",
     );
-    let ipc = site.ipc("feeder");
-    let events = ipc.subscriber::<Events>("cam01").unwrap();
-    let detections = ipc.subscriber::<Detections>("cam01").unwrap();
-    let mut feeder = Feeder::new(&ipc, 1920, 1080);
-    let _gate = site.spawn("isochron-gate", &["--camera", "cam01"]);
-    feeder.wait_for_gate();
+    let mut fed = start_gate(&site, 1920, 1080);
 
     let mut worst = Duration::ZERO;
     let mut records = 0;
     for s in 0..16 {
         // On at even seconds, off at odd ones: a start, then an end, every 2 s.
         let sent = Instant::now();
-        feeder.second(s, if s % 2 == 0 { 1.0 } else { 0.0 });
+        fed.feeder.second(s, if s % 2 == 0 { 1.0 } else { 0.0 });
         let got = eventually(Duration::from_secs(5), || {
-            events.receive().unwrap().map(|_| ())
+            fed.events.receive().unwrap().map(|_| ())
         });
         assert!(got.is_some(), "no event record for second {s}");
         records += 1;
@@ -237,9 +256,9 @@ fn a_slow_detector_does_not_delay_events() {
         "events waited for the detector: {worst:?}"
     );
 
-    feeder.end_of_stream(16 * NS_PER_S);
+    fed.feeder.end_of_stream(16 * NS_PER_S);
     let eos = eventually(Duration::from_secs(120), || {
-        while let Some(s) = detections.receive().unwrap() {
+        while let Some(s) = fed.detections.receive().unwrap() {
             if s.user_header().preamble.is_end_of_stream() {
                 return Some(*s.user_header());
             }

@@ -69,9 +69,10 @@ fn iou(a: [f32; 4], b: [f32; 4]) -> f32 {
 
 #[test]
 fn vtest_through_all_stages_gates_the_detector_onto_people() {
-    let site = TestSite::new(
+    let site = TestSite::with_source(
         "pipeline-vtest",
-        "[gate]\ndetect_every_s = 2.0\n\n[gate.detector]\nhog_upscale = 1.5\n\n[[camera]]\nid = \"cam01\"\nsource = \"replaced-by-replay\"\n",
+        "[gate]\ndetect_every_s = 2.0\n\n[gate.detector]\nhog_upscale = 1.5",
+        "replaced-by-replay",
     );
     let summary = replay(&site, &vtest(), "out");
     let count = |k: &str| summary["counts"][k].as_u64().unwrap();
@@ -198,10 +199,7 @@ fn write_empty_scene_video(path: &Path) {
 
 #[test]
 fn an_empty_scene_raises_one_event_per_interval_of_motion_and_none_elsewhere() {
-    let site = TestSite::new(
-        "pipeline-empty",
-        "[[camera]]\nid = \"cam01\"\nsource = \"replaced-by-replay\"\n",
-    );
+    let site = TestSite::with_source("pipeline-empty", "", "replaced-by-replay");
     let video = site.path("scene.avi");
     write_empty_scene_video(&video);
     let summary = replay(&site, &video, "out");

@@ -13,7 +13,7 @@ use isochron_shared::wire::{
     BlockMotion, CameraId, DIRECTION_NONE, FLAG_DISCONTINUITY, FLAG_END_OF_STREAM, FrameHeader,
     MAGIC, MotionHeader, PixelFormat, Preamble, Stream,
 };
-use isochron_tests::{TestSite, VTEST_FRAMES, eventually, repo_root, vtest_camera};
+use isochron_tests::{TestSite, VTEST_FRAMES, eventually, repo_root};
 
 const START: &str = "2026-03-02T07:00:00Z";
 
@@ -55,10 +55,7 @@ fn read_until_end_of_stream(
 
 #[test]
 fn capture_to_motion_on_vtest_delivers_every_pair_and_sees_the_people() {
-    let site = TestSite::new(
-        "motion-vtest",
-        &format!("[ipc]\nlossless = true\n\n{}", vtest_camera("max", START)),
-    );
+    let site = TestSite::lossless_vtest("motion-vtest", START);
     let ipc = site.ipc("subscriber");
     // Subscribe before the producers start: lossless delivery counts from here.
     let motion = ipc.subscriber::<Motion>("cam01").unwrap();
@@ -180,10 +177,7 @@ fn capture_to_motion_on_vtest_delivers_every_pair_and_sees_the_people() {
         "motion must keep running after end of stream\n{}",
         motion_proc.stderr()
     );
-    motion_proc.signal(libc::SIGTERM);
-    let status = motion_proc
-        .wait(Duration::from_secs(5))
-        .expect("motion stops on SIGTERM");
+    let status = motion_proc.terminate(Duration::from_secs(5));
     assert!(status.success(), "{}", motion_proc.stderr());
     assert!(!motion_proc.stderr().contains("panicked"));
 }
@@ -236,10 +230,7 @@ impl Feeder {
 
 #[test]
 fn bad_samples_restarts_gaps_and_end_of_stream_are_handled() {
-    let site = TestSite::new(
-        "motion-feed",
-        "[ipc]\nlossless = true\n\n[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\n",
-    );
+    let site = TestSite::with_source("motion-feed", "[ipc]\nlossless = true", "unused.avi");
     let ipc = site.ipc("feeder");
     let motion = ipc.subscriber::<Motion>("cam01").unwrap();
     let mut feeder = Feeder {
@@ -346,7 +337,6 @@ fn bad_samples_restarts_gaps_and_end_of_stream_are_handled() {
     assert!(stderr.contains("motion needs GRAY8 frames"), "{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
 
-    proc.signal(libc::SIGTERM);
-    let status = proc.wait(Duration::from_secs(5)).expect("stops on SIGTERM");
+    let status = proc.terminate(Duration::from_secs(5));
     assert!(status.success(), "{}", proc.stderr());
 }

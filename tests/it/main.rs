@@ -1,0 +1,17 @@
+//! The multi-process integration tests, one module per area, in one test binary
+//! (linking OpenCV and the services' crates once instead of once per area).
+//!
+//! Every test gets its own site (directory, config, iceoryx2 prefix, DDS domain),
+//! so the tests of all areas run in parallel in this one process. Run one area
+//! with a filter, e.g. `cargo test -p isochron-tests --test it -- capture::`.
+
+mod capture;
+mod cascade;
+mod costmap;
+mod gate;
+mod launcher;
+mod motion;
+mod operations;
+mod pipeline;
+mod scale;
+mod systemd;
