@@ -85,10 +85,84 @@ fn every_service_is_hardened_to_an_exposure_of_at_most_2() {
     }
 }
 
+/// What `systemd-analyze security --offline=yes` says `unit` really gets, line by
+/// line: `(setting, secure)` where secure is its ✓ / ✗ mark.
+fn effective(dir: &Path, unit: &str) -> Vec<(String, bool)> {
+    let (_, text) = analyze(dir, &["security", "--offline=yes", unit]);
+    text.lines()
+        .filter_map(|l| {
+            let l = l.trim_start();
+            let (secure, rest) = if let Some(r) = l.strip_prefix('✓') {
+                (true, r)
+            } else {
+                (false, l.strip_prefix('✗')?)
+            };
+            Some((rest.split_whitespace().next()?.to_string(), secure))
+        })
+        .collect()
+}
+
+#[test]
+fn each_service_gets_the_access_it_needs_and_no_more() {
+    let dir = tempfile::tempdir().unwrap();
+    install_units(dir.path());
+    // (setting, secure?) as the analyser reports it, after every drop-in applied.
+    let expect = |unit: &str, settings: &[(&str, bool)]| {
+        let got = effective(dir.path(), unit);
+        for (setting, secure) in settings {
+            let found = got.iter().find(|(s, _)| s == setting);
+            assert_eq!(
+                found.map(|(_, s)| *s),
+                Some(*secure),
+                "{unit}: {setting} should be {}; the analyser says {got:?}",
+                if *secure { "locked down" } else { "open" }
+            );
+        }
+    };
+    // Capture reads V4L2 devices and network cameras: the shared hardening must not
+    // win over its exceptions.
+    expect(
+        "isochron-capture@cam01.service",
+        &[
+            ("PrivateDevices=", false),
+            ("PrivateUsers=", false),
+            ("IPAddressDeny=", false),
+            ("RestrictAddressFamilies=~AF_(INET|INET6)", false),
+            ("NoNewPrivileges=", true),
+        ],
+    );
+    // The bridge talks DDS over the network, and needs no device.
+    expect(
+        "isochron-costmap.service",
+        &[
+            ("PrivateDevices=", true),
+            ("IPAddressDeny=", false),
+            ("RestrictAddressFamilies=~AF_(INET|INET6)", false),
+            ("NoNewPrivileges=", true),
+        ],
+    );
+    // The others need neither devices nor the network.
+    for unit in [
+        "isochron-motion@cam01.service",
+        "isochron-cascade@cam01.service",
+        "isochron-gate@cam01.service",
+    ] {
+        expect(
+            unit,
+            &[
+                ("PrivateDevices=", true),
+                ("PrivateUsers=", true),
+                ("IPAddressDeny=", true),
+                ("RestrictAddressFamilies=~AF_(INET|INET6)", true),
+            ],
+        );
+    }
+}
+
 #[test]
 fn services_share_hardening_readiness_and_restart_policy() {
     let dropin =
-        std::fs::read_to_string(repo_root().join("systemd/isochron-.service.d/isochron.conf"))
+        std::fs::read_to_string(repo_root().join("systemd/isochron-.service.d/10-hardening.conf"))
             .unwrap();
     for line in [
         "Type=notify",
