@@ -7,6 +7,7 @@
 use std::collections::HashMap;
 use std::ffi::OsString;
 use std::os::unix::net::UnixDatagram;
+use std::os::unix::process::CommandExt;
 use std::os::unix::process::ExitStatusExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -433,6 +434,17 @@ fn spawn(m: &mut Managed, watchdog: Duration, log_dir: Option<&Path>) -> anyhow:
         .env("WATCHDOG_USEC", watchdog.as_micros().to_string())
         .env_remove("WATCHDOG_PID")
         .stdin(Stdio::null());
+    // SAFETY: prctl is async-signal-safe; nothing else runs between fork and exec.
+    unsafe {
+        cmd.pre_exec(|| {
+            // If the supervisor dies (even by SIGKILL), its services stop too
+            // instead of running on as orphans nobody restarts or stops.
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
     if let Some(dir) = log_dir {
         let log = std::fs::OpenOptions::new()
             .create(true)

@@ -50,8 +50,13 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    // Output into a closed pipe (`isochron tap ... | head`) ends the process
+    // quietly, as for any Unix tool, instead of a panic in println!.
+    // SAFETY: called before any other thread exists.
+    unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
     let cli = Cli::parse();
     isochron_shared::logging::init("isochron");
+    isochron_shared::service::owner_only_files();
     let result = match cli.command {
         Command::Up(args) => up::run(args),
         Command::Tap(args) => tap::run(args),

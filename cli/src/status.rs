@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use isochron_shared::clock::wall_now_ns;
 use isochron_shared::ipc::Ipc;
@@ -56,6 +56,9 @@ impl Row {
     }
 }
 
+/// How long `collect` waits for the stages' reports.
+const STATUS_WAIT: Duration = Duration::from_millis(1000);
+
 /// Reads the last status of every installed stage of every camera.
 pub fn collect(ipc: &Ipc, cameras: &[String]) -> anyhow::Result<Vec<Row>> {
     let mut readers = Vec::new();
@@ -66,18 +69,32 @@ pub fn collect(ipc: &Ipc, cameras: &[String]) -> anyhow::Result<Vec<Row>> {
             vec![String::new()]
         };
         for camera in targets {
-            let reader = ipc.status_subscriber(&camera, stage.name())?;
+            let reader = ipc.status_subscriber(&camera, stage)?;
             readers.push((stage, camera, reader));
         }
     }
-    // Running stages deliver their last report as soon as we subscribe.
-    std::thread::sleep(Duration::from_millis(200));
+    // A running stage hands its last report to a new reader on its next tick
+    // (within 250 ms); wait a little longer, or until every stage has answered.
+    let mut latest: Vec<Option<StageStatus>> = vec![None; readers.len()];
+    let deadline = Instant::now() + STATUS_WAIT;
+    loop {
+        for ((_, _, reader), last) in readers.iter().zip(latest.iter_mut()) {
+            if let Some(s) = reader.latest().filter(|s| s.validate().is_ok()) {
+                *last = Some(s);
+            }
+        }
+        if latest.iter().all(Option::is_some) || Instant::now() >= deadline {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
     Ok(readers
         .into_iter()
-        .map(|(stage, camera, reader)| Row {
+        .zip(latest)
+        .map(|((stage, camera, _), status)| Row {
             stage,
             camera,
-            status: reader.latest().filter(|s| s.validate().is_ok()),
+            status,
         })
         .collect())
 }

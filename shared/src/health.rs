@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 
 use crate::clock::wall_now_ns;
 use crate::ipc::{Ipc, StatusPublisher};
+use crate::topology::StageKind;
 use crate::wire::{
     CameraId, LAYOUT_VERSION, MAGIC, STAGE_NAME_LEN, STATUS_DETAIL_LEN, StageStatus, to_fixed,
 };
@@ -86,7 +87,7 @@ const LATENCY_WINDOW: usize = 512;
 /// Counts a stage's work, feeds the watchdog, and every `report_every` logs one
 /// status line and publishes it as a [`StageStatus`].
 pub struct Health {
-    stage: &'static str,
+    stage: StageKind,
     camera: String,
     status: StageStatus,
     publisher: Option<StatusPublisher>,
@@ -103,7 +104,7 @@ pub struct Health {
 
 impl Health {
     /// Health of `stage` for `camera`, publishing through `ipc` if given.
-    pub fn new(stage: &'static str, camera: &str, ipc: Option<&Ipc>) -> Self {
+    pub fn new(stage: StageKind, camera: &str, ipc: Option<&Ipc>) -> Self {
         let publisher = ipc.and_then(|ipc| match ipc.status_publisher(camera, stage) {
             Ok(p) => Some(p),
             Err(e) => {
@@ -120,7 +121,7 @@ impl Health {
                 layout_version: LAYOUT_VERSION,
                 reserved: 0,
                 camera: CameraId::new(camera).unwrap_or(CameraId([0; 24])),
-                stage: to_fixed::<STAGE_NAME_LEN>(stage),
+                stage: to_fixed::<STAGE_NAME_LEN>(stage.name()),
                 pid: std::process::id(),
                 rate_in: 0.0,
                 started_wall_ns: wall_now_ns(),
@@ -220,6 +221,11 @@ impl Health {
     /// process is alive.
     pub fn keep_alive(&mut self) -> Instant {
         let now = Instant::now();
+        // A reader that just subscribed gets the latest report now, not at the
+        // next one (every `report_every`).
+        if let Some(p) = &self.publisher {
+            p.update_connections();
+        }
         self.heartbeat
             .store(millis_since_epoch(now), Ordering::Relaxed);
         if let Some(every) = self.watchdog_every
@@ -247,7 +253,7 @@ impl Health {
         s.detail = to_fixed::<STATUS_DETAIL_LEN>(&detail);
         self.last_report = now;
         tracing::info!(
-            stage = self.stage,
+            stage = self.stage.name(),
             camera = %self.camera,
             "in={} ({:.1}/s) out={} ({:.1}/s) dropped={} rejected={} latency_ms={:.2} e2e_ms(p50/p99)={:.1}/{:.1} {}",
             s.received,
@@ -309,7 +315,7 @@ mod tests {
 
     #[test]
     fn sequence_gaps_count_as_dropped() {
-        let mut h = Health::new(StageKind::Motion.name(), "cam01", None);
+        let mut h = Health::new(StageKind::Motion, "cam01", None);
         for s in [0, 1, 2, 5, 6] {
             h.received(s);
         }

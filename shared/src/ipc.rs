@@ -39,6 +39,7 @@ use iceoryx2::waitset::WaitSetRunResult;
 
 use crate::config::IpcConfig;
 use crate::names::ServiceNames;
+use crate::topology::StageKind;
 use crate::wire::{
     ActivityHeader, BlockActivity, BlockMotion, Detection, DetectionHeader, EventHeader,
     FrameHeader, MotionHeader, StageStatus, Stream, StreamHeader,
@@ -137,7 +138,26 @@ static STOP_REQUESTED: AtomicBool = AtomicBool::new(false);
 /// Marks the process as stopping (for example when a WaitSet reported the
 /// termination request): every [`Ipc::should_stop`] answers true from now on.
 pub fn request_stop() {
-    STOP_REQUESTED.store(true, Ordering::Relaxed);
+    STOP_REQUESTED.store(true, Ordering::SeqCst);
+}
+
+/// Makes SIGINT and SIGTERM set the process's stop flag, once per process.
+///
+/// iceoryx2 remembers only the last signal that arrived, so a SIGTERM followed at
+/// once by a SIGCONT (systemd's stop sequence, GNU `timeout`) would be forgotten;
+/// this flag, once set, stays set. The handler only stores an atomic, which is
+/// async-signal-safe, and then calls the handler installed before it.
+fn watch_stop_signals() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+            // SAFETY: the action only stores to an atomic (async-signal-safe).
+            let registered = unsafe { signal_hook::low_level::register(signal, || request_stop()) };
+            if let Err(e) = registered {
+                tracing::warn!("cannot watch signal {signal}: {e}; stop requests rely on iceoryx2");
+            }
+        }
+    });
 }
 
 /// True if a WaitSet's `result` asks the process to stop (SIGINT, SIGTERM); it
@@ -168,6 +188,10 @@ impl Ipc {
             .name(&node_name)
             .create::<Ipc2>()
             .map_err(|e| err("creating the node")(&e))?;
+        // iceoryx2's own signal handler is installed by its first question; ours
+        // comes after it, and chains to it.
+        let _ = node.wait(Duration::ZERO);
+        watch_stop_signals();
         Ok(Ipc {
             node,
             names,
@@ -340,7 +364,7 @@ impl Ipc {
 }
 
 impl Ipc {
-    fn open_status(&self, camera: &str, stage: &str) -> Result<StatusFactory, IpcError> {
+    fn open_status(&self, camera: &str, stage: StageKind) -> Result<StatusFactory, IpcError> {
         let name = self.names.status(camera, stage);
         self.node
             .service_builder(&Self::service_name(&name)?)
@@ -356,7 +380,11 @@ impl Ipc {
     }
 
     /// The publisher of `stage`'s status for `camera`.
-    pub fn status_publisher(&self, camera: &str, stage: &str) -> Result<StatusPublisher, IpcError> {
+    pub fn status_publisher(
+        &self,
+        camera: &str,
+        stage: StageKind,
+    ) -> Result<StatusPublisher, IpcError> {
         let publisher = self
             .open_status(camera, stage)?
             .publisher_builder()
@@ -370,7 +398,7 @@ impl Ipc {
     pub fn status_subscriber(
         &self,
         camera: &str,
-        stage: &str,
+        stage: StageKind,
     ) -> Result<StatusSubscriber, IpcError> {
         let subscriber = self
             .open_status(camera, stage)?
@@ -409,6 +437,14 @@ pub struct StatusPublisher {
 }
 
 impl StatusPublisher {
+    /// Hands the latest report to readers that subscribed since the last call
+    /// (iceoryx2 connects a new subscriber, and delivers the history, only when
+    /// the publisher updates its connections).
+    pub fn update_connections(&self) {
+        use iceoryx2::port::update_connections::UpdateConnections;
+        let _ = self.publisher.update_connections();
+    }
+
     /// Publishes `status`.
     pub fn publish(&self, status: StageStatus) -> Result<(), IpcError> {
         self.publisher

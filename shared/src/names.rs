@@ -4,6 +4,7 @@
 //! `isochron` and is set per site in the config (`site.service_prefix`), so that
 //! tests and replays run side by side without ever meeting.
 
+use crate::topology::StageKind;
 use crate::wire::Stream;
 
 /// The default service prefix.
@@ -36,7 +37,7 @@ impl ServiceNames {
 
     /// `<prefix>/<camera>/status/<stage>`: the periodic status of one stage; for a
     /// site-wide stage (empty `camera`), `<prefix>/status/<stage>`.
-    pub fn status(&self, camera: &str, stage: &str) -> String {
+    pub fn status(&self, camera: &str, stage: StageKind) -> String {
         if camera.is_empty() {
             format!("{}/status/{stage}", self.prefix)
         } else {
@@ -75,13 +76,10 @@ mod tests {
             "isochron/cam01/activity"
         );
         assert_eq!(
-            n.status("cam01", StageKind::Motion.name()),
+            n.status("cam01", StageKind::Motion),
             "isochron/cam01/status/motion"
         );
-        assert_eq!(
-            n.status("", StageKind::Costmap.name()),
-            "isochron/status/costmap"
-        );
+        assert_eq!(n.status("", StageKind::Costmap), "isochron/status/costmap");
         let t = ServiceNames::new("test-42");
         assert_eq!(t.stream("c", Stream::Events), "test-42/c/events");
     }

@@ -35,6 +35,7 @@ impl ServiceContext {
 /// `iox2 node list` shows.
 pub fn start(stage: StageKind, config: &Path) -> Result<ServiceContext, Fatal> {
     crate::logging::init(stage.binary());
+    owner_only_files();
     context(stage, load(config)?, None)
 }
 
@@ -66,6 +67,7 @@ pub fn run_cameras(
     run: fn(ServiceContext) -> Result<(), Fatal>,
 ) -> std::process::ExitCode {
     crate::logging::init(stage.binary());
+    owner_only_files();
     let result = load(&args.config).and_then(|loaded| {
         let mut chosen: Vec<CameraConfig> = Vec::new();
         for id in &args.camera {
@@ -194,4 +196,12 @@ pub fn finish(stage: StageKind, result: Result<(), Fatal>) -> std::process::Exit
             std::process::ExitCode::from(fatal.code as u8)
         }
     }
+}
+
+/// Files and sockets the process creates are readable by its user only (what the
+/// units' `UMask=0077` does), also when it is started by hand or by `isochron up`:
+/// stores, logs, lock files and snapshots are the site's data.
+pub fn owner_only_files() {
+    // SAFETY: umask only sets the process's file-mode creation mask.
+    unsafe { libc::umask(0o077) };
 }

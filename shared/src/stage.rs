@@ -102,7 +102,7 @@ impl Context {
     /// its status through `ipc` if given.
     pub fn new(kind: StageKind, camera: &str, ipc: Option<&Ipc>) -> Self {
         Context {
-            health: Health::new(kind.name(), camera, ipc),
+            health: Health::new(kind, camera, ipc),
             warnings: Warnings::default(),
         }
     }

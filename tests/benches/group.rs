@@ -47,6 +47,7 @@ use std::time::{Duration, Instant};
 use isochron_shared::clock::wall_now_ns;
 use isochron_shared::health::quantile;
 use isochron_shared::ipc::{Activity, Ipc, StatusSubscriber, StreamSubscriber};
+use isochron_shared::topology::StageKind;
 use isochron_shared::wire::StageStatus;
 use isochron_tests::{Proc, TestSite, bin, vtest};
 
@@ -73,12 +74,12 @@ const STOP_TIMEOUT: Duration = Duration::from_secs(30);
 /// Frames the predecoded source decodes once (one second of video).
 const PRELOAD_FRAMES: u32 = 25;
 
-/// The per-camera service binaries, in pipeline order, and the site-wide one.
-const STAGES: [&str; 5] = ["capture", "motion", "cascade", "gate", "costmap"];
+/// The per-camera services, in pipeline order, and the site-wide one.
+const STAGES: [StageKind; 5] = StageKind::ALL;
 /// Index of the cost map bridge in [`STAGES`].
 const COSTMAP: usize = 4;
 /// The stages whose status decides whether a run holds.
-const HEALTH_STAGES: [&str; 3] = ["capture", "motion", "cascade"];
+const HEALTH_STAGES: [StageKind; 3] = [StageKind::Capture, StageKind::Motion, StageKind::Cascade];
 
 /// The demo camera's floor points (`config/demo.toml`): every camera gets them, so
 /// every camera is on the cost map (all over the same floor).
@@ -259,9 +260,9 @@ struct Member {
 impl Member {
     fn describe(&self) -> String {
         if self.cameras.is_empty() {
-            format!("isochron-{}", STAGES[self.stage])
+            STAGES[self.stage].binary().to_string()
         } else {
-            format!("isochron-{} --camera {}", STAGES[self.stage], self.cameras)
+            format!("{} --camera {}", STAGES[self.stage].binary(), self.cameras)
         }
     }
 }
@@ -283,8 +284,8 @@ impl Group {
         for stage in (0..COSTMAP).rev() {
             for chunk in cameras.chunks(per_process) {
                 let list = chunk.join(",");
-                let binary = format!("isochron-{}", STAGES[stage]);
-                let proc = site.spawn(&binary, &["--camera", &list]);
+                let binary = STAGES[stage].binary();
+                let proc = site.spawn(binary, &["--camera", &list]);
                 members.push(Member {
                     stage,
                     cameras: list,

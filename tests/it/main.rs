@@ -13,5 +13,6 @@ mod launcher;
 mod motion;
 mod operations;
 mod pipeline;
+mod reliability;
 mod scale;
 mod systemd;

@@ -16,6 +16,7 @@ use std::time::{Duration, Instant};
 use isochron_shared::ipc::{Activity, Events, Frames, Ipc, Motion, StatusSubscriber};
 use isochron_shared::ipc::{StreamSubscriber, StreamType, node_census};
 use isochron_shared::store::{Store, store_path};
+use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{CameraId, FrameHeader, MAGIC, PixelFormat, Preamble, Stream};
 use isochron_tests::{Proc, TestSite, eventually, pid_in};
 
@@ -265,7 +266,10 @@ fn a_foreign_publisher_of_malformed_samples_does_not_crash_consumers() {
     })
     .expect("motion and gate subscribed");
     send_garbage(&mut publisher, 30);
-    for (name, proc) in [("motion", &mut motion), ("gate", &mut gate)] {
+    for (name, proc) in [
+        (StageKind::Motion, &mut motion),
+        (StageKind::Gate, &mut gate),
+    ] {
         assert!(
             proc.wait_for_stderr("rejected", Duration::from_secs(10)),
             "{name} logged no rejection:\n{}",
@@ -281,7 +285,7 @@ fn a_foreign_publisher_of_malformed_samples_does_not_crash_consumers() {
     }
 }
 
-fn status_of(ipc: &Ipc, stage: &str) -> Option<isochron_shared::wire::StageStatus> {
+fn status_of(ipc: &Ipc, stage: StageKind) -> Option<isochron_shared::wire::StageStatus> {
     let sub: StatusSubscriber = ipc.status_subscriber("cam01", stage).ok()?;
     eventually(Duration::from_secs(8), || {
         sub.latest().filter(|s| s.rejected > 0)

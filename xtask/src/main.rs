@@ -130,7 +130,7 @@ fn setup(root: &Path) -> anyhow::Result<()> {
 const CYCLONEDDS: &str = "cyclonedds==11.0.1";
 
 /// Makes `target/ros2-venv`, a Python venv with [`CYCLONEDDS`], for
-/// `tests/costmap.rs` (an independent ROS 2 subscriber: no ROS install needed).
+/// `tests/it/costmap.rs` (an independent ROS 2 subscriber: no ROS install needed).
 fn ros2_venv(root: &Path) -> anyhow::Result<()> {
     let venv = root.join("target/ros2-venv");
     let python = venv.join("bin/python3");

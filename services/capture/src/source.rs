@@ -15,6 +15,10 @@ use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 use opencv::{imgproc, videoio};
 
+/// How long opening or reading a network camera may take before it counts as
+/// unavailable (well inside the watchdog's 10 s).
+const NETWORK_TIMEOUT_MS: i32 = 5000;
+
 /// Why a source could not be opened or read.
 #[derive(Debug, thiserror::Error)]
 pub enum SourceError {
@@ -88,7 +92,19 @@ impl VideoSource {
                 cap
             }
             SourceKind::Url(url) => {
-                let cap = videoio::VideoCapture::from_file(url, videoio::CAP_FFMPEG)?;
+                // FFmpeg waits 30 s for an unreachable host by default; give up
+                // sooner, so reconnect backoff and the watchdog keep their rhythm.
+                let timeouts = opencv::core::Vector::<i32>::from_slice(&[
+                    videoio::CAP_PROP_OPEN_TIMEOUT_MSEC,
+                    NETWORK_TIMEOUT_MS,
+                    videoio::CAP_PROP_READ_TIMEOUT_MSEC,
+                    NETWORK_TIMEOUT_MS,
+                ]);
+                let cap = videoio::VideoCapture::from_file_with_params(
+                    url,
+                    videoio::CAP_FFMPEG,
+                    &timeouts,
+                )?;
                 if !cap.is_opened()? {
                     return Err(SourceError::Unavailable(url.clone()));
                 }

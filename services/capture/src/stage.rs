@@ -27,7 +27,15 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
         Duration::from_secs_f64(cam.reconnect_initial_s),
         Duration::from_secs_f64(cam.reconnect_max_s),
     );
-    let Some(mut source) = open_source(&kind, &mut backoff, &ctx.ipc, &mut || {})? else {
+    let mut health = Health::new(StageKind::Capture, &cam.id, Some(&ctx.ipc));
+    if !kind.is_file() {
+        // A camera may be unreachable for long: the service is up (its status says
+        // so) and feeds the watchdog while it backs off, instead of being killed
+        // as a service that never started.
+        notify_ready(&format!("capturing {}", cam.id));
+    }
+    let mut waiting = || health.tick(|| "source unavailable".into());
+    let Some(mut source) = open_source(&kind, &mut backoff, &ctx.ipc, &mut waiting)? else {
         return Ok(());
     };
 
@@ -87,7 +95,6 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
     );
 
     let mut publisher = ctx.ipc.publisher::<Frames>(&cam.id, frame_bytes)?;
-    let mut health = Health::new(StageKind::Capture.name(), &cam.id, Some(&ctx.ipc));
     tracing::info!(
         camera = %cam.id,
         source = %cam.source,
@@ -98,7 +105,9 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
             Stamper::Wall => "wall clock".into(),
         }
     );
-    notify_ready(&format!("capturing {}", cam.id));
+    if kind.is_file() {
+        notify_ready(&format!("capturing {}", cam.id));
+    }
 
     let mut index: u64 = 0; // frames published: the file clock's tick
     let mut flags = 0u32;
@@ -186,9 +195,7 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
                     cam.id
                 );
                 backoff.reset();
-                let mut keep_alive = || {
-                    health.keep_alive();
-                };
+                let mut keep_alive = || health.tick(|| "source unavailable".into());
                 match open_source(&kind, &mut backoff, &ctx.ipc, &mut keep_alive)? {
                     Some(s) => source = Source::Video(s),
                     None => break,

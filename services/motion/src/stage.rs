@@ -19,6 +19,9 @@ pub struct MotionStage<'ipc> {
     camera: String,
     config: MotionConfig,
     mask: Vec<Polygon>,
+    /// The analysis size of the config, if set: frames of another size are
+    /// rejected (they would change the grid and the shared memory it needs).
+    size: Option<(u32, u32)>,
     /// The previous frame, still borrowed from shared memory (no copy).
     prev: Option<(FrameInfo, Received<Frames>)>,
     detector: Option<MotionDetector>,
@@ -50,6 +53,7 @@ impl<'ipc> MotionStage<'ipc> {
             camera: camera.id.clone(),
             config: config.clone(),
             mask: camera.mask.clone(),
+            size: camera.width.zip(camera.height),
             prev: None,
             detector: None,
             output,
@@ -126,6 +130,20 @@ impl<'ipc> MotionStage<'ipc> {
                     header.width,
                     header.height,
                     header.format()
+                )
+            });
+            return Ok(());
+        }
+        if let Some((w, h)) = self.size
+            && (header.width, header.height) != (w, h)
+        {
+            cx.health.rejected();
+            self.prev = None;
+            let camera = &self.camera;
+            cx.warnings.warn("size", || {
+                format!(
+                    "rejected frame {} ({}x{}): camera '{camera}' is configured for {w}x{h} frames",
+                    header.source_index, header.width, header.height
                 )
             });
             return Ok(());
@@ -327,5 +345,38 @@ mod tests {
             "the sequence gap 1 → 4 (the foreign sample is not counted)"
         );
         assert_eq!(status.sent, 3);
+    }
+
+    #[test]
+    fn frames_of_another_size_than_configured_are_rejected_and_change_nothing() {
+        let config = Config::parse(
+            "[[camera]]\nid = \"cam01\"\nsource = \"walk.avi\"\nwidth = 128\nheight = 64\n",
+            Path::new("site.toml"),
+        )
+        .unwrap();
+        let (output, sent) = Output::memory("cam01");
+        let mut stage = MotionStage::new(&config.cameras[0], &config.motion, output).unwrap();
+        let (frames, queue) = Input::memory("cam01");
+        let mut cx = Context::new(StageKind::Motion, "cam01", None);
+        queue.borrow_mut().push_back(frame(0, 0, square_at(10)));
+        // A 1x1 frame from a misconfigured or foreign producer of this camera.
+        let mut tiny = frame(1, 1, |_, _| 0);
+        tiny.header.width = 1;
+        tiny.header.height = 1;
+        tiny.header.stride = 1;
+        tiny.payload.truncate(1);
+        tiny.header.preamble.payload_len = 1;
+        queue.borrow_mut().push_back(tiny);
+        queue.borrow_mut().push_back(frame(2, 2, square_at(14)));
+        queue.borrow_mut().push_back(frame(3, 3, square_at(18)));
+        step(&mut stage, &frames, &mut cx).unwrap();
+        assert_eq!(cx.health.status().rejected, 1);
+        let sent = sent.borrow();
+        // The grid stays 8x4: frame 0 pairs with nothing (the odd frame broke the
+        // run), frames 2 → 3 pair.
+        assert_eq!(sent.len(), 1);
+        assert_eq!((sent[0].header.grid_w, sent[0].header.grid_h), (8, 4));
+        assert_eq!(sent[0].header.source_index, 3);
+        assert!(stage.detail().contains("grid=8x4"));
     }
 }
