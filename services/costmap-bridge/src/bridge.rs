@@ -13,7 +13,6 @@ use isochron_planning::planner::LiveCamera;
 use isochron_planning::raster::Footprint;
 use isochron_shared::clock::NS_PER_S;
 use isochron_shared::config::{LoadedConfig, Polygon};
-use isochron_shared::geometry::BlockGrid;
 use isochron_shared::wire::{ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader};
 
 /// Class id of a person in [`Detection::class`].
@@ -109,11 +108,7 @@ impl Bridge {
         let Some(cam) = self.cameras.get_mut(k) else {
             return;
         };
-        let block_grid = BlockGrid {
-            frame_width: header.frame_width,
-            frame_height: header.frame_height,
-            block_px: header.block_px,
-        };
+        let block_grid = header.block_grid();
         if let (Some(grid), Some(h)) = (&self.grid, &cam.homography)
             && cam
                 .footprint
@@ -231,11 +226,7 @@ impl Bridge {
             .map(|(k, cam)| {
                 let latest = cam.latest.as_ref().filter(|_| self.is_live(k, now))?;
                 Some(LiveCamera {
-                    blocks: BlockGrid {
-                        frame_width: latest.header.frame_width,
-                        frame_height: latest.header.frame_height,
-                        block_px: latest.header.block_px,
-                    },
+                    blocks: latest.header.block_grid(),
                     activity: &latest.blocks,
                 })
             })
