@@ -83,7 +83,8 @@ impl CostmapStage {
             |e: String| Fatal::new(exit::CONFIG, format!("{}: {e}", loaded.path.display()));
 
         let grid = MapGrid::from_config(loaded).map_err(|e| config_error(e.to_string()))?;
-        let bridge = Bridge::new(loaded, grid).map_err(config_error)?;
+        let bridge =
+            Bridge::new(loaded, grid).map_err(|e| Fatal::from(e).context(loaded.path.display()))?;
         let mut planner = Planner::new(loaded).map_err(|e| config_error(e.to_string()))?;
         planner.refresh_every = STORE_REFRESH;
         let clock = SiteClock::new(&config.site.time_zone, config.cascade.cycle)
@@ -114,7 +115,8 @@ impl CostmapStage {
         let ros = match &bridge.grid {
             Some(grid) => {
                 let settings = RosSettings {
-                    domain_id: domain_id(c.ros_domain_id).map_err(config_error)?,
+                    domain_id: domain_id(c.ros_domain_id)
+                        .map_err(|e| Fatal::from(e).context(loaded.path.display()))?,
                     interfaces: interfaces(
                         &c.dds_interfaces
                             .iter()
@@ -125,8 +127,7 @@ impl CostmapStage {
                     updates_topic: c.updates_topic(),
                 };
                 limit_dds_logging();
-                let output = RosOutput::start(&settings)
-                    .map_err(|e| Fatal::new(exit::UNAVAILABLE, e.to_string()))?;
+                let output = RosOutput::start(&settings)?;
                 tracing::info!(
                     "publishing a {}x{} grid of {} m on {} (+ {}), frame '{}', ROS domain {}, {}",
                     grid.width,
