@@ -186,11 +186,7 @@ fn check(args: CheckArgs) -> anyhow::Result<ExitCode> {
             }
         }
         if let Some(g) = &grid {
-            let blocks = BlockGrid {
-                frame_width: w,
-                frame_height: hgt,
-                block_px,
-            };
+            let blocks = BlockGrid::new(w, hgt, block_px);
             let fp = Footprint::build(g, &h, blocks, &cam.mask);
             println!(
                 "  covers {} of {} grid cells ({:.1} %)",

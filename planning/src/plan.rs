@@ -489,11 +489,7 @@ pub fn segment_now(
 
 /// The block grid a camera's store was made for.
 pub fn store_block_grid(model: &Model) -> BlockGrid {
-    BlockGrid {
-        frame_width: model.meta.frame_width,
-        frame_height: model.meta.frame_height,
-        block_px: model.meta.block_px.max(1),
-    }
+    model.meta.block_grid()
 }
 
 #[cfg(test)]

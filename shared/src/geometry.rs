@@ -23,7 +23,11 @@ pub fn point_in_polygon(p: Point, polygon: &[Point]) -> bool {
 }
 
 /// The block grid over a frame: `block_px` squares, partial blocks at the right
-/// and bottom edges.
+/// and bottom edges. This is the one definition of how a frame splits into blocks:
+/// `ceil(frame_width / block_px) × ceil(frame_height / block_px)`, row-major. Motion,
+/// the cascade, the store, the gate and the costmap all describe their grid with it.
+///
+/// Displays as `WxH blocks of P px (FWxFH frame)`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct BlockGrid {
     /// Frame width, pixels.
@@ -35,6 +39,15 @@ pub struct BlockGrid {
 }
 
 impl BlockGrid {
+    /// The grid of `block_px` blocks over a `frame_width × frame_height` frame.
+    pub const fn new(frame_width: u32, frame_height: u32, block_px: u32) -> BlockGrid {
+        BlockGrid {
+            frame_width,
+            frame_height,
+            block_px,
+        }
+    }
+
     /// Blocks per row.
     pub fn grid_w(&self) -> u32 {
         self.frame_width.div_ceil(self.block_px)
@@ -78,6 +91,20 @@ impl BlockGrid {
     }
 }
 
+impl std::fmt::Display for BlockGrid {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}x{} blocks of {} px ({}x{} frame)",
+            self.grid_w(),
+            self.grid_h(),
+            self.block_px,
+            self.frame_width,
+            self.frame_height
+        )
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -112,5 +139,7 @@ mod tests {
         let left_half = [[0.0, 0.0], [50.0, 0.0], [50.0, 40.0], [0.0, 40.0]];
         // Centres at x = 8, 24, 40 are inside; 56 is not.
         assert_eq!(g.blocks_in(&left_half), vec![0, 1, 2, 7, 8, 9, 14, 15, 16]);
+        assert_eq!(g.to_string(), "7x3 blocks of 16 px (100x40 frame)");
+        assert_eq!(g, BlockGrid::new(100, 40, 16));
     }
 }

@@ -48,6 +48,7 @@ use std::time::Duration;
 use rusqlite::{Connection, ErrorCode, OpenFlags, OptionalExtension, TransactionBehavior, params};
 
 use crate::clock::{Cycle, format_rfc3339};
+use crate::geometry::BlockGrid;
 
 /// File name suffix of a store: `<camera>.isochron.sqlite`.
 pub const FILE_SUFFIX: &str = ".isochron.sqlite";
@@ -180,6 +181,11 @@ pub enum StoreError {
 }
 
 /// What a store is about; fixed when it is created.
+///
+/// The block grid is kept as the `meta` table stores it, one field per column:
+/// `grid_w`/`grid_h` are the model's size (every blob has `grid_w × grid_h` values),
+/// `block_px` and the frame size are informative. [`StoreMeta::new`] fills them from
+/// a [`BlockGrid`], [`StoreMeta::block_grid`] gives the grid back.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StoreMeta {
     /// Camera id.
@@ -201,6 +207,26 @@ pub struct StoreMeta {
 }
 
 impl StoreMeta {
+    /// The meta of a new store of `camera` on `grid`.
+    pub fn new(camera: impl Into<String>, grid: BlockGrid, cycle: Cycle, created_ns: i64) -> Self {
+        StoreMeta {
+            camera: camera.into(),
+            grid_w: grid.grid_w(),
+            grid_h: grid.grid_h(),
+            block_px: grid.block_px,
+            frame_width: grid.frame_width,
+            frame_height: grid.frame_height,
+            cycle,
+            created_ns,
+        }
+    }
+
+    /// The block grid the store was made for (its frame size and block edge; a zero
+    /// `block_px` in a damaged file counts as 1).
+    pub fn block_grid(&self) -> BlockGrid {
+        BlockGrid::new(self.frame_width, self.frame_height, self.block_px.max(1))
+    }
+
     /// Number of blocks per bin.
     pub fn blocks(&self) -> usize {
         self.grid_w as usize * self.grid_h as usize
@@ -447,7 +473,7 @@ impl Store {
             create(path, meta)?;
         }
         let store = Store::open_writer(path, &meta.camera, meta.cycle)?;
-        store.check_grid(meta.grid_w, meta.grid_h)?;
+        store.check_blocks(meta.grid_w, meta.grid_h)?;
         Ok(store)
     }
 
@@ -541,8 +567,13 @@ impl Store {
         &self.meta
     }
 
+    /// Errors unless the store's model has as many blocks per row and rows as `grid`.
+    pub fn check_grid(&self, grid: &BlockGrid) -> Result<(), StoreError> {
+        self.check_blocks(grid.grid_w(), grid.grid_h())
+    }
+
     /// Errors unless the store's grid is `grid_w` × `grid_h`.
-    pub fn check_grid(&self, grid_w: u32, grid_h: u32) -> Result<(), StoreError> {
+    fn check_blocks(&self, grid_w: u32, grid_h: u32) -> Result<(), StoreError> {
         if (self.meta.grid_w, self.meta.grid_h) != (grid_w, grid_h) {
             return Err(StoreError::Grid {
                 file: self.path.clone(),
@@ -1036,16 +1067,12 @@ mod tests {
     use crate::exit::Classify;
 
     fn meta(camera: &str) -> StoreMeta {
-        StoreMeta {
-            camera: camera.into(),
-            grid_w: 4,
-            grid_h: 3,
-            block_px: 16,
-            frame_width: 64,
-            frame_height: 48,
-            cycle: Cycle::Daily,
-            created_ns: 1_700_000_000_000_000_000,
-        }
+        StoreMeta::new(
+            camera,
+            BlockGrid::new(64, 48, 16),
+            Cycle::Daily,
+            1_700_000_000_000_000_000,
+        )
     }
 
     fn bin(t_star: u32, count: u32, base: f32) -> Bin {
@@ -1304,6 +1331,23 @@ mod tests {
         let err = result.unwrap_err();
         assert!(matches!(err, StoreError::Damaged { .. }), "{err}");
         assert!(err.to_string().contains(path.to_str().unwrap()), "{err}");
+    }
+
+    #[test]
+    fn meta_is_made_from_a_block_grid_and_gives_it_back() {
+        let m = meta("cam01");
+        assert_eq!(
+            (
+                m.grid_w,
+                m.grid_h,
+                m.block_px,
+                m.frame_width,
+                m.frame_height
+            ),
+            (4, 3, 16, 64, 48)
+        );
+        assert_eq!((m.grid(), m.blocks()), ("4x3".to_string(), 12));
+        assert_eq!(m.block_grid(), BlockGrid::new(64, 48, 16));
     }
 
     #[test]

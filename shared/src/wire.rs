@@ -12,6 +12,8 @@
 
 use iceoryx2::prelude::ZeroCopySend;
 
+use crate::geometry::BlockGrid;
+
 /// Magic at the start of every isochron header: the bytes `ISOC`.
 pub const MAGIC: u32 = u32::from_le_bytes(*b"ISOC");
 
@@ -432,10 +434,8 @@ fn validate_grid(
             reason: "zero".into(),
         });
     }
-    let (w, h) = (
-        frame_width.div_ceil(block_px),
-        frame_height.div_ceil(block_px),
-    );
+    let derived = BlockGrid::new(frame_width, frame_height, block_px);
+    let (w, h) = (derived.grid_w(), derived.grid_h());
     if (w, h) != (grid_w, grid_h) {
         return Err(WireError::Size {
             what: "block grid",
@@ -447,6 +447,13 @@ fn validate_grid(
 }
 
 impl MotionHeader {
+    /// The block grid the header describes (its frame size and block edge; a
+    /// [valid](MotionHeader::validate) header's `grid_w`/`grid_h` are derived from
+    /// them).
+    pub fn block_grid(&self) -> BlockGrid {
+        BlockGrid::new(self.frame_width, self.frame_height, self.block_px)
+    }
+
     /// Validates the header against the sample's real payload length (blocks).
     pub fn validate(&self, camera: &CameraId, blocks: usize) -> Result<(), WireError> {
         self.preamble
@@ -529,6 +536,13 @@ pub struct ActivityHeader {
 }
 
 impl ActivityHeader {
+    /// The block grid the header describes (its frame size and block edge; a
+    /// [valid](ActivityHeader::validate) header's `grid_w`/`grid_h` are derived from
+    /// them).
+    pub fn block_grid(&self) -> BlockGrid {
+        BlockGrid::new(self.frame_width, self.frame_height, self.block_px)
+    }
+
     /// Validates the header against the sample's real payload length (blocks).
     pub fn validate(&self, camera: &CameraId, blocks: usize) -> Result<(), WireError> {
         self.preamble

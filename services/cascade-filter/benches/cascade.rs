@@ -13,8 +13,9 @@ use std::hint::black_box;
 use std::time::{Duration, Instant};
 
 use isochron_cascade::filters::{CascadeBank, FilterBank, NonCascadeBank};
-use isochron_cascade::{Cascade, Grid, LongTerm, MemoryModel, Params, SecondOut};
+use isochron_cascade::{Cascade, LongTerm, MemoryModel, Params, SecondOut};
 use isochron_shared::clock::{Cycle, NS_PER_S, SiteClock, parse_rfc3339};
+use isochron_shared::geometry::BlockGrid;
 use isochron_shared::store::{Baseline, Bin, MinuteCommit, Store, StoreMeta, store_path};
 use isochron_shared::wire::{BlockActivity, BlockMotion, CameraId, MotionHeader, Preamble, Stream};
 
@@ -27,14 +28,8 @@ const SECONDS: i64 = 600;
 const DISTINCT: usize = 300;
 const RUNS: usize = 9;
 
-fn grid() -> Grid {
-    Grid {
-        grid_w: GRID_W,
-        grid_h: GRID_H,
-        block_px: 16,
-        frame_width: GRID_W * 16,
-        frame_height: GRID_H * 16,
-    }
+fn grid() -> BlockGrid {
+    BlockGrid::new(GRID_W * 16, GRID_H * 16, 16)
 }
 
 /// A busy scene: people walking across (about 6 % of the blocks move), a flickering
@@ -97,8 +92,8 @@ fn header(camera: CameraId, start: i64, i: i64) -> MotionHeader {
         frame_width: g.frame_width,
         frame_height: g.frame_height,
         block_px: g.block_px,
-        grid_w: g.grid_w,
-        grid_h: g.grid_h,
+        grid_w: g.grid_w(),
+        grid_h: g.grid_h(),
         changed_fraction: 0.0,
         source_index: i as u64,
     }
@@ -193,16 +188,7 @@ fn commit_latency(commits: usize) -> (f64, f64) {
     let _ = std::fs::remove_dir_all(&dir);
     let path = store_path(&dir, "bench");
     let k = (GRID_W * GRID_H) as usize;
-    let meta = StoreMeta {
-        camera: "bench".into(),
-        grid_w: GRID_W,
-        grid_h: GRID_H,
-        block_px: 16,
-        frame_width: GRID_W * 16,
-        frame_height: GRID_H * 16,
-        cycle: Cycle::Daily,
-        created_ns: 0,
-    };
+    let meta = StoreMeta::new("bench", grid(), Cycle::Daily, 0);
     let mut store = Store::open_or_create(&path, &meta).expect("bench store");
     let baseline = Baseline {
         capture_ns: 0,

@@ -43,6 +43,7 @@ use crate::filters::{
 };
 use isochron_shared::clock::{NS_PER_S, SiteClock};
 use isochron_shared::config::CascadeConfig;
+use isochron_shared::geometry::BlockGrid;
 use isochron_shared::health::quantile;
 use isochron_shared::store::{Baseline, Bin, MinuteCommit, Progress, Store, StoreError};
 use isochron_shared::wire::{
@@ -89,49 +90,6 @@ impl From<&CascadeConfig> for Params {
 impl Default for Params {
     fn default() -> Self {
         Params::from(&CascadeConfig::default())
-    }
-}
-
-/// The block grid of a motion stream.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Grid {
-    /// Blocks per row.
-    pub grid_w: u32,
-    /// Block rows.
-    pub grid_h: u32,
-    /// Block edge in pixels.
-    pub block_px: u32,
-    /// Frame width the blocks cover.
-    pub frame_width: u32,
-    /// Frame height the blocks cover.
-    pub frame_height: u32,
-}
-
-impl Grid {
-    /// The grid a motion header describes.
-    pub fn of(h: &MotionHeader) -> Grid {
-        Grid {
-            grid_w: h.grid_w,
-            grid_h: h.grid_h,
-            block_px: h.block_px,
-            frame_width: h.frame_width,
-            frame_height: h.frame_height,
-        }
-    }
-
-    /// Number of blocks.
-    pub fn blocks(&self) -> usize {
-        self.grid_w as usize * self.grid_h as usize
-    }
-}
-
-impl std::fmt::Display for Grid {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "{}x{} blocks of {} px ({}x{} frame)",
-            self.grid_w, self.grid_h, self.block_px, self.frame_width, self.frame_height
-        )
     }
 }
 
@@ -250,9 +208,9 @@ pub enum Reject {
     )]
     Grid {
         /// The cascade's grid.
-        expected: Grid,
+        expected: BlockGrid,
         /// The sample's grid.
-        found: Grid,
+        found: BlockGrid,
     },
     /// A block holds a value outside its range (NaN, negative or > 1 density).
     #[error("block {block}: {what}")]
@@ -316,15 +274,15 @@ impl SecondOut {
     }
 
     /// The activity header for this second.
-    pub fn header(&self, camera: CameraId, grid: &Grid, sequence: u64) -> ActivityHeader {
+    pub fn header(&self, camera: CameraId, grid: &BlockGrid, sequence: u64) -> ActivityHeader {
         let mut preamble =
-            Preamble::new::<BlockActivity>(Stream::Activity, camera, sequence, grid.blocks());
+            Preamble::new::<BlockActivity>(Stream::Activity, camera, sequence, grid.len());
         preamble.capture_time_ns = self.capture_time_ns();
         preamble.origin_wall_ns = self.origin_wall_ns;
         ActivityHeader {
             preamble,
-            grid_w: grid.grid_w,
-            grid_h: grid.grid_h,
+            grid_w: grid.grid_w(),
+            grid_h: grid.grid_h(),
             block_px: grid.block_px,
             frame_width: grid.frame_width,
             frame_height: grid.frame_height,
@@ -378,7 +336,7 @@ pub struct Cascade<B: FilterBank = CascadeBank> {
     camera: CameraId,
     params: Params,
     clock: SiteClock,
-    grid: Grid,
+    grid: BlockGrid,
     bank: B,
     rate: RateEstimator,
     rate_in_use: Option<f64>,
@@ -403,10 +361,10 @@ impl<B: FilterBank> Cascade<B> {
         camera: CameraId,
         params: Params,
         clock: SiteClock,
-        grid: Grid,
+        grid: BlockGrid,
         resume: Option<Baseline>,
     ) -> Self {
-        let k = grid.blocks();
+        let k = grid.len();
         let rate_in_use = params.frame_rate;
         let l1_one_minus_alpha = rate_in_use.map_or(0.0, |r| 1.0 - alpha(params.t_l1_s, r));
         Cascade {
@@ -433,7 +391,7 @@ impl<B: FilterBank> Cascade<B> {
     }
 
     /// The grid this cascade runs on.
-    pub fn grid(&self) -> &Grid {
+    pub fn grid(&self) -> &BlockGrid {
         &self.grid
     }
 
@@ -493,7 +451,9 @@ impl<B: FilterBank> Cascade<B> {
         if header.preamble.is_end_of_stream() {
             return Ok(self.end_of_stream(model)?);
         }
-        let found = Grid::of(header);
+        // A valid header's grid_w/grid_h are the ones its frame size and block edge
+        // give, so its BlockGrid describes it completely.
+        let found = header.block_grid();
         if found != self.grid {
             return Err(Reject::Grid {
                 expected: self.grid,
@@ -692,7 +652,7 @@ impl<B: FilterBank> Cascade<B> {
         m: MinuteState,
         model: &mut dyn LongTerm,
     ) -> Result<(), StoreError> {
-        let k = self.grid.blocks();
+        let k = self.grid.len();
         self.bank.minute_mean(m.frames, &mut self.minute_means);
         let expected = self
             .rate_in_use

@@ -14,7 +14,7 @@ use isochron_shared::store::{Store, StoreMeta, store_path};
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{CameraId, MotionHeader};
 
-use crate::{Cascade, Grid, Params, PushError, Reject, SecondOut, TimedStore};
+use crate::{Cascade, Params, PushError, Reject, SecondOut, TimedStore};
 
 /// Consecutive samples of another grid after which the cascade gives up: motion runs
 /// with other settings for good, and the store cannot follow.
@@ -112,23 +112,14 @@ impl<'ipc> CascadeStage<'ipc> {
 
     /// The first data sample fixes the grid: store, publisher and cascade.
     fn start(&mut self, header: &MotionHeader) -> Result<(), Fatal> {
-        let grid = Grid::of(header);
+        let grid = header.block_grid();
         let store = match self.store.take() {
             Some(s) => {
-                s.store.check_grid(grid.grid_w, grid.grid_h)?;
+                s.store.check_grid(&grid)?;
                 s
             }
             None => {
-                let meta = StoreMeta {
-                    camera: self.camera.clone(),
-                    grid_w: grid.grid_w,
-                    grid_h: grid.grid_h,
-                    block_px: grid.block_px,
-                    frame_width: grid.frame_width,
-                    frame_height: grid.frame_height,
-                    cycle: self.cycle,
-                    created_ns: wall_now_ns(),
-                };
+                let meta = StoreMeta::new(self.camera.clone(), grid, self.cycle, wall_now_ns());
                 let store = Store::open_or_create(&self.path, &meta)?;
                 tracing::info!(
                     "created the long-term store {} ({grid})",
@@ -138,7 +129,7 @@ impl<'ipc> CascadeStage<'ipc> {
             }
         };
         self.store = Some(store);
-        self.output.reserve(grid.blocks())?;
+        self.output.reserve(grid.len())?;
         self.cascade = Some(Cascade::new(
             self.camera_id,
             self.params.clone(),
@@ -197,8 +188,8 @@ impl<'ipc> CascadeStage<'ipc> {
         if end {
             let grid = *c.grid();
             self.output.end_of_stream(&header.preamble, |h| {
-                h.grid_w = grid.grid_w;
-                h.grid_h = grid.grid_h;
+                h.grid_w = grid.grid_w();
+                h.grid_h = grid.grid_h();
                 h.block_px = grid.block_px;
                 h.frame_width = grid.frame_width;
                 h.frame_height = grid.frame_height;

@@ -11,14 +11,8 @@ fn camera() -> CameraId {
     CameraId::new(CAM).unwrap()
 }
 
-fn grid(w: u32, h: u32) -> Grid {
-    Grid {
-        grid_w: w,
-        grid_h: h,
-        block_px: 16,
-        frame_width: w * 16,
-        frame_height: h * 16,
-    }
+fn grid(w: u32, h: u32) -> BlockGrid {
+    BlockGrid::new(w * 16, h * 16, 16)
 }
 
 fn utc() -> SiteClock {
@@ -27,13 +21,13 @@ fn utc() -> SiteClock {
 
 /// Builds motion samples like the motion service does.
 struct Feed {
-    grid: Grid,
+    grid: BlockGrid,
     sequence: u64,
     source_index: u64,
 }
 
 impl Feed {
-    fn new(grid: Grid) -> Self {
+    fn new(grid: BlockGrid) -> Self {
         Feed {
             grid,
             sequence: 0,
@@ -52,8 +46,8 @@ impl Feed {
             frame_width: self.grid.frame_width,
             frame_height: self.grid.frame_height,
             block_px: self.grid.block_px,
-            grid_w: self.grid.grid_w,
-            grid_h: self.grid.grid_h,
+            grid_w: self.grid.grid_w(),
+            grid_h: self.grid.grid_h(),
             changed_fraction: 0.0,
             source_index: self.source_index,
         };
@@ -119,7 +113,7 @@ fn run<B: FilterBank>(
     mut f: impl FnMut(f64, &mut [BlockMotion]),
     outs: &mut Vec<Out>,
 ) -> i64 {
-    let k = feed.grid.blocks();
+    let k = feed.grid.len();
     let frames = (seconds * fps).round() as i64;
     let mut blocks = vec![BlockMotion::default(); k];
     let mut t_ns = start_ns;
@@ -144,12 +138,12 @@ struct Rig {
 
 impl Rig {
     /// A default cascade on grid `g` and the UTC clock.
-    fn new(g: Grid) -> Self {
+    fn new(g: BlockGrid) -> Self {
         Rig::with_clock(g, utc())
     }
 
     /// A default cascade on grid `g` and `clock`.
-    fn with_clock(g: Grid, clock: SiteClock) -> Self {
+    fn with_clock(g: BlockGrid, clock: SiteClock) -> Self {
         Rig {
             c: Cascade::new(camera(), Params::default(), clock, g, None),
             feed: Feed::new(g),
@@ -267,7 +261,7 @@ impl Lcg {
 #[test]
 fn cascade_and_non_cascade_give_the_same_outputs_on_a_long_random_stream() {
     let g = grid(6, 4);
-    let k = g.blocks();
+    let k = g.len();
     let params = Params {
         t_l2_days: 3.0,
         ..Params::default()
@@ -436,7 +430,7 @@ fn data_delivered_twice_never_counts_twice() {
 #[test]
 fn bad_samples_are_rejected_and_change_nothing() {
     let g = grid(3, 2);
-    let k = g.blocks();
+    let k = g.len();
     let mut good: Cascade = Cascade::new(camera(), Params::default(), utc(), g, None);
     let mut tested: Cascade = Cascade::new(camera(), Params::default(), utc(), g, None);
     let (mut mg, mut mt) = (MemoryModel::default(), MemoryModel::default());
@@ -582,16 +576,7 @@ fn a_restart_resumes_the_baseline_and_the_model_from_the_store() {
     let dir = tempfile::tempdir().unwrap();
     let path = store_path(dir.path(), CAM);
     let g = grid(3, 1);
-    let meta = StoreMeta {
-        camera: CAM.into(),
-        grid_w: 3,
-        grid_h: 1,
-        block_px: 16,
-        frame_width: 48,
-        frame_height: 16,
-        cycle: Cycle::Daily,
-        created_ns: 0,
-    };
+    let meta = StoreMeta::new(CAM, g, Cycle::Daily, 0);
     // Someone in block 0 one second in five.
     let pulse = |s: f64, b: &mut [BlockMotion]| {
         if (s as i64) % 5 == 0 {

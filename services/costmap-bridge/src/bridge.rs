@@ -8,12 +8,11 @@ use std::time::{Duration, Instant};
 
 use isochron_planning::cost::{CostParams, Layer, compose};
 use isochron_planning::grid::MapGrid;
-use isochron_planning::homography::Homography;
+use isochron_planning::homography::{Homography, HomographyError};
 use isochron_planning::planner::LiveCamera;
 use isochron_planning::raster::Footprint;
 use isochron_shared::clock::NS_PER_S;
 use isochron_shared::config::{LoadedConfig, Polygon};
-use isochron_shared::geometry::BlockGrid;
 use isochron_shared::wire::{ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader};
 
 /// Class id of a person in [`Detection::class`].
@@ -64,22 +63,51 @@ pub struct Bridge {
     confirm_hold_ns: i64,
 }
 
+/// A camera the bridge cannot work with; the message names its config key.
+#[derive(Debug, thiserror::Error)]
+pub enum BridgeError {
+    /// Its floor points give no floor mapping.
+    #[error("camera[{index}].floor_points ({camera}): {source}")]
+    FloorPoints {
+        /// Position in the config's camera list.
+        index: usize,
+        /// Camera id.
+        camera: String,
+        /// Why the mapping failed.
+        source: HomographyError,
+    },
+    /// Its id cannot travel in a header.
+    #[error("camera[{index}].id: invalid")]
+    CameraId {
+        /// Position in the config's camera list.
+        index: usize,
+    },
+}
+
+impl isochron_shared::exit::Classify for BridgeError {
+    fn exit_code(&self) -> i32 {
+        isochron_shared::exit::CONFIG
+    }
+}
+
 /// Most confirmations kept per camera.
 const MAX_CONFIRMED: usize = 1024;
 
 impl Bridge {
     /// The bridge of `loaded`: `grid` (see [`MapGrid::from_config`]), the cameras'
     /// homographies (an error names the camera's `floor_points` key).
-    pub fn new(loaded: &LoadedConfig, grid: Option<MapGrid>) -> Result<Bridge, String> {
+    pub fn new(loaded: &LoadedConfig, grid: Option<MapGrid>) -> Result<Bridge, BridgeError> {
         let config = &loaded.config;
         let mut cameras = Vec::new();
         for (i, cam) in config.cameras.iter().enumerate() {
-            let fitted = Homography::of_camera(cam)
-                .map_err(|e| format!("camera[{i}].floor_points ({}): {e}", cam.id))?;
+            let fitted = Homography::of_camera(cam).map_err(|source| BridgeError::FloorPoints {
+                index: i,
+                camera: cam.id.clone(),
+                source,
+            })?;
             cameras.push(CameraState {
                 id: cam.id.clone(),
-                camera_id: CameraId::new(&cam.id)
-                    .ok_or_else(|| format!("camera[{i}].id: invalid"))?,
+                camera_id: CameraId::new(&cam.id).ok_or(BridgeError::CameraId { index: i })?,
                 homography: fitted.map(|(h, _)| h),
                 homography_rms_m: fitted.map_or(0.0, |(_, rms)| rms),
                 masks: cam.mask.clone(),
@@ -109,11 +137,7 @@ impl Bridge {
         let Some(cam) = self.cameras.get_mut(k) else {
             return;
         };
-        let block_grid = BlockGrid {
-            frame_width: header.frame_width,
-            frame_height: header.frame_height,
-            block_px: header.block_px,
-        };
+        let block_grid = header.block_grid();
         if let (Some(grid), Some(h)) = (&self.grid, &cam.homography)
             && cam
                 .footprint
@@ -231,11 +255,7 @@ impl Bridge {
             .map(|(k, cam)| {
                 let latest = cam.latest.as_ref().filter(|_| self.is_live(k, now))?;
                 Some(LiveCamera {
-                    blocks: BlockGrid {
-                        frame_width: latest.header.frame_width,
-                        frame_height: latest.header.frame_height,
-                        block_px: latest.header.block_px,
-                    },
+                    blocks: latest.header.block_grid(),
                     activity: &latest.blocks,
                 })
             })

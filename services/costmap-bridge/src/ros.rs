@@ -66,6 +66,36 @@ pub enum RosError {
     },
 }
 
+impl isochron_shared::exit::Classify for RosError {
+    /// DDS did not start (ports, interfaces, a name it refused): the network side
+    /// is unavailable.
+    fn exit_code(&self) -> i32 {
+        isochron_shared::exit::UNAVAILABLE
+    }
+}
+
+/// A sample could not be published (the text is what DDS said).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{detail}")]
+pub struct PublishError {
+    /// What DDS said.
+    pub detail: String,
+}
+
+/// `$ROS_DOMAIN_ID` is not a domain id.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("ROS_DOMAIN_ID={value}: expected 0 to {MAX_DOMAIN_ID}")]
+pub struct DomainIdError {
+    /// The variable's value.
+    pub value: String,
+}
+
+impl isochron_shared::exit::Classify for DomainIdError {
+    fn exit_code(&self) -> i32 {
+        isochron_shared::exit::CONFIG
+    }
+}
+
 /// Parses a topic name (`/a/b` absolute, `a/b` relative to the node's namespace `/`).
 pub fn topic_name(name: &str) -> Result<Name, RosError> {
     Name::parse(name).map_err(|e| RosError::TopicName {
@@ -124,7 +154,7 @@ impl RosOutput {
             Durability::TransientLocal,
             GRID_DEPTH,
         )
-        .map_err(|e| dds(format!("creating topic {}: {e}", settings.topic)))?;
+        .map_err(|e| dds(format!("creating topic {}: {e:?}", settings.topic)))?;
         let updates_topic = create_topic(
             &context,
             &node_name,
@@ -134,7 +164,7 @@ impl RosOutput {
             Durability::Volatile,
             UPDATES_DEPTH,
         )
-        .map_err(|e| dds(format!("creating topic {}: {e}", settings.updates_topic)))?;
+        .map_err(|e| dds(format!("creating topic {}: {e:?}", settings.updates_topic)))?;
         let grid = node
             .create_publisher::<OccupancyGrid>(&grid_topic, None)
             .map_err(|e| dds(format!("creating the grid publisher: {e:?}")))?;
@@ -167,13 +197,17 @@ impl RosOutput {
     }
 
     /// Publishes a full grid.
-    pub fn publish_grid(&self, grid: OccupancyGrid) -> Result<(), String> {
-        self.grid.publish(grid).map_err(|e| format!("{e:?}"))
+    pub fn publish_grid(&self, grid: OccupancyGrid) -> Result<(), PublishError> {
+        self.grid.publish(grid).map_err(|e| PublishError {
+            detail: format!("{e:?}"),
+        })
     }
 
     /// Publishes a delta.
-    pub fn publish_update(&self, update: OccupancyGridUpdate) -> Result<(), String> {
-        self.updates.publish(update).map_err(|e| format!("{e:?}"))
+    pub fn publish_update(&self, update: OccupancyGridUpdate) -> Result<(), PublishError> {
+        self.updates.publish(update).map_err(|e| PublishError {
+            detail: format!("{e:?}"),
+        })
     }
 
     /// Matched subscribers of the grid topic (0 during the first seconds, until
@@ -197,7 +231,7 @@ fn create_topic(
     type_name: &str,
     durability: Durability,
     depth: i32,
-) -> Result<rustdds::Topic, String> {
+) -> rustdds::dds::CreateResult<rustdds::Topic> {
     let qos = QosPolicyBuilder::new()
         .reliability(policy::Reliability::Reliable {
             max_blocking_time: rustdds::Duration::from_std(MAX_BLOCKING),
@@ -213,15 +247,12 @@ fn create_topic(
             max_samples_per_instance: depth,
         })
         .build();
-    context
-        .domain_participant()
-        .create_topic(
-            name.to_dds_name("rt", node_name, ""),
-            MessageTypeName::new(package, type_name).dds_msg_type(),
-            &qos,
-            TopicKind::NoKey,
-        )
-        .map_err(|e| format!("{e:?}"))
+    context.domain_participant().create_topic(
+        name.to_dds_name("rt", node_name, ""),
+        MessageTypeName::new(package, type_name).dds_msg_type(),
+        &qos,
+        TopicKind::NoKey,
+    )
 }
 
 /// Limits what RustDDS and ros2-client log (through the `log` facade) to
@@ -237,7 +268,7 @@ pub fn limit_dds_logging() {
 }
 
 /// The domain id: `configured`, else `$ROS_DOMAIN_ID`, else 0.
-pub fn domain_id(configured: Option<u16>) -> Result<u16, String> {
+pub fn domain_id(configured: Option<u16>) -> Result<u16, DomainIdError> {
     if let Some(d) = configured {
         return Ok(d);
     }
@@ -247,7 +278,7 @@ pub fn domain_id(configured: Option<u16>) -> Result<u16, String> {
             .parse::<u16>()
             .ok()
             .filter(|d| *d <= MAX_DOMAIN_ID)
-            .ok_or_else(|| format!("ROS_DOMAIN_ID={v}: expected 0 to {MAX_DOMAIN_ID}")),
+            .ok_or(DomainIdError { value: v }),
         _ => Ok(0),
     }
 }
@@ -330,5 +361,12 @@ mod tests {
         assert!(topic_name("/isochron/activity_costmap").is_ok());
         assert!(topic_name("/bad//name").is_err());
         assert!(topic_name("/bad name").is_err());
+        assert_eq!(
+            DomainIdError {
+                value: "300".into()
+            }
+            .to_string(),
+            "ROS_DOMAIN_ID=300: expected 0 to 232"
+        );
     }
 }

@@ -19,6 +19,75 @@ use std::path::{Path, PathBuf};
 use isochron_planning::grid::{MapGrid, pgm_header};
 use isochron_planning::raster::NOT_SEEN;
 
+/// Why a floor plan could not be loaded or a snapshot written. Every message names
+/// the file or directory.
+#[derive(Debug, thiserror::Error)]
+pub enum SnapshotError {
+    /// The floor plan image cannot be read.
+    #[error("cannot read {}: {source}", path.display())]
+    Read {
+        /// The image.
+        path: PathBuf,
+        /// What failed.
+        source: std::io::Error,
+    },
+    /// A PGM whose header cannot be parsed.
+    #[error("{}: damaged PGM header", path.display())]
+    PgmHeader {
+        /// The image.
+        path: PathBuf,
+    },
+    /// A PGM that is not 8-bit, or shorter than its header says.
+    #[error("{}: only complete 8-bit PGM files are supported", path.display())]
+    PgmDepth {
+        /// The image.
+        path: PathBuf,
+    },
+    /// Neither a PGM nor a PNG.
+    #[error("{}: not a PGM or PNG image: {source}", path.display())]
+    NotAnImage {
+        /// The image.
+        path: PathBuf,
+        /// What the PNG decoder said.
+        source: png::DecodingError,
+    },
+    /// A PNG whose pixels cannot be decoded.
+    #[error("{}: {source}", path.display())]
+    Decode {
+        /// The image.
+        path: PathBuf,
+        /// What the PNG decoder said.
+        source: png::DecodingError,
+    },
+    /// The snapshot directory cannot be created.
+    #[error("creating {}: {source}", dir.display())]
+    CreateDir {
+        /// The directory.
+        dir: PathBuf,
+        /// What failed.
+        source: std::io::Error,
+    },
+    /// The snapshot directory cannot be listed.
+    #[error("reading {}: {source}", dir.display())]
+    ReadDir {
+        /// The directory.
+        dir: PathBuf,
+        /// What failed.
+        source: std::io::Error,
+    },
+    /// A snapshot file cannot be written.
+    #[error("writing {}: {source}", path.display())]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// What failed.
+        source: std::io::Error,
+    },
+    /// The picture cannot be encoded.
+    #[error("{0}")]
+    Encode(#[from] png::EncodingError),
+}
+
 /// A grey image of the floor plan, one value per grid cell, rows top (last grid
 /// row) first — the layout of a `map_server` image.
 #[derive(Debug, Clone, PartialEq)]
@@ -33,18 +102,20 @@ pub struct FloorPlan {
 
 impl FloorPlan {
     /// Loads a PGM (8-bit P5) or PNG (grey or colour, 8-bit) map image.
-    pub fn load(path: &Path) -> Result<FloorPlan, String> {
-        let bytes =
-            std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    pub fn load(path: &Path) -> Result<FloorPlan, SnapshotError> {
+        let bytes = std::fs::read(path).map_err(|source| SnapshotError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
         if bytes.starts_with(b"P5") {
-            let h = pgm_header(&bytes)
-                .ok_or_else(|| format!("{}: damaged PGM header", path.display()))?;
+            let h = pgm_header(&bytes).ok_or_else(|| SnapshotError::PgmHeader {
+                path: path.to_path_buf(),
+            })?;
             let n = h.width as usize * h.height as usize;
             if h.max == 0 || h.max > 255 || bytes.len() < h.data_offset + n {
-                return Err(format!(
-                    "{}: only complete 8-bit PGM files are supported",
-                    path.display()
-                ));
+                return Err(SnapshotError::PgmDepth {
+                    path: path.to_path_buf(),
+                });
             }
             let grey = bytes[h.data_offset..h.data_offset + n]
                 .iter()
@@ -60,11 +131,17 @@ impl FloorPlan {
         decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
         let mut reader = decoder
             .read_info()
-            .map_err(|e| format!("{}: not a PGM or PNG image: {e}", path.display()))?;
+            .map_err(|source| SnapshotError::NotAnImage {
+                path: path.to_path_buf(),
+                source,
+            })?;
         let mut buf = vec![0; reader.output_buffer_size()];
         let info = reader
             .next_frame(&mut buf)
-            .map_err(|e| format!("{}: {e}", path.display()))?;
+            .map_err(|source| SnapshotError::Decode {
+                path: path.to_path_buf(),
+                source,
+            })?;
         let channels = info.color_type.samples();
         let grey = buf[..info.buffer_size()]
             .chunks(channels)
@@ -110,8 +187,11 @@ pub struct SnapshotFiles {
 }
 
 /// Writes `<dir>/<stem>.{pgm,yaml,png}`.
-pub fn write(dir: &Path, stem: &str, s: &Snapshot<'_>) -> Result<SnapshotFiles, String> {
-    std::fs::create_dir_all(dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
+pub fn write(dir: &Path, stem: &str, s: &Snapshot<'_>) -> Result<SnapshotFiles, SnapshotError> {
+    std::fs::create_dir_all(dir).map_err(|source| SnapshotError::CreateDir {
+        dir: dir.to_path_buf(),
+        source,
+    })?;
     let files = SnapshotFiles {
         yaml: dir.join(format!("{stem}.yaml")),
         pgm: dir.join(format!("{stem}.pgm")),
@@ -126,9 +206,12 @@ pub fn write(dir: &Path, stem: &str, s: &Snapshot<'_>) -> Result<SnapshotFiles, 
 }
 
 /// Removes the oldest snapshots in `dir` (by name: stems sort by time) beyond `keep`.
-pub fn prune(dir: &Path, prefix: &str, keep: usize) -> Result<usize, String> {
+pub fn prune(dir: &Path, prefix: &str, keep: usize) -> Result<usize, SnapshotError> {
     let mut stems: Vec<String> = std::fs::read_dir(dir)
-        .map_err(|e| format!("reading {}: {e}", dir.display()))?
+        .map_err(|source| SnapshotError::ReadDir {
+            dir: dir.to_path_buf(),
+            source,
+        })?
         .filter_map(Result::ok)
         .filter_map(|e| e.file_name().into_string().ok())
         .filter(|n| n.starts_with(prefix) && n.ends_with(".yaml"))
@@ -144,7 +227,7 @@ pub fn prune(dir: &Path, prefix: &str, keep: usize) -> Result<usize, String> {
     Ok(excess)
 }
 
-fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), String> {
+fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), SnapshotError> {
     let tmp = path.with_extension(format!(
         "{}.tmp-{}",
         path.extension().and_then(|e| e.to_str()).unwrap_or(""),
@@ -156,9 +239,12 @@ fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), String> {
         f.sync_all()?;
         std::fs::rename(&tmp, path)
     })();
-    result.map_err(|e| {
+    result.map_err(|source| {
         let _ = std::fs::remove_file(&tmp);
-        format!("writing {}: {e}", path.display())
+        SnapshotError::Write {
+            path: path.to_path_buf(),
+            source,
+        }
     })
 }
 
@@ -205,7 +291,7 @@ const CAMERA_COLOURS: [[u8; 3]; 8] = [
 ];
 
 /// The picture for people, as PNG bytes.
-pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, String> {
+pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
     let (w, h) = (s.grid.width as usize, s.grid.height as usize);
     let scale = (900 / w.max(h).max(1)).clamp(1, 8);
     let bar = 24usize;
@@ -317,8 +403,8 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, String> {
         let mut encoder = png::Encoder::new(&mut out, iw as u32, ih as u32);
         encoder.set_color(png::ColorType::Rgb);
         encoder.set_depth(png::BitDepth::Eight);
-        let mut writer = encoder.write_header().map_err(|e| e.to_string())?;
-        writer.write_image_data(&img).map_err(|e| e.to_string())?;
+        let mut writer = encoder.write_header()?;
+        writer.write_image_data(&img)?;
     }
     Ok(out)
 }

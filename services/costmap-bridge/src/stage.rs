@@ -24,7 +24,7 @@ use crate::msgs::{
     Header, MapMetaData, OccupancyGrid, OccupancyGridUpdate, Point, Pose, Quaternion, Time,
 };
 use crate::ros::{RosOutput, RosSettings, domain_id, interfaces, limit_dds_logging};
-use crate::snapshot::{self, FloorPlan, Snapshot};
+use crate::snapshot::{self, FloorPlan, Snapshot, SnapshotError};
 
 /// How long a read long-term model is trusted before the store is checked again.
 const STORE_REFRESH: Duration = Duration::from_secs(60);
@@ -83,7 +83,8 @@ impl CostmapStage {
             |e: String| Fatal::new(exit::CONFIG, format!("{}: {e}", loaded.path.display()));
 
         let grid = MapGrid::from_config(loaded).map_err(|e| config_error(e.to_string()))?;
-        let bridge = Bridge::new(loaded, grid).map_err(config_error)?;
+        let bridge =
+            Bridge::new(loaded, grid).map_err(|e| Fatal::from(e).context(loaded.path.display()))?;
         let mut planner = Planner::new(loaded).map_err(|e| config_error(e.to_string()))?;
         planner.refresh_every = STORE_REFRESH;
         let clock = SiteClock::new(&config.site.time_zone, config.cascade.cycle)
@@ -114,7 +115,8 @@ impl CostmapStage {
         let ros = match &bridge.grid {
             Some(grid) => {
                 let settings = RosSettings {
-                    domain_id: domain_id(c.ros_domain_id).map_err(config_error)?,
+                    domain_id: domain_id(c.ros_domain_id)
+                        .map_err(|e| Fatal::from(e).context(loaded.path.display()))?,
                     interfaces: interfaces(
                         &c.dds_interfaces
                             .iter()
@@ -125,8 +127,7 @@ impl CostmapStage {
                     updates_topic: c.updates_topic(),
                 };
                 limit_dds_logging();
-                let output = RosOutput::start(&settings)
-                    .map_err(|e| Fatal::new(exit::UNAVAILABLE, e.to_string()))?;
+                let output = RosOutput::start(&settings)?;
                 tracing::info!(
                     "publishing a {}x{} grid of {} m on {} (+ {}), frame '{}', ROS domain {}, {}",
                     grid.width,
@@ -409,6 +410,20 @@ fn load_floor_plan(loaded: &LoadedConfig, grid: Option<&MapGrid>) -> Option<Floo
     }
 }
 
+/// Why no snapshot was written.
+#[derive(Debug, thiserror::Error)]
+enum SnapshotFailure {
+    /// No grid to take a picture of.
+    #[error("no [costmap] grid is configured (map_yaml or width_cells/height_cells)")]
+    NoGrid,
+    /// The bridge composed no cells.
+    #[error("no grid")]
+    NoCells,
+    /// Writing the files failed.
+    #[error("{0}")]
+    Write(#[from] SnapshotError),
+}
+
 /// Writes a snapshot of the current cost map; returns the YAML's path.
 fn write_snapshot(
     bridge: &Bridge,
@@ -416,12 +431,9 @@ fn write_snapshot(
     dir: &std::path::Path,
     floor_plan: Option<&FloorPlan>,
     now: Instant,
-) -> Result<String, String> {
-    let grid = bridge
-        .grid
-        .as_ref()
-        .ok_or("no [costmap] grid is configured (map_yaml or width_cells/height_cells)")?;
-    let cells = bridge.compose(now).ok_or("no grid")?;
+) -> Result<String, SnapshotFailure> {
+    let grid = bridge.grid.as_ref().ok_or(SnapshotFailure::NoGrid)?;
+    let cells = bridge.compose(now).ok_or(SnapshotFailure::NoCells)?;
     let stamp_ns = bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
     let ts = timestamp(stamp_ns);
     let stem = format!(
@@ -518,8 +530,8 @@ fn answer(
                 tracing::info!("snapshot written: {path}");
                 PlanResponse::new(kind as u32, PlanStatus::Ok, &path)
             }
-            Err(e) if bridge.grid.is_none() => failed(PlanStatus::NoData, e),
-            Err(e) => failed(PlanStatus::Failed, e),
+            Err(e) if bridge.grid.is_none() => failed(PlanStatus::NoData, e.to_string()),
+            Err(e) => failed(PlanStatus::Failed, e.to_string()),
         },
     }
 }

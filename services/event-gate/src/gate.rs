@@ -132,11 +132,7 @@ impl Gate {
 
     /// Feeds one (validated) activity sample.
     pub fn on_activity(&mut self, h: &ActivityHeader, blocks: &[BlockActivity]) -> Vec<Action> {
-        self.ensure_zones(BlockGrid {
-            frame_width: h.frame_width,
-            frame_height: h.frame_height,
-            block_px: h.block_px,
-        });
+        self.ensure_zones(h.block_grid());
         let second = Second {
             start_ns: h.preamble.capture_time_ns - NS_PER_S,
             end_ns: h.preamble.capture_time_ns,

@@ -71,6 +71,29 @@ impl PersonBox {
     }
 }
 
+/// A line of a MOTChallenge `gt.txt` that cannot be read.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MotError {
+    /// A field is missing or not a number.
+    #[error("line {line}: field {field} is not a number: {text}")]
+    NotANumber {
+        /// Line number, 1-based.
+        line: usize,
+        /// Field number, 1-based.
+        field: usize,
+        /// The line.
+        text: String,
+    },
+    /// A frame number below 1.
+    #[error("line {line}: frame numbers start at 1: {text}")]
+    Frame {
+        /// Line number, 1-based.
+        line: usize,
+        /// The line.
+        text: String,
+    },
+}
+
 /// Ground truth: the boxes of each video frame (0-based).
 #[derive(Debug, Clone, Default)]
 pub struct GroundTruth {
@@ -80,7 +103,7 @@ pub struct GroundTruth {
 impl GroundTruth {
     /// Parses MOTChallenge `gt.txt` (`frame,id,left,top,width,height,flag,...`, frames
     /// 1-based: video frame n is gt frame n + 1).
-    pub fn parse_mot(text: &str) -> Result<Self, String> {
+    pub fn parse_mot(text: &str) -> Result<Self, MotError> {
         let mut frames: HashMap<u64, Vec<PersonBox>> = HashMap::new();
         for (i, line) in text.lines().enumerate() {
             let line = line.trim();
@@ -88,14 +111,21 @@ impl GroundTruth {
                 continue;
             }
             let f: Vec<&str> = line.split(',').map(str::trim).collect();
-            let num = |k: usize| -> Result<f64, String> {
-                f.get(k).and_then(|v| v.parse::<f64>().ok()).ok_or_else(|| {
-                    format!("line {}: field {} is not a number: {line}", i + 1, k + 1)
-                })
+            let num = |k: usize| -> Result<f64, MotError> {
+                f.get(k)
+                    .and_then(|v| v.parse::<f64>().ok())
+                    .ok_or_else(|| MotError::NotANumber {
+                        line: i + 1,
+                        field: k + 1,
+                        text: line.to_string(),
+                    })
             };
             let gt_frame = num(0)?;
             if gt_frame < 1.0 {
-                return Err(format!("line {}: frame numbers start at 1: {line}", i + 1));
+                return Err(MotError::Frame {
+                    line: i + 1,
+                    text: line.to_string(),
+                });
             }
             frames
                 .entry(gt_frame as u64 - 1)
@@ -248,6 +278,18 @@ mod tests {
         assert!(gt.boxes(2).is_empty());
         assert!(GroundTruth::parse_mot("0,1,1,1,1,1,1").is_err());
         assert!(GroundTruth::parse_mot("1,x,1,1,1,1,1").is_err());
+        assert_eq!(
+            GroundTruth::parse_mot("1,x,1,1,1,1,1")
+                .unwrap_err()
+                .to_string(),
+            "line 1: field 2 is not a number: 1,x,1,1,1,1,1"
+        );
+        assert_eq!(
+            GroundTruth::parse_mot("0,1,1,1,1,1,1")
+                .unwrap_err()
+                .to_string(),
+            "line 1: frame numbers start at 1: 0,1,1,1,1,1,1"
+        );
     }
 
     #[test]

@@ -2,6 +2,8 @@
 //! motion-pixel test and a block's sums (the definition is in the
 //! [`kernel`](super) module documentation).
 
+use isochron_shared::geometry::BlockGrid;
+
 /// Lanes of one chunk: a 16-pixel block row, one 256-bit register of `i16`.
 pub const LANES: usize = 16;
 
@@ -19,8 +21,10 @@ pub const OFFSET_ROW_STEP: usize = 16;
 /// `i16`/`i32`: 128 rows × 64 < 2^15 and 8 lanes × 128 rows × 2 × 510² < 2^31).
 pub const MAX_BLOCK_PX: usize = 128;
 
-/// The block grid of a frame: `ceil(width / block_px) × ceil(height / block_px)`
-/// blocks, row-major; edge blocks may be smaller.
+/// The block grid of a frame as the kernel uses it: a [`BlockGrid`] (the one
+/// definition of how a frame splits into blocks, `ceil(width / block_px) ×
+/// ceil(height / block_px)`, row-major, edge blocks may be smaller) that the kernel
+/// can work with, with its sizes cached as `usize` for the hot loops.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Geometry {
     /// Frame width, pixels.
@@ -49,6 +53,14 @@ pub enum GeometryError {
     /// Block edge outside `1..=MAX_BLOCK_PX`.
     #[error("block size {0} px is outside 1..={MAX_BLOCK_PX}")]
     BlockSize(usize),
+    /// A side longer than a frame header can describe (`u32`).
+    #[error("frame {width}x{height} is larger than {} px a side", u32::MAX)]
+    TooLarge {
+        /// Width.
+        width: usize,
+        /// Height.
+        height: usize,
+    },
 }
 
 impl Geometry {
@@ -60,13 +72,38 @@ impl Geometry {
         if block_px == 0 || block_px > MAX_BLOCK_PX {
             return Err(GeometryError::BlockSize(block_px));
         }
+        let (Ok(w), Ok(h)) = (u32::try_from(width), u32::try_from(height)) else {
+            return Err(GeometryError::TooLarge { width, height });
+        };
+        Self::of(BlockGrid::new(w, h, block_px as u32))
+    }
+
+    /// The kernel's geometry of `grid`, if the kernel can work with it (non-empty
+    /// frame, block edge in `1..=MAX_BLOCK_PX`).
+    pub fn of(grid: BlockGrid) -> Result<Self, GeometryError> {
+        let (width, height, block_px) = (
+            grid.frame_width as usize,
+            grid.frame_height as usize,
+            grid.block_px as usize,
+        );
+        if width == 0 || height == 0 {
+            return Err(GeometryError::Empty { width, height });
+        }
+        if block_px == 0 || block_px > MAX_BLOCK_PX {
+            return Err(GeometryError::BlockSize(block_px));
+        }
         Ok(Geometry {
             width,
             height,
             block_px,
-            grid_w: width.div_ceil(block_px),
-            grid_h: height.div_ceil(block_px),
+            grid_w: grid.grid_w() as usize,
+            grid_h: grid.grid_h() as usize,
         })
+    }
+
+    /// The block grid this geometry covers.
+    pub fn block_grid(&self) -> BlockGrid {
+        BlockGrid::new(self.width as u32, self.height as u32, self.block_px as u32)
     }
 
     /// Number of blocks.
@@ -171,5 +208,8 @@ mod tests {
         assert!(Geometry::new(0, 10, 16).is_err());
         assert!(Geometry::new(10, 10, 0).is_err());
         assert!(Geometry::new(10, 10, MAX_BLOCK_PX + 1).is_err());
+        assert_eq!(g.block_grid(), BlockGrid::new(100, 33, 16));
+        assert_eq!(Geometry::of(g.block_grid()), Ok(g));
+        assert!(Geometry::of(BlockGrid::new(10, 10, 0)).is_err());
     }
 }
