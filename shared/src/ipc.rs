@@ -152,7 +152,7 @@ fn watch_stop_signals() {
     ONCE.call_once(|| {
         for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
             // SAFETY: the action only stores to an atomic (async-signal-safe).
-            let registered = unsafe { signal_hook::low_level::register(signal, || request_stop()) };
+            let registered = unsafe { signal_hook::low_level::register(signal, request_stop) };
             if let Err(e) = registered {
                 tracing::warn!("cannot watch signal {signal}: {e}; stop requests rely on iceoryx2");
             }
