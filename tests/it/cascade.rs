@@ -815,3 +815,109 @@ impl<'a> MinuteDamage<'a> {
         std::fs::write(self.path, bytes).unwrap();
     }
 }
+
+/// A full disk: the cascade stays up, says so, and learns again once space
+/// returns, with every minute committed before intact. The state directory is a
+/// 2 MB tmpfs the test mounts (root only; CI runs as root).
+#[test]
+fn a_full_disk_pauses_learning_and_it_resumes_when_space_returns() {
+    let site = TestSite::with_source("cascade-full", "[ipc]\nlossless = true", "unused.avi");
+    let state = site.path("state");
+    std::fs::create_dir_all(&state).unwrap();
+    let mounted = std::process::Command::new("mount")
+        .args([
+            "-t",
+            "tmpfs",
+            "-o",
+            "size=2m",
+            "isochron-test",
+            &state.display().to_string(),
+        ])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !mounted {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "CI runs as root and must be able to mount a tmpfs"
+        );
+        eprintln!("skipped: cannot mount a tmpfs here (not root)");
+        return;
+    }
+    struct Unmount(PathBuf);
+    impl Drop for Unmount {
+        fn drop(&mut self) {
+            let _ = std::process::Command::new("umount")
+                .arg("-l")
+                .arg(&self.0)
+                .status();
+        }
+    }
+    let _unmount = Unmount(state.clone());
+    let store = store_path(&state, "cam01");
+    let ipc = site.ipc("feeder");
+    let publisher = ipc.publisher::<Motion>("cam01", 8).unwrap();
+    let (mut cascade, mut feed) = start_fed_cascade(&site, &publisher);
+    let t0 = parse_rfc3339("2026-03-02T08:00:00Z").unwrap();
+    let mut frame = 0i64;
+    // `minutes` minutes at 10 fps (whole minutes: each completes at the next).
+    let mut feed_minutes = |minutes: i64| {
+        for _ in 0..minutes * 600 {
+            let t = t0 + frame * NS_PER_S / 10;
+            publisher
+                .send_copy(feed.header(t, 8, 0), &[BlockMotion::default(); 8])
+                .unwrap();
+            frame += 1;
+        }
+    };
+    let written = |store: &Path| {
+        Store::open_read_only(store, "cam01")
+            .and_then(|s| s.progress())
+            .map(|p| p.committed + p.skipped)
+            .unwrap_or(0)
+    };
+    feed_minutes(3);
+    let before = eventually(Duration::from_secs(30), || {
+        let n = written(&store);
+        (n >= 2).then_some(n)
+    })
+    .unwrap_or_else(|| panic!("no minute committed:\n{}", cascade.stderr()));
+
+    // Fill the disk.
+    let filler = state.join("filler");
+    {
+        use std::io::Write;
+        let mut f = std::fs::File::create(&filler).unwrap();
+        let chunk = vec![0u8; 64 * 1024];
+        while f.write_all(&chunk).is_ok() {}
+        let _ = f.sync_all();
+    }
+    feed_minutes(3);
+    assert!(
+        cascade.wait_for_stderr("cannot be written", Duration::from_secs(30)),
+        "the cascade did not say the store is full:\n{}",
+        cascade.stderr()
+    );
+    assert!(
+        cascade.wait(Duration::from_millis(500)).is_none(),
+        "the cascade ended on a full disk:\n{}",
+        cascade.stderr()
+    );
+
+    // Space returns: learning resumes, and what was committed is intact.
+    std::fs::remove_file(&filler).unwrap();
+    feed_minutes(3);
+    let after = eventually(Duration::from_secs(30), || {
+        let n = written(&store);
+        (n > before).then_some(n)
+    });
+    assert!(
+        after.is_some(),
+        "learning did not resume once space returned:\n{}",
+        cascade.stderr()
+    );
+    Store::open_read_only(&store, "cam01")
+        .unwrap()
+        .verify()
+        .unwrap_or_else(|e| panic!("the store is damaged: {e}"));
+    cascade.terminate(Duration::from_secs(10));
+}

@@ -7,7 +7,8 @@ use std::time::Instant;
 
 use isochron_shared::clock::{SiteClock, wall_now_ns};
 use isochron_shared::config::{CameraConfig, LoadedConfig};
-use isochron_shared::exit::{self, Fatal};
+use isochron_shared::exit::{self, Classify, Fatal};
+use isochron_shared::geometry::BlockGrid;
 use isochron_shared::ipc::{Activity, Ipc, Motion};
 use isochron_shared::stage::{Context, Input, Output, Stage, Woken};
 use isochron_shared::store::{Store, StoreMeta, store_path};
@@ -33,6 +34,13 @@ pub struct CascadeStage<'ipc> {
     cascade: Option<Cascade>,
     output: Output<'ipc, Activity>,
     grid_mismatches: u32,
+    /// The grid the config implies (analysis size and `motion.block_px`), if the
+    /// camera's size is set: samples of any other grid are foreign and rejected,
+    /// before and after the store exists.
+    expected: Option<BlockGrid>,
+    /// Store writes that failed for a reason that may pass (a full or read-only
+    /// disk): the minute is not learned, the service stays up and tries again.
+    store_failures: u64,
 }
 
 impl<'ipc> CascadeStage<'ipc> {
@@ -107,6 +115,11 @@ impl<'ipc> CascadeStage<'ipc> {
             cascade: None,
             output,
             grid_mismatches: 0,
+            expected: camera
+                .width
+                .zip(camera.height)
+                .map(|(w, h)| BlockGrid::new(w, h, config.motion.block_px)),
+            store_failures: 0,
         })
     }
 
@@ -149,8 +162,31 @@ impl<'ipc> CascadeStage<'ipc> {
     ) -> Result<(), Fatal> {
         let arrived = Instant::now();
         let end = header.preamble.is_end_of_stream();
+        if let Some(expected) = self.expected
+            && !end
+            && header.block_grid() != expected
+        {
+            // Never let a foreign or misconfigured producer shape the store.
+            cx.health.rejected();
+            cx.warnings.warn("grid", || {
+                format!(
+                    "rejected motion sample: its grid is {}, the config gives {expected}",
+                    header.block_grid()
+                )
+            });
+            return Ok(());
+        }
         if self.cascade.is_none() && !end {
-            self.start(header)?;
+            match self.start(header) {
+                Ok(()) => {}
+                Err(e) if !exit::is_permanent(e.code) => {
+                    // The store cannot be created now (disk full, read-only):
+                    // try again with a later sample.
+                    self.store_failed(e, cx);
+                    return Ok(());
+                }
+                Err(e) => return Err(e),
+            }
         }
         let (Some(c), Some(s)) = (self.cascade.as_mut(), self.store.as_mut()) else {
             // End of stream before any data: pass it on.
@@ -168,7 +204,7 @@ impl<'ipc> CascadeStage<'ipc> {
                 cx.health.rejected();
                 cx.warnings
                     .warn(reject_kind(&r), || format!("rejected motion sample: {r}"));
-                if matches!(r, Reject::Grid { .. }) {
+                if matches!(r, Reject::Grid { .. }) && self.expected.is_none() {
                     self.grid_mismatches += 1;
                     if self.grid_mismatches >= GRID_MISMATCH_LIMIT {
                         return Err(Fatal::new(
@@ -183,7 +219,11 @@ impl<'ipc> CascadeStage<'ipc> {
                 }
                 return Ok(());
             }
-            Err(PushError::Store(e)) => return Err(e.into()),
+            Err(PushError::Store(e)) if e.is_permanent() => return Err(e.into()),
+            Err(PushError::Store(e)) => {
+                self.store_failed(e.into(), cx);
+                return Ok(());
+            }
         }
         if end {
             let grid = *c.grid();
@@ -206,6 +246,22 @@ impl<'ipc> CascadeStage<'ipc> {
             );
         }
         Ok(())
+    }
+}
+
+impl CascadeStage<'_> {
+    /// A store write failed for a reason that may pass: say so (rate-limited),
+    /// count it, and go on; the next minute tries again.
+    fn store_failed(&mut self, e: Fatal, cx: &mut Context) {
+        self.store_failures += 1;
+        cx.health.dropped(1);
+        cx.warnings.warn("store", || {
+            format!(
+                "the long-term store cannot be written ({}): this minute is not learned; \
+                 trying again at the next one",
+                e.message
+            )
+        });
     }
 }
 
@@ -276,6 +332,81 @@ impl Stage for CascadeStage<'_> {
             let (p50, p99) = t.latency_ms();
             s += &format!(" commits={} commit_ms={p50:.2}/{p99:.2}", t.commits);
         }
+        if self.store_failures > 0 {
+            s += &format!(" store_failures={}", self.store_failures);
+        }
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use isochron_shared::config::Config;
+    use isochron_shared::stage::{Owned, step};
+    use isochron_shared::wire::{BlockMotion, Preamble, Stream};
+
+    fn motion(sequence: u64, (frame_width, frame_height): (u32, u32)) -> Owned<Motion> {
+        let grid = BlockGrid::new(frame_width, frame_height, 16);
+        let mut preamble = Preamble::new::<BlockMotion>(
+            Stream::Motion,
+            CameraId::new("cam01").unwrap(),
+            sequence,
+            grid.len(),
+        );
+        preamble.capture_time_ns = 1_700_000_000_000_000_000 + sequence as i64 * 100_000_000;
+        Owned {
+            header: MotionHeader {
+                preamble,
+                frame_width,
+                frame_height,
+                block_px: 16,
+                grid_w: grid.grid_w(),
+                grid_h: grid.grid_h(),
+                changed_fraction: 0.0,
+                source_index: sequence,
+            },
+            payload: vec![BlockMotion::default(); grid.len()],
+        }
+    }
+
+    #[test]
+    fn a_sample_of_another_grid_never_shapes_the_store() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("site.toml");
+        std::fs::write(
+            &path,
+            "[site]\nstate_dir = \"state\"\n\n[[camera]]\nid = \"cam01\"\nsource = \"walk.avi\"\nwidth = 64\nheight = 32\n",
+        )
+        .unwrap();
+        let loaded = Config::load(&path).unwrap();
+        let store = store_path(&loaded.state_dir(), "cam01");
+        let (output, _sent) = Output::memory("cam01");
+        let mut stage = CascadeStage::new(&loaded, &loaded.config.cameras[0], output).unwrap();
+        let (input, queue) = Input::memory("cam01");
+        let mut cx = Context::new(StageKind::Cascade, "cam01", None);
+
+        // Before the store exists: a 4x4 sample from a foreign producer.
+        queue.borrow_mut().push_back(motion(0, (64, 64)));
+        step(&mut stage, &input, &mut cx).unwrap();
+        assert_eq!(cx.health.status().rejected, 1);
+        assert!(!store.exists(), "a foreign sample created the store");
+
+        // The configured grid creates it; a foreign sample after that changes nothing.
+        queue.borrow_mut().push_back(motion(1, (64, 32)));
+        for k in 0..40 {
+            queue.borrow_mut().push_back(motion(2 + k, (64, 64)));
+        }
+        step(&mut stage, &input, &mut cx).unwrap();
+        assert_eq!(cx.health.status().rejected, 41);
+        let meta = Store::open_read_only(&store, "cam01")
+            .unwrap()
+            .meta()
+            .clone();
+        assert_eq!(meta.block_grid(), BlockGrid::new(64, 32, 16));
+        // Still running: 40 foreign samples in a row no longer end learning.
+        queue.borrow_mut().push_back(motion(42, (64, 32)));
+        step(&mut stage, &input, &mut cx).unwrap();
+        assert_eq!(cx.health.status().rejected, 41);
     }
 }
