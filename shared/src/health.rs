@@ -81,6 +81,9 @@ pub fn notify_stopping() {
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
 }
 
+/// How often new status readers are connected (and handed the latest report).
+const CONNECT_EVERY: Duration = Duration::from_millis(200);
+
 /// Number of recent latencies kept for quantiles.
 const LATENCY_WINDOW: usize = 512;
 
@@ -96,6 +99,7 @@ pub struct Health {
     last_counts: (u64, u64),
     watchdog_every: Option<Duration>,
     last_watchdog: Instant,
+    last_connect: Instant,
     heartbeat: Arc<AtomicU64>,
     stage_latency_ms: Window,
     e2e_latency_ms: Window,
@@ -143,6 +147,7 @@ impl Health {
             // Ping at half the watchdog period, as systemd recommends.
             watchdog_every: sd_notify::watchdog_enabled().map(|d| d / 2),
             last_watchdog: now,
+            last_connect: now,
             heartbeat: register_heartbeat(now),
             stage_latency_ms: Window::default(),
             e2e_latency_ms: Window::default(),
@@ -223,8 +228,11 @@ impl Health {
         let now = Instant::now();
         // A reader that just subscribed gets the latest report now, not at the
         // next one (every `report_every`).
-        if let Some(p) = &self.publisher {
+        if let Some(p) = &self.publisher
+            && now.duration_since(self.last_connect) >= CONNECT_EVERY
+        {
             p.update_connections();
+            self.last_connect = now;
         }
         self.heartbeat
             .store(millis_since_epoch(now), Ordering::Relaxed);
