@@ -1,11 +1,20 @@
-//! `isochron doctor`: checks what a site needs — config, sources, state directory,
-//! shared memory, iceoryx2's directory, stale resources of dead processes, running
-//! services — and says what to fix.
+//! `isochron doctor`: checks what a site needs — config, sources, the detector
+//! model and the robots' map, the state directory and its disk, shared memory,
+//! iceoryx2's directory, stale resources of dead processes, running services — and
+//! says what to fix.
+//!
+//! It changes nothing unless asked with `--fix`, which removes the stale iceoryx2
+//! resources (shared memory, files) that dead processes left behind. Creating an
+//! iceoryx2 node removes them too (iceoryx2 cleans dead nodes whenever a node is
+//! created), so without `--fix` doctor creates no node while stale resources exist,
+//! and skips the checks that need one.
 
+use std::io::Write;
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+use isochron_planning::grid::MapGrid;
 use isochron_shared::config::{Config, LoadedConfig, SourceKind};
 use isochron_shared::exit;
 use isochron_shared::ipc::{Ipc, node_census, publisher_segment_bytes};
@@ -17,16 +26,33 @@ use isochron_shared::wire::{BlockActivity, BlockMotion, Stream};
 use crate::common::config_path;
 use crate::status;
 
-/// Check the site's set-up and say what to fix.
+/// Check the site's set-up and say what to fix (changes nothing without --fix).
 #[derive(clap::Args)]
 pub struct Args {
     /// Site configuration (default: $ISOCHRON_CONFIG or /etc/isochron/isochron.toml).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Only report stale iceoryx2 resources of dead processes; do not remove them.
+    /// Repair what can be repaired: remove the stale iceoryx2 resources (shared
+    /// memory, files) of dead processes. Without it, doctor only reports.
     #[arg(long)]
+    fix: bool,
+    /// Deprecated and ignored: doctor removes nothing without --fix.
+    #[arg(long, hide = true)]
     keep_stale: bool,
+    /// One JSON object per check and line: {"check", "status": "ok"|"warn"|"fail",
+    /// "detail"}.
+    #[arg(long)]
+    json: bool,
 }
+
+/// Free space of the state directory's filesystem below which doctor warns.
+const LOW_DISK_BYTES: u64 = 100 << 20;
+/// The same as a share of the filesystem, percent.
+const LOW_DISK_PERCENT: f64 = 5.0;
+
+/// What a node-dependent check says when doctor may not create a node.
+const SKIPPED_FOR_STALE: &str =
+    "skipped: creating a node would remove the stale resources; run with --fix";
 
 #[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 enum Level {
@@ -35,75 +61,66 @@ enum Level {
     Fail,
 }
 
+impl Level {
+    fn name(self) -> &'static str {
+        match self {
+            Level::Ok => "ok",
+            Level::Warn => "warn",
+            Level::Fail => "fail",
+        }
+    }
+}
+
 struct Report {
     worst: Level,
+    json: bool,
 }
 
 impl Report {
     fn say(&mut self, level: Level, what: &str, text: impl AsRef<str>) {
-        let tag = match level {
-            Level::Ok => "ok  ",
-            Level::Warn => "warn",
-            Level::Fail => "FAIL",
+        let text = text.as_ref();
+        let line = if self.json {
+            /// One check, as `--json` prints it (fields in this order).
+            #[derive(serde::Serialize)]
+            struct Line<'a> {
+                check: &'a str,
+                status: &'a str,
+                detail: &'a str,
+            }
+            serde_json::to_string(&Line {
+                check: what,
+                status: level.name(),
+                detail: text,
+            })
+            .expect("strings serialize")
+        } else {
+            let tag = match level {
+                Level::Ok => "ok  ",
+                Level::Warn => "warn",
+                Level::Fail => "FAIL",
+            };
+            format!("{tag} {what}: {text}")
         };
-        println!("{tag} {what}: {}", text.as_ref());
+        // Each check is on screen as soon as it is done (a hung check shows where).
+        let mut out = std::io::stdout().lock();
+        let _ = writeln!(out, "{line}");
+        let _ = out.flush();
         self.worst = self.worst.max(level);
     }
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let mut report = Report { worst: Level::Ok };
-    // Before any node of ours exists: creating a node would clean dead ones silently.
-    match node_census(!args.keep_stale) {
-        Ok(census) => {
-            let stale = census.dead_removed.len() + census.dead_left.len();
-            if stale == 0 {
-                report.say(
-                    Level::Ok,
-                    "stale resources",
-                    "none (no dead iceoryx2 nodes)",
-                );
-            } else if census.dead_left.is_empty() {
-                report.say(
-                    Level::Ok,
-                    "stale resources",
-                    format!(
-                        "removed those of {} dead process(es): {}",
-                        census.dead_removed.len(),
-                        census.dead_removed.join(", ")
-                    ),
-                );
-            } else {
-                report.say(
-                    if args.keep_stale {
-                        Level::Warn
-                    } else {
-                        Level::Fail
-                    },
-                    "stale resources",
-                    format!(
-                        "dead nodes left: {} (run without --keep-stale, as the user that ran them)",
-                        census.dead_left.join(", ")
-                    ),
-                );
-            }
-            if census.inaccessible > 0 {
-                report.say(
-                    Level::Warn,
-                    "iceoryx2 nodes",
-                    format!(
-                        "{} node(s) of another user are not visible to this user; run doctor as the services' user (isochron)",
-                        census.inaccessible
-                    ),
-                );
-            }
-        }
-        Err(e) => report.say(
-            Level::Warn,
-            "stale resources",
-            format!("cannot list iceoryx2 nodes: {e}"),
-        ),
+    let mut report = Report {
+        worst: Level::Ok,
+        json: args.json,
+    };
+    if args.keep_stale {
+        tracing::warn!(
+            "--keep-stale is deprecated and ignored: doctor removes nothing without --fix"
+        );
     }
+    // Before any node of ours exists: creating a node cleans dead ones silently.
+    let may_create_node = check_stale(args.fix, &mut report);
 
     let path = config_path(args.config);
     let loaded = match Config::load(&path) {
@@ -127,11 +144,95 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         ),
     );
     check_sources(&loaded, &mut report);
+    check_model(&loaded, &mut report);
+    check_map(&loaded, &mut report);
     check_state_dir(&loaded.state_dir(), &mut report);
+    check_disk(&loaded.state_dir(), &mut report);
     check_stores(&loaded, &mut report);
     check_shared_memory(&loaded, &mut report);
     check_iceoryx2_dir(&mut report);
+    if may_create_node {
+        check_services(&loaded, &mut report)?;
+    } else {
+        report.say(Level::Warn, "services", SKIPPED_FOR_STALE);
+    }
+    Ok(match report.worst {
+        Level::Fail => ExitCode::from(1),
+        _ => ExitCode::SUCCESS,
+    })
+}
 
+/// Lists the iceoryx2 nodes of dead processes and, with `fix`, removes their
+/// resources. Returns whether doctor may create a node of its own: not while stale
+/// resources are there and `fix` was not given (creating one would remove them).
+fn check_stale(fix: bool, report: &mut Report) -> bool {
+    let census = match node_census(fix) {
+        Ok(census) => census,
+        Err(e) => {
+            report.say(
+                Level::Warn,
+                "stale resources",
+                format!("cannot list iceoryx2 nodes: {e}"),
+            );
+            // Nothing is known to be stale; a node of ours removes nothing we saw.
+            return true;
+        }
+    };
+    if !census.dead_removed.is_empty() {
+        report.say(
+            Level::Ok,
+            "stale resources",
+            format!(
+                "removed those of {} dead process(es): {}",
+                census.dead_removed.len(),
+                census.dead_removed.join(", ")
+            ),
+        );
+    }
+    if !census.dead_left.is_empty() {
+        if fix {
+            report.say(
+                Level::Fail,
+                "stale resources",
+                format!(
+                    "could not remove those of dead node(s) {}: run isochron doctor --fix as the user that ran them",
+                    census.dead_left.join(", ")
+                ),
+            );
+        } else {
+            report.say(
+                Level::Warn,
+                "stale resources",
+                format!(
+                    "{} dead process(es) left iceoryx2 resources (shared memory, files): {}; isochron doctor --fix would remove them",
+                    census.dead_left.len(),
+                    census.dead_left.join(", ")
+                ),
+            );
+        }
+    } else if census.dead_removed.is_empty() {
+        report.say(
+            Level::Ok,
+            "stale resources",
+            "none (no dead iceoryx2 nodes)",
+        );
+    }
+    if census.inaccessible > 0 {
+        report.say(
+            Level::Warn,
+            "iceoryx2 nodes",
+            format!(
+                "{} node(s) of another user are not visible to this user; run doctor as the services' user (isochron)",
+                census.inaccessible
+            ),
+        );
+    }
+    fix || census.dead_left.is_empty()
+}
+
+/// Which of the site's services run (needs a node of doctor's own).
+fn check_services(loaded: &LoadedConfig, report: &mut Report) -> anyhow::Result<()> {
+    let c = &loaded.config;
     let ipc = Ipc::new(
         "isochron-doctor",
         ServiceNames::new(&c.site.service_prefix),
@@ -165,10 +266,135 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             ),
         );
     }
-    Ok(match report.worst {
-        Level::Fail => ExitCode::from(1),
-        _ => ExitCode::SUCCESS,
-    })
+    Ok(())
+}
+
+/// `path` of the config, resolved against the config file's directory.
+fn resolve(loaded: &LoadedConfig, path: &Path) -> PathBuf {
+    if path.is_absolute() {
+        path.to_path_buf()
+    } else {
+        loaded.base_dir().join(path)
+    }
+}
+
+/// The gate's ONNX model, if one is configured, is a readable file.
+fn check_model(loaded: &LoadedConfig, report: &mut Report) {
+    const WHAT: &str = "detector model";
+    let Some(model) = &loaded.config.gate.detector.model else {
+        report.say(
+            Level::Ok,
+            WHAT,
+            "gate.detector.model not set: the gate uses OpenCV's HOG people detector",
+        );
+        return;
+    };
+    let path = resolve(loaded, model);
+    let config = loaded.path.display();
+    let problem = match std::fs::metadata(&path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => "does not exist".to_string(),
+        Err(e) => format!("cannot be read: {e}"),
+        Ok(m) if !m.is_file() => "is not a file".to_string(),
+        Ok(m) => match std::fs::File::open(&path) {
+            Ok(_) => {
+                report.say(
+                    Level::Ok,
+                    WHAT,
+                    format!(
+                        "{} ({:.1} MiB)",
+                        path.display(),
+                        m.len() as f64 / (1 << 20) as f64
+                    ),
+                );
+                return;
+            }
+            Err(e) => format!("is not readable by this user: {e}"),
+        },
+    };
+    report.say(
+        Level::Fail,
+        WHAT,
+        format!(
+            "gate.detector.model: {} {problem}: put the ONNX model there (readable by the services' user) or fix gate.detector.model in {config}",
+            path.display()
+        ),
+    );
+}
+
+/// The robots' map, if one is configured: the YAML reads, names its image, the
+/// image exists, and together they make a grid.
+fn check_map(loaded: &LoadedConfig, report: &mut Report) {
+    const WHAT: &str = "map";
+    let Some(yaml) = &loaded.config.costmap.map_yaml else {
+        report.say(Level::Ok, WHAT, "costmap.map_yaml not set");
+        return;
+    };
+    let yaml = resolve(loaded, yaml);
+    let config = loaded.path.display();
+    let text = match std::fs::read_to_string(&yaml) {
+        Ok(text) => text,
+        Err(e) => {
+            let problem = if e.kind() == std::io::ErrorKind::NotFound {
+                "does not exist".to_string()
+            } else {
+                format!("cannot be read: {e}")
+            };
+            report.say(
+                Level::Fail,
+                WHAT,
+                format!(
+                    "costmap.map_yaml: {} {problem}: put the map_server YAML there or fix costmap.map_yaml in {config}",
+                    yaml.display()
+                ),
+            );
+            return;
+        }
+    };
+    let Some(image) = text
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("image:"))
+        .map(|s| s.trim().trim_matches(['"', '\'']))
+        .filter(|s| !s.is_empty())
+    else {
+        report.say(
+            Level::Fail,
+            WHAT,
+            format!(
+                "costmap.map_yaml: {} names no image: a map_server YAML has `image: <file>` (with resolution and origin)",
+                yaml.display()
+            ),
+        );
+        return;
+    };
+    let image = yaml.parent().unwrap_or(Path::new(".")).join(image);
+    if !image.is_file() {
+        report.say(
+            Level::Fail,
+            WHAT,
+            format!(
+                "costmap.map_yaml: image {} (named by {}) does not exist: put the map image there or fix `image:` in the YAML",
+                image.display(),
+                yaml.display()
+            ),
+        );
+        return;
+    }
+    match MapGrid::from_config(loaded) {
+        Ok(Some(g)) => report.say(
+            Level::Ok,
+            WHAT,
+            format!(
+                "{} with {}: {}x{} cells of {} m",
+                yaml.display(),
+                image.display(),
+                g.width,
+                g.height,
+                g.resolution
+            ),
+        ),
+        Ok(None) => {}
+        Err(e) => report.say(Level::Fail, WHAT, e.to_string()),
+    }
 }
 
 fn check_sources(loaded: &LoadedConfig, report: &mut Report) {
@@ -225,7 +451,10 @@ fn check_state_dir(dir: &Path, report: &mut Report) {
         );
         return;
     }
-    let probe = dir.join(".isochron-doctor-probe");
+    // Whether the services can write here is only known by writing: a probe file
+    // that is removed at once. It changes nothing anyone relies on (no store,
+    // snapshot or setting), so doctor does it also without --fix.
+    let probe = dir.join(format!(".isochron-doctor-probe-{}", std::process::id()));
     match std::fs::write(&probe, b"") {
         Ok(()) => {
             let _ = std::fs::remove_file(&probe);
@@ -240,6 +469,53 @@ fn check_state_dir(dir: &Path, report: &mut Report) {
             "state dir",
             format!("{} is not writable by this user: {e}", dir.display()),
         ),
+    }
+}
+
+/// Free space of the filesystem holding the state directory (or, before it
+/// exists, its nearest existing parent).
+fn check_disk(dir: &Path, report: &mut Report) {
+    const WHAT: &str = "disk";
+    let dir = std::path::absolute(dir).unwrap_or_else(|_| dir.to_path_buf());
+    let Some(on) = dir.ancestors().find(|p| p.exists()) else {
+        report.say(
+            Level::Warn,
+            WHAT,
+            format!("no part of {} exists", dir.display()),
+        );
+        return;
+    };
+    let Some(space) = fs_space(on) else {
+        report.say(
+            Level::Warn,
+            WHAT,
+            format!("cannot read the free space of {}", on.display()),
+        );
+        return;
+    };
+    let mib = |b: u64| b as f64 / (1 << 20) as f64;
+    let percent = if space.total > 0 {
+        100.0 * space.available as f64 / space.total as f64
+    } else {
+        0.0
+    };
+    let text = format!(
+        "{:.0} MiB free of {:.0} MiB ({percent:.1} %) on the filesystem of {}",
+        mib(space.available),
+        mib(space.total),
+        on.display()
+    );
+    if space.available < LOW_DISK_BYTES || percent < LOW_DISK_PERCENT {
+        report.say(
+            Level::Warn,
+            WHAT,
+            format!(
+                "{text}: below {} MiB or {LOW_DISK_PERCENT} %; the cascade pauses learning when the disk is full: free some space",
+                LOW_DISK_BYTES >> 20
+            ),
+        );
+    } else {
+        report.say(Level::Ok, WHAT, text);
     }
 }
 
@@ -315,7 +591,7 @@ fn check_shared_memory(loaded: &LoadedConfig, report: &mut Report) {
                 blocks * size_of::<BlockActivity>(),
             );
     }
-    let free = free_bytes("/dev/shm");
+    let free = fs_space(Path::new("/dev/shm")).map(|s| s.available as usize);
     let mib = |b: usize| b as f64 / (1 << 20) as f64;
     let mut text = format!("the group preallocates about {:.0} MiB", mib(need));
     if !guessed.is_empty() {
@@ -339,12 +615,28 @@ fn check_shared_memory(loaded: &LoadedConfig, report: &mut Report) {
     }
 }
 
-fn free_bytes(path: &str) -> Option<usize> {
-    let c = std::ffi::CString::new(path).ok()?;
-    // SAFETY: statvfs fills the struct for a valid path.
+/// Space of a filesystem, bytes.
+struct Space {
+    /// Available to unprivileged users.
+    available: u64,
+    /// Size of the filesystem.
+    total: u64,
+}
+
+/// Space of the filesystem holding `path` (statvfs).
+fn fs_space(path: &Path) -> Option<Space> {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(path.as_os_str().as_bytes()).ok()?;
+    // SAFETY: statvfs fills the zeroed struct for a valid NUL-terminated path.
     let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
-    (unsafe { libc::statvfs(c.as_ptr(), &mut st) } == 0)
-        .then(|| st.f_bavail as usize * st.f_frsize as usize)
+    if unsafe { libc::statvfs(c.as_ptr(), &mut st) } != 0 {
+        return None;
+    }
+    let frsize = st.f_frsize as u64;
+    Some(Space {
+        available: st.f_bavail as u64 * frsize,
+        total: st.f_blocks as u64 * frsize,
+    })
 }
 
 fn check_iceoryx2_dir(report: &mut Report) {

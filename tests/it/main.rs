@@ -8,6 +8,7 @@
 mod capture;
 mod cascade;
 mod costmap;
+mod doctor;
 mod gate;
 mod launcher;
 mod motion;
