@@ -183,6 +183,28 @@ impl TestSite {
         Proc::spawn(&bin(binary), &all)
     }
 
+    /// A private iceoryx2 world for processes started in the returned directory:
+    /// iceoryx2 reads `config/iceoryx2.toml` from the working directory, and this
+    /// one gives them their own root path and shared-memory prefix. No process of
+    /// another test sees (or cleans up) their nodes.
+    pub fn private_iceoryx2(&self) -> PathBuf {
+        let dir = self.path("iox2");
+        std::fs::create_dir_all(dir.join("config")).expect("iceoryx2 config dir");
+        let root = self.path("iox2/root/");
+        std::fs::create_dir_all(&root).expect("iceoryx2 root");
+        let tag = NEXT_SITE.fetch_add(1, Ordering::Relaxed);
+        std::fs::write(
+            dir.join("config/iceoryx2.toml"),
+            format!(
+                "[global]\nroot-path = \"{}/\"\nprefix = \"t{}x{tag}_\"\n",
+                root.display().to_string().trim_end_matches('/'),
+                std::process::id()
+            ),
+        )
+        .expect("iceoryx2 config");
+        dir
+    }
+
     /// Runs service `binary` for cam01 until it exits, which it must do within
     /// `timeout`: its exit code and stderr.
     pub fn exit_of(&self, binary: &str, timeout: Duration) -> (Option<i32>, String) {
@@ -256,10 +278,23 @@ pub struct Proc {
 impl Proc {
     /// Starts `program args`.
     pub fn spawn(program: &Path, args: &[impl AsRef<std::ffi::OsStr>]) -> Proc {
+        Proc::spawn_in(program, args, None)
+    }
+
+    /// Starts `program args` in the working directory `dir` (if given).
+    pub fn spawn_in(
+        program: &Path,
+        args: &[impl AsRef<std::ffi::OsStr>],
+        dir: Option<&Path>,
+    ) -> Proc {
         let stderr_dir = tempfile::tempdir().expect("temp dir");
         let stderr_path = stderr_dir.path().join("stderr");
         let stderr = std::fs::File::create(&stderr_path).expect("stderr file");
-        let mut child = Command::new(program)
+        let mut command = Command::new(program);
+        if let Some(dir) = dir {
+            command.current_dir(dir);
+        }
+        let mut child = command
             .args(args)
             .env("RUST_LOG", "info")
             .stdin(Stdio::null())

@@ -3,37 +3,20 @@
 //! prints one object per check.
 //!
 //! iceoryx2 removes the stale resources of every dead node whenever any node is
-//! created or dropped on the machine, so a stale node left by a `kill -9` lives
-//! only until the next node of any test comes or goes. The tests of this module
-//! take turns (a lock) so that they do not clean each other's; a test of another
-//! module running at the same moment still can, and then the stale-node test says
-//! so instead of blaming doctor.
+//! created or dropped in its world (root path and prefix), so the stale-node test
+//! runs its processes in a private world of their own
+//! ([`isochron_tests::TestSite::private_iceoryx2`]): no other test can clean up
+//! the node it left.
 
-use std::sync::Mutex;
 use std::time::Duration;
 
-use isochron_shared::ipc::{NodeCensus, node_census};
-use isochron_tests::{Finished, TestSite, eventually};
-
-/// Held by each test of this module (see the module's comment).
-static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+use isochron_tests::{Finished, Proc, TestSite, bin};
 
 fn doctor(site: &TestSite, options: &[&str]) -> Finished {
     let config = site.config_path().display().to_string();
     let mut args = vec!["doctor", "--config", config.as_str()];
     args.extend(options);
     site.isochron(&args, Duration::from_secs(60))
-}
-
-/// The nodes of `site` (named `<prefix>/...`) in `names`.
-fn ours<'a>(site: &TestSite, names: &'a [String]) -> Vec<&'a String> {
-    let prefix = format!("{}/", site.prefix);
-    names.iter().filter(|n| n.starts_with(&prefix)).collect()
-}
-
-fn census() -> NodeCensus {
-    // Listing only (no node of ours, nothing removed).
-    node_census(false).expect("iceoryx2 nodes can be listed")
 }
 
 /// The lines of `--json` output, parsed; each must be a check object.
@@ -56,48 +39,58 @@ fn json_checks(out: &Finished) -> Vec<serde_json::Value> {
 
 #[test]
 fn a_stale_node_is_only_reported_without_fix_and_removed_with_it() {
-    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    // Its own iceoryx2 world (root path and prefix), so that no node of another
+    // test, created or dropped meanwhile, cleans the stale node up.
     let site = TestSite::with_source("doctor-stale", "", "unused.avi");
-    let mut motion = site.spawn("isochron-motion", &["--camera", "cam01"]);
-    let node = eventually(Duration::from_secs(20), || {
-        ours(&site, &census().alive).first().map(|n| n.to_string())
-    })
-    .unwrap_or_else(|| panic!("motion made no node\n{}", motion.stderr()));
+    let world = site.private_iceoryx2();
+    let config = site.config_path().display().to_string();
+    let run = |options: &[&str]| {
+        let mut args = vec!["doctor", "--config", config.as_str()];
+        args.extend(options);
+        let mut p = Proc::spawn_in(&bin("isochron"), &args, Some(&world));
+        p.finish(Duration::from_secs(60))
+    };
+    let mut motion = Proc::spawn_in(
+        &bin("isochron-motion"),
+        &["--config", config.as_str(), "--camera", "cam01"],
+        Some(&world),
+    );
+    assert!(
+        motion.wait_for_stderr("computing motion", Duration::from_secs(20)),
+        "{}",
+        motion.stderr()
+    );
     motion.signal(libc::SIGKILL);
     motion
         .wait(Duration::from_secs(10))
         .expect("motion dies on SIGKILL");
-    let stale = |c: &NodeCensus| ours(&site, &c.dead_left).contains(&&node);
-    assert!(
-        stale(&census()),
-        "{node} was cleaned before doctor ran (by a node of another test); run this test alone"
-    );
-
-    let out = doctor(&site, &[]);
-    let after = census();
-    assert!(
-        stale(&after),
-        "doctor without --fix removed the stale node {node}\nstdout:\n{}\nstderr:\n{}",
-        out.stdout,
-        out.stderr
-    );
-    assert!(
-        out.stdout
-            .lines()
-            .any(|l| l.starts_with("warn stale resources:")
+    let node = format!("{}/motion/cam01", site.prefix);
+    let reports_stale = |out: &Finished| {
+        out.stdout.lines().any(|l| {
+            l.starts_with("warn stale resources:")
                 && l.contains(&node)
-                && l.contains("--fix would remove")),
-        "doctor does not say what --fix would remove:\n{}",
-        out.stdout
-    );
-    assert!(
-        out.stdout
-            .contains("services: skipped: creating a node would remove"),
-        "doctor does not say it skipped the node checks:\n{}",
-        out.stdout
-    );
+                && l.contains("--fix would remove")
+        })
+    };
 
-    let fixed = doctor(&site, &["--fix"]);
+    // Twice without --fix: the second still finds it (the first removed nothing).
+    for attempt in 0..2 {
+        let out = run(&[]);
+        assert!(
+            reports_stale(&out),
+            "doctor (run {attempt}) does not report the stale {node} and what --fix would remove:\n{}\nstderr:\n{}",
+            out.stdout,
+            out.stderr
+        );
+        assert!(
+            out.stdout
+                .contains("services: skipped: creating a node would remove"),
+            "doctor does not say it skipped the node checks:\n{}",
+            out.stdout
+        );
+    }
+
+    let fixed = run(&["--fix"]);
     assert!(
         fixed
             .stdout
@@ -107,21 +100,21 @@ fn a_stale_node_is_only_reported_without_fix_and_removed_with_it() {
         fixed.stdout,
         fixed.stderr
     );
-    let after = census();
-    assert!(
-        !stale(&after) && !ours(&site, &after.alive).contains(&&node),
-        "{node} is still there after doctor --fix: {after:?}"
-    );
     assert!(
         fixed.stdout.contains("services: 0 of"),
         "with --fix doctor checks the services:\n{}",
         fixed.stdout
     );
+    let after = run(&[]);
+    assert!(
+        !after.stdout.contains(&node),
+        "{node} is still there after doctor --fix:\n{}",
+        after.stdout
+    );
 }
 
 #[test]
 fn a_missing_model_and_a_missing_map_image_fail_naming_the_paths() {
-    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let site = TestSite::with_source("doctor-files", "", "video.avi");
     std::fs::write(site.path("video.avi"), b"").unwrap();
     std::fs::write(
@@ -177,7 +170,6 @@ fn a_missing_model_and_a_missing_map_image_fail_naming_the_paths() {
 
 #[test]
 fn json_prints_one_object_per_check_with_the_text_checks() {
-    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let site = TestSite::with_source("doctor-json", "", "missing.avi");
     let text = doctor(&site, &[]);
     let json = doctor(&site, &["--json"]);
