@@ -92,6 +92,58 @@ pub fn run_cameras(
     finish(stage, result)
 }
 
+/// The command line of a per-camera service (see [`main_per_camera`]).
+#[derive(clap::Parser)]
+struct PerCameraCommandLine {
+    #[command(flatten)]
+    service: CameraArgs,
+}
+
+/// The command line of a site-wide service (see [`main_site_wide`]).
+#[derive(clap::Parser)]
+struct SiteWideCommandLine {
+    /// Site configuration file.
+    #[arg(long)]
+    config: PathBuf,
+}
+
+/// Parses the process's command line as `stage`'s binary, described by `about`
+/// (what `--help` shows; `--version` prints the binary's name and version).
+fn parse_command_line<P: clap::Parser>(stage: StageKind, about: &'static str) -> P {
+    let command = || {
+        P::command()
+            .name(stage.binary())
+            .about(about)
+            .version(env!("CARGO_PKG_VERSION"))
+    };
+    let mut matches = command().get_matches();
+    P::from_arg_matches_mut(&mut matches).unwrap_or_else(|e| e.format(&mut command()).exit())
+}
+
+/// The whole `main` of a per-camera service: parses `--config` and `--camera`
+/// (`about` is what `--help` says the service does) and runs `run` for each camera
+/// (see [`run_cameras`]).
+pub fn main_per_camera(
+    stage: StageKind,
+    about: &'static str,
+    run: fn(ServiceContext) -> Result<(), Fatal>,
+) -> std::process::ExitCode {
+    let args: PerCameraCommandLine = parse_command_line(stage, about);
+    run_cameras(stage, &args.service, run)
+}
+
+/// The whole `main` of a site-wide service: parses `--config` (`about` is what
+/// `--help` says the service does), starts (see [`start`]), runs `run` and
+/// returns the exit code.
+pub fn main_site_wide(
+    stage: StageKind,
+    about: &'static str,
+    run: fn(ServiceContext) -> Result<(), Fatal>,
+) -> std::process::ExitCode {
+    let args: SiteWideCommandLine = parse_command_line(stage, about);
+    finish(stage, start(stage, &args.config).and_then(run))
+}
+
 /// Runs `run` for every camera on its own thread; see [`run_cameras`].
 fn run_threads(
     stage: StageKind,
