@@ -22,15 +22,13 @@ use isochron_planning::profile::{ProfilePoint, daily_profile};
 use isochron_shared::clock::{Cycle, format_rfc3339, format_t_star};
 use isochron_shared::store::{Model, Store};
 
+use crate::common::Subcommands;
+
 /// Read a camera's long-term store.
-#[derive(clap::Args)]
-pub struct Args {
-    #[command(subcommand)]
-    command: Command,
-}
+pub type Args = Subcommands<Command>;
 
 #[derive(clap::Subcommand)]
-enum Command {
+pub(crate) enum Command {
     /// Write the isochronal profile as CSV `minute_of_day,mean,sigma,count`.
     Export(ExportArgs),
     /// Show what a store holds and check all of it.
@@ -49,7 +47,7 @@ pub struct StoreArgs {
 }
 
 #[derive(clap::Args)]
-struct ExportArgs {
+pub(crate) struct ExportArgs {
     #[command(flatten)]
     store: StoreArgs,
     /// One block, `X,Y` (column, row from the top left), instead of all blocks.
