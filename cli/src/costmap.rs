@@ -20,7 +20,6 @@ use isochron_planning::query::{PlanKind, PlanRequest, PlanStatus};
 use isochron_planning::raster::Footprint;
 use isochron_shared::geometry::BlockGrid;
 use isochron_shared::ipc::Ipc;
-use isochron_shared::names::ServiceNames;
 use isochron_shared::store::{Store, store_path};
 
 use crate::common::{Subcommands, load_config};
@@ -65,10 +64,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 
 fn snapshot(args: SnapshotArgs) -> anyhow::Result<ExitCode> {
     let loaded = load_config(args.config)?;
-    let ipc = Ipc::new(
+    let ipc = Ipc::of_site(
         &format!("isochron-snapshot-{}", std::process::id()),
-        ServiceNames::new(&loaded.config.site.service_prefix),
-        loaded.config.ipc.clone(),
+        &loaded.config,
     )?;
     let client = PlanClient::new(&ipc)?;
     let response = client.request(

@@ -9,7 +9,6 @@ use std::process::ExitCode;
 use isochron_shared::config::{Config, LoadedConfig, SourceKind};
 use isochron_shared::exit;
 use isochron_shared::ipc::{Ipc, node_census, publisher_segment_bytes};
-use isochron_shared::names::ServiceNames;
 use isochron_shared::store::{Store, store_path};
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{BlockActivity, BlockMotion, Stream};
@@ -132,11 +131,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     check_shared_memory(&loaded, &mut report);
     check_iceoryx2_dir(&mut report);
 
-    let ipc = Ipc::new(
-        "isochron-doctor",
-        ServiceNames::new(&c.site.service_prefix),
-        c.ipc.clone(),
-    )?;
+    let ipc = Ipc::of_site("isochron-doctor", &c)?;
     let cameras: Vec<String> = c.cameras.iter().map(|c| c.id.clone()).collect();
     let rows = status::collect(&ipc, &cameras)?;
     let running = rows.iter().filter(|r| r.state() == "running").count();

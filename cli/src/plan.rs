@@ -22,7 +22,6 @@ use isochron_shared::clock::{
 };
 use isochron_shared::config::LoadedConfig;
 use isochron_shared::ipc::Ipc;
-use isochron_shared::names::ServiceNames;
 use serde_json::json;
 
 use crate::common::{Subcommands, load_config};
@@ -304,10 +303,9 @@ fn now(args: NowArgs) -> anyhow::Result<ExitCode> {
     if args.routes.len() > PLAN_MAX_ROUTES {
         bail!("--routes: at most {PLAN_MAX_ROUTES} routes at once");
     }
-    let ipc = Ipc::new(
+    let ipc = Ipc::of_site(
         &format!("isochron-plan-{}", std::process::id()),
-        ServiceNames::new(&loaded.config.site.service_prefix),
-        loaded.config.ipc.clone(),
+        &loaded.config,
     )?;
     let client = PlanClient::new(&ipc)?;
     let names: Vec<&str> = args.routes.iter().map(String::as_str).collect();

@@ -6,7 +6,6 @@ use std::path::{Path, PathBuf};
 use crate::config::{CameraConfig, Config, LoadedConfig};
 use crate::exit;
 use crate::ipc::Ipc;
-use crate::names::ServiceNames;
 use crate::topology::StageKind;
 
 pub use crate::exit::Fatal;
@@ -223,11 +222,7 @@ fn context(
         Some(c) => format!("{prefix}/{stage}/{}", c.id),
         None => format!("{prefix}/{stage}"),
     };
-    let ipc = Ipc::new(
-        &node_name,
-        ServiceNames::new(&loaded.config.site.service_prefix),
-        loaded.config.ipc.clone(),
-    )?;
+    let ipc = Ipc::of_site(&node_name, &loaded.config)?;
     Ok(ServiceContext {
         config: loaded,
         camera,
