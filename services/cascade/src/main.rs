@@ -3,19 +3,14 @@
 
 use std::process::ExitCode;
 
-use isochron_cascade::stage::CascadeStage;
+use isochron_cascade::stage;
 use isochron_shared::service::main_per_camera;
-use isochron_shared::stage;
 use isochron_shared::topology::StageKind;
 
 fn main() -> ExitCode {
     main_per_camera(
         StageKind::Cascade,
         "Filters one camera's motion stream into 1-Hz activity and the long-term store",
-        |ctx| {
-            let camera = ctx.camera();
-            let (mut cascade, motion) = CascadeStage::open(&ctx.ipc, &ctx.config, camera)?;
-            stage::run(&ctx.ipc, &camera.id, &mut cascade, &motion)
-        },
+        stage::run,
     )
 }

@@ -9,6 +9,7 @@ use isochron_shared::clock::{SiteClock, wall_now_ns};
 use isochron_shared::config::{CameraConfig, LoadedConfig};
 use isochron_shared::exit::{self, Fatal};
 use isochron_shared::ipc::{Activity, Ipc, Motion};
+use isochron_shared::service::ServiceContext;
 use isochron_shared::stage::{Context, Input, Output, Stage, Woken};
 use isochron_shared::store::{Store, StoreMeta, store_path};
 use isochron_shared::topology::StageKind;
@@ -19,6 +20,14 @@ use crate::{Cascade, Params, PushError, Reject, SecondOut, TimedStore};
 /// Consecutive samples of another grid after which the cascade gives up: motion runs
 /// with other settings for good, and the store cannot follow.
 const GRID_MISMATCH_LIMIT: u32 = 30;
+
+/// Serves the camera of `ctx` (the `main` of isochron-cascade): opens the stage
+/// and runs it until the process is asked to stop.
+pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
+    let camera = ctx.camera();
+    let (mut cascade, motion) = CascadeStage::open(&ctx.ipc, &ctx.config, camera)?;
+    isochron_shared::stage::run(&ctx.ipc, &camera.id, &mut cascade, &motion)
+}
 
 /// The cascade of one camera with its store and output.
 pub struct CascadeStage<'ipc> {

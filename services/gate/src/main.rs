@@ -4,19 +4,14 @@
 
 use std::process::ExitCode;
 
-use isochron_gate::stage::GateStage;
+use isochron_gate::stage;
 use isochron_shared::service::main_per_camera;
-use isochron_shared::stage;
 use isochron_shared::topology::StageKind;
 
 fn main() -> ExitCode {
     main_per_camera(
         StageKind::Gate,
         "Raises events from a camera's activity and runs the detector on gated frames",
-        |ctx| {
-            let camera = ctx.camera();
-            let (mut gate, inputs) = GateStage::open(&ctx.ipc, &ctx.config, camera)?;
-            stage::run(&ctx.ipc, &camera.id, &mut gate, &inputs)
-        },
+        stage::run,
     )
 }

@@ -9,6 +9,7 @@ use isochron_shared::clock::NS_PER_S;
 use isochron_shared::config::{CameraConfig, LoadedConfig};
 use isochron_shared::exit::{self, Fatal};
 use isochron_shared::ipc::{Activity, Detections, Events, Frames, Ipc};
+use isochron_shared::service::ServiceContext;
 use isochron_shared::stage::{Context, Input, Output, Received, Stage, Woken};
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{
@@ -44,6 +45,14 @@ impl Counters {
     fn jobs_lost(&self) -> u64 {
         self.frames_gone + self.detector_busy
     }
+}
+
+/// Serves the camera of `ctx` (the `main` of isochron-gate): opens the stage
+/// and runs it until the process is asked to stop.
+pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
+    let camera = ctx.camera();
+    let (mut gate, inputs) = GateStage::open(&ctx.ipc, &ctx.config, camera)?;
+    isochron_shared::stage::run(&ctx.ipc, &camera.id, &mut gate, &inputs)
 }
 
 /// The gate of one camera: event trackers, frame intake, detector worker, outputs.

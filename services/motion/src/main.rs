@@ -3,20 +3,14 @@
 
 use std::process::ExitCode;
 
-use isochron_motion::stage::MotionStage;
+use isochron_motion::stage;
 use isochron_shared::service::main_per_camera;
-use isochron_shared::stage;
 use isochron_shared::topology::StageKind;
 
 fn main() -> ExitCode {
     main_per_camera(
         StageKind::Motion,
         "Reads a camera's `frames` and publishes per-block motion on `<prefix>/<camera>/motion`",
-        |ctx| {
-            let camera = ctx.camera();
-            let (mut motion, frames) =
-                MotionStage::open(&ctx.ipc, camera, &ctx.config.config.motion)?;
-            stage::run(&ctx.ipc, &camera.id, &mut motion, &frames)
-        },
+        stage::run,
     )
 }
