@@ -17,10 +17,6 @@ use isochron_shared::wire::{CameraId, MotionHeader};
 
 use crate::{Cascade, Params, PushError, Reject, SecondOut, TimedStore};
 
-/// Consecutive samples of another grid after which the cascade gives up: motion runs
-/// with other settings for good, and the store cannot follow.
-const GRID_MISMATCH_LIMIT: u32 = 30;
-
 /// Serves the camera of `ctx` (the `main` of isochron-cascade): opens the stage
 /// and runs it until the process is asked to stop.
 pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
@@ -28,6 +24,10 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
     let (mut cascade, motion) = CascadeStage::open(&ctx.ipc, &ctx.config, camera)?;
     isochron_shared::stage::run(&ctx.ipc, &camera.id, &mut cascade, &motion)
 }
+
+/// Consecutive samples of another grid after which the cascade gives up: motion runs
+/// with other settings for good, and the store cannot follow.
+const GRID_MISMATCH_LIMIT: u32 = 30;
 
 /// The cascade of one camera with its store and output.
 pub struct CascadeStage<'ipc> {

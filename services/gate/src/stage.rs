@@ -23,6 +23,14 @@ use crate::gate::{Action, Gate, GateSettings};
 use crate::ring::FrameRing;
 use crate::worker::{DetectorSlots, Outcome, Report, Worker};
 
+/// Serves the camera of `ctx` (the `main` of isochron-gate): opens the stage
+/// and runs it until the process is asked to stop.
+pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
+    let camera = ctx.camera();
+    let (mut gate, inputs) = GateStage::open(&ctx.ipc, &ctx.config, camera)?;
+    isochron_shared::stage::run(&ctx.ipc, &camera.id, &mut gate, &inputs)
+}
+
 /// Most detections published for one frame.
 const MAX_DETECTIONS: usize = 256;
 /// How long the end of a stream waits for queued detections.
@@ -45,14 +53,6 @@ impl Counters {
     fn jobs_lost(&self) -> u64 {
         self.frames_gone + self.detector_busy
     }
-}
-
-/// Serves the camera of `ctx` (the `main` of isochron-gate): opens the stage
-/// and runs it until the process is asked to stop.
-pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
-    let camera = ctx.camera();
-    let (mut gate, inputs) = GateStage::open(&ctx.ipc, &ctx.config, camera)?;
-    isochron_shared::stage::run(&ctx.ipc, &camera.id, &mut gate, &inputs)
 }
 
 /// The gate of one camera: event trackers, frame intake, detector worker, outputs.
