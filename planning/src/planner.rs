@@ -324,20 +324,10 @@ mod tests {
     /// A site with one camera looking straight down at a 4 m × 3 m floor
     /// (80 px per metre), a 320×240 frame in 16 px blocks (20×15), and a
     /// hand-made long-term store.
-    const SITE: &str = r#"
-[site]
-state_dir = "state"
-
-[[camera]]
-id = "cam01"
-source = "video.avi"
-floor_points = [
-  { image_px = [0, 0], floor_m = [0, 3] },
-  { image_px = [320, 0], floor_m = [4, 3] },
-  { image_px = [320, 240], floor_m = [4, 0] },
-  { image_px = [0, 240], floor_m = [0, 0] },
-]
-[[camera.zone]]
+    const SITE: &str = concat!(
+        "\n[site]\nstate_dir = \"state\"\n\n",
+        include_str!("../tests/fixtures/floor_camera.toml"),
+        r#"[[camera.zone]]
 name = "door"
 polygon = [[0, 0], [64, 0], [64, 64], [0, 64]]
 
@@ -366,7 +356,8 @@ segments = ["west", "east"]
 [[costmap.route]]
 name = "via-door"
 segments = ["door", "west"]
-"#;
+"#
+    );
 
     fn site(bins: impl Fn(u32) -> Option<Vec<f32>>) -> (tempfile::TempDir, LoadedConfig) {
         let dir = tempfile::tempdir().unwrap();
