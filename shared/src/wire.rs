@@ -270,14 +270,43 @@ pub enum WireError {
     },
 }
 
-/// Pixel layout of a frame.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u32)]
-pub enum PixelFormat {
-    /// One byte per pixel, luminance.
-    Gray8 = 1,
-    /// Three bytes per pixel, blue-green-red (OpenCV's order).
-    Bgr8 = 2,
+/// Declares a `#[repr(u32)]` enum as a header field carries it, with `from_u32`,
+/// which parses that `u32` (`None` for a value no variant has).
+#[macro_export]
+macro_rules! u32_enum {
+    (
+        $(#[$meta:meta])*
+        $vis:vis enum $name:ident {
+            $($(#[$variant_meta:meta])* $variant:ident = $value:literal,)*
+        }
+    ) => {
+        $(#[$meta])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+        #[repr(u32)]
+        $vis enum $name {
+            $($(#[$variant_meta])* $variant = $value,)*
+        }
+
+        impl $name {
+            /// Parses the `u32` this enum is sent as.
+            pub fn from_u32(v: u32) -> Option<$name> {
+                match v {
+                    $($value => Some($name::$variant),)*
+                    _ => None,
+                }
+            }
+        }
+    };
+}
+
+u32_enum! {
+    /// Pixel layout of a frame.
+    pub enum PixelFormat {
+        /// One byte per pixel, luminance.
+        Gray8 = 1,
+        /// Three bytes per pixel, blue-green-red (OpenCV's order).
+        Bgr8 = 2,
+    }
 }
 
 impl PixelFormat {
@@ -286,15 +315,6 @@ impl PixelFormat {
         match self {
             PixelFormat::Gray8 => 1,
             PixelFormat::Bgr8 => 3,
-        }
-    }
-
-    /// Parses the `u32` of a header.
-    pub fn from_u32(v: u32) -> Option<PixelFormat> {
-        match v {
-            1 => Some(PixelFormat::Gray8),
-            2 => Some(PixelFormat::Bgr8),
-            _ => None,
         }
     }
 }
@@ -568,14 +588,14 @@ impl ActivityHeader {
     }
 }
 
-/// Kind of activity an event was raised on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u32)]
-pub enum ActivityKind {
-    /// In-place activity (S1).
-    InPlace = 1,
-    /// Moving activity (S2).
-    Moving = 2,
+u32_enum! {
+    /// Kind of activity an event was raised on.
+    pub enum ActivityKind {
+        /// In-place activity (S1).
+        InPlace = 1,
+        /// Moving activity (S2).
+        Moving = 2,
+    }
 }
 
 impl ActivityKind {
@@ -584,15 +604,6 @@ impl ActivityKind {
         match self {
             ActivityKind::InPlace => "in-place",
             ActivityKind::Moving => "moving",
-        }
-    }
-
-    /// Parses the `u32` of a header.
-    pub fn from_u32(v: u32) -> Option<ActivityKind> {
-        match v {
-            1 => Some(ActivityKind::InPlace),
-            2 => Some(ActivityKind::Moving),
-            _ => None,
         }
     }
 }
