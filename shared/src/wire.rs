@@ -440,14 +440,21 @@ pub struct MotionHeader {
     pub source_index: u64,
 }
 
-/// Shared check of a block grid against a frame size.
-fn validate_grid(
-    frame_width: u32,
-    frame_height: u32,
-    block_px: u32,
-    grid_w: u32,
-    grid_h: u32,
+/// The checks the headers of one `E` per block (motion, activity) share: the
+/// preamble, the block grid against the frame size, and a payload of one element
+/// per block (`what` names it in errors).
+fn validate_blocks<E>(
+    preamble: &Preamble,
+    stream: Stream,
+    what: &'static str,
+    camera: &CameraId,
+    blocks: usize,
+    [frame_width, frame_height, block_px, grid_w, grid_h]: [u32; 5],
 ) -> Result<(), WireError> {
+    preamble.validate::<E>(stream, camera, blocks)?;
+    if preamble.is_end_of_stream() {
+        return Ok(());
+    }
     if block_px == 0 {
         return Err(WireError::Field {
             field: "block_px",
@@ -463,6 +470,13 @@ fn validate_grid(
             found: format!("{grid_w}x{grid_h}"),
         });
     }
+    if (grid_w * grid_h) as usize != blocks {
+        return Err(WireError::Size {
+            what,
+            expected: format!("{} blocks", grid_w * grid_h),
+            found: format!("{blocks} blocks"),
+        });
+    }
     Ok(())
 }
 
@@ -476,26 +490,20 @@ impl MotionHeader {
 
     /// Validates the header against the sample's real payload length (blocks).
     pub fn validate(&self, camera: &CameraId, blocks: usize) -> Result<(), WireError> {
-        self.preamble
-            .validate::<BlockMotion>(Stream::Motion, camera, blocks)?;
-        if self.preamble.is_end_of_stream() {
-            return Ok(());
-        }
-        validate_grid(
-            self.frame_width,
-            self.frame_height,
-            self.block_px,
-            self.grid_w,
-            self.grid_h,
-        )?;
-        if (self.grid_w * self.grid_h) as usize != blocks {
-            return Err(WireError::Size {
-                what: "motion payload",
-                expected: format!("{} blocks", self.grid_w * self.grid_h),
-                found: format!("{blocks} blocks"),
-            });
-        }
-        Ok(())
+        validate_blocks::<BlockMotion>(
+            &self.preamble,
+            Stream::Motion,
+            "motion payload",
+            camera,
+            blocks,
+            [
+                self.frame_width,
+                self.frame_height,
+                self.block_px,
+                self.grid_w,
+                self.grid_h,
+            ],
+        )
     }
 }
 
@@ -565,26 +573,20 @@ impl ActivityHeader {
 
     /// Validates the header against the sample's real payload length (blocks).
     pub fn validate(&self, camera: &CameraId, blocks: usize) -> Result<(), WireError> {
-        self.preamble
-            .validate::<BlockActivity>(Stream::Activity, camera, blocks)?;
-        if self.preamble.is_end_of_stream() {
-            return Ok(());
-        }
-        validate_grid(
-            self.frame_width,
-            self.frame_height,
-            self.block_px,
-            self.grid_w,
-            self.grid_h,
-        )?;
-        if (self.grid_w * self.grid_h) as usize != blocks {
-            return Err(WireError::Size {
-                what: "activity payload",
-                expected: format!("{} blocks", self.grid_w * self.grid_h),
-                found: format!("{blocks} blocks"),
-            });
-        }
-        Ok(())
+        validate_blocks::<BlockActivity>(
+            &self.preamble,
+            Stream::Activity,
+            "activity payload",
+            camera,
+            blocks,
+            [
+                self.frame_width,
+                self.frame_height,
+                self.block_px,
+                self.grid_w,
+                self.grid_h,
+            ],
+        )
     }
 }
 
