@@ -209,19 +209,11 @@ fn info(args: StoreArgs) -> anyhow::Result<ExitCode> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use isochron_shared::geometry::BlockGrid;
     use isochron_shared::store::{Bin, StoreMeta};
 
     fn model() -> Model {
-        let meta = StoreMeta {
-            camera: "c".into(),
-            grid_w: 2,
-            grid_h: 2,
-            block_px: 16,
-            frame_width: 32,
-            frame_height: 32,
-            cycle: Cycle::Daily,
-            created_ns: 0,
-        };
+        let meta = StoreMeta::new("c", BlockGrid::new(32, 32, 16), Cycle::Daily, 0);
         let mut bins = vec![None; 1440];
         bins[5] = Some(Bin {
             t_star: 5,

@@ -364,16 +364,7 @@ segments = ["door", "west"]
         let path = dir.path().join("site.toml");
         std::fs::write(&path, SITE).unwrap();
         let loaded = Config::load(&path).unwrap();
-        let meta = StoreMeta {
-            camera: "cam01".into(),
-            grid_w: 20,
-            grid_h: 15,
-            block_px: 16,
-            frame_width: 320,
-            frame_height: 240,
-            cycle: Cycle::Daily,
-            created_ns: 0,
-        };
+        let meta = StoreMeta::new("cam01", BlockGrid::new(320, 240, 16), Cycle::Daily, 0);
         let mut store =
             Store::open_or_create(&store_path(&loaded.state_dir(), "cam01"), &meta).unwrap();
         for t in 0..1440 {
