@@ -131,7 +131,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     check_shared_memory(&loaded, &mut report);
     check_iceoryx2_dir(&mut report);
 
-    let ipc = Ipc::of_site("isochron-doctor", &c)?;
+    let ipc = Ipc::of_site("isochron-doctor", c)?;
     let cameras: Vec<String> = c.cameras.iter().map(|c| c.id.clone()).collect();
     let rows = status::collect(&ipc, &cameras)?;
     let running = rows.iter().filter(|r| r.state() == "running").count();
