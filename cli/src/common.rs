@@ -1,4 +1,5 @@
-//! What several commands share: finding the config.
+//! What several commands share: finding the config, the shape of a group of
+//! subcommands.
 
 use std::path::PathBuf;
 
@@ -16,4 +17,12 @@ pub fn config_path(arg: Option<PathBuf>) -> PathBuf {
 pub fn load_config(arg: Option<PathBuf>) -> anyhow::Result<LoadedConfig> {
     let path = config_path(arg);
     Config::load(&path).with_context(|| "invalid configuration")
+}
+
+/// The arguments of a command that is a group of subcommands (`isochron store
+/// export`, `isochron plan now`, ...): `C` lists them.
+#[derive(clap::Args)]
+pub struct Subcommands<C: clap::Subcommand> {
+    #[command(subcommand)]
+    pub command: C,
 }

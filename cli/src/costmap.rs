@@ -20,20 +20,15 @@ use isochron_planning::query::{PlanKind, PlanRequest, PlanStatus};
 use isochron_planning::raster::Footprint;
 use isochron_shared::geometry::BlockGrid;
 use isochron_shared::ipc::Ipc;
-use isochron_shared::names::ServiceNames;
 use isochron_shared::store::{Store, store_path};
 
-use crate::common::load_config;
+use crate::common::{Subcommands, load_config};
 
 /// Snapshots and checks of the site's cost map.
-#[derive(clap::Args)]
-pub struct Args {
-    #[command(subcommand)]
-    command: Command,
-}
+pub type Args = Subcommands<Command>;
 
 #[derive(clap::Subcommand)]
-enum Command {
+pub(crate) enum Command {
     /// Write a snapshot of the current cost map (PGM + YAML + PNG).
     Snapshot(SnapshotArgs),
     /// Show each camera's floor mapping and grid coverage.
@@ -41,7 +36,7 @@ enum Command {
 }
 
 #[derive(clap::Args)]
-struct SnapshotArgs {
+pub(crate) struct SnapshotArgs {
     /// Site configuration (default: $ISOCHRON_CONFIG or /etc/isochron/isochron.toml).
     #[arg(long)]
     config: Option<PathBuf>,
@@ -54,7 +49,7 @@ struct SnapshotArgs {
 }
 
 #[derive(clap::Args)]
-struct CheckArgs {
+pub(crate) struct CheckArgs {
     /// Site configuration (default: $ISOCHRON_CONFIG or /etc/isochron/isochron.toml).
     #[arg(long)]
     config: Option<PathBuf>,
@@ -69,10 +64,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 
 fn snapshot(args: SnapshotArgs) -> anyhow::Result<ExitCode> {
     let loaded = load_config(args.config)?;
-    let ipc = Ipc::new(
+    let ipc = Ipc::of_site(
         &format!("isochron-snapshot-{}", std::process::id()),
-        ServiceNames::new(&loaded.config.site.service_prefix),
-        loaded.config.ipc.clone(),
+        &loaded.config,
     )?;
     let client = PlanClient::new(&ipc)?;
     let response = client.request(

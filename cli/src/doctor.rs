@@ -18,7 +18,6 @@ use isochron_planning::grid::MapGrid;
 use isochron_shared::config::{Config, LoadedConfig, SourceKind};
 use isochron_shared::exit;
 use isochron_shared::ipc::{Ipc, node_census, publisher_segment_bytes};
-use isochron_shared::names::ServiceNames;
 use isochron_shared::store::{Store, store_path};
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{BlockActivity, BlockMotion, Stream};
@@ -233,11 +232,7 @@ fn check_stale(fix: bool, report: &mut Report) -> bool {
 /// Which of the site's services run (needs a node of doctor's own).
 fn check_services(loaded: &LoadedConfig, report: &mut Report) -> anyhow::Result<()> {
     let c = &loaded.config;
-    let ipc = Ipc::new(
-        "isochron-doctor",
-        ServiceNames::new(&c.site.service_prefix),
-        c.ipc.clone(),
-    )?;
+    let ipc = Ipc::of_site("isochron-doctor", c)?;
     let cameras: Vec<String> = c.cameras.iter().map(|c| c.id.clone()).collect();
     let rows = status::collect(&ipc, &cameras)?;
     let running = rows.iter().filter(|r| r.state() == "running").count();

@@ -22,20 +22,15 @@ use isochron_shared::clock::{
 };
 use isochron_shared::config::LoadedConfig;
 use isochron_shared::ipc::Ipc;
-use isochron_shared::names::ServiceNames;
 use serde_json::json;
 
-use crate::common::load_config;
+use crate::common::{Subcommands, load_config};
 
 /// Plan routes and departure times around people.
-#[derive(clap::Args)]
-pub struct Args {
-    #[command(subcommand)]
-    command: Command,
-}
+pub type Args = Subcommands<Command>;
 
 #[derive(clap::Subcommand)]
-enum Command {
+pub(crate) enum Command {
     /// When is a route cheapest? Cost1 over the day from the long-term stores.
     Offline(OfflineArgs),
     /// Which route is cheapest now? Cost2, from the running isochron-costmap.
@@ -43,7 +38,7 @@ enum Command {
 }
 
 #[derive(clap::Args)]
-struct OfflineArgs {
+pub(crate) struct OfflineArgs {
     /// Site configuration (default: $ISOCHRON_CONFIG or /etc/isochron/isochron.toml).
     #[arg(long)]
     config: Option<PathBuf>,
@@ -67,7 +62,7 @@ struct OfflineArgs {
 }
 
 #[derive(clap::Args)]
-struct NowArgs {
+pub(crate) struct NowArgs {
     /// Site configuration (default: $ISOCHRON_CONFIG or /etc/isochron/isochron.toml).
     #[arg(long)]
     config: Option<PathBuf>,
@@ -308,10 +303,9 @@ fn now(args: NowArgs) -> anyhow::Result<ExitCode> {
     if args.routes.len() > PLAN_MAX_ROUTES {
         bail!("--routes: at most {PLAN_MAX_ROUTES} routes at once");
     }
-    let ipc = Ipc::new(
+    let ipc = Ipc::of_site(
         &format!("isochron-plan-{}", std::process::id()),
-        ServiceNames::new(&loaded.config.site.service_prefix),
-        loaded.config.ipc.clone(),
+        &loaded.config,
     )?;
     let client = PlanClient::new(&ipc)?;
     let names: Vec<&str> = args.routes.iter().map(String::as_str).collect();

@@ -25,24 +25,20 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 
-use crate::common::load_config;
+use crate::common::{Subcommands, load_config};
 use crate::store::{Selection, StoreArgs, open, profile};
 
 /// Plot a camera's long-term activity.
-#[derive(clap::Args)]
-pub struct Args {
-    #[command(subcommand)]
-    command: Command,
-}
+pub type Args = Subcommands<Command>;
 
 #[derive(clap::Subcommand)]
-enum Command {
+pub(crate) enum Command {
     /// Activity over the day (PNG or SVG, by the file's extension).
     Daily(DailyArgs),
 }
 
 #[derive(clap::Args)]
-struct DailyArgs {
+pub(crate) struct DailyArgs {
     #[command(flatten)]
     store: Option<StoreArgs>,
     /// Instead of `--store`/`--camera`: a path segment of the site (a

@@ -25,7 +25,6 @@ use isochron_shared::config::{Config, LoadedConfig, Speed};
 use isochron_shared::ipc::{
     Activity, Detections, Events, Frames, Ipc, Motion, StreamSubscriber, StreamType,
 };
-use isochron_shared::names::ServiceNames;
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{ActivityKind, DetectionHeader, EventPhase, Stream};
 use serde_json::json;
@@ -82,11 +81,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             crate::launch::bin_dir().display()
         );
     }
-    let ipc = Ipc::new(
-        "isochron-replay",
-        ServiceNames::new(&loaded.config.site.service_prefix),
-        loaded.config.ipc.clone(),
-    )?;
+    let ipc = Ipc::of_site("isochron-replay", &loaded.config)?;
     let subscribers = Subscribers::open(&ipc, &camera, &stages)?;
     let mut tally = Tally::new(&camera, &subscribers, &out)?;
 

@@ -7,7 +7,6 @@ use std::time::{Duration, Instant};
 
 use isochron_shared::clock::wall_now_ns;
 use isochron_shared::ipc::Ipc;
-use isochron_shared::names::ServiceNames;
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{StageStatus, fixed_str};
 use serde_json::json;
@@ -101,11 +100,7 @@ pub fn collect(ipc: &Ipc, cameras: &[String]) -> anyhow::Result<Vec<Row>> {
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let loaded = load_config(args.config)?;
-    let ipc = Ipc::new(
-        "isochron-status",
-        ServiceNames::new(&loaded.config.site.service_prefix),
-        loaded.config.ipc.clone(),
-    )?;
+    let ipc = Ipc::of_site("isochron-status", &loaded.config)?;
     let cameras: Vec<String> = loaded.config.cameras.iter().map(|c| c.id.clone()).collect();
     let rows = collect(&ipc, &cameras)?;
     if args.json {

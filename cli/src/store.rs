@@ -22,15 +22,13 @@ use isochron_planning::profile::{ProfilePoint, daily_profile};
 use isochron_shared::clock::{Cycle, format_rfc3339, format_t_star};
 use isochron_shared::store::{Model, Store};
 
+use crate::common::Subcommands;
+
 /// Read a camera's long-term store.
-#[derive(clap::Args)]
-pub struct Args {
-    #[command(subcommand)]
-    command: Command,
-}
+pub type Args = Subcommands<Command>;
 
 #[derive(clap::Subcommand)]
-enum Command {
+pub(crate) enum Command {
     /// Write the isochronal profile as CSV `minute_of_day,mean,sigma,count`.
     Export(ExportArgs),
     /// Show what a store holds and check all of it.
@@ -49,7 +47,7 @@ pub struct StoreArgs {
 }
 
 #[derive(clap::Args)]
-struct ExportArgs {
+pub(crate) struct ExportArgs {
     #[command(flatten)]
     store: StoreArgs,
     /// One block, `X,Y` (column, row from the top left), instead of all blocks.
@@ -211,19 +209,11 @@ fn info(args: StoreArgs) -> anyhow::Result<ExitCode> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use isochron_shared::geometry::BlockGrid;
     use isochron_shared::store::{Bin, StoreMeta};
 
     fn model() -> Model {
-        let meta = StoreMeta {
-            camera: "c".into(),
-            grid_w: 2,
-            grid_h: 2,
-            block_px: 16,
-            frame_width: 32,
-            frame_height: 32,
-            cycle: Cycle::Daily,
-            created_ns: 0,
-        };
+        let meta = StoreMeta::new("c", BlockGrid::new(32, 32, 16), Cycle::Daily, 0);
         let mut bins = vec![None; 1440];
         bins[5] = Some(Bin {
             t_star: 5,

@@ -13,7 +13,6 @@ use isochron_shared::clock::{format_rfc3339, format_t_star};
 use isochron_shared::ipc::{
     Activity, Detections, Events, Frames, Ipc, Motion, StreamSubscriber, StreamType,
 };
-use isochron_shared::names::ServiceNames;
 use isochron_shared::wire::{
     ActivityKind, CameraId, DIRECTION_NONE, EventPhase, FLAG_DISCONTINUITY, FLAG_END_OF_STREAM,
     FLAG_ILLUMINATION, Preamble, Stream,
@@ -64,10 +63,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     };
     let camera = CameraId::new(&args.camera)
         .with_context(|| format!("'{}' is not a valid camera id", args.camera))?;
-    let ipc = Ipc::new(
+    let ipc = Ipc::of_site(
         &format!("isochron-tap/{}/{}", args.camera, stream),
-        ServiceNames::new(&loaded.config.site.service_prefix),
-        loaded.config.ipc.clone(),
+        &loaded.config,
     )?;
     match stream {
         Stream::Frames => tap::<Frames>(&ipc, &args, camera, describe_frame),

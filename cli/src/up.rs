@@ -6,7 +6,6 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use isochron_shared::ipc::Ipc;
-use isochron_shared::names::ServiceNames;
 
 use crate::common::load_config;
 use crate::launch::{Supervisor, group_specs};
@@ -31,11 +30,7 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let loaded = load_config(args.config)?;
     // The node is only for the SIGINT/SIGTERM handling every isochron process shares.
-    let ipc = Ipc::new(
-        "isochron-up",
-        ServiceNames::new(&loaded.config.site.service_prefix),
-        loaded.config.ipc.clone(),
-    )?;
+    let ipc = Ipc::of_site("isochron-up", &loaded.config)?;
     let specs = group_specs(&loaded);
     if specs.is_empty() {
         anyhow::bail!(

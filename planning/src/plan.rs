@@ -619,16 +619,7 @@ mod tests {
 
     #[test]
     fn profiles_average_the_segment_blocks_of_learned_bins() {
-        let meta = StoreMeta {
-            camera: "cam01".into(),
-            grid_w: 2,
-            grid_h: 1,
-            block_px: 16,
-            frame_width: 32,
-            frame_height: 16,
-            cycle: Cycle::Daily,
-            created_ns: 0,
-        };
+        let meta = StoreMeta::new("cam01", BlockGrid::new(32, 16, 16), Cycle::Daily, 0);
         let mut bins = vec![None; 1440];
         bins[100] = Some(Bin {
             t_star: 100,

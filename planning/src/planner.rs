@@ -324,20 +324,10 @@ mod tests {
     /// A site with one camera looking straight down at a 4 m × 3 m floor
     /// (80 px per metre), a 320×240 frame in 16 px blocks (20×15), and a
     /// hand-made long-term store.
-    const SITE: &str = r#"
-[site]
-state_dir = "state"
-
-[[camera]]
-id = "cam01"
-source = "video.avi"
-floor_points = [
-  { image_px = [0, 0], floor_m = [0, 3] },
-  { image_px = [320, 0], floor_m = [4, 3] },
-  { image_px = [320, 240], floor_m = [4, 0] },
-  { image_px = [0, 240], floor_m = [0, 0] },
-]
-[[camera.zone]]
+    const SITE: &str = concat!(
+        "\n[site]\nstate_dir = \"state\"\n\n",
+        include_str!("../tests/fixtures/floor_camera.toml"),
+        r#"[[camera.zone]]
 name = "door"
 polygon = [[0, 0], [64, 0], [64, 64], [0, 64]]
 
@@ -366,23 +356,15 @@ segments = ["west", "east"]
 [[costmap.route]]
 name = "via-door"
 segments = ["door", "west"]
-"#;
+"#
+    );
 
     fn site(bins: impl Fn(u32) -> Option<Vec<f32>>) -> (tempfile::TempDir, LoadedConfig) {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("site.toml");
         std::fs::write(&path, SITE).unwrap();
         let loaded = Config::load(&path).unwrap();
-        let meta = StoreMeta {
-            camera: "cam01".into(),
-            grid_w: 20,
-            grid_h: 15,
-            block_px: 16,
-            frame_width: 320,
-            frame_height: 240,
-            cycle: Cycle::Daily,
-            created_ns: 0,
-        };
+        let meta = StoreMeta::new("cam01", BlockGrid::new(320, 240, 16), Cycle::Daily, 0);
         let mut store =
             Store::open_or_create(&store_path(&loaded.state_dir(), "cam01"), &meta).unwrap();
         for t in 0..1440 {

@@ -69,19 +69,11 @@ pub fn daily_profile(blocks: &[(&Model, &[u32])], bins: usize) -> Vec<ProfilePoi
 mod tests {
     use super::*;
     use isochron_shared::clock::Cycle;
+    use isochron_shared::geometry::BlockGrid;
     use isochron_shared::store::{Bin, StoreMeta};
 
     fn model(cycle: Cycle, t: u32, count: u32, mean: Vec<f32>, var: Vec<f32>) -> Model {
-        let meta = StoreMeta {
-            camera: "c".into(),
-            grid_w: 2,
-            grid_h: 2,
-            block_px: 16,
-            frame_width: 32,
-            frame_height: 32,
-            cycle,
-            created_ns: 0,
-        };
+        let meta = StoreMeta::new("c", BlockGrid::new(32, 32, 16), cycle, 0);
         let mut bins = vec![None; cycle.bins() as usize];
         bins[t as usize] = Some(Bin {
             t_star: t,

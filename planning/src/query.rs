@@ -8,6 +8,7 @@
 //! [`WireError`], and are pinned by `#[type_name]` for iceoryx2's type check.
 
 use iceoryx2::prelude::ZeroCopySend;
+use isochron_shared::u32_enum;
 use isochron_shared::wire::{LAYOUT_VERSION, MAGIC, WireError, fixed_str, to_fixed};
 
 /// Longest route or segment name in planning requests and responses, bytes (the
@@ -22,57 +23,31 @@ pub const PLAN_MAX_WINDOWS: usize = 8;
 /// Length of a planning response's text (an error, or where a snapshot went).
 pub const PLAN_MESSAGE_LEN: usize = 256;
 
-/// What a [`PlanRequest`] asks the cost map bridge for.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u32)]
-pub enum PlanKind {
-    /// Off-line: Cost1 of one route over the day, and its cheapest departure times.
-    Offline = 1,
-    /// Real-time: Cost2 of each named route now, ranked.
-    Now = 2,
-    /// Write a snapshot of the current cost map (PGM + YAML + PNG).
-    Snapshot = 3,
-}
-
-impl PlanKind {
-    /// Parses the `u32` of a request.
-    pub fn from_u32(v: u32) -> Option<PlanKind> {
-        match v {
-            1 => Some(PlanKind::Offline),
-            2 => Some(PlanKind::Now),
-            3 => Some(PlanKind::Snapshot),
-            _ => None,
-        }
+u32_enum! {
+    /// What a [`PlanRequest`] asks the cost map bridge for.
+    pub enum PlanKind {
+        /// Off-line: Cost1 of one route over the day, and its cheapest departure times.
+        Offline = 1,
+        /// Real-time: Cost2 of each named route now, ranked.
+        Now = 2,
+        /// Write a snapshot of the current cost map (PGM + YAML + PNG).
+        Snapshot = 3,
     }
 }
 
-/// Outcome of a planning request.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u32)]
-pub enum PlanStatus {
-    /// Answered.
-    Ok = 0,
-    /// The request is malformed (kind, counts, minutes); see the message.
-    BadRequest = 1,
-    /// A route the site config does not have.
-    UnknownRoute = 2,
-    /// The data to answer is missing (no long-term store, no grid); see the message.
-    NoData = 3,
-    /// Something failed on the service's side; see the message.
-    Failed = 4,
-}
-
-impl PlanStatus {
-    /// Parses the `u32` of a response.
-    pub fn from_u32(v: u32) -> Option<PlanStatus> {
-        match v {
-            0 => Some(PlanStatus::Ok),
-            1 => Some(PlanStatus::BadRequest),
-            2 => Some(PlanStatus::UnknownRoute),
-            3 => Some(PlanStatus::NoData),
-            4 => Some(PlanStatus::Failed),
-            _ => None,
-        }
+u32_enum! {
+    /// Outcome of a planning request.
+    pub enum PlanStatus {
+        /// Answered.
+        Ok = 0,
+        /// The request is malformed (kind, counts, minutes); see the message.
+        BadRequest = 1,
+        /// A route the site config does not have.
+        UnknownRoute = 2,
+        /// The data to answer is missing (no long-term store, no grid); see the message.
+        NoData = 3,
+        /// Something failed on the service's side; see the message.
+        Failed = 4,
     }
 }
 

@@ -7,20 +7,15 @@ use std::path::Path;
 use isochron_planning::grid::MapGrid;
 use isochron_shared::config::{Config, ConfigError};
 
-const CAMERA: &str = r#"
-[[camera]]
-id = "cam01"
-source = "video.avi"
-floor_points = [
-  { image_px = [0, 0], floor_m = [0, 3] },
-  { image_px = [320, 0], floor_m = [4, 3] },
-  { image_px = [320, 240], floor_m = [4, 0] },
-  { image_px = [0, 240], floor_m = [0, 0] },
-]
-[[camera.zone]]
+/// One camera looking straight down at a 4 m × 3 m floor, with a zone.
+const CAMERA: &str = concat!(
+    "\n",
+    include_str!("fixtures/floor_camera.toml"),
+    r#"[[camera.zone]]
 name = "door"
 polygon = [[0, 0], [64, 0], [64, 64], [0, 64]]
-"#;
+"#
+);
 
 fn parse(text: &str) -> Result<Config, ConfigError> {
     Config::parse(text, Path::new("site.toml"))

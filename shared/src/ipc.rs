@@ -37,7 +37,7 @@ use iceoryx2::service::port_factory::event::PortFactory as PortFactoryEvent;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use iceoryx2::waitset::WaitSetRunResult;
 
-use crate::config::IpcConfig;
+use crate::config::{Config, IpcConfig};
 use crate::names::ServiceNames;
 use crate::topology::StageKind;
 use crate::wire::{
@@ -82,45 +82,40 @@ pub trait StreamType {
     type Element: Debug + ZeroCopySend + Copy + 'static;
 }
 
-/// `frames`: [`FrameHeader`] + bytes.
-pub struct Frames;
-impl StreamType for Frames {
-    const STREAM: Stream = Stream::Frames;
-    type Header = FrameHeader;
-    type Element = u8;
+/// Declares the marker type of a stream (named as its [`Stream`] variant) and its
+/// [`StreamType`].
+macro_rules! stream_type {
+    ($(#[$doc:meta])* $name:ident: $header:ty, $element:ty) => {
+        $(#[$doc])*
+        pub struct $name;
+        impl StreamType for $name {
+            const STREAM: Stream = Stream::$name;
+            type Header = $header;
+            type Element = $element;
+        }
+    };
 }
 
-/// `motion`: [`MotionHeader`] + [`BlockMotion`]s.
-pub struct Motion;
-impl StreamType for Motion {
-    const STREAM: Stream = Stream::Motion;
-    type Header = MotionHeader;
-    type Element = BlockMotion;
-}
-
-/// `activity`: [`ActivityHeader`] + [`BlockActivity`]s.
-pub struct Activity;
-impl StreamType for Activity {
-    const STREAM: Stream = Stream::Activity;
-    type Header = ActivityHeader;
-    type Element = BlockActivity;
-}
-
-/// `events`: [`EventHeader`] + block indices.
-pub struct Events;
-impl StreamType for Events {
-    const STREAM: Stream = Stream::Events;
-    type Header = EventHeader;
-    type Element = u32;
-}
-
-/// `detections`: [`DetectionHeader`] + [`Detection`]s.
-pub struct Detections;
-impl StreamType for Detections {
-    const STREAM: Stream = Stream::Detections;
-    type Header = DetectionHeader;
-    type Element = Detection;
-}
+stream_type!(
+    /// `frames`: [`FrameHeader`] + bytes.
+    Frames: FrameHeader, u8
+);
+stream_type!(
+    /// `motion`: [`MotionHeader`] + [`BlockMotion`]s.
+    Motion: MotionHeader, BlockMotion
+);
+stream_type!(
+    /// `activity`: [`ActivityHeader`] + [`BlockActivity`]s.
+    Activity: ActivityHeader, BlockActivity
+);
+stream_type!(
+    /// `events`: [`EventHeader`] + block indices.
+    Events: EventHeader, u32
+);
+stream_type!(
+    /// `detections`: [`DetectionHeader`] + [`Detection`]s.
+    Detections: DetectionHeader, Detection
+);
 
 type Factory<S> = PortFactory<Ipc2, [<S as StreamType>::Element], <S as StreamType>::Header>;
 
@@ -197,6 +192,16 @@ impl Ipc {
             names,
             config,
         })
+    }
+
+    /// Creates the node `name` on the site of `config`: its service prefix and its
+    /// IPC settings.
+    pub fn of_site(name: &str, config: &Config) -> Result<Self, IpcError> {
+        Ipc::new(
+            name,
+            ServiceNames::new(&config.site.service_prefix),
+            config.ipc.clone(),
+        )
     }
 
     /// The node.

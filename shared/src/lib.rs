@@ -22,6 +22,7 @@ pub mod health;
 pub mod ipc;
 pub mod logging;
 pub mod names;
+pub mod rng;
 pub mod service;
 pub mod stage;
 pub mod store;

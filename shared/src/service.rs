@@ -2,11 +2,11 @@
 //! each failure mapped to a clear message and an exit code a supervisor understands.
 
 use std::path::{Path, PathBuf};
+use std::process::ExitCode;
 
 use crate::config::{CameraConfig, Config, LoadedConfig};
 use crate::exit;
 use crate::ipc::Ipc;
-use crate::names::ServiceNames;
 use crate::topology::StageKind;
 
 pub use crate::exit::Fatal;
@@ -39,6 +39,10 @@ pub fn start(stage: StageKind, config: &Path) -> Result<ServiceContext, Fatal> {
     context(stage, load(config)?, None)
 }
 
+/// What a service does once started: serve its camera (per-camera services) or
+/// its site until the process is asked to stop.
+pub type Serve = fn(ServiceContext) -> Result<(), Fatal>;
+
 /// The command line every per-camera service shares.
 #[derive(Debug, clap::Args)]
 pub struct CameraArgs {
@@ -61,11 +65,7 @@ pub struct CameraArgs {
 /// go on; the process then exits with that code once they end. A transient failure
 /// (shared memory, iceoryx2, a bug) stops the whole process, so that its
 /// supervisor restarts it.
-pub fn run_cameras(
-    stage: StageKind,
-    args: &CameraArgs,
-    run: fn(ServiceContext) -> Result<(), Fatal>,
-) -> std::process::ExitCode {
+pub fn run_cameras(stage: StageKind, args: &CameraArgs, run: Serve) -> ExitCode {
     crate::logging::init(stage.binary());
     owner_only_files();
     let result = load(&args.config).and_then(|loaded| {
@@ -92,12 +92,56 @@ pub fn run_cameras(
     finish(stage, result)
 }
 
+/// The command line of a per-camera service (see [`main_per_camera`]).
+#[derive(clap::Parser)]
+struct PerCameraCommandLine {
+    #[command(flatten)]
+    service: CameraArgs,
+}
+
+/// The command line of a site-wide service (see [`main_site_wide`]).
+#[derive(clap::Parser)]
+struct SiteWideCommandLine {
+    /// Site configuration file.
+    #[arg(long)]
+    config: PathBuf,
+}
+
+/// Parses the process's command line as `stage`'s binary, described by `about`
+/// (what `--help` shows; `--version` prints the binary's name and version).
+fn parse_command_line<P: clap::Parser>(stage: StageKind, about: &'static str) -> P {
+    let command = || {
+        P::command()
+            .name(stage.binary())
+            .about(about)
+            .version(env!("CARGO_PKG_VERSION"))
+    };
+    let mut matches = command().get_matches();
+    P::from_arg_matches_mut(&mut matches).unwrap_or_else(|e| e.format(&mut command()).exit())
+}
+
+/// The whole `main` of a per-camera service: parses `--config` and `--camera`
+/// (`about` is what `--help` says the service does) and runs `run` for each camera
+/// (see [`run_cameras`]).
+pub fn main_per_camera(stage: StageKind, about: &'static str, run: Serve) -> ExitCode {
+    let args: PerCameraCommandLine = parse_command_line(stage, about);
+    run_cameras(stage, &args.service, run)
+}
+
+/// The whole `main` of a site-wide service: parses `--config` (`about` is what
+/// `--help` says the service does), starts (see [`start`]), runs `run` and
+/// returns the exit code.
+pub fn main_site_wide(stage: StageKind, about: &'static str, run: Serve) -> ExitCode {
+    let args: SiteWideCommandLine = parse_command_line(stage, about);
+    finish(stage, start(stage, &args.config).and_then(run))
+}
+
 /// Runs `run` for every camera on its own thread; see [`run_cameras`].
 fn run_threads(
     stage: StageKind,
     loaded: &LoadedConfig,
     cameras: Vec<CameraConfig>,
-    run: fn(ServiceContext) -> Result<(), Fatal>,
+    run: Serve,
 ) -> Result<(), Fatal> {
     let threads: Vec<_> = cameras
         .into_iter()
@@ -171,11 +215,7 @@ fn context(
         Some(c) => format!("{prefix}/{stage}/{}", c.id),
         None => format!("{prefix}/{stage}"),
     };
-    let ipc = Ipc::new(
-        &node_name,
-        ServiceNames::new(&loaded.config.site.service_prefix),
-        loaded.config.ipc.clone(),
-    )?;
+    let ipc = Ipc::of_site(&node_name, &loaded.config)?;
     Ok(ServiceContext {
         config: loaded,
         camera,
@@ -184,16 +224,16 @@ fn context(
 }
 
 /// Logs the outcome of `main`'s work and turns it into the process exit code.
-pub fn finish(stage: StageKind, result: Result<(), Fatal>) -> std::process::ExitCode {
+pub fn finish(stage: StageKind, result: Result<(), Fatal>) -> ExitCode {
     crate::health::notify_stopping();
     match result {
         Ok(()) => {
             tracing::info!("{} stopped", stage.binary());
-            std::process::ExitCode::SUCCESS
+            ExitCode::SUCCESS
         }
         Err(fatal) => {
             tracing::error!("{}", fatal.message);
-            std::process::ExitCode::from(fatal.code as u8)
+            ExitCode::from(fatal.code as u8)
         }
     }
 }

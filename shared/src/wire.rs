@@ -270,14 +270,43 @@ pub enum WireError {
     },
 }
 
-/// Pixel layout of a frame.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u32)]
-pub enum PixelFormat {
-    /// One byte per pixel, luminance.
-    Gray8 = 1,
-    /// Three bytes per pixel, blue-green-red (OpenCV's order).
-    Bgr8 = 2,
+/// Declares a `#[repr(u32)]` enum as a header field carries it, with `from_u32`,
+/// which parses that `u32` (`None` for a value no variant has).
+#[macro_export]
+macro_rules! u32_enum {
+    (
+        $(#[$meta:meta])*
+        $vis:vis enum $name:ident {
+            $($(#[$variant_meta:meta])* $variant:ident = $value:literal,)*
+        }
+    ) => {
+        $(#[$meta])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+        #[repr(u32)]
+        $vis enum $name {
+            $($(#[$variant_meta])* $variant = $value,)*
+        }
+
+        impl $name {
+            /// Parses the `u32` this enum is sent as.
+            pub fn from_u32(v: u32) -> Option<$name> {
+                match v {
+                    $($value => Some($name::$variant),)*
+                    _ => None,
+                }
+            }
+        }
+    };
+}
+
+u32_enum! {
+    /// Pixel layout of a frame.
+    pub enum PixelFormat {
+        /// One byte per pixel, luminance.
+        Gray8 = 1,
+        /// Three bytes per pixel, blue-green-red (OpenCV's order).
+        Bgr8 = 2,
+    }
 }
 
 impl PixelFormat {
@@ -286,15 +315,6 @@ impl PixelFormat {
         match self {
             PixelFormat::Gray8 => 1,
             PixelFormat::Bgr8 => 3,
-        }
-    }
-
-    /// Parses the `u32` of a header.
-    pub fn from_u32(v: u32) -> Option<PixelFormat> {
-        match v {
-            1 => Some(PixelFormat::Gray8),
-            2 => Some(PixelFormat::Bgr8),
-            _ => None,
         }
     }
 }
@@ -420,14 +440,21 @@ pub struct MotionHeader {
     pub source_index: u64,
 }
 
-/// Shared check of a block grid against a frame size.
-fn validate_grid(
-    frame_width: u32,
-    frame_height: u32,
-    block_px: u32,
-    grid_w: u32,
-    grid_h: u32,
+/// The checks the headers of one `E` per block (motion, activity) share: the
+/// preamble, the block grid against the frame size, and a payload of one element
+/// per block (`what` names it in errors).
+fn validate_blocks<E>(
+    preamble: &Preamble,
+    stream: Stream,
+    what: &'static str,
+    camera: &CameraId,
+    blocks: usize,
+    [frame_width, frame_height, block_px, grid_w, grid_h]: [u32; 5],
 ) -> Result<(), WireError> {
+    preamble.validate::<E>(stream, camera, blocks)?;
+    if preamble.is_end_of_stream() {
+        return Ok(());
+    }
     if block_px == 0 {
         return Err(WireError::Field {
             field: "block_px",
@@ -443,6 +470,13 @@ fn validate_grid(
             found: format!("{grid_w}x{grid_h}"),
         });
     }
+    if (grid_w * grid_h) as usize != blocks {
+        return Err(WireError::Size {
+            what,
+            expected: format!("{} blocks", grid_w * grid_h),
+            found: format!("{blocks} blocks"),
+        });
+    }
     Ok(())
 }
 
@@ -456,26 +490,20 @@ impl MotionHeader {
 
     /// Validates the header against the sample's real payload length (blocks).
     pub fn validate(&self, camera: &CameraId, blocks: usize) -> Result<(), WireError> {
-        self.preamble
-            .validate::<BlockMotion>(Stream::Motion, camera, blocks)?;
-        if self.preamble.is_end_of_stream() {
-            return Ok(());
-        }
-        validate_grid(
-            self.frame_width,
-            self.frame_height,
-            self.block_px,
-            self.grid_w,
-            self.grid_h,
-        )?;
-        if (self.grid_w * self.grid_h) as usize != blocks {
-            return Err(WireError::Size {
-                what: "motion payload",
-                expected: format!("{} blocks", self.grid_w * self.grid_h),
-                found: format!("{blocks} blocks"),
-            });
-        }
-        Ok(())
+        validate_blocks::<BlockMotion>(
+            &self.preamble,
+            Stream::Motion,
+            "motion payload",
+            camera,
+            blocks,
+            [
+                self.frame_width,
+                self.frame_height,
+                self.block_px,
+                self.grid_w,
+                self.grid_h,
+            ],
+        )
     }
 }
 
@@ -545,37 +573,31 @@ impl ActivityHeader {
 
     /// Validates the header against the sample's real payload length (blocks).
     pub fn validate(&self, camera: &CameraId, blocks: usize) -> Result<(), WireError> {
-        self.preamble
-            .validate::<BlockActivity>(Stream::Activity, camera, blocks)?;
-        if self.preamble.is_end_of_stream() {
-            return Ok(());
-        }
-        validate_grid(
-            self.frame_width,
-            self.frame_height,
-            self.block_px,
-            self.grid_w,
-            self.grid_h,
-        )?;
-        if (self.grid_w * self.grid_h) as usize != blocks {
-            return Err(WireError::Size {
-                what: "activity payload",
-                expected: format!("{} blocks", self.grid_w * self.grid_h),
-                found: format!("{blocks} blocks"),
-            });
-        }
-        Ok(())
+        validate_blocks::<BlockActivity>(
+            &self.preamble,
+            Stream::Activity,
+            "activity payload",
+            camera,
+            blocks,
+            [
+                self.frame_width,
+                self.frame_height,
+                self.block_px,
+                self.grid_w,
+                self.grid_h,
+            ],
+        )
     }
 }
 
-/// Kind of activity an event was raised on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u32)]
-pub enum ActivityKind {
-    /// In-place activity (S1).
-    InPlace = 1,
-    /// Moving activity (S2).
-    Moving = 2,
+u32_enum! {
+    /// Kind of activity an event was raised on.
+    pub enum ActivityKind {
+        /// In-place activity (S1).
+        InPlace = 1,
+        /// Moving activity (S2).
+        Moving = 2,
+    }
 }
 
 impl ActivityKind {
@@ -584,15 +606,6 @@ impl ActivityKind {
         match self {
             ActivityKind::InPlace => "in-place",
             ActivityKind::Moving => "moving",
-        }
-    }
-
-    /// Parses the `u32` of a header.
-    pub fn from_u32(v: u32) -> Option<ActivityKind> {
-        match v {
-            1 => Some(ActivityKind::InPlace),
-            2 => Some(ActivityKind::Moving),
-            _ => None,
         }
     }
 }

@@ -10,6 +10,7 @@ use isochron_shared::clock::{Cycle, NS_PER_S, parse_rfc3339};
 use isochron_shared::config::Config;
 use isochron_shared::ipc::{Activity, Ipc, Motion, StreamPublisher};
 use isochron_shared::names::ServiceNames;
+use isochron_shared::rng::Lcg;
 use isochron_shared::store::{Store, StoreMeta, store_path};
 use isochron_shared::wire::{
     ActivityHeader, BlockMotion, CameraId, FLAG_END_OF_STREAM, MotionHeader, Preamble, Stream,
@@ -336,18 +337,6 @@ fn cascade_pid(synth: &mut Proc, not: Option<u32>, timeout: Duration) -> Option<
     })
 }
 
-/// A small deterministic generator for the kill schedule.
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(1_442_695_040_888_963_407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
-
 #[test]
 fn killing_the_cascade_at_random_moments_loses_at_most_the_minute_in_progress() {
     const KILLS: usize = 15;
@@ -385,9 +374,9 @@ fn killing_the_cascade_at_random_moments_loses_at_most_the_minute_in_progress() 
             .unwrap_or_else(|| panic!("the cascade produces nothing:\n{}", synth.stderr()));
         }
         let wait = if starting {
-            0.3 * rng.next()
+            0.3 * rng.next_f64()
         } else {
-            0.2 + 1.3 * rng.next()
+            0.2 + 1.3 * rng.next_f64()
         };
         std::thread::sleep(Duration::from_secs_f64(wait));
         if synth.wait(Duration::ZERO).is_some() {

@@ -13,6 +13,7 @@ use std::sync::atomic::{AtomicU16, Ordering};
 use std::time::{Duration, Instant};
 
 use isochron_shared::clock::{Cycle, NS_PER_S, parse_rfc3339, wall_now_ns};
+use isochron_shared::geometry::BlockGrid;
 use isochron_shared::ipc::{Activity, Ipc, StreamPublisher};
 use isochron_shared::store::{Bin, MinuteCommit, Store, StoreMeta, store_path};
 use isochron_shared::wire::{ActivityHeader, BlockActivity, CameraId, Preamble, Stream};
@@ -407,16 +408,7 @@ fn a_ros2_subscriber_gets_the_grid_its_updates_and_late_joiners_the_last_grid() 
 /// floor, x < 2 m) are busy except 12:00-13:00; the rest is a little busy.
 fn write_store(site: &TestSite) {
     let state_dir = site.config().state_dir();
-    let meta = StoreMeta {
-        camera: "cam01".into(),
-        grid_w: 20,
-        grid_h: 15,
-        block_px: 16,
-        frame_width: 320,
-        frame_height: 240,
-        cycle: Cycle::Daily,
-        created_ns: 0,
-    };
+    let meta = StoreMeta::new("cam01", BlockGrid::new(320, 240, 16), Cycle::Daily, 0);
     let mut store = Store::open_or_create(&store_path(&state_dir, "cam01"), &meta).unwrap();
     for t in (10 * 60..15 * 60).step_by(1) {
         let mean: Vec<f32> = (0..BLOCKS)

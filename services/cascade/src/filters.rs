@@ -610,6 +610,7 @@ impl RateEstimator {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use isochron_shared::rng::Lcg;
 
     fn close(a: f64, b: f64, tol: f64) -> bool {
         (a - b).abs() <= tol
@@ -775,23 +776,12 @@ mod tests {
         assert_eq!(r.rate(), None);
     }
 
-    struct Lcg(u64);
-    impl Lcg {
-        fn next(&mut self) -> f32 {
-            self.0 = self
-                .0
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (self.0 >> 40) as f32 / (1u64 << 24) as f32
-        }
-    }
-
     fn random_frame(rng: &mut Lcg, blocks: usize) -> Vec<BlockMotion> {
         (0..blocks)
             .map(|_| {
-                let on = rng.next() < 0.3;
-                let d = if on { rng.next() } else { 0.0 };
-                let (ux, uy) = (rng.next() * 2.0 - 1.0, rng.next() * 2.0 - 1.0);
+                let on = rng.next_f32() < 0.3;
+                let d = if on { rng.next_f32() } else { 0.0 };
+                let (ux, uy) = (rng.next_f32() * 2.0 - 1.0, rng.next_f32() * 2.0 - 1.0);
                 BlockMotion {
                     density: d,
                     dx: d * ux * 0.7,

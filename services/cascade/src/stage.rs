@@ -10,12 +10,21 @@ use isochron_shared::config::{CameraConfig, LoadedConfig};
 use isochron_shared::exit::{self, Classify, Fatal};
 use isochron_shared::geometry::BlockGrid;
 use isochron_shared::ipc::{Activity, Ipc, Motion};
+use isochron_shared::service::ServiceContext;
 use isochron_shared::stage::{Context, Input, Output, Stage, Woken};
 use isochron_shared::store::{Store, StoreMeta, store_path};
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{CameraId, MotionHeader};
 
 use crate::{Cascade, Params, PushError, Reject, SecondOut, TimedStore};
+
+/// Serves the camera of `ctx` (the `main` of isochron-cascade): opens the stage
+/// and runs it until the process is asked to stop.
+pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
+    let camera = ctx.camera();
+    let (mut cascade, motion) = CascadeStage::open(&ctx.ipc, &ctx.config, camera)?;
+    isochron_shared::stage::run(&ctx.ipc, &camera.id, &mut cascade, &motion)
+}
 
 /// Consecutive samples of another grid after which the cascade gives up: motion runs
 /// with other settings for good, and the store cannot follow.

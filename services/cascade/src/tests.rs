@@ -2,6 +2,7 @@
 
 use super::*;
 use isochron_shared::clock::{Cycle, parse_rfc3339};
+use isochron_shared::rng::Lcg;
 use isochron_shared::store::{StoreMeta, store_path};
 use isochron_shared::wire::FLAG_END_OF_STREAM;
 
@@ -247,17 +248,6 @@ fn a_person_standing_still_is_in_place_and_a_person_walking_through_is_moving() 
     );
 }
 
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(1_442_695_040_888_963_407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
-
 #[test]
 fn cascade_and_non_cascade_give_the_same_outputs_on_a_long_random_stream() {
     let g = grid(6, 4);
@@ -282,15 +272,15 @@ fn cascade_and_non_cascade_give_the_same_outputs_on_a_long_random_stream() {
         let end = t + 40 * 60 * NS_PER_S;
         while t < end {
             // A gap of 20 s now and then, a 3-minute outage once a day.
-            if rng.next() < 0.0005 {
+            if rng.next_f64() < 0.0005 {
                 t += 20 * NS_PER_S;
             }
-            if rng.next() < 0.0001 {
+            if rng.next_f64() < 0.0001 {
                 t += 180 * NS_PER_S;
             }
-            if rng.next() < 0.02 {
-                let y = rng.next() * 4.0;
-                people.push((0.0, y, 0.3 + rng.next(), rng.next() - 0.5));
+            if rng.next_f64() < 0.02 {
+                let y = rng.next_f64() * 4.0;
+                people.push((0.0, y, 0.3 + rng.next_f64(), rng.next_f64() - 0.5));
             }
             blocks.fill(BlockMotion::default());
             for p in &mut people {
@@ -303,14 +293,14 @@ fn cascade_and_non_cascade_give_the_same_outputs_on_a_long_random_stream() {
             }
             people.retain(|p| p.0 < 6.0);
             for b in blocks.iter_mut() {
-                if rng.next() < 0.05 {
-                    b.density = (b.density + rng.next() as f32 * 0.2).min(1.0);
+                if rng.next_f64() < 0.05 {
+                    b.density = (b.density + rng.next_f64() as f32 * 0.2).min(1.0);
                 }
             }
             let h = feed.header(t, k);
             push(&mut c, &h, &blocks, &mut mc, &mut oc);
             push(&mut n, &h, &blocks, &mut mn, &mut on);
-            t += (125_000_000.0 * (0.9 + 0.2 * rng.next())) as i64;
+            t += (125_000_000.0 * (0.9 + 0.2 * rng.next_f64())) as i64;
         }
         let h = feed.end(t);
         push(&mut c, &h, &[], &mut mc, &mut oc);

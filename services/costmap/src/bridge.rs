@@ -288,17 +288,11 @@ mod tests {
     use isochron_shared::config::Config;
     use isochron_shared::wire::{Preamble, Stream};
 
-    const SITE: &str = r#"
-[[camera]]
-id = "cam01"
-source = "video.avi"
-floor_points = [
-  { image_px = [0, 0], floor_m = [0, 3] },
-  { image_px = [320, 0], floor_m = [4, 3] },
-  { image_px = [320, 240], floor_m = [4, 0] },
-  { image_px = [0, 240], floor_m = [0, 0] },
-]
-
+    /// The camera of the planning tests, over a 5 m × 4 m grid.
+    const SITE: &str = concat!(
+        "\n",
+        include_str!("../../../planning/tests/fixtures/floor_camera.toml"),
+        r#"
 [costmap]
 resolution_m = 0.1
 width_cells = 50
@@ -308,7 +302,8 @@ weight_long_term = 0.0
 confirm_radius_m = 0.15
 confirm_hold_s = 2
 stale_s = 5
-"#;
+"#
+    );
 
     fn bridge() -> Bridge {
         let dir = tempfile::tempdir().unwrap();

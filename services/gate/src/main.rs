@@ -4,25 +4,14 @@
 
 use std::process::ExitCode;
 
-use clap::Parser;
-use isochron_gate::stage::GateStage;
-use isochron_shared::service::{CameraArgs, run_cameras};
-use isochron_shared::stage;
+use isochron_gate::stage;
+use isochron_shared::service::main_per_camera;
 use isochron_shared::topology::StageKind;
 
-/// Raises events from a camera's activity and runs the detector on gated frames.
-#[derive(Parser)]
-#[command(version)]
-struct Args {
-    #[command(flatten)]
-    service: CameraArgs,
-}
-
 fn main() -> ExitCode {
-    let args = Args::parse();
-    run_cameras(StageKind::Gate, &args.service, |ctx| {
-        let camera = ctx.camera();
-        let (mut gate, inputs) = GateStage::open(&ctx.ipc, &ctx.config, camera)?;
-        stage::run(&ctx.ipc, &camera.id, &mut gate, &inputs)
-    })
+    main_per_camera(
+        StageKind::Gate,
+        "Raises events from a camera's activity and runs the detector on gated frames",
+        stage::run,
+    )
 }

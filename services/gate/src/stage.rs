@@ -9,6 +9,7 @@ use isochron_shared::clock::NS_PER_S;
 use isochron_shared::config::{CameraConfig, LoadedConfig};
 use isochron_shared::exit::{self, Fatal};
 use isochron_shared::ipc::{Activity, Detections, Events, Frames, Ipc};
+use isochron_shared::service::ServiceContext;
 use isochron_shared::stage::{Context, Input, Output, Received, Stage, Woken};
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{
@@ -21,6 +22,14 @@ use crate::events::Event;
 use crate::gate::{Action, Gate, GateSettings};
 use crate::ring::FrameRing;
 use crate::worker::{DetectorSlots, Outcome, Report, Worker};
+
+/// Serves the camera of `ctx` (the `main` of isochron-gate): opens the stage
+/// and runs it until the process is asked to stop.
+pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
+    let camera = ctx.camera();
+    let (mut gate, inputs) = GateStage::open(&ctx.ipc, &ctx.config, camera)?;
+    isochron_shared::stage::run(&ctx.ipc, &camera.id, &mut gate, &inputs)
+}
 
 /// Most detections published for one frame.
 const MAX_DETECTIONS: usize = 256;

@@ -6,12 +6,21 @@ use std::time::Instant;
 use isochron_shared::config::{CameraConfig, MotionConfig, Polygon};
 use isochron_shared::exit::{self, Fatal};
 use isochron_shared::ipc::{Frames, Ipc, Motion};
+use isochron_shared::service::ServiceContext;
 use isochron_shared::stage::{Context, Input, Output, Received, SendError, Stage, Woken};
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{FLAG_ILLUMINATION, FrameHeader, MotionHeader, PixelFormat};
 
 use crate::detector::MotionDetector;
 use crate::pairing::{FrameInfo, Pairing, pair};
+
+/// Serves the camera of `ctx` (the `main` of isochron-motion): opens the stage
+/// and runs it until the process is asked to stop.
+pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
+    let camera = ctx.camera();
+    let (mut motion, frames) = MotionStage::open(&ctx.ipc, camera, &ctx.config.config.motion)?;
+    isochron_shared::stage::run(&ctx.ipc, &camera.id, &mut motion, &frames)
+}
 
 /// The motion stage of one camera: the previous frame, the detector for the current
 /// frame size, the output, and counters.
