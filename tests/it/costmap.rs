@@ -660,3 +660,54 @@ fn toml_with_route(site: &TestSite, segment: &str) -> String {
     ));
     text
 }
+
+/// A bridge nobody listens to logs no error on its status reports (ros2-client's
+/// subscription count logged one every 5 s until a first reader matched), reports
+/// `ros_subscribers=0`, and counts a ROS 2 subscriber once it joins.
+#[test]
+fn the_bridge_logs_no_error_and_counts_its_subscribers() {
+    python();
+    let domain = dds_domain();
+    let site = TestSite::new(
+        "costmap-quiet",
+        &format!("{}{}", camera_toml(), costmap_toml(domain, "")),
+    );
+    let ipc = site.ipc("source");
+    let mut source = Source::new(&ipc, "2026-03-02T11:00:00Z");
+    let costmap = site.spawn("isochron-costmap", &[]);
+    source.wait_for_subscriber(&costmap);
+    assert!(
+        costmap.wait_for_stderr("publishing a 60x60 grid", Duration::from_secs(20)),
+        "{}",
+        costmap.stderr()
+    );
+
+    // Two status reports and more (one every 5 s), with a live camera.
+    let end = Instant::now() + Duration::from_secs(12);
+    while Instant::now() < end {
+        source.send(&[], 750);
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    let stderr = costmap.stderr();
+    let errors: Vec<&str> = stderr.lines().filter(|l| l.contains("ERROR")).collect();
+    assert!(errors.is_empty(), "errors logged:\n{}", errors.join("\n"));
+    assert!(stderr.contains("ros_subscribers=0"), "{stderr}");
+
+    // A subscriber of the grid topic is counted at the next report.
+    let grids = listener(domain, false, 0, 60);
+    let end = Instant::now() + Duration::from_secs(30);
+    while !costmap.stderr().contains("ros_subscribers=1") {
+        assert!(
+            Instant::now() < end,
+            "the subscriber was never counted:\n{}\nlistener stderr:\n{}",
+            costmap.stderr(),
+            grids.stderr()
+        );
+        source.send(&[], 750);
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    drop(grids);
+    let stderr = costmap.stderr();
+    let errors: Vec<&str> = stderr.lines().filter(|l| l.contains("ERROR")).collect();
+    assert!(errors.is_empty(), "errors logged:\n{}", errors.join("\n"));
+}
