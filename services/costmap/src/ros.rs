@@ -9,7 +9,10 @@
 //!
 //! The DDS participant joins `costmap.ros_domain_id` (else `$ROS_DOMAIN_ID`, else 0)
 //! and uses the network interfaces of `costmap.dds_interfaces` (else all; only
-//! loopback when `ROS_LOCALHOST_ONLY=1` or `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`).
+//! loopback when `ROS_LOCALHOST_ONLY=1` or `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`):
+//! RustDDS announces only their addresses and multicasts only on them, but binds
+//! its sockets to 0.0.0.0 regardless (hard-coded in 0.15) — a hard limit is the
+//! unit's `IPAddressAllow=`/`IPAddressDeny=` or a firewall (README).
 
 use std::net::IpAddr;
 use std::time::Duration;
