@@ -9,15 +9,21 @@
 //!
 //! The DDS participant joins `costmap.ros_domain_id` (else `$ROS_DOMAIN_ID`, else 0)
 //! and uses the network interfaces of `costmap.dds_interfaces` (else all; only
-//! loopback when `ROS_LOCALHOST_ONLY=1` or `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`).
+//! loopback when `ROS_LOCALHOST_ONLY=1` or `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`):
+//! RustDDS announces only their addresses and multicasts only on them, but binds
+//! its sockets to 0.0.0.0 regardless (hard-coded in 0.15) — a hard limit is the
+//! unit's `IPAddressAllow=`/`IPAddressDeny=` or a firewall (README).
 
 use std::net::IpAddr;
 use std::time::Duration;
 
-use ros2_client::dds::{Context, Node, Publisher};
+use ros2_client::dds::{Context, DEFAULT_PUBLISHER_QOS, Node, Publisher};
 use ros2_client::qos::Durability;
 use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions};
-use rustdds::{DomainParticipantBuilder, QosPolicyBuilder, TopicKind, policy};
+use rustdds::dds::qos::HasQoSPolicy;
+use rustdds::{
+    DomainParticipantBuilder, QosPolicies, QosPolicyBuilder, TopicDescription, TopicKind, policy,
+};
 
 use crate::msgs::{OccupancyGrid, OccupancyGridUpdate};
 
@@ -27,8 +33,6 @@ pub const MAX_DOMAIN_ID: u16 = 232;
 const GRID_DEPTH: i32 = 1;
 /// Updates kept for slow readers.
 const UPDATES_DEPTH: i32 = 10;
-/// How long the spinner may take to register the publishers with the node.
-const SPINNER_GRACE: Duration = Duration::from_secs(3);
 /// How long `publish` waits for a full reliable send window before it gives up.
 const MAX_BLOCKING: Duration = Duration::from_millis(50);
 
@@ -106,12 +110,14 @@ pub fn topic_name(name: &str) -> Result<Name, RosError> {
 
 /// The ROS 2 node of the bridge and its two publishers.
 pub struct RosOutput {
-    started: std::time::Instant,
     grid: Publisher<OccupancyGrid>,
     updates: Publisher<OccupancyGridUpdate>,
-    node: Node,
+    /// The grid topic's DDS name (`rt/...`) and the QoS its writer offers: what
+    /// RustDDS matches remote readers against.
+    grid_match: (String, QosPolicies),
+    _node: Node,
     _spinner: Option<std::thread::JoinHandle<()>>,
-    _context: Context,
+    context: Context,
 }
 
 impl RosOutput {
@@ -165,6 +171,12 @@ impl RosOutput {
             UPDATES_DEPTH,
         )
         .map_err(|e| dds(format!("creating topic {}: {e:?}", settings.updates_topic)))?;
+        // RustDDS gives a writer the ROS default publisher's QoS overridden by the
+        // topic's (`Publisher::create_datawriter`).
+        let grid_match = (
+            grid_topic.name(),
+            QosPolicies::from(DEFAULT_PUBLISHER_QOS).modify_by(&grid_topic.qos()),
+        );
         let grid = node
             .create_publisher::<OccupancyGrid>(&grid_topic, None)
             .map_err(|e| dds(format!("creating the grid publisher: {e:?}")))?;
@@ -187,12 +199,12 @@ impl RosOutput {
             }
         };
         Ok(RosOutput {
-            started: std::time::Instant::now(),
             grid,
             updates,
-            node,
+            grid_match,
+            _node: node,
             _spinner: spinner,
-            _context: context,
+            context,
         })
     }
 
@@ -210,13 +222,26 @@ impl RosOutput {
         })
     }
 
-    /// Matched subscribers of the grid topic (0 during the first seconds, until
-    /// the spinner has registered the publisher with the node).
+    /// Subscribers matched with the grid publisher: the remote readers DDS discovery
+    /// knows on the grid topic whose requested QoS the writer offers — the rule by
+    /// which RustDDS matches a discovered reader to a local writer
+    /// (`Writer::update_reader_proxy`).
+    ///
+    /// Not `Publisher::get_subscription_count`: ros2-client 0.12 counts from a map
+    /// that only gets an entry for a publisher when a first reader matches it, and
+    /// logs an ERROR ("Publisher … not known to node") on every call until then —
+    /// every status report of a bridge nobody listens to.
     pub fn grid_subscribers(&self) -> usize {
-        if self.started.elapsed() < SPINNER_GRACE {
-            return 0;
-        }
-        self.grid.get_subscription_count(&self.node)
+        let (topic, offered) = &self.grid_match;
+        self.context
+            .domain_participant()
+            .discovered_readers()
+            .iter()
+            .filter(|r| {
+                let s = &r.subscription_topic_data;
+                s.topic_name == *topic && offered.compliance_failure_wrt(&s.qos()).is_none()
+            })
+            .count()
     }
 }
 
