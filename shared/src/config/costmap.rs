@@ -53,8 +53,11 @@ pub struct CostmapConfig {
     pub full_every_s: f64,
     /// DDS domain (ROS_DOMAIN_ID), 0 to 232. Default: `$ROS_DOMAIN_ID`, else 0.
     pub ros_domain_id: Option<u16>,
-    /// IP addresses of the network interfaces DDS may use, e.g. `["127.0.0.1"]` to
-    /// stay on this machine. Default: all (loopback only when `ROS_LOCALHOST_ONLY=1`).
+    /// IP addresses of the network interfaces DDS announces in discovery and sends
+    /// and joins multicast on, e.g. `["127.0.0.1"]`. Default: all (loopback only
+    /// when `ROS_LOCALHOST_ONLY=1`). RustDDS still binds its UDP sockets to
+    /// 0.0.0.0: to make loopback-only a hard limit, add `IPAddressDeny=any` and
+    /// `IPAddressAllow=localhost` to the unit (see the README).
     pub dds_interfaces: Vec<String>,
     /// Weight of in-place activity S1 in the cost. Default 1.
     pub weight_in_place: f64,
