@@ -70,28 +70,21 @@ impl<E: Classify> From<E> for Fatal {
     }
 }
 
-impl Classify for crate::ipc::IpcError {
-    fn exit_code(&self) -> i32 {
-        UNAVAILABLE
-    }
+/// `Classify` for errors that always end with the same code.
+macro_rules! always {
+    ($($code:ident: $($error:ty),+;)+) => {$($(
+        impl Classify for $error {
+            fn exit_code(&self) -> i32 {
+                $code
+            }
+        }
+    )+)+};
 }
 
-impl Classify for crate::wire::WireError {
-    fn exit_code(&self) -> i32 {
-        DATA
-    }
-}
-
-impl Classify for crate::config::ConfigError {
-    fn exit_code(&self) -> i32 {
-        CONFIG
-    }
-}
-
-impl Classify for crate::config::UnknownCamera {
-    fn exit_code(&self) -> i32 {
-        CONFIG
-    }
+always! {
+    UNAVAILABLE: crate::ipc::IpcError;
+    DATA: crate::wire::WireError;
+    CONFIG: crate::config::ConfigError, crate::config::UnknownCamera;
 }
 
 impl Classify for crate::store::StoreError {

@@ -9,7 +9,7 @@ use isochron_tests::{Proc, TestSite, eventually, vtest};
 struct Case {
     name: &'static str,
     binary: &'static str,
-    args: &'static [&'static str],
+    args: Vec<&'static str>,
     ready: &'static str,
 }
 
@@ -27,50 +27,47 @@ fn sigterm_then_sigcont_stops_every_service_in_every_state_within_2s() {
             vtest().display()
         ),
     );
+    // (what, binary, camera, the log line that says it got there)
     let cases = [
-        Case {
-            name: "capture reconnecting",
-            binary: "isochron-capture",
-            args: &["--camera", "gone"],
-            ready: "retrying in",
-        },
-        Case {
-            name: "capture busy",
-            binary: "isochron-capture",
-            args: &["--camera", "busy"],
-            ready: "publishing",
-        },
-        Case {
-            name: "motion idle",
-            binary: "isochron-motion",
-            args: &["--camera", "idle"],
-            ready: "computing motion",
-        },
-        Case {
-            name: "cascade idle",
-            binary: "isochron-cascade",
-            args: &["--camera", "idle"],
-            ready: "filtering motion",
-        },
-        Case {
-            name: "gate idle",
-            binary: "isochron-gate",
-            args: &["--camera", "idle"],
-            ready: "gating the",
-        },
-        Case {
-            name: "costmap idle",
-            binary: "isochron-costmap",
-            args: &[],
-            ready: "planning only",
-        },
-    ];
+        (
+            "capture reconnecting",
+            "isochron-capture",
+            Some("gone"),
+            "retrying in",
+        ),
+        (
+            "capture busy",
+            "isochron-capture",
+            Some("busy"),
+            "publishing",
+        ),
+        (
+            "motion idle",
+            "isochron-motion",
+            Some("idle"),
+            "computing motion",
+        ),
+        (
+            "cascade idle",
+            "isochron-cascade",
+            Some("idle"),
+            "filtering motion",
+        ),
+        ("gate idle", "isochron-gate", Some("idle"), "gating the"),
+        ("costmap idle", "isochron-costmap", None, "planning only"),
+    ]
+    .map(|(name, binary, camera, ready)| Case {
+        name,
+        binary,
+        args: camera.map_or(Vec::new(), |c| vec!["--camera", c]),
+        ready,
+    });
     std::thread::scope(|scope| {
         for case in &cases {
             let site = &site;
             scope.spawn(move || {
                 for attempt in 0..20 {
-                    let mut proc = site.spawn(case.binary, case.args);
+                    let mut proc = site.spawn(case.binary, &case.args);
                     assert!(
                         proc.wait_for_stderr(case.ready, Duration::from_secs(20)),
                         "{}: never reached '{}':\n{}",

@@ -266,7 +266,7 @@ mod tests {
     use std::path::Path;
 
     use isochron_shared::config::Config;
-    use isochron_shared::stage::{Owned, step};
+    use isochron_shared::stage::{Owned, Queue, step};
     use isochron_shared::wire::{CameraId, FLAG_END_OF_STREAM, Preamble, Stream};
 
     fn frame(sequence: u64, index: u64, fill: impl Fn(usize, usize) -> u8) -> Owned<Frames> {
@@ -303,18 +303,43 @@ mod tests {
         }
     }
 
-    #[test]
-    fn drives_the_motion_stage_through_the_runtime_without_shared_memory() {
+    /// A motion stage of a 128x64 camera on memory queues.
+    struct Rig {
+        stage: MotionStage<'static>,
+        sent: Queue<Motion>,
+        frames: Input<Frames>,
+        queue: Queue<Frames>,
+        cx: Context,
+    }
+
+    fn rig() -> Rig {
         let config = Config::parse(
             "[[camera]]\nid = \"cam01\"\nsource = \"walk.avi\"\nwidth = 128\nheight = 64\n",
             Path::new("site.toml"),
         )
         .unwrap();
-        let camera = &config.cameras[0];
         let (output, sent) = Output::memory("cam01");
-        let mut stage = MotionStage::new(camera, &config.motion, output).unwrap();
+        let stage = MotionStage::new(&config.cameras[0], &config.motion, output).unwrap();
         let (frames, queue) = Input::memory("cam01");
-        let mut cx = Context::new(StageKind::Motion, "cam01", None);
+        let cx = Context::new(StageKind::Motion, "cam01", None);
+        Rig {
+            stage,
+            sent,
+            frames,
+            queue,
+            cx,
+        }
+    }
+
+    #[test]
+    fn drives_the_motion_stage_through_the_runtime_without_shared_memory() {
+        let Rig {
+            mut stage,
+            sent,
+            frames,
+            queue,
+            mut cx,
+        } = rig();
 
         queue.borrow_mut().push_back(frame(0, 0, square_at(10)));
         queue.borrow_mut().push_back(frame(1, 1, square_at(14)));
@@ -358,15 +383,13 @@ mod tests {
 
     #[test]
     fn frames_of_another_size_than_configured_are_rejected_and_change_nothing() {
-        let config = Config::parse(
-            "[[camera]]\nid = \"cam01\"\nsource = \"walk.avi\"\nwidth = 128\nheight = 64\n",
-            Path::new("site.toml"),
-        )
-        .unwrap();
-        let (output, sent) = Output::memory("cam01");
-        let mut stage = MotionStage::new(&config.cameras[0], &config.motion, output).unwrap();
-        let (frames, queue) = Input::memory("cam01");
-        let mut cx = Context::new(StageKind::Motion, "cam01", None);
+        let Rig {
+            mut stage,
+            sent,
+            frames,
+            queue,
+            mut cx,
+        } = rig();
         queue.borrow_mut().push_back(frame(0, 0, square_at(10)));
         // A 1x1 frame from a misconfigured or foreign producer of this camera.
         let mut tiny = frame(1, 1, |_, _| 0);
