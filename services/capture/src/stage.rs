@@ -16,7 +16,7 @@ use isochron_shared::wire::{
 };
 
 use crate::source::{PreloadedSource, ReadOutcome, SourceError, VideoSource};
-use crate::{Backoff, Pacer, Stamper};
+use crate::{Backoff, Pacer, Rescale, Stamper, rescale};
 
 /// Reads the camera of `ctx` and publishes its frames until the file ends or the
 /// process is asked to stop.
@@ -39,9 +39,10 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
         return Ok(());
     };
 
+    let native = source.native_size()?;
     let (width, height) = match (cam.width, cam.height) {
         (Some(w), Some(h)) => (w, h),
-        _ => source.native_size()?.ok_or_else(|| {
+        _ => native.ok_or_else(|| {
             Fatal::new(
                 exit::CONFIG,
                 format!(
@@ -51,6 +52,13 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
             )
         })?,
     };
+    if let Some(native) = native {
+        match rescale(&cam.id, native, (width, height)) {
+            Rescale::None => {}
+            Rescale::SameAspect(line) => tracing::info!("{line}"),
+            Rescale::Stretched(line) => tracing::warn!("{line}"),
+        }
+    }
     let format = cam.format();
     let frame_bytes = width as usize * height as usize * format.channels();
     let camera_id = CameraId::new(&cam.id).expect("validated camera id");
