@@ -174,7 +174,12 @@ impl Bridge {
         latest.header = *header;
         latest.blocks.clear();
         latest.blocks.extend_from_slice(blocks);
-        let non_finite = latest.blocks.iter_mut().map(sanitise).filter(|&bad| bad).count();
+        let non_finite = latest
+            .blocks
+            .iter_mut()
+            .map(sanitise)
+            .filter(|&bad| bad)
+            .count();
         latest.arrived = now;
         let horizon = header.preamble.capture_time_ns - self.confirm_hold_ns;
         while cam.confirmed.front().is_some_and(|(t, _)| *t < horizon) {
