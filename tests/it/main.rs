@@ -9,6 +9,7 @@ mod capture;
 mod cascade;
 mod costmap;
 mod gate;
+mod inputs;
 mod launcher;
 mod motion;
 mod operations;
