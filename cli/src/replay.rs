@@ -3,7 +3,11 @@
 //! write what each produced:
 //!
 //! * `DIR/config.toml`: the effective configuration;
-//! * `DIR/summary.json`: samples per stage, wall time, the gate's counters;
+//! * `DIR/summary.json`: samples per stage, wall time, the gate's counters, and
+//!   `input`: the frames the file states, the frames capture read, and whether
+//!   the file is truncated (then replay exits with 65, DATA, after writing
+//!   everything). Capture reports these in its last status detail, published
+//!   before its end of stream, which replay subscribes to;
 //! * `DIR/events.jsonl`: one object per finished event;
 //! * `DIR/detections.jsonl`: one object per detected frame;
 //! * `DIR/logs/`: each service's log; `DIR/state/`: the long-term store.
@@ -22,11 +26,12 @@ use anyhow::{Context, bail};
 use iceoryx2::prelude::*;
 use isochron_shared::clock::format_rfc3339;
 use isochron_shared::config::{Config, LoadedConfig, Speed};
+use isochron_shared::health::InputCompleteness;
 use isochron_shared::ipc::{
     Activity, Detections, Events, Frames, Ipc, Motion, StreamSubscriber, StreamType,
 };
 use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{ActivityKind, DetectionHeader, EventPhase, Stream};
+use isochron_shared::wire::{ActivityKind, DetectionHeader, EventPhase, Stream, fixed_str};
 use serde_json::json;
 
 use crate::launch::{ServiceSpec, State, Supervisor, group_specs, installed_stages};
@@ -96,6 +101,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         supervisor.add(spec)?;
     }
     wait_for_consumers(&ipc, &camera, &stages, &mut supervisor)?;
+    // Capture's last status says how much of the file it read (it publishes it
+    // before the end of stream); subscribed before capture starts.
+    let capture_status = ipc.status_subscriber(&camera, StageKind::Capture)?;
+    let mut capture_detail = None;
     for spec in capture {
         supervisor.add(spec)?;
     }
@@ -119,6 +128,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             Duration::from_millis(100),
         );
         tally.drain(&subscribers)?;
+        if let Some(status) = capture_status.latest() {
+            capture_detail = Some(fixed_str(&status.detail));
+        }
         if tally.all_ended() {
             break;
         }
@@ -154,12 +166,25 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let wall = started.elapsed();
     drop(guards);
     supervisor.stop_all(Duration::from_secs(10));
-    tally.finish(&out, &video, wall)?;
+    let input = capture_detail
+        .as_deref()
+        .and_then(InputCompleteness::from_detail);
+    tally.finish(&out, &video, wall, input)?;
     println!(
         "replay: {} in {:.1} s",
         tally.counts_line(),
         wall.as_secs_f64()
     );
+    if let Some(input) = input.filter(|i| i.truncated) {
+        eprintln!(
+            "replay: {} is truncated or damaged: it ended after {} of the {} frames it states (outputs cover the frames read; exit code {})",
+            video.display(),
+            input.frames_read,
+            input.frames_stated,
+            isochron_shared::exit::DATA
+        );
+        return Ok(ExitCode::from(isochron_shared::exit::DATA as u8));
+    }
     Ok(ExitCode::SUCCESS)
 }
 
@@ -513,7 +538,15 @@ impl Tally {
             .join(" ")
     }
 
-    fn finish(&mut self, out: &Path, video: &Path, wall: Duration) -> anyhow::Result<()> {
+    /// Writes `summary.json`; `input` is capture's account of the file (see
+    /// [`InputCompleteness`]), if it gave one.
+    fn finish(
+        &mut self,
+        out: &Path,
+        video: &Path,
+        wall: Duration,
+        input: Option<InputCompleteness>,
+    ) -> anyhow::Result<()> {
         self.events_out.flush()?;
         self.detections_out.flush()?;
         let counts: serde_json::Map<String, serde_json::Value> = self
@@ -529,6 +562,19 @@ impl Tally {
             "wall_time_s": wall.as_secs_f64(),
             "frames_per_s": frames as f64 / wall.as_secs_f64().max(1e-9),
             "gate": self.gate,
+            "input": match input {
+                Some(i) => json!({
+                    "frames_stated": (i.frames_stated > 0).then_some(i.frames_stated),
+                    "frames_read": i.frames_read,
+                    "truncated": i.truncated,
+                }),
+                // Capture said nothing (it did not end on the file): unknown.
+                None => json!({
+                    "frames_stated": null,
+                    "frames_read": frames,
+                    "truncated": null,
+                }),
+            },
         });
         let path = out.join("summary.json");
         std::fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n")

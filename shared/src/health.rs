@@ -287,6 +287,58 @@ impl Health {
     }
 }
 
+/// The value of `key` in a status detail of `key=value` words (`None` if absent).
+pub fn detail_value<'a>(detail: &'a str, key: &str) -> Option<&'a str> {
+    detail
+        .split_whitespace()
+        .filter_map(|word| word.split_once('='))
+        .find(|(k, _)| *k == key)
+        .map(|(_, v)| v)
+}
+
+/// How much of a video file capture read, against the frame count the file
+/// states. Capture puts it into its last status detail before the end of stream
+/// (`frames_read=N frames_stated=M truncated=true`), where `isochron replay` reads
+/// it back: the wire layout does not change.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct InputCompleteness {
+    /// Frames decoded.
+    pub frames_read: u64,
+    /// Frames the file states it has (0 if it does not say).
+    pub frames_stated: u64,
+    /// The file ended well before (more than one frame) the count it states.
+    pub truncated: bool,
+}
+
+impl InputCompleteness {
+    /// `read` frames of a file stating `stated` (0: unknown). One frame short is
+    /// not truncation: containers often state one frame more than they hold.
+    pub fn of(read: u64, stated: u64) -> Self {
+        InputCompleteness {
+            frames_read: read,
+            frames_stated: stated,
+            truncated: stated > 0 && read + 1 < stated,
+        }
+    }
+
+    /// As status detail words.
+    pub fn to_detail(&self) -> String {
+        format!(
+            "frames_read={} frames_stated={} truncated={}",
+            self.frames_read, self.frames_stated, self.truncated
+        )
+    }
+
+    /// Read back from a status detail; `None` if it has none.
+    pub fn from_detail(detail: &str) -> Option<Self> {
+        Some(InputCompleteness {
+            frames_read: detail_value(detail, "frames_read")?.parse().ok()?,
+            frames_stated: detail_value(detail, "frames_stated")?.parse().ok()?,
+            truncated: detail_value(detail, "truncated")?.parse().ok()?,
+        })
+    }
+}
+
 /// The most recent [`LATENCY_WINDOW`] values.
 #[derive(Debug, Default)]
 struct Window {
@@ -348,6 +400,26 @@ mod tests {
         assert!(!all_alive(&beats, later, period), "b hangs");
         drop(b); // b's loop ended normally: it no longer counts
         assert!(all_alive(&beats, later, period));
+    }
+
+    #[test]
+    fn input_completeness_travels_in_a_status_detail() {
+        let cut = InputCompleteness::of(318, 795);
+        assert!(cut.truncated);
+        assert!(
+            !InputCompleteness::of(794, 795).truncated,
+            "one short is fine"
+        );
+        assert!(!InputCompleteness::of(795, 795).truncated);
+        assert!(!InputCompleteness::of(12, 0).truncated, "unknown count");
+        let detail = format!("reconnects=0 loops=0 source_fps=10.00 {}", cut.to_detail());
+        assert_eq!(
+            detail,
+            "reconnects=0 loops=0 source_fps=10.00 frames_read=318 frames_stated=795 truncated=true"
+        );
+        assert_eq!(InputCompleteness::from_detail(&detail), Some(cut));
+        assert_eq!(detail_value(&detail, "loops"), Some("0"));
+        assert_eq!(InputCompleteness::from_detail("reconnects=0 loops=0"), None);
     }
 
     #[test]

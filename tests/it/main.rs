@@ -10,6 +10,7 @@ mod cascade;
 mod costmap;
 mod doctor;
 mod gate;
+mod inputs;
 mod launcher;
 mod motion;
 mod operations;

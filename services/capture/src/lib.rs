@@ -102,6 +102,40 @@ impl Backoff {
     }
 }
 
+/// How a source of one size fits the configured analysis size.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Rescale {
+    /// The sizes are equal.
+    None,
+    /// Resized with the same aspect ratio (within 1 %): worth an info line.
+    SameAspect(String),
+    /// Resized and stretched: the aspect ratio changes by more than 1 %, which
+    /// distorts every shape (masks, zones, floor points, people): worth a warning.
+    Stretched(String),
+}
+
+/// What rescaling camera `camera`'s `source` size to the configured `target` size
+/// (both `(width, height)`) means, with the line to log.
+pub fn rescale(camera: &str, source: (u32, u32), target: (u32, u32)) -> Rescale {
+    if source == target {
+        return Rescale::None;
+    }
+    let aspect = |(w, h): (u32, u32)| w as f64 / h.max(1) as f64;
+    let change = (aspect(target) / aspect(source) - 1.0) * 100.0;
+    let (sw, sh) = source;
+    let (tw, th) = target;
+    if change.abs() > 1.0 {
+        Rescale::Stretched(format!(
+            "camera '{camera}': the source is {sw}x{sh}, rescaled to the configured {tw}x{th} (aspect ratio changes by {:.1} %)",
+            change.abs()
+        ))
+    } else {
+        Rescale::SameAspect(format!(
+            "camera '{camera}': the source is {sw}x{sh}, rescaled to the configured {tw}x{th} (same aspect ratio)"
+        ))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -139,5 +173,34 @@ mod tests {
         let p = Pacer::new(10.0, Some(1.0));
         assert!(p.wait_for(10) > Duration::from_millis(900));
         assert_eq!(p.wait_for(0), Duration::ZERO);
+    }
+
+    #[test]
+    fn a_stretching_rescale_is_told_apart_from_a_same_aspect_one() {
+        assert_eq!(rescale("c", (768, 576), (768, 576)), Rescale::None);
+        assert_eq!(
+            rescale("c", (768, 576), (384, 288)),
+            Rescale::SameAspect(
+                "camera 'c': the source is 768x576, rescaled to the configured 384x288 (same aspect ratio)"
+                    .into()
+            )
+        );
+        // 1920x1080 → 1280x720 is the same 16:9; 1920x1088 (a codec's padding) is
+        // within 1 %.
+        assert!(matches!(
+            rescale("c", (1920, 1088), (1280, 720)),
+            Rescale::SameAspect(_)
+        ));
+        assert_eq!(
+            rescale("cam01", (768, 576), (640, 360)),
+            Rescale::Stretched(
+                "camera 'cam01': the source is 768x576, rescaled to the configured 640x360 (aspect ratio changes by 33.3 %)"
+                    .into()
+            )
+        );
+        let Rescale::Stretched(m) = rescale("c", (640, 480), (640, 640)) else {
+            panic!("4:3 to 1:1 stretches");
+        };
+        assert!(m.ends_with("(aspect ratio changes by 25.0 %)"), "{m}");
     }
 }

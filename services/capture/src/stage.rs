@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use isochron_shared::clock::{format_rfc3339, parse_rfc3339, wall_now_ns};
 use isochron_shared::config::{SourceKind, Speed};
 use isochron_shared::exit::{self, Fatal};
-use isochron_shared::health::{Health, notify_ready};
+use isochron_shared::health::{Health, InputCompleteness, notify_ready};
 use isochron_shared::ipc::{Frames, Ipc, StreamPublisher};
 use isochron_shared::service::ServiceContext;
 use isochron_shared::topology::StageKind;
@@ -16,7 +16,7 @@ use isochron_shared::wire::{
 };
 
 use crate::source::{PreloadedSource, ReadOutcome, SourceError, VideoSource};
-use crate::{Backoff, Pacer, Stamper};
+use crate::{Backoff, Pacer, Rescale, Stamper, rescale};
 
 /// Reads the camera of `ctx` and publishes its frames until the file ends or the
 /// process is asked to stop.
@@ -39,9 +39,10 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
         return Ok(());
     };
 
+    let native = source.native_size()?;
     let (width, height) = match (cam.width, cam.height) {
         (Some(w), Some(h)) => (w, h),
-        _ => source.native_size()?.ok_or_else(|| {
+        _ => native.ok_or_else(|| {
             Fatal::new(
                 exit::CONFIG,
                 format!(
@@ -51,6 +52,13 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
             )
         })?,
     };
+    if let Some(native) = native {
+        match rescale(&cam.id, native, (width, height)) {
+            Rescale::None => {}
+            Rescale::SameAspect(line) => tracing::info!("{line}"),
+            Rescale::Stretched(line) => tracing::warn!("{line}"),
+        }
+    }
     let format = cam.format();
     let frame_bytes = width as usize * height as usize * format.channels();
     let camera_id = CameraId::new(&cam.id).expect("validated camera id");
@@ -174,14 +182,16 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
             }
             Ok(ReadOutcome::EndOfFile) => {
                 drop(sample);
-                source.check_complete();
+                let input = source.check_complete();
                 if cam.loop_file {
                     loops += 1;
                     source = Source::Video(VideoSource::open(&kind)?);
                     continue;
                 }
+                // The final status (with the input's completeness) before the end of
+                // stream: a reader that sees the end (replay) has the status too.
+                health.report(final_detail(detail(reconnects, loops, fps), input));
                 send_end_of_stream(&mut publisher, camera_id, stamper.stamp(index))?;
-                health.report(detail(reconnects, loops, fps));
                 tracing::info!("end of file after {index} frames; end of stream signalled");
                 return Ok(());
             }
@@ -208,6 +218,8 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
                 // A file that breaks mid-way: publish what was decodable, then end.
                 drop(sample);
                 tracing::warn!("decoding failed after {} frames: {e}", source.next_index());
+                let input = source.check_complete();
+                health.report(final_detail(detail(reconnects, loops, fps), input));
                 send_end_of_stream(&mut publisher, camera_id, stamper.stamp(index))?;
                 return Ok(());
             }
@@ -279,17 +291,32 @@ impl Source {
         }
     }
 
-    /// Warns when a file ended well before the frame count it states (truncated).
-    fn check_complete(&self) {
-        if let Source::Video(v) = self {
-            let stated = v.stated_frame_count();
-            let read = v.frames_read();
-            if stated > 0 && read + 1 < stated {
-                tracing::warn!(
-                    "the file ended after {read} of the {stated} frames it states: it is truncated or damaged"
-                );
-            }
+    /// How much of the file was read, compared with what it states; warns when it
+    /// ended well before the frame count it states (truncated). `None` for a
+    /// preloaded source (it never ends).
+    fn check_complete(&self) -> Option<InputCompleteness> {
+        let Source::Video(v) = self else {
+            return None;
+        };
+        let input = InputCompleteness::of(v.frames_read(), v.stated_frame_count());
+        if input.truncated {
+            tracing::warn!(
+                "the file ended after {} of the {} frames it states: it is truncated or damaged",
+                input.frames_read,
+                input.frames_stated
+            );
         }
+        Some(input)
+    }
+}
+
+/// Capture's last status detail: `detail`, then the input's completeness as
+/// `frames_read=N frames_stated=M truncated=true|false` (see
+/// [`InputCompleteness::from_detail`]).
+fn final_detail(detail: String, input: Option<InputCompleteness>) -> String {
+    match input {
+        Some(input) => format!("{detail} {}", input.to_detail()),
+        None => detail,
     }
 }
 

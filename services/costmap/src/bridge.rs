@@ -13,6 +13,7 @@ use isochron_planning::planner::LiveCamera;
 use isochron_planning::raster::Footprint;
 use isochron_shared::clock::NS_PER_S;
 use isochron_shared::config::{LoadedConfig, Polygon};
+use isochron_shared::stage::Context;
 use isochron_shared::wire::{ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader};
 
 /// Class id of a person in [`Detection::class`].
@@ -126,16 +127,19 @@ impl Bridge {
         })
     }
 
-    /// Takes camera `k`'s activity sample (validated by the caller).
+    /// Takes camera `k`'s activity sample (validated by the caller). A block with
+    /// a NaN or infinite value is kept with those values read as 0; returns how
+    /// many blocks had one (for the caller to count as rejected, see
+    /// [`count_non_finite`]).
     pub fn on_activity(
         &mut self,
         k: usize,
         header: &ActivityHeader,
         blocks: &[BlockActivity],
         now: Instant,
-    ) {
+    ) -> usize {
         let Some(cam) = self.cameras.get_mut(k) else {
-            return;
+            return 0;
         };
         let block_grid = header.block_grid();
         if let (Some(grid), Some(h)) = (&self.grid, &cam.homography)
@@ -170,33 +174,47 @@ impl Bridge {
         latest.header = *header;
         latest.blocks.clear();
         latest.blocks.extend_from_slice(blocks);
+        let non_finite = latest
+            .blocks
+            .iter_mut()
+            .map(sanitise)
+            .filter(|&bad| bad)
+            .count();
         latest.arrived = now;
         let horizon = header.preamble.capture_time_ns - self.confirm_hold_ns;
         while cam.confirmed.front().is_some_and(|(t, _)| *t < horizon) {
             cam.confirmed.pop_front();
         }
+        non_finite
     }
 
     /// Takes camera `k`'s detections (validated by the caller): each person's feet
-    /// (the bottom centre of their box) on the floor. Returns how many were placed.
+    /// (the bottom centre of their box) on the floor. Returns how many were placed,
+    /// and how many boxes (of any class) were ignored for a NaN or infinite
+    /// coordinate (for the caller to count as rejected, see [`count_non_finite`]).
     pub fn on_detections(
         &mut self,
         k: usize,
         header: &DetectionHeader,
         detections: &[Detection],
-    ) -> usize {
+    ) -> (usize, usize) {
+        let finite = |d: &&Detection| {
+            d.x.is_finite() && d.y.is_finite() && d.w.is_finite() && d.h.is_finite()
+        };
+        let non_finite = detections.len() - detections.iter().filter(finite).count();
         let Some(cam) = self.cameras.get_mut(k) else {
-            return 0;
+            return (0, non_finite);
         };
         let Some(h) = &cam.homography else {
-            return 0;
+            return (0, non_finite);
         };
         let t = header.preamble.capture_time_ns;
         let mut placed = 0;
-        for d in detections.iter().filter(|d| d.class == PERSON) {
-            if !(d.x.is_finite() && d.y.is_finite() && d.w.is_finite() && d.h.is_finite()) {
-                continue;
-            }
+        for d in detections
+            .iter()
+            .filter(finite)
+            .filter(|d| d.class == PERSON)
+        {
             let feet = [(d.x + d.w / 2.0) as f64, (d.y + d.h) as f64];
             if let Some(p) = h.apply(feet) {
                 cam.confirmed.push_back((t, p));
@@ -206,7 +224,7 @@ impl Bridge {
         while cam.confirmed.len() > MAX_CONFIRMED {
             cam.confirmed.pop_front();
         }
-        placed
+        (placed, non_finite)
     }
 
     /// True if camera `k`'s activity arrived within `stale_s`.
@@ -280,6 +298,43 @@ impl Bridge {
             .filter_map(|c| c.footprint.as_ref().map(|f| f.cell_block.as_slice()))
             .collect()
     }
+}
+
+/// Sets the NaN or infinite values of `b` to 0; true if there were any.
+fn sanitise(b: &mut BlockActivity) -> bool {
+    let mut any = false;
+    for v in [
+        &mut b.s1,
+        &mut b.s2,
+        &mut b.s1_dx,
+        &mut b.s1_dy,
+        &mut b.s2_dx,
+        &mut b.s2_dy,
+        &mut b.lt_mean,
+        &mut b.lt_sigma,
+    ] {
+        if !v.is_finite() {
+            *v = 0.0;
+            any = true;
+        }
+    }
+    any
+}
+
+/// Counts `n` of camera `k`'s `what` (e.g. "activity blocks") that had NaN or
+/// infinite values as rejected, and warns (rate-limited) when there were any: a
+/// producer that sends them is broken, and the operator should know.
+pub fn count_non_finite(cx: &mut Context, bridge: &Bridge, k: usize, what: &str, n: usize) {
+    if n == 0 {
+        return;
+    }
+    for _ in 0..n {
+        cx.health.rejected();
+    }
+    let camera = bridge.cameras.get(k).map_or("?", |c| c.id.as_str());
+    cx.warnings.warn("values", || {
+        format!("camera '{camera}': {n} {what} with NaN or infinite values, ignored (counted as rejected)")
+    });
 }
 
 #[cfg(test)]
@@ -392,7 +447,7 @@ stale_s = 5
             class: 56,
             ..person
         };
-        assert_eq!(b.on_detections(0, &dh, &[person, chair]), 1);
+        assert_eq!(b.on_detections(0, &dh, &[person, chair]), (1, 0));
         let grid = b.grid.unwrap();
         let cells = b.compose(t0).unwrap();
         assert_eq!(cells[grid.index(13, 14)], 100);
@@ -400,5 +455,61 @@ stale_s = 5
         // 3 s of capture time later the confirmation has expired.
         b.on_activity(0, &header(1_003 * NS_PER_S), &blocks, t0);
         assert_eq!(b.compose(t0).unwrap()[grid.index(13, 14)], 0);
+    }
+
+    #[test]
+    fn non_finite_activity_and_boxes_are_counted_and_read_as_zero() {
+        let mut b = bridge();
+        let t0 = Instant::now();
+        let mut blocks = vec![BlockActivity::default(); 300];
+        blocks[7 * 20 + 10].s1 = 0.05;
+        blocks[0].s1 = f32::NAN;
+        blocks[1].s2 = f32::INFINITY;
+        blocks[2].lt_sigma = f32::NEG_INFINITY;
+        assert_eq!(b.on_activity(0, &header(1_000 * NS_PER_S), &blocks, t0), 3);
+        let kept = &b.cameras[0].latest.as_ref().unwrap().blocks;
+        assert!(
+            kept.iter()
+                .all(|x| x.s1.is_finite() && x.s2.is_finite() && x.lt_sigma.is_finite())
+        );
+        assert_eq!(kept[7 * 20 + 10].s1, 0.05, "finite values are kept");
+        let grid = b.grid.unwrap();
+        assert_eq!(b.compose(t0).unwrap()[grid.index(20, 14)], 50);
+
+        let mut dh = DetectionHeader {
+            preamble: Preamble::new::<Detection>(
+                Stream::Detections,
+                CameraId::new("cam01").unwrap(),
+                0,
+                3,
+            ),
+            ..Default::default()
+        };
+        dh.preamble.capture_time_ns = 1_000 * NS_PER_S;
+        let person = Detection {
+            x: 95.0,
+            y: 60.0,
+            w: 20.0,
+            h: 64.0,
+            score: 1.0,
+            class: PERSON,
+        };
+        let nan = Detection {
+            x: f32::NAN,
+            ..person
+        };
+        let inf = Detection {
+            h: f32::INFINITY,
+            class: 56,
+            ..person
+        };
+        assert_eq!(b.on_detections(0, &dh, &[person, nan, inf]), (1, 2));
+
+        // The caller counts them as rejected.
+        let mut cx = Context::new(isochron_shared::topology::StageKind::Costmap, "", None);
+        count_non_finite(&mut cx, &b, 0, "activity blocks", 3);
+        count_non_finite(&mut cx, &b, 0, "detection boxes", 2);
+        count_non_finite(&mut cx, &b, 0, "detection boxes", 0);
+        assert_eq!(cx.health.status().rejected, 5);
     }
 }

@@ -18,7 +18,7 @@ use isochron_shared::ipc::{Activity, Detections, Ipc};
 use isochron_shared::stage::{Context, Input, Notified, Stage, Woken};
 use isochron_shared::topology::StageKind;
 
-use crate::bridge::Bridge;
+use crate::bridge::{Bridge, count_non_finite};
 use crate::delta::{DeltaTracker, Output};
 use crate::msgs::{
     Header, MapMetaData, OccupancyGrid, OccupancyGridUpdate, Point, Pose, Quaternion, Time,
@@ -204,7 +204,8 @@ impl Stage for CostmapStage {
                 if h.preamble.is_end_of_stream() {
                     continue;
                 }
-                self.bridge.on_activity(k, &h, sample.payload(), arrived);
+                let bad = self.bridge.on_activity(k, &h, sample.payload(), arrived);
+                count_non_finite(cx, &self.bridge, k, "activity blocks", bad);
                 self.newest_arrival = Some((arrived, h.preamble.origin_wall_ns));
             }
         }
@@ -212,8 +213,9 @@ impl Stage for CostmapStage {
             while let Some(sample) = input.next(cx) {
                 let h = *sample.header();
                 if !h.preamble.is_end_of_stream() {
-                    self.counters.confirmed +=
-                        self.bridge.on_detections(k, &h, sample.payload()) as u64;
+                    let (placed, bad) = self.bridge.on_detections(k, &h, sample.payload());
+                    self.counters.confirmed += placed as u64;
+                    count_non_finite(cx, &self.bridge, k, "detection boxes", bad);
                 }
             }
         }

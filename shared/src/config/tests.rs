@@ -152,3 +152,38 @@ fn unknown_camera_lists_the_configured_ones() {
         "no camera 'cam03' in /etc/isochron/site.toml (configured: cam01, cam02)"
     );
 }
+
+#[test]
+fn self_crossing_polygons_are_rejected_with_line_and_key() {
+    let bow_tie = "[[0, 0], [100, 100], [100, 0], [0, 100]]";
+    let square = "[[0, 0], [100, 0], [100, 100], [0, 100]]";
+    let expect = |text: &str, key: &str, line: usize| {
+        let err = parse(text).unwrap_err();
+        assert_eq!(err.key.as_deref(), Some(key), "{err}");
+        assert_eq!(err.line, Some(line), "{err}");
+        assert!(
+            err.message
+                .starts_with("expected a simple polygon (no crossing edges)"),
+            "{err}"
+        );
+        assert!(
+            err.to_string()
+                .starts_with(&format!("site.toml:{line}: key `{key}`")),
+            "{err}"
+        );
+    };
+
+    let mask = GOOD.replace(
+        "fps = 10",
+        &format!("fps = 10\nmask = [{square}, {bow_tie}]"),
+    );
+    expect(&mask, "camera[0].mask[1]", 10);
+    let zone = format!("{GOOD}\n[[camera.zone]]\nname = \"door\"\npolygon = {bow_tie}\n");
+    expect(&zone, "camera[1].zone[0].polygon", 17);
+    let segment = format!("{GOOD}\n[[costmap.segment]]\nname = \"aisle\"\npolygon_m = {bow_tie}\n");
+    expect(&segment, "costmap.segment[0].polygon_m", 17);
+
+    // The same shapes, simple, pass (a zone and a mask need no floor points).
+    parse(&mask.replace(bow_tie, square)).unwrap();
+    parse(&zone.replace(bow_tie, square)).unwrap();
+}
