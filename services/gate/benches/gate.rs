@@ -40,11 +40,13 @@ fn main() {
         videoio::VideoCapture::from_file(video.to_str().unwrap(), videoio::CAP_ANY).unwrap();
     let (mut bgr, mut gray) = (Mat::default(), Mat::default());
     let mut frames = Vec::new();
+    // The size is taken while reading: after the last read the Mat is empty (0x0).
+    let (mut w, mut h) = (0, 0);
     while cap.read(&mut bgr).unwrap() && !bgr.empty() {
         imgproc::cvt_color(&bgr, &mut gray, imgproc::COLOR_BGR2GRAY, 0).unwrap();
+        (w, h) = (gray.cols() as u32, gray.rows() as u32);
         frames.push(gray.data_bytes().unwrap().to_vec());
     }
-    let (w, h) = (bgr.cols() as u32, bgr.rows() as u32);
     let total = frames.len();
     let mut detector =
         Detector::from_config(&config.config.gate.detector, &config.base_dir()).unwrap();
