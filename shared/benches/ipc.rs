@@ -284,7 +284,7 @@ fn run_case(transport: &str, size_index: usize, frames: usize) -> (Vec<f64>, f64
     (latencies, cpu)
 }
 
-fn receiver(transport: &str, tag: &str, size_index: usize, frames: usize) {
+fn receiver(transport: &str, tag: &str, size_index: usize, measured: usize) {
     let size = SIZES[size_index];
     let result = match transport {
         "iceoryx2" => {
@@ -297,9 +297,9 @@ fn receiver(transport: &str, tag: &str, size_index: usize, frames: usize) {
             let _guard = waitset.attach_notification(&frames).expect("attach");
             println!("ready");
             std::io::stdout().flush().unwrap();
-            let mut latencies_us = Vec::with_capacity(frames);
+            let mut latencies_us = Vec::with_capacity(measured);
             let (mut n, mut cpu0, mut checksum) = (0usize, 0.0, 0u64);
-            while n < WARMUP + frames {
+            while n < WARMUP + measured {
                 waitset
                     .wait_and_process_once_with_timeout(
                         |_| CallbackProgression::Continue,
@@ -335,9 +335,9 @@ fn receiver(transport: &str, tag: &str, size_index: usize, frames: usize) {
             std::io::stdout().flush().unwrap();
             let (mut stream, _) = listener.accept().expect("accept");
             let mut frame = vec![0u8; size.bytes() + 8];
-            let mut latencies_us = Vec::with_capacity(frames);
+            let mut latencies_us = Vec::with_capacity(measured);
             let mut cpu0 = 0.0;
-            for n in 0..WARMUP + frames {
+            for n in 0..WARMUP + measured {
                 stream.read_exact(&mut frame).expect("read");
                 let now = monotonic_ns();
                 if n == WARMUP {
