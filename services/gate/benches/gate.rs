@@ -159,6 +159,12 @@ fn main() {
     let hybrid_fps = summary["frames_per_s"].as_f64().unwrap();
     let detected = summary["gate"]["frames_detected"].as_u64().unwrap_or(0);
     let detected_fraction = detected as f64 / group_frames.max(1) as f64;
+    // The quick run checks that every stage still works, the gated detector too.
+    assert!(
+        !quick || detected > 0,
+        "quick run: the group's detector ran on no frame; see {}",
+        out.join("logs").display()
+    );
 
     // Person-present frames outside every event would be missed people.
     let events: Vec<serde_json::Value> = std::fs::read_to_string(out.join("events.jsonl"))
