@@ -9,6 +9,8 @@
 //! the receiver reads a few bytes), so the figures are the transport's own cost.
 //!
 //! Run: `cargo xtask bench ipc`. The binary re-executes itself as the receiver.
+//! `--quick`: the same cases with [`QUICK_FRAMES`] frames each (a check that the
+//! bench runs; its figures mean little).
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::net::{UnixListener, UnixStream};
@@ -24,6 +26,8 @@ use isochron_shared::wire::{CameraId, FrameHeader, PixelFormat, Preamble, Stream
 /// Frames measured per case (after warm-up).
 const FRAMES: usize = 1000;
 const WARMUP: usize = 50;
+/// Frames measured per case with `--quick`.
+const QUICK_FRAMES: usize = 50;
 /// Time between frames: the receiver is idle-waiting for each, as in the pipeline.
 const INTERVAL: Duration = Duration::from_millis(3);
 
@@ -122,11 +126,18 @@ fn quantile(v: &mut [f64], q: f64) -> f64 {
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     if let Some(i) = args.iter().position(|a| a == "--receiver") {
-        receiver(&args[i + 1], &args[i + 2], args[i + 3].parse().unwrap());
+        receiver(
+            &args[i + 1],
+            &args[i + 2],
+            args[i + 3].parse().unwrap(),
+            args[i + 4].parse().unwrap(),
+        );
         return;
     }
+    let quick = args.iter().any(|a| a == "--quick");
+    let frames = if quick { QUICK_FRAMES } else { FRAMES };
     println!(
-        "IPC benchmark: {FRAMES} frames per case, one every {INTERVAL:?}, receiver waits for a wake-up"
+        "IPC benchmark: {frames} frames per case, one every {INTERVAL:?}, receiver waits for a wake-up"
     );
     println!(
         "{:<18} {:<9} {:>9} {:>9} {:>14}",
@@ -135,7 +146,7 @@ fn main() {
     let mut results = Vec::new();
     for (s, size) in SIZES.iter().enumerate() {
         for transport in ["iceoryx2", "uds"] {
-            let (mut lat, cpu) = run_case(transport, s);
+            let (mut lat, cpu) = run_case(transport, s, frames);
             let (p50, p99) = (quantile(&mut lat, 0.5), quantile(&mut lat, 0.99));
             println!(
                 "{:<18} {:<9} {:>9.1} {:>9.1} {:>14.1}",
@@ -165,18 +176,25 @@ fn main() {
         uds_hd_cpu / hd_cpu
     );
     println!(
-        "{{\"bench\":\"ipc\",\"p50_us_vga\":{vga_p50:.1},\"p50_us_1080p\":{hd_p50:.1},\"p99_us_1080p\":{hd_p99:.1},\"cpu_us_per_frame_1080p\":{hd_cpu:.2},\"uds_cpu_over_iox2_1080p\":{:.1}}}",
-        uds_hd_cpu / hd_cpu
+        "{{\"bench\":\"ipc\",\"p50_us_vga\":{vga_p50:.1},\"p50_us_1080p\":{hd_p50:.1},\"p99_us_1080p\":{hd_p99:.1},\"cpu_us_per_frame_1080p\":{hd_cpu:.2},\"uds_cpu_over_iox2_1080p\":{:.1}{}}}",
+        uds_hd_cpu / hd_cpu,
+        if quick { ",\"quick\":true" } else { "" }
     );
 }
 
-/// Runs one case: spawns the receiver, sends, collects. Returns latencies and CPU
-/// µs per frame of both processes together.
-fn run_case(transport: &str, size_index: usize) -> (Vec<f64>, f64) {
+/// Runs one case of `frames` measured frames: spawns the receiver, sends, collects.
+/// Returns latencies and CPU µs per frame of both processes together.
+fn run_case(transport: &str, size_index: usize, frames: usize) -> (Vec<f64>, f64) {
     let size = SIZES[size_index];
     let tag = format!("ipcbench-{}-{transport}-{}", std::process::id(), size.name);
     let mut child = Command::new(std::env::current_exe().unwrap())
-        .args(["--receiver", transport, &tag, &size_index.to_string()])
+        .args([
+            "--receiver",
+            transport,
+            &tag,
+            &size_index.to_string(),
+            &frames.to_string(),
+        ])
         .stdout(Stdio::piped())
         .spawn()
         .expect("receiver");
@@ -194,7 +212,7 @@ fn run_case(transport: &str, size_index: usize) -> (Vec<f64>, f64) {
             }
             let camera = CameraId::new("bench").unwrap();
             let mut cpu = 0.0;
-            for i in 0..WARMUP + FRAMES {
+            for i in 0..WARMUP + frames {
                 let t0 = thread_cpu_us();
                 let mut sample = publisher.loan(size.bytes()).expect("loan");
                 let mut preamble = Preamble::new::<u8>(
@@ -230,7 +248,7 @@ fn run_case(transport: &str, size_index: usize) -> (Vec<f64>, f64) {
             let mut stream = UnixStream::connect(&path).expect("connect");
             let mut frame = vec![0u8; size.bytes() + 8];
             let mut cpu = 0.0;
-            for i in 0..WARMUP + FRAMES {
+            for i in 0..WARMUP + frames {
                 let t0 = thread_cpu_us();
                 frame[..8].copy_from_slice(&monotonic_ns().to_le_bytes());
                 stream.write_all(&frame).expect("write");
@@ -252,21 +270,21 @@ fn run_case(transport: &str, size_index: usize) -> (Vec<f64>, f64) {
         .iter()
         .map(|v| v.as_f64().unwrap())
         .collect();
-    assert_eq!(latencies.len(), FRAMES, "{transport}: frames lost");
+    assert_eq!(latencies.len(), frames, "{transport}: frames lost");
     let receiver_cpu = received["cpu_us"].as_f64().unwrap();
     if std::env::var_os("IPC_BENCH_VERBOSE").is_some() {
         eprintln!(
             "{transport} {}: sender {:.1} µs/frame, receiver {:.1} µs/frame",
             size.label(),
-            sender_cpu / FRAMES as f64,
-            receiver_cpu / FRAMES as f64
+            sender_cpu / frames as f64,
+            receiver_cpu / frames as f64
         );
     }
-    let cpu = (sender_cpu + receiver_cpu) / FRAMES as f64;
+    let cpu = (sender_cpu + receiver_cpu) / frames as f64;
     (latencies, cpu)
 }
 
-fn receiver(transport: &str, tag: &str, size_index: usize) {
+fn receiver(transport: &str, tag: &str, size_index: usize, measured: usize) {
     let size = SIZES[size_index];
     let result = match transport {
         "iceoryx2" => {
@@ -279,9 +297,9 @@ fn receiver(transport: &str, tag: &str, size_index: usize) {
             let _guard = waitset.attach_notification(&frames).expect("attach");
             println!("ready");
             std::io::stdout().flush().unwrap();
-            let mut latencies_us = Vec::with_capacity(FRAMES);
+            let mut latencies_us = Vec::with_capacity(measured);
             let (mut n, mut cpu0, mut checksum) = (0usize, 0.0, 0u64);
-            while n < WARMUP + FRAMES {
+            while n < WARMUP + measured {
                 waitset
                     .wait_and_process_once_with_timeout(
                         |_| CallbackProgression::Continue,
@@ -317,9 +335,9 @@ fn receiver(transport: &str, tag: &str, size_index: usize) {
             std::io::stdout().flush().unwrap();
             let (mut stream, _) = listener.accept().expect("accept");
             let mut frame = vec![0u8; size.bytes() + 8];
-            let mut latencies_us = Vec::with_capacity(FRAMES);
+            let mut latencies_us = Vec::with_capacity(measured);
             let mut cpu0 = 0.0;
-            for n in 0..WARMUP + FRAMES {
+            for n in 0..WARMUP + measured {
                 stream.read_exact(&mut frame).expect("read");
                 let now = monotonic_ns();
                 if n == WARMUP {

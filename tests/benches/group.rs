@@ -37,7 +37,9 @@
 //! `cargo bench -p isochron-tests --bench group -- [OPTIONS]`. Options:
 //! `--mode predecoded|decode|both` (both), `--per-process P` (cameras per service
 //! process, 32), `--start N` (8), `--max N` (256), `--warmup S` (30), `--seconds S`
-//! (10). The last line printed is one JSON object.
+//! (10), `--quick` (two cameras per mode, warm-up 3 s, window 5 s: a check that the
+//! bench runs, in any profile; options after it override it; the JSON line gets
+//! `"quick":true`). The last line printed is one JSON object.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -125,6 +127,8 @@ struct Options {
     max: usize,
     warmup: Duration,
     seconds: Duration,
+    /// `--quick`: a short run that only checks the bench works.
+    quick: bool,
 }
 
 impl Default for Options {
@@ -138,11 +142,27 @@ impl Default for Options {
             // detections) start together: let that burst pass before measuring.
             warmup: Duration::from_secs(30),
             seconds: Duration::from_secs(10),
+            quick: false,
         }
     }
 }
 
-const USAGE: &str = "usage: group [--mode predecoded|decode|both] [--per-process P] \
+impl Options {
+    /// `--quick`: both modes, two cameras (in one process per stage) each, short
+    /// warm-up and window.
+    fn quick(self) -> Options {
+        Options {
+            start: 2,
+            max: 2,
+            warmup: Duration::from_secs(3),
+            seconds: Duration::from_secs(5),
+            quick: true,
+            ..self
+        }
+    }
+}
+
+const USAGE: &str = "usage: group [--quick] [--mode predecoded|decode|both] [--per-process P] \
 [--start N] [--max N] [--warmup SECONDS] [--seconds SECONDS]";
 
 /// Parses the options; unknown flags (cargo passes `--bench`) are ignored.
@@ -164,6 +184,10 @@ fn parse_args(args: impl IntoIterator<Item = String>) -> Result<Options, String>
         ];
         if flag == "--help" || flag == "-h" {
             return Err(USAGE.into());
+        }
+        if flag == "--quick" {
+            o = o.quick();
+            continue;
         }
         if !known.contains(&flag.as_str()) {
             if flag != "--bench" {
@@ -1181,12 +1205,13 @@ fn json_line(opts: &Options, runs: &[Run]) -> String {
     let number = |v: Option<f64>| v.map_or_else(|| "null".to_string(), |v| format!("{v:.1}"));
     let pre = best(runs, Mode::Predecoded);
     format!(
-        "{{\"bench\":\"group\",\"cameras_predecoded\":{},\"cameras_decode\":{},\"rss_mb_per_camera\":{},\"shm_mb_per_camera\":{},\"p99_latency_ms\":{}}}",
+        "{{\"bench\":\"group\",\"cameras_predecoded\":{},\"cameras_decode\":{},\"rss_mb_per_camera\":{},\"shm_mb_per_camera\":{},\"p99_latency_ms\":{}{}}}",
         cameras(Mode::Predecoded),
         cameras(Mode::Decode),
         number(pre.and_then(|r| r.private_mb_per_camera)),
         number(pre.and_then(|r| r.shm_mb_per_camera)),
         number(pre.and_then(|r| r.p99_ms).map(f64::from)),
+        if opts.quick { ",\"quick\":true" } else { "" },
     )
 }
 

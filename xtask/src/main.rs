@@ -5,14 +5,19 @@
 //!   video (PETS 2009 `vtest.avi`, from Debian's opencv-doc package) into `data/`;
 //! * `demo`: setup, release build, `isochron replay` on the sample video with
 //!   `config/demo.toml`, and a report of what every stage did;
-//! * `test`: setup, format and lint checks, build, every test;
+//! * `test`: setup, format and lint checks, build, every test, then every benchmark
+//!   in quick mode (dev profile), each checked for its closing JSON line;
 //! * `bench NAME`: setup and one benchmark (motion, cascade, gate, ipc, group);
+//!   `bench NAME --quick`: the same code with few iterations, in the dev profile (no
+//!   release build), checked for its closing JSON line as `test` does;
 //! * `install [--prefix P] [--destdir D]`: release build, then binaries, systemd
 //!   units, sysusers/tmpfiles entries, an example config and the README installed
 //!   under `D/P` (default `P` = `/usr/local`), and what to do next.
 
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Stdio};
+use std::time::Instant;
 
 use anyhow::{Context, bail};
 
@@ -50,7 +55,16 @@ fn main() -> anyhow::Result<()> {
                 );
             };
             setup(&root)?;
-            bench(package, target, &args[2..])
+            let extra = &args[2..];
+            if extra.iter().any(|a| a == "--quick") {
+                let rest: Vec<String> = extra.iter().filter(|a| *a != "--quick").cloned().collect();
+                if matches!(*target, "gate" | "group") {
+                    run(cargo().args(["build", "--workspace", "--bins"]))?;
+                }
+                quick_bench(package, target, &rest)
+            } else {
+                bench(package, target, extra)
+            }
         }
         Some("install") => install(&root, &args[1..]),
         _ => bail!(
@@ -292,7 +306,56 @@ fn test() -> anyhow::Result<()> {
         "warnings",
     ]))?;
     run(cargo().args(["build", "--workspace", "--bins"]))?;
-    run(cargo().args(["test", "--workspace"]))
+    run(cargo().args(["test", "--workspace"]))?;
+    // Every benchmark in quick mode, so that none can rot.
+    let mut times = Vec::new();
+    for (name, package, target) in BENCHES {
+        let t0 = Instant::now();
+        quick_bench(package, target, &[])?;
+        times.push(format!("{name} {:.0} s", t0.elapsed().as_secs_f64()));
+    }
+    eprintln!(
+        "xtask: every benchmark ran in quick mode ({})",
+        times.join(", ")
+    );
+    Ok(())
+}
+
+/// Runs benchmark `target` of `package` in quick mode in the dev profile (`cargo test
+/// --bench`: the `harness = false` binary, run with the arguments after `--`), its
+/// output shown as it comes, and fails unless the last line of its output that names
+/// `"bench"` is a JSON object of this benchmark.
+fn quick_bench(package: &str, target: &str, extra: &[String]) -> anyhow::Result<()> {
+    let mut cmd = cargo();
+    cmd.args(["test", "-p", package, "--bench", target, "--", "--quick"])
+        .args(extra)
+        .stdout(Stdio::piped());
+    let shown = format!("{cmd:?}");
+    eprintln!("xtask: {shown}");
+    let mut child = cmd.spawn().with_context(|| format!("starting {shown}"))?;
+    let stdout = child.stdout.take().context("bench stdout")?;
+    let mut last = None;
+    for line in BufReader::new(stdout).lines() {
+        let line = line.with_context(|| format!("reading the output of {shown}"))?;
+        println!("{line}");
+        if line.contains("\"bench\"") {
+            last = Some(line);
+        }
+    }
+    let status = child.wait()?;
+    if !status.success() {
+        bail!("benchmark {target} (quick) failed ({status}): {shown}");
+    }
+    let Some(line) = last else {
+        bail!("benchmark {target} (quick) printed no JSON line with \"bench\": {shown}");
+    };
+    let json: serde_json::Value = serde_json::from_str(line.trim()).with_context(|| {
+        format!("benchmark {target} (quick): its last \"bench\" line is not valid JSON: {line}")
+    })?;
+    if json["bench"] != target {
+        bail!("benchmark {target} (quick): its JSON line names another bench: {line}");
+    }
+    Ok(())
 }
 
 fn bench(package: &str, target: &str, extra: &[String]) -> anyhow::Result<()> {

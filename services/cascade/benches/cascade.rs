@@ -8,6 +8,9 @@
 //! Time covers everything the service does per sample except shared memory: header
 //! and value checks, F_L1, the seconds, S1/S2 and the long-term fields, the minutes and
 //! F_L2 (into a model in memory; the store's commit is measured on its own).
+//!
+//! `--quick`: the same with 2 minutes of motion, one timed run each and 20 store
+//! commits (a check that the bench runs; the JSON line gets `"quick":true`).
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -27,6 +30,31 @@ const SECONDS: i64 = 600;
 /// Distinct frames generated (the stream cycles through them).
 const DISTINCT: usize = 300;
 const RUNS: usize = 9;
+/// Durable commits of a minute timed.
+const COMMITS: usize = 300;
+
+/// How much one invocation runs: the full bench, or `--quick`.
+#[derive(Clone, Copy)]
+struct Size {
+    /// Seconds of motion per run.
+    seconds: i64,
+    runs: usize,
+    commits: usize,
+}
+
+impl Size {
+    const FULL: Size = Size {
+        seconds: SECONDS,
+        runs: RUNS,
+        commits: COMMITS,
+    };
+    /// Two minutes (so that minutes and F_L2 run too), one run, a few commits.
+    const QUICK: Size = Size {
+        seconds: 120,
+        runs: 1,
+        commits: 20,
+    };
+}
 
 fn grid() -> BlockGrid {
     BlockGrid::new(GRID_W * 16, GRID_H * 16, 16)
@@ -107,14 +135,14 @@ struct RunResult {
     outputs: Vec<(SecondOut, Vec<BlockActivity>)>,
 }
 
-/// One run over the stream; keeps the outputs if `keep`.
-fn run<B: FilterBank>(frames: &[Vec<BlockMotion>], keep: bool) -> RunResult {
+/// One run over `seconds` of the stream; keeps the outputs if `keep`.
+fn run<B: FilterBank>(frames: &[Vec<BlockMotion>], seconds: i64, keep: bool) -> RunResult {
     let camera = CameraId::new("bench").unwrap();
     let clock = SiteClock::new("UTC", Cycle::Daily).unwrap();
     let start = parse_rfc3339("2026-03-02T08:00:00Z").unwrap();
     let mut cascade: Cascade<B> = Cascade::new(camera, Params::default(), clock, grid(), None);
     let mut model = MemoryModel::default();
-    let headers: Vec<MotionHeader> = (0..SECONDS * FPS)
+    let headers: Vec<MotionHeader> = (0..seconds * FPS)
         .map(|i| header(camera, start, i))
         .collect();
     let mut outputs = Vec::new();
@@ -135,7 +163,7 @@ fn run<B: FilterBank>(frames: &[Vec<BlockMotion>], keep: bool) -> RunResult {
         }
     }
     let elapsed = t0.elapsed();
-    let block_frames = (SECONDS * FPS) as f64 * (GRID_W * GRID_H) as f64;
+    let block_frames = (seconds * FPS) as f64 * (GRID_W * GRID_H) as f64;
     RunResult {
         elapsed,
         ops_per_block_frame: cascade.ops().total() as f64 / block_frames,
@@ -226,11 +254,18 @@ fn commit_latency(commits: usize) -> (f64, f64) {
 }
 
 fn main() {
+    let quick = std::env::args().any(|a| a == "--quick");
+    let size = if quick { Size::QUICK } else { Size::FULL };
+    let Size {
+        seconds: run_seconds,
+        runs,
+        commits,
+    } = size;
     let frames = frames();
-    let block_frames = (SECONDS * FPS) as f64 * (GRID_W * GRID_H) as f64;
+    let block_frames = (run_seconds * FPS) as f64 * (GRID_W * GRID_H) as f64;
     // Warm up, and check the outputs once.
-    let c = run::<CascadeBank>(&frames, true);
-    let n = run::<NonCascadeBank>(&frames, true);
+    let c = run::<CascadeBank>(&frames, run_seconds, true);
+    let n = run::<NonCascadeBank>(&frames, run_seconds, true);
     if let Err(e) = same_outputs(&c, &n) {
         eprintln!("cascade and non-cascade outputs differ: {e}");
         std::process::exit(1);
@@ -238,9 +273,10 @@ fn main() {
     let seconds = c.outputs.len();
     let (mut tc, mut tn) = (Vec::new(), Vec::new());
     // Alternate, so that a noisy neighbour hurts both alike.
-    for _ in 0..RUNS {
-        tc.push(run::<CascadeBank>(&frames, false).elapsed.as_secs_f64() * 1e9 / block_frames);
-        tn.push(run::<NonCascadeBank>(&frames, false).elapsed.as_secs_f64() * 1e9 / block_frames);
+    for _ in 0..runs {
+        let elapsed = |r: RunResult| r.elapsed.as_secs_f64() * 1e9 / block_frames;
+        tc.push(elapsed(run::<CascadeBank>(&frames, run_seconds, false)));
+        tn.push(elapsed(run::<NonCascadeBank>(&frames, run_seconds, false)));
     }
     let (ns_c, ns_n) = (median(tc.clone()), median(tn.clone()));
     let (min_c, min_n) = (
@@ -248,16 +284,16 @@ fn main() {
         tn.iter().cloned().fold(f64::MAX, f64::min),
     );
     let k = (GRID_W * GRID_H) as f64;
-    let (commit_p50, commit_p99) = commit_latency(300);
+    let (commit_p50, commit_p99) = commit_latency(commits);
     let ops_ratio = n.ops_per_block_frame / c.ops_per_block_frame;
     let state_ratio = n.state_bytes as f64 / c.state_bytes as f64;
     let time_ratio = ns_n / ns_c;
 
     println!(
-        "cascade vs non-cascade: K = {} blocks ({GRID_W}x{GRID_H}), {FPS} fps, {SECONDS} s of motion per run ({} seconds, {} minutes), median of {RUNS} runs",
+        "cascade vs non-cascade: K = {} blocks ({GRID_W}x{GRID_H}), {FPS} fps, {run_seconds} s of motion per run ({} seconds, {} minutes), median of {runs} runs",
         k as u32,
         seconds,
-        SECONDS / 60
+        run_seconds / 60
     );
     println!(
         "{:<34} {:>12} {:>12} {:>12}",
@@ -300,12 +336,13 @@ fn main() {
         "outputs", "identical (S1, S2 and vectors bit for bit; long-term within float rounding)"
     );
     println!(
-        "{:<34} p50 {commit_p50:.3} ms, p99 {commit_p99:.3} ms (300 commits of {} blocks, WAL, synchronous=FULL, in {})",
+        "{:<34} p50 {commit_p50:.3} ms, p99 {commit_p99:.3} ms ({commits} commits of {} blocks, WAL, synchronous=FULL, in {})",
         "store: durable commit of a minute",
         k as u32,
         std::env::temp_dir().display()
     );
     println!(
-        "{{\"bench\":\"cascade\",\"ns_per_block_frame\":{ns_c:.3},\"ops_ratio\":{ops_ratio:.3},\"state_ratio\":{state_ratio:.3},\"time_ratio\":{time_ratio:.3}}}"
+        "{{\"bench\":\"cascade\",\"ns_per_block_frame\":{ns_c:.3},\"ops_ratio\":{ops_ratio:.3},\"state_ratio\":{state_ratio:.3},\"time_ratio\":{time_ratio:.3}{}}}",
+        if quick { ",\"quick\":true" } else { "" }
     );
 }

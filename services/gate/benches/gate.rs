@@ -8,7 +8,14 @@
 //! Also checks that gating missed no person-present interval: every PETS09 frame
 //! with people in it must lie inside an event.
 //!
-//! Run: `cargo xtask bench gate` (it builds the release binaries first).
+//! Run: `cargo xtask bench gate` (it builds the release binaries first). The
+//! binaries are those of the profile the bench was built in (`target/<profile>`, or
+//! `$ISOCHRON_BIN_DIR`).
+//!
+//! `--quick`: the same on the first [`QUICK_CLIP_FRAMES`] frames of vtest.avi (written
+//! to a short MJPG clip the group replays), the detector timed on
+//! [`QUICK_DETECT_ALL_FRAMES`] of them: a check that the bench runs; the JSON line
+//! gets `"quick":true`.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -16,11 +23,16 @@ use std::time::Instant;
 
 use isochron_gate::detector::Detector;
 use isochron_shared::config::Config;
+use opencv::core::Size;
 use opencv::prelude::*;
 use opencv::{imgproc, videoio};
 
 /// Frames the detect-all pass times (every n-th of the video: HOG is slow).
 const DETECT_ALL_FRAMES: usize = 80;
+/// Frames of vtest.avi in the `--quick` clip (people walk in all of them).
+const QUICK_CLIP_FRAMES: usize = 150;
+/// Frames the detect-all pass times with `--quick`.
+const QUICK_DETECT_ALL_FRAMES: usize = 4;
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -29,26 +41,85 @@ fn repo() -> PathBuf {
         .unwrap()
 }
 
+/// The binaries of the profile this bench was built in: `$ISOCHRON_BIN_DIR`, else
+/// `target/<profile>` (the bench runs as `target/<profile>/deps/gate-…`).
+fn bin_dir() -> PathBuf {
+    if let Some(dir) = std::env::var_os("ISOCHRON_BIN_DIR") {
+        return PathBuf::from(dir);
+    }
+    let exe = std::env::current_exe().expect("bench binary path");
+    exe.parent()
+        .and_then(Path::parent)
+        .expect("target/<profile>")
+        .to_path_buf()
+}
+
+/// Writes `frames` (BGR) to an MJPG clip at `path`.
+fn write_clip(path: &Path, frames: &[Mat], fps: f64) {
+    let size = Size::new(frames[0].cols(), frames[0].rows());
+    let fourcc = videoio::VideoWriter::fourcc('M', 'J', 'P', 'G').unwrap();
+    let mut writer =
+        videoio::VideoWriter::new(path.to_str().unwrap(), fourcc, fps, size, true).unwrap();
+    assert!(
+        writer.is_opened().unwrap(),
+        "cannot write {}",
+        path.display()
+    );
+    for f in frames {
+        writer.write(f).unwrap();
+    }
+    writer.release().unwrap();
+}
+
 fn main() {
+    let quick = std::env::args().any(|a| a == "--quick");
     let root = repo();
-    let video = root.join("data/vtest.avi");
+    let mut video = root.join("data/vtest.avi");
     let config_path = root.join("config/demo.toml");
     let config = Config::load(&config_path).expect("config/demo.toml");
+    let out = root.join(if quick {
+        "target/bench-gate-quick"
+    } else {
+        "target/bench-gate"
+    });
+    let _ = std::fs::remove_dir_all(&out);
 
     // Detect all: decode every frame, time the detector on an even sample of them.
     let mut cap =
         videoio::VideoCapture::from_file(video.to_str().unwrap(), videoio::CAP_ANY).unwrap();
     let (mut bgr, mut gray) = (Mat::default(), Mat::default());
     let mut frames = Vec::new();
-    while cap.read(&mut bgr).unwrap() && !bgr.empty() {
+    let mut clip = Vec::new();
+    // The size is taken while reading: after the last read the Mat is empty (0x0).
+    let (mut w, mut h) = (0, 0);
+    while (!quick || frames.len() < QUICK_CLIP_FRAMES)
+        && cap.read(&mut bgr).unwrap()
+        && !bgr.empty()
+    {
         imgproc::cvt_color(&bgr, &mut gray, imgproc::COLOR_BGR2GRAY, 0).unwrap();
+        (w, h) = (gray.cols() as u32, gray.rows() as u32);
         frames.push(gray.data_bytes().unwrap().to_vec());
+        if quick {
+            clip.push(bgr.try_clone().unwrap());
+        }
     }
-    let (w, h) = (bgr.cols() as u32, bgr.rows() as u32);
     let total = frames.len();
+    assert!(total > 0, "no frames in {}", video.display());
+    if quick {
+        std::fs::create_dir_all(&out).unwrap();
+        let path = out.join("clip.avi");
+        let fps = cap.get(videoio::CAP_PROP_FPS).unwrap();
+        write_clip(&path, &clip, if fps > 0.0 { fps } else { 25.0 });
+        video = path;
+    }
     let mut detector =
         Detector::from_config(&config.config.gate.detector, &config.base_dir()).unwrap();
-    let step = (total / DETECT_ALL_FRAMES).max(1);
+    let sample = if quick {
+        QUICK_DETECT_ALL_FRAMES
+    } else {
+        DETECT_ALL_FRAMES
+    };
+    let step = (total / sample).max(1);
     let t0 = Instant::now();
     let mut people = 0;
     let mut timed = 0;
@@ -58,13 +129,13 @@ fn main() {
     }
     let detect_all_fps = timed as f64 / t0.elapsed().as_secs_f64();
 
-    // Hybrid: the whole group on the whole video.
-    let out = root.join("target/bench-gate");
-    let _ = std::fs::remove_dir_all(&out);
-    let isochron = root.join("target/release/isochron");
+    // Hybrid: the whole group on the whole video (the clip with `--quick`).
+    let isochron = bin_dir().join("isochron");
     assert!(
         isochron.is_file(),
-        "build the release binaries first (cargo xtask bench gate does)"
+        "{} is not built: build the binaries of this profile first (`cargo xtask bench gate` \
+         builds the release ones; `cargo build --workspace --bins` the dev ones)",
+        isochron.display()
     );
     let status = Command::new(&isochron)
         .args([
@@ -88,6 +159,12 @@ fn main() {
     let hybrid_fps = summary["frames_per_s"].as_f64().unwrap();
     let detected = summary["gate"]["frames_detected"].as_u64().unwrap_or(0);
     let detected_fraction = detected as f64 / group_frames.max(1) as f64;
+    // The quick run checks that every stage still works, the gated detector too.
+    assert!(
+        !quick || detected > 0,
+        "quick run: the group's detector ran on no frame; see {}",
+        out.join("logs").display()
+    );
 
     // Person-present frames outside every event would be missed people.
     let events: Vec<serde_json::Value> = std::fs::read_to_string(out.join("events.jsonl"))
@@ -109,6 +186,7 @@ fn main() {
             let f: Vec<&str> = l.split(',').collect();
             (f.get(6) == Some(&"1")).then(|| f[0].parse::<u64>().unwrap() - 1)
         })
+        .filter(|&f| !quick || f < total as u64)
         .collect();
     present.sort_unstable();
     present.dedup();
@@ -116,7 +194,8 @@ fn main() {
 
     let speedup = hybrid_fps / detect_all_fps;
     println!(
-        "gate benchmark on vtest.avi ({w}x{h}, {total} frames), detector: {}",
+        "gate benchmark on {}vtest.avi ({w}x{h}, {total} frames), detector: {}",
+        if quick { "the start of " } else { "" },
         detector.name()
     );
     println!("{:<34} {:>12} {:>16}", "", "frames/s", "frames detected");
@@ -141,6 +220,7 @@ fn main() {
         if missed == 0 { "none" } else { "SOME" }
     );
     println!(
-        "{{\"bench\":\"gate\",\"detect_all_fps\":{detect_all_fps:.2},\"hybrid_fps\":{hybrid_fps:.1},\"speedup\":{speedup:.1},\"detected_fraction\":{detected_fraction:.4}}}"
+        "{{\"bench\":\"gate\",\"detect_all_fps\":{detect_all_fps:.2},\"hybrid_fps\":{hybrid_fps:.1},\"speedup\":{speedup:.1},\"detected_fraction\":{detected_fraction:.4}{}}}",
+        if quick { ",\"quick\":true" } else { "" }
     );
 }
