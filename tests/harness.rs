@@ -212,6 +212,24 @@ impl TestSite {
         (done.status.code(), done.stderr)
     }
 
+    /// Runs `isochron replay video --out DIR --config site.toml --start START` to
+    /// completion (10 minutes at most).
+    pub fn replay(&self, video: &Path, out: &Path, start: &str) -> Finished {
+        self.isochron(
+            &[
+                "replay",
+                video.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--config",
+                self.config_path().to_str().unwrap(),
+                "--start",
+                start,
+            ],
+            Duration::from_secs(600),
+        )
+    }
+
     /// Runs `isochron <args>` to completion (with a timeout) and returns it.
     pub fn isochron(&self, args: &[impl AsRef<str>], timeout: Duration) -> Finished {
         let args: Vec<&str> = args.iter().map(AsRef::as_ref).collect();

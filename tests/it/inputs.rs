@@ -20,20 +20,7 @@ fn write_truncated_vtest(site: &TestSite, name: &str) -> PathBuf {
 
 /// Runs `isochron replay video --out site/out` on `site`'s config.
 fn replay(site: &TestSite, video: &Path) -> Finished {
-    let out = site.path("out");
-    site.isochron(
-        &[
-            "replay",
-            video.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--config",
-            site.config_path().to_str().unwrap(),
-            "--start",
-            START,
-        ],
-        Duration::from_secs(600),
-    )
+    site.replay(video, &site.path("out"), START)
 }
 
 fn summary(site: &TestSite) -> Value {

@@ -2,7 +2,6 @@
 //! real video, checked from the files replay writes.
 
 use std::path::Path;
-use std::time::Duration;
 
 use isochron_tests::{TestSite, VTEST_FRAMES, repo_root, vtest};
 use opencv::core::{Mat, Rect, Scalar, Size};
@@ -20,19 +19,7 @@ fn read_jsonl(path: &Path) -> Vec<Value> {
 
 fn replay(site: &TestSite, video: &Path, out: &str) -> Value {
     let out = site.path(out);
-    let run = site.isochron(
-        &[
-            "replay",
-            video.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--config",
-            site.config_path().to_str().unwrap(),
-            "--start",
-            "2026-03-02T07:00:00Z",
-        ],
-        Duration::from_secs(600),
-    );
+    let run = site.replay(video, &out, "2026-03-02T07:00:00Z");
     assert!(
         run.status.success(),
         "replay failed\nstdout:\n{}\nstderr:\n{}\nlogs: {}",

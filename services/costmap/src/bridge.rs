@@ -418,31 +418,42 @@ stale_s = 5
         assert!(b.live(later)[0].is_none());
     }
 
-    #[test]
-    fn confirmed_people_raise_their_cells_for_a_while() {
-        let mut b = bridge();
-        let t0 = Instant::now();
-        let blocks = vec![BlockActivity::default(); 300];
-        b.on_activity(0, &header(1_000 * NS_PER_S), &blocks, t0);
+    /// A detections header of `n` boxes at capture time 1000 s.
+    fn detections_at_1000_s(n: usize) -> DetectionHeader {
         let mut dh = DetectionHeader {
             preamble: Preamble::new::<Detection>(
                 Stream::Detections,
                 CameraId::new("cam01").unwrap(),
                 0,
-                1,
+                n,
             ),
             ..Default::default()
         };
         dh.preamble.capture_time_ns = 1_000 * NS_PER_S;
-        // Feet at image (105, 124) → floor (1.3125, 1.45): cell (13, 14).
-        let person = Detection {
+        dh
+    }
+
+    /// A person whose feet are at image (105, 124).
+    fn person_at_feet_105_124() -> Detection {
+        Detection {
             x: 95.0,
             y: 60.0,
             w: 20.0,
             h: 64.0,
             score: 1.0,
             class: PERSON,
-        };
+        }
+    }
+
+    #[test]
+    fn confirmed_people_raise_their_cells_for_a_while() {
+        let mut b = bridge();
+        let t0 = Instant::now();
+        let blocks = vec![BlockActivity::default(); 300];
+        b.on_activity(0, &header(1_000 * NS_PER_S), &blocks, t0);
+        let dh = detections_at_1000_s(1);
+        // Feet at image (105, 124) → floor (1.3125, 1.45): cell (13, 14).
+        let person = person_at_feet_105_124();
         let chair = Detection {
             class: 56,
             ..person
@@ -476,24 +487,8 @@ stale_s = 5
         let grid = b.grid.unwrap();
         assert_eq!(b.compose(t0).unwrap()[grid.index(20, 14)], 50);
 
-        let mut dh = DetectionHeader {
-            preamble: Preamble::new::<Detection>(
-                Stream::Detections,
-                CameraId::new("cam01").unwrap(),
-                0,
-                3,
-            ),
-            ..Default::default()
-        };
-        dh.preamble.capture_time_ns = 1_000 * NS_PER_S;
-        let person = Detection {
-            x: 95.0,
-            y: 60.0,
-            w: 20.0,
-            h: 64.0,
-            score: 1.0,
-            class: PERSON,
-        };
+        let dh = detections_at_1000_s(3);
+        let person = person_at_feet_105_124();
         let nan = Detection {
             x: f32::NAN,
             ..person

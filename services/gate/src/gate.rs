@@ -189,12 +189,7 @@ impl Gate {
                         schedule(&mut self.detected, g, &event, second, &mut actions);
                     }
                     Change::Ended(event) => {
-                        self.detected.remove(&event.id);
-                        actions.push(Action::Event {
-                            phase: EventPhase::End,
-                            zone: zone.config.name.clone(),
-                            event,
-                        });
+                        ended(&mut self.detected, &zone.config.name, event, &mut actions);
                     }
                 }
             }
@@ -208,17 +203,27 @@ impl Gate {
         for zone in &mut self.zones {
             for tracker in &mut zone.trackers {
                 if let Some(event) = tracker.finish() {
-                    self.detected.remove(&event.id);
-                    actions.push(Action::Event {
-                        phase: EventPhase::End,
-                        zone: zone.config.name.clone(),
-                        event,
-                    });
+                    ended(&mut self.detected, &zone.config.name, event, &mut actions);
                 }
             }
         }
         actions
     }
+}
+
+/// `event` of `zone` ended: no more detection jobs for it, and its end record.
+fn ended(
+    detected: &mut HashMap<u64, Detected>,
+    zone: &str,
+    event: Event,
+    actions: &mut Vec<Action>,
+) {
+    detected.remove(&event.id);
+    actions.push(Action::Event {
+        phase: EventPhase::End,
+        zone: zone.to_string(),
+        event,
+    });
 }
 
 /// Adds a detection job for `event` this second if the policy wants one: every
