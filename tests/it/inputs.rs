@@ -87,6 +87,16 @@ fn replay_of_a_complete_file_says_it_is_complete_and_exits_0() {
         }),
         "{summary}"
     );
+    // What the group wrote is its user's only (umask 0077, as under the units).
+    use std::os::unix::fs::PermissionsExt;
+    let store = site.path("out/state/cam01.isochron.sqlite");
+    for file in [site.path("out/summary.json"), store] {
+        let mode = std::fs::metadata(&file)
+            .unwrap_or_else(|e| panic!("{}: {e}", file.display()))
+            .permissions()
+            .mode();
+        assert_eq!(mode & 0o077, 0, "{} is {mode:o}", file.display());
+    }
 }
 
 /// Runs capture on `site`'s cam01 to the end of its file: its stderr.
