@@ -353,18 +353,12 @@ impl CostmapConfig {
         let located = cameras.iter().any(|cam| !cam.floor_points.is_empty());
         for (i, seg) in self.segments.iter().enumerate() {
             let key = |k: &str| format!("costmap.segment[{i}].{k}");
-            if seg.name.is_empty() || seg.name.len() > PLAN_NAME_LEN || seg.name.contains(',') {
-                return Err(Invalid::new(
-                    key("name"),
-                    "expected a name of 1 to 32 bytes without ','",
-                ));
-            }
-            if self.segments[..i].iter().any(|s| s.name == seg.name) {
-                return Err(Invalid::new(
-                    key("name"),
-                    format!("segment name \"{}\" is used twice", seg.name),
-                ));
-            }
+            check_plan_name(
+                &key("name"),
+                "segment",
+                &seg.name,
+                self.segments[..i].iter().map(|s| s.name.as_str()),
+            )?;
             match (&seg.polygon_m, &seg.camera, &seg.zone) {
                 (Some(poly), None, None) => {
                     check_polygon(&key("polygon_m"), poly)?;
@@ -404,19 +398,12 @@ impl CostmapConfig {
         }
         for (i, route) in self.routes.iter().enumerate() {
             let key = |k: &str| format!("costmap.route[{i}].{k}");
-            if route.name.is_empty() || route.name.len() > PLAN_NAME_LEN || route.name.contains(',')
-            {
-                return Err(Invalid::new(
-                    key("name"),
-                    "expected a name of 1 to 32 bytes without ','",
-                ));
-            }
-            if self.routes[..i].iter().any(|r| r.name == route.name) {
-                return Err(Invalid::new(
-                    key("name"),
-                    format!("route name \"{}\" is used twice", route.name),
-                ));
-            }
+            check_plan_name(
+                &key("name"),
+                "route",
+                &route.name,
+                self.routes[..i].iter().map(|r| r.name.as_str()),
+            )?;
             if route.segments.is_empty() {
                 return Err(Invalid::new(
                     key("segments"),
@@ -434,4 +421,27 @@ impl CostmapConfig {
         }
         Ok(())
     }
+}
+
+/// A segment or route name: 1 to [`PLAN_NAME_LEN`] bytes, no ',' (names are listed
+/// with commas), and not one of the `earlier` names of its kind (`what`).
+fn check_plan_name<'a>(
+    key: &str,
+    what: &str,
+    name: &str,
+    mut earlier: impl Iterator<Item = &'a str>,
+) -> Result<(), Invalid> {
+    if name.is_empty() || name.len() > PLAN_NAME_LEN || name.contains(',') {
+        return Err(Invalid::new(
+            key,
+            "expected a name of 1 to 32 bytes without ','",
+        ));
+    }
+    if earlier.any(|e| e == name) {
+        return Err(Invalid::new(
+            key,
+            format!("{what} name \"{name}\" is used twice"),
+        ));
+    }
+    Ok(())
 }
