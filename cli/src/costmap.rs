@@ -149,11 +149,8 @@ fn check(args: CheckArgs) -> anyhow::Result<ExitCode> {
             _ => Store::open_read_only(&store_path(&loaded.state_dir(), &cam.id), &cam.id)
                 .ok()
                 .map(|s| {
-                    (
-                        s.meta().frame_width,
-                        s.meta().frame_height,
-                        s.meta().block_px,
-                    )
+                    let g = s.meta().grid;
+                    (g.frame_width, g.frame_height, g.block_px)
                 }),
         };
         let Some((w, hgt, block_px)) = size else {

@@ -189,26 +189,24 @@ fn check_stale(fix: bool, report: &mut Report) -> bool {
         );
     }
     if !census.dead_left.is_empty() {
-        if fix {
-            report.say(
+        let dead = census.dead_left.join(", ");
+        let (level, message) = if fix {
+            (
                 Level::Fail,
-                "stale resources",
                 format!(
-                    "could not remove those of dead node(s) {}: run isochron doctor --fix as the user that ran them",
-                    census.dead_left.join(", ")
+                    "could not remove those of dead node(s) {dead}: run isochron doctor --fix as the user that ran them"
                 ),
-            );
+            )
         } else {
-            report.say(
+            (
                 Level::Warn,
-                "stale resources",
                 format!(
-                    "{} dead process(es) left iceoryx2 resources (shared memory, files): {}; isochron doctor --fix would remove them",
-                    census.dead_left.len(),
-                    census.dead_left.join(", ")
+                    "{} dead process(es) left iceoryx2 resources (shared memory, files): {dead}; isochron doctor --fix would remove them",
+                    census.dead_left.len()
                 ),
-            );
-        }
+            )
+        };
+        report.say(level, "stale resources", message);
     } else if census.dead_removed.is_empty() {
         report.say(
             Level::Ok,

@@ -219,7 +219,7 @@ fn daily(args: DailyArgs) -> anyhow::Result<ExitCode> {
             store_args.store.display()
         );
     }
-    let what = selection.describe(model.meta.grid_w, model.meta.grid_h);
+    let what = selection.describe(model.meta.grid.grid_w(), model.meta.grid.grid_h());
     let title = args.title.clone().unwrap_or_else(|| {
         format!(
             "Isochronal activity, camera {} ({what}), {} {}{}",

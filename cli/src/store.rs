@@ -116,7 +116,7 @@ impl Selection {
 
 /// The isochronal profile of `selection`: one point per bin of the cycle.
 pub fn profile(model: &Model, selection: &Selection) -> anyhow::Result<Vec<ProfilePoint>> {
-    let blocks = selection.blocks(model.meta.grid_w, model.meta.grid_h)?;
+    let blocks = selection.blocks(model.meta.grid.grid_w(), model.meta.grid.grid_h())?;
     Ok(daily_profile(&[(model, &blocks)], model.bins.len()))
 }
 
@@ -169,9 +169,9 @@ fn info(args: StoreArgs) -> anyhow::Result<ExitCode> {
     println!(
         "grid        {} blocks of {} px ({}x{} frame)",
         meta.grid(),
-        meta.block_px,
-        meta.frame_width,
-        meta.frame_height
+        meta.grid.block_px,
+        meta.grid.frame_width,
+        meta.grid.frame_height
     );
     println!(
         "cycle       {:?}, {} bins, {} learned",

@@ -489,7 +489,7 @@ pub fn segment_now(
 
 /// The block grid a camera's store was made for.
 pub fn store_block_grid(model: &Model) -> BlockGrid {
-    model.meta.block_grid()
+    model.meta.grid
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@
 
 use iceoryx2::prelude::ZeroCopySend;
 use isochron_shared::u32_enum;
-use isochron_shared::wire::{LAYOUT_VERSION, MAGIC, WireError, fixed_str, to_fixed};
+use isochron_shared::wire::{LAYOUT_VERSION, MAGIC, WireError, check_layout, fixed_str, to_fixed};
 
 /// Longest route or segment name in planning requests and responses, bytes (the
 /// same limit the site config puts on route and segment names).
@@ -106,14 +106,7 @@ impl PlanRequest {
 
     /// Checks magic, version, kind, counts and minutes.
     pub fn validate(&self) -> Result<PlanKind, WireError> {
-        if self.magic != MAGIC {
-            return Err(WireError::Magic { found: self.magic });
-        }
-        if self.layout_version != LAYOUT_VERSION {
-            return Err(WireError::Version {
-                found: self.layout_version,
-            });
-        }
+        check_layout(self.magic, self.layout_version)?;
         let kind = PlanKind::from_u32(self.kind).ok_or(WireError::Field {
             field: "kind",
             reason: format!("unknown value {}", self.kind),
@@ -277,14 +270,7 @@ impl PlanResponse {
 
     /// Checks magic, version, status and counts.
     pub fn validate(&self) -> Result<PlanStatus, WireError> {
-        if self.magic != MAGIC {
-            return Err(WireError::Magic { found: self.magic });
-        }
-        if self.layout_version != LAYOUT_VERSION {
-            return Err(WireError::Version {
-                found: self.layout_version,
-            });
-        }
+        check_layout(self.magic, self.layout_version)?;
         let status = PlanStatus::from_u32(self.status).ok_or(WireError::Field {
             field: "status",
             reason: format!("unknown value {}", self.status),

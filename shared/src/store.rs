@@ -182,24 +182,15 @@ pub enum StoreError {
 
 /// What a store is about; fixed when it is created.
 ///
-/// The block grid is kept as the `meta` table stores it, one field per column:
-/// `grid_w`/`grid_h` are the model's size (every blob has `grid_w × grid_h` values),
-/// `block_px` and the frame size are informative. [`StoreMeta::new`] fills them from
-/// a [`BlockGrid`], [`StoreMeta::block_grid`] gives the grid back.
+/// The `meta` table stores the grid's frame size and block edge, and for readers of
+/// the file the model's size `grid_w × grid_h` (every blob has that many values),
+/// which must agree with them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StoreMeta {
     /// Camera id.
     pub camera: String,
-    /// Blocks per row.
-    pub grid_w: u32,
-    /// Block rows.
-    pub grid_h: u32,
-    /// Block edge in pixels when the store was created (informative).
-    pub block_px: u32,
-    /// Frame width the blocks covered when the store was created (informative).
-    pub frame_width: u32,
-    /// Frame height the blocks covered when the store was created (informative).
-    pub frame_height: u32,
+    /// The block grid of the model.
+    pub grid: BlockGrid,
     /// The isochronal cycle: the number of bins.
     pub cycle: Cycle,
     /// Wall-clock time of creation, UTC ns.
@@ -211,25 +202,15 @@ impl StoreMeta {
     pub fn new(camera: impl Into<String>, grid: BlockGrid, cycle: Cycle, created_ns: i64) -> Self {
         StoreMeta {
             camera: camera.into(),
-            grid_w: grid.grid_w(),
-            grid_h: grid.grid_h(),
-            block_px: grid.block_px,
-            frame_width: grid.frame_width,
-            frame_height: grid.frame_height,
+            grid,
             cycle,
             created_ns,
         }
     }
 
-    /// The block grid the store was made for (its frame size and block edge; a zero
-    /// `block_px` in a damaged file counts as 1).
-    pub fn block_grid(&self) -> BlockGrid {
-        BlockGrid::new(self.frame_width, self.frame_height, self.block_px.max(1))
-    }
-
     /// Number of blocks per bin.
     pub fn blocks(&self) -> usize {
-        self.grid_w as usize * self.grid_h as usize
+        self.grid.len()
     }
 
     /// Number of minute bins of the cycle.
@@ -239,7 +220,7 @@ impl StoreMeta {
 
     /// `WxH`.
     pub fn grid(&self) -> String {
-        format!("{}x{}", self.grid_w, self.grid_h)
+        format!("{}x{}", self.grid.grid_w(), self.grid.grid_h())
     }
 
     fn rows(&self) -> Vec<(&'static str, String)> {
@@ -247,11 +228,11 @@ impl StoreMeta {
             ("magic", MAGIC.to_string()),
             ("format_version", FORMAT_VERSION.to_string()),
             ("camera", self.camera.clone()),
-            ("grid_w", self.grid_w.to_string()),
-            ("grid_h", self.grid_h.to_string()),
-            ("block_px", self.block_px.to_string()),
-            ("frame_width", self.frame_width.to_string()),
-            ("frame_height", self.frame_height.to_string()),
+            ("grid_w", self.grid.grid_w().to_string()),
+            ("grid_h", self.grid.grid_h().to_string()),
+            ("block_px", self.grid.block_px.to_string()),
+            ("frame_width", self.grid.frame_width.to_string()),
+            ("frame_height", self.grid.frame_height.to_string()),
             ("cycle", cycle_name(self.cycle).to_string()),
             ("created", format_rfc3339(self.created_ns)),
             ("created_ns", self.created_ns.to_string()),
@@ -473,7 +454,7 @@ impl Store {
             create(path, meta)?;
         }
         let store = Store::open_writer(path, &meta.camera, meta.cycle)?;
-        store.check_blocks(meta.grid_w, meta.grid_h)?;
+        store.check_grid(&meta.grid)?;
         Ok(store)
     }
 
@@ -569,15 +550,11 @@ impl Store {
 
     /// Errors unless the store's model has as many blocks per row and rows as `grid`.
     pub fn check_grid(&self, grid: &BlockGrid) -> Result<(), StoreError> {
-        self.check_blocks(grid.grid_w(), grid.grid_h())
-    }
-
-    /// Errors unless the store's grid is `grid_w` × `grid_h`.
-    fn check_blocks(&self, grid_w: u32, grid_h: u32) -> Result<(), StoreError> {
-        if (self.meta.grid_w, self.meta.grid_h) != (grid_w, grid_h) {
+        let mine = &self.meta.grid;
+        if (mine.grid_w(), mine.grid_h()) != (grid.grid_w(), grid.grid_h()) {
             return Err(StoreError::Grid {
                 file: self.path.clone(),
-                expected: format!("{grid_w}x{grid_h}"),
+                expected: format!("{}x{}", grid.grid_w(), grid.grid_h()),
                 found: self.meta.grid(),
             });
         }
@@ -957,16 +934,26 @@ fn read_meta(conn: &Connection, path: &Path) -> Result<StoreMeta, StoreError> {
         camera: get("camera")
             .ok_or_else(|| damaged("meta `camera` is missing".into()))?
             .to_string(),
-        grid_w: u32_of("grid_w")?,
-        grid_h: u32_of("grid_h")?,
-        block_px: u32_of("block_px")?,
-        frame_width: u32_of("frame_width")?,
-        frame_height: u32_of("frame_height")?,
+        grid: BlockGrid::new(
+            u32_of("frame_width")?,
+            u32_of("frame_height")?,
+            u32_of("block_px")?,
+        ),
         cycle,
         created_ns: num("created_ns")?,
     };
-    if meta.blocks() == 0 {
+    if meta.grid.block_px == 0 || meta.blocks() == 0 {
         return Err(damaged("the grid has no blocks".into()));
+    }
+    let stated = (u32_of("grid_w")?, u32_of("grid_h")?);
+    if stated != (meta.grid.grid_w(), meta.grid.grid_h()) {
+        return Err(damaged(format!(
+            "meta says a {}x{} grid, but {} has {}",
+            stated.0,
+            stated.1,
+            meta.grid,
+            meta.grid()
+        )));
     }
     Ok(meta)
 }
@@ -1066,6 +1053,17 @@ mod tests {
     use super::*;
     use crate::exit::Classify;
 
+    /// Commits one minute, which must succeed.
+    fn commit(store: &mut Store, minute: i64, bin: Option<&Bin>, baseline: Option<&Baseline>) {
+        store
+            .commit_minute(&MinuteCommit {
+                minute,
+                bin,
+                baseline,
+            })
+            .unwrap();
+    }
+
     fn meta(camera: &str) -> StoreMeta {
         StoreMeta::new(
             camera,
@@ -1104,27 +1102,9 @@ mod tests {
         let b10 = bin(10, 1, 0.5);
         let b20 = bin(20, 3, 1.5);
         let bl = baseline();
-        store
-            .commit_minute(&MinuteCommit {
-                minute: 100,
-                bin: Some(&b10),
-                baseline: Some(&bl),
-            })
-            .unwrap();
-        store
-            .commit_minute(&MinuteCommit {
-                minute: 101,
-                bin: Some(&b20),
-                baseline: None,
-            })
-            .unwrap();
-        store
-            .commit_minute(&MinuteCommit {
-                minute: 102,
-                bin: None,
-                baseline: None,
-            })
-            .unwrap();
+        commit(&mut store, 100, Some(&b10), Some(&bl));
+        commit(&mut store, 101, Some(&b20), None);
+        commit(&mut store, 102, None, None);
         drop(store);
 
         let reader = Store::open_read_only(&path, "cam01").unwrap();
@@ -1170,13 +1150,7 @@ mod tests {
         let reader = Store::open_read_only(&path, "cam01").unwrap();
         for minute in 0..5u32 {
             let b = bin(minute, minute + 1, minute as f32);
-            writer
-                .commit_minute(&MinuteCommit {
-                    minute: minute as i64,
-                    bin: Some(&b),
-                    baseline: None,
-                })
-                .unwrap();
+            commit(&mut writer, minute as i64, Some(&b), None);
             assert_eq!(reader.read_bin(minute).unwrap(), Some(b));
             assert_eq!(reader.progress().unwrap().last_minute, Some(minute as i64));
         }
@@ -1222,7 +1196,7 @@ mod tests {
         );
         // Another grid.
         let mut wide = meta("cam02");
-        wide.grid_w = 5;
+        wide.grid.frame_width = 80;
         let err = Store::open_or_create(&path, &wide).unwrap_err();
         assert!(matches!(err, StoreError::Grid { .. }), "{err}");
         assert!(err.to_string().contains("4x3"), "{err}");
@@ -1249,13 +1223,7 @@ mod tests {
         let mut store = Store::open_or_create(&path, &meta("cam01")).unwrap();
         let b = bin(7, 2, 0.1);
         let bl = baseline();
-        store
-            .commit_minute(&MinuteCommit {
-                minute: 7,
-                bin: Some(&b),
-                baseline: Some(&bl),
-            })
-            .unwrap();
+        commit(&mut store, 7, Some(&b), Some(&bl));
         drop(store);
         // Flip one byte of the stored mean, as a bad disk sector would.
         {
@@ -1308,13 +1276,7 @@ mod tests {
         let mut store = Store::open_or_create(&path, &meta("cam01")).unwrap();
         for t in 0..200 {
             let b = bin(t, 1, t as f32);
-            store
-                .commit_minute(&MinuteCommit {
-                    minute: t as i64,
-                    bin: Some(&b),
-                    baseline: None,
-                })
-                .unwrap();
+            commit(&mut store, t as i64, Some(&b), None);
         }
         drop(store); // checkpoints the WAL into the file
         let mut bytes = std::fs::read(&path).unwrap();
@@ -1334,20 +1296,10 @@ mod tests {
     }
 
     #[test]
-    fn meta_is_made_from_a_block_grid_and_gives_it_back() {
+    fn meta_describes_the_block_grid() {
         let m = meta("cam01");
-        assert_eq!(
-            (
-                m.grid_w,
-                m.grid_h,
-                m.block_px,
-                m.frame_width,
-                m.frame_height
-            ),
-            (4, 3, 16, 64, 48)
-        );
+        assert_eq!(m.grid, BlockGrid::new(64, 48, 16));
         assert_eq!((m.grid(), m.blocks()), ("4x3".to_string(), 12));
-        assert_eq!(m.block_grid(), BlockGrid::new(64, 48, 16));
     }
 
     #[test]
@@ -1358,13 +1310,7 @@ mod tests {
         m.cycle = Cycle::Weekly;
         let mut store = Store::open_or_create(&path, &m).unwrap();
         let b = bin(10_000, 1, 0.0);
-        store
-            .commit_minute(&MinuteCommit {
-                minute: 1,
-                bin: Some(&b),
-                baseline: None,
-            })
-            .unwrap();
+        commit(&mut store, 1, Some(&b), None);
         let model = store.read_model().unwrap();
         assert_eq!(model.bins.len(), 10_080);
         assert_eq!(model.bin(10_000), Some(&b));

@@ -31,6 +31,20 @@ pub const FLAG_ILLUMINATION: u32 = 1 << 1;
 /// Header flag (frames): the frame follows a source reconnect or a gap in capture.
 pub const FLAG_DISCONTINUITY: u32 = 1 << 2;
 
+/// Checks a sample's magic number and layout version, the first fields of every
+/// shared-memory type.
+pub fn check_layout(magic: u32, layout_version: u16) -> Result<(), WireError> {
+    if magic != MAGIC {
+        return Err(WireError::Magic { found: magic });
+    }
+    if layout_version != LAYOUT_VERSION {
+        return Err(WireError::Version {
+            found: layout_version,
+        });
+    }
+    Ok(())
+}
+
 /// The streams of one camera, as named in docs/ARCHITECTURE.md, "Processes and streams".
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 #[repr(u16)]
@@ -178,14 +192,7 @@ impl Preamble {
         camera: &CameraId,
         actual_len: usize,
     ) -> Result<(), WireError> {
-        if self.magic != MAGIC {
-            return Err(WireError::Magic { found: self.magic });
-        }
-        if self.layout_version != LAYOUT_VERSION {
-            return Err(WireError::Version {
-                found: self.layout_version,
-            });
-        }
+        check_layout(self.magic, self.layout_version)?;
         if self.stream != stream as u16 {
             return Err(WireError::Stream {
                 expected: stream,
@@ -837,15 +844,7 @@ pub struct StageStatus {
 impl StageStatus {
     /// Checks magic and version.
     pub fn validate(&self) -> Result<(), WireError> {
-        if self.magic != MAGIC {
-            return Err(WireError::Magic { found: self.magic });
-        }
-        if self.layout_version != LAYOUT_VERSION {
-            return Err(WireError::Version {
-                found: self.layout_version,
-            });
-        }
-        Ok(())
+        check_layout(self.magic, self.layout_version)
     }
 }
 

@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 
 use isochron_shared::clock::{Cycle, NS_PER_S, parse_rfc3339};
 use isochron_shared::config::Config;
+use isochron_shared::geometry::BlockGrid;
 use isochron_shared::ipc::{Activity, Ipc, Motion, StreamPublisher};
 use isochron_shared::names::ServiceNames;
 use isochron_shared::rng::Lcg;
@@ -694,17 +695,10 @@ fn the_service_filters_shared_memory_rejects_bad_samples_and_passes_end_of_strea
     assert_eq!((p.committed, p.skipped), (0, 1));
 }
 
-fn write_store_for(path: &Path, camera: &str, (grid_w, grid_h): (u32, u32)) {
-    let meta = StoreMeta {
-        camera: camera.into(),
-        grid_w,
-        grid_h,
-        block_px: 16,
-        frame_width: 64,
-        frame_height: 32,
-        cycle: Cycle::Daily,
-        created_ns: 0,
-    };
+/// Makes an empty store of `camera` whose model has blocks of 16 px over a
+/// `width × height` frame.
+fn write_store_for(path: &Path, camera: &str, (width, height): (u32, u32)) {
+    let meta = StoreMeta::new(camera, BlockGrid::new(width, height, 16), Cycle::Daily, 0);
     Store::open_or_create(path, &meta).unwrap();
 }
 
@@ -726,7 +720,7 @@ fn foreign_or_damaged_stores_stop_the_service_with_a_clear_error() {
     assert!(stderr.contains("move it away"), "{stderr}");
 
     std::fs::remove_file(&store).unwrap();
-    write_store_for(&store, "cam02", (4, 2));
+    write_store_for(&store, "cam02", (64, 32));
     let (code, stderr) = run(&site);
     assert_eq!(code, Some(78), "{stderr}");
     assert!(
@@ -735,7 +729,7 @@ fn foreign_or_damaged_stores_stop_the_service_with_a_clear_error() {
     );
 
     std::fs::remove_file(&store).unwrap();
-    write_store_for(&store, "cam01", (4, 2));
+    write_store_for(&store, "cam01", (64, 32));
     {
         let bad = MinuteDamage::new(&store);
         bad.apply();
@@ -748,7 +742,7 @@ fn foreign_or_damaged_stores_stop_the_service_with_a_clear_error() {
     // A good store of another grid: the cascade starts, and stops at the first motion
     // sample, which shows that motion now runs with other settings.
     std::fs::remove_file(&store).unwrap();
-    write_store_for(&store, "cam01", (5, 5));
+    write_store_for(&store, "cam01", (80, 80));
     let ipc = site.ipc("feeder");
     let publisher = ipc.publisher::<Motion>("cam01", 8).unwrap();
     let (mut cascade, mut feed) = start_fed_cascade(&site, &publisher);

@@ -412,7 +412,7 @@ mod tests {
             .unwrap()
             .meta()
             .clone();
-        assert_eq!(meta.block_grid(), BlockGrid::new(64, 32, 16));
+        assert_eq!(meta.grid, BlockGrid::new(64, 32, 16));
         // Still running: 40 foreign samples in a row no longer end learning.
         queue.borrow_mut().push_back(motion(42, (64, 32)));
         step(&mut stage, &input, &mut cx).unwrap();

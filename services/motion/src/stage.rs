@@ -312,6 +312,14 @@ mod tests {
         cx: Context,
     }
 
+    impl Rig {
+        /// Queues the frames and runs the stage on them.
+        fn run(&mut self, frames: impl IntoIterator<Item = Owned<Frames>>) {
+            self.queue.borrow_mut().extend(frames);
+            step(&mut self.stage, &self.frames, &mut self.cx).unwrap();
+        }
+    }
+
     fn rig() -> Rig {
         let config = Config::parse(
             "[[camera]]\nid = \"cam01\"\nsource = \"walk.avi\"\nwidth = 128\nheight = 64\n",
@@ -333,30 +341,24 @@ mod tests {
 
     #[test]
     fn drives_the_motion_stage_through_the_runtime_without_shared_memory() {
-        let Rig {
-            mut stage,
-            sent,
-            frames,
-            queue,
-            mut cx,
-        } = rig();
-
-        queue.borrow_mut().push_back(frame(0, 0, square_at(10)));
-        queue.borrow_mut().push_back(frame(1, 1, square_at(14)));
+        let mut rig = rig();
         // A foreign sample (another camera) is rejected, not computed.
         let mut foreign = frame(2, 2, square_at(18));
         foreign.header.preamble.camera = CameraId::new("cam02").unwrap();
-        queue.borrow_mut().push_back(foreign);
-        // Two frames lost on the way: a gap of two.
-        queue.borrow_mut().push_back(frame(4, 4, square_at(22)));
         let mut end = frame(5, 5, |_, _| 0);
         end.header.preamble.flags = FLAG_END_OF_STREAM;
         end.payload.clear();
         end.header.preamble.payload_len = 0;
-        queue.borrow_mut().push_back(end);
-        step(&mut stage, &frames, &mut cx).unwrap();
+        // Sequences 2 (the foreign sample) and 3 never arrive: a gap of two.
+        rig.run([
+            frame(0, 0, square_at(10)),
+            frame(1, 1, square_at(14)),
+            foreign,
+            frame(4, 4, square_at(22)),
+            end,
+        ]);
 
-        let sent = sent.borrow();
+        let sent = rig.sent.borrow();
         // Frames 0→1 and 1→4 pair (the gap does not break a run); then the end.
         assert_eq!(sent.len(), 3, "two motion samples and the end of stream");
         for (k, (motion, index)) in sent.iter().zip([1, 4]).enumerate() {
@@ -371,7 +373,7 @@ mod tests {
         assert_eq!(end.header.preamble.sequence, 2);
         assert_eq!(end.header.preamble.capture_time_ns, 1_500_000_000);
 
-        let status = cx.health.status();
+        let status = rig.cx.health.status();
         assert_eq!(status.received, 4);
         assert_eq!(status.rejected, 1);
         assert_eq!(
@@ -383,14 +385,7 @@ mod tests {
 
     #[test]
     fn frames_of_another_size_than_configured_are_rejected_and_change_nothing() {
-        let Rig {
-            mut stage,
-            sent,
-            frames,
-            queue,
-            mut cx,
-        } = rig();
-        queue.borrow_mut().push_back(frame(0, 0, square_at(10)));
+        let mut rig = rig();
         // A 1x1 frame from a misconfigured or foreign producer of this camera.
         let mut tiny = frame(1, 1, |_, _| 0);
         tiny.header.width = 1;
@@ -398,17 +393,19 @@ mod tests {
         tiny.header.stride = 1;
         tiny.payload.truncate(1);
         tiny.header.preamble.payload_len = 1;
-        queue.borrow_mut().push_back(tiny);
-        queue.borrow_mut().push_back(frame(2, 2, square_at(14)));
-        queue.borrow_mut().push_back(frame(3, 3, square_at(18)));
-        step(&mut stage, &frames, &mut cx).unwrap();
-        assert_eq!(cx.health.status().rejected, 1);
-        let sent = sent.borrow();
+        rig.run([
+            frame(0, 0, square_at(10)),
+            tiny,
+            frame(2, 2, square_at(14)),
+            frame(3, 3, square_at(18)),
+        ]);
+        assert_eq!(rig.cx.health.status().rejected, 1);
+        let sent = rig.sent.borrow();
         // The grid stays 8x4: frame 0 pairs with nothing (the odd frame broke the
         // run), frames 2 → 3 pair.
         assert_eq!(sent.len(), 1);
         assert_eq!((sent[0].header.grid_w, sent[0].header.grid_h), (8, 4));
         assert_eq!(sent[0].header.source_index, 3);
-        assert!(stage.detail().contains("grid=8x4"));
+        assert!(rig.stage.detail().contains("grid=8x4"));
     }
 }
