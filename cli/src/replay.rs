@@ -28,7 +28,7 @@ use isochron_shared::clock::format_rfc3339;
 use isochron_shared::config::{Config, LoadedConfig, Speed};
 use isochron_shared::health::InputCompleteness;
 use isochron_shared::ipc::{
-    Activity, Detections, Events, Frames, Ipc, Motion, StreamSubscriber, StreamType,
+    Activity, Detections, Events, Frames, Ipc, IpcError, Motion, StreamSubscriber, StreamType,
 };
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{ActivityKind, DetectionHeader, EventPhase, Stream, fixed_str};
@@ -294,20 +294,19 @@ impl Subscribers {
                 .iter()
                 .any(|(stage, _)| stage.produces().contains(&stream))
         };
+        fn subscriber_if<S: StreamType>(
+            ipc: &Ipc,
+            camera: &str,
+            wanted: bool,
+        ) -> Result<Option<StreamSubscriber<S>>, IpcError> {
+            wanted.then(|| ipc.subscriber(camera)).transpose()
+        }
         Ok(Subscribers {
             frames: ipc.subscriber(camera)?,
-            motion: has(Stream::Motion)
-                .then(|| ipc.subscriber(camera))
-                .transpose()?,
-            activity: has(Stream::Activity)
-                .then(|| ipc.subscriber(camera))
-                .transpose()?,
-            events: has(Stream::Events)
-                .then(|| ipc.subscriber(camera))
-                .transpose()?,
-            detections: has(Stream::Detections)
-                .then(|| ipc.subscriber(camera))
-                .transpose()?,
+            motion: subscriber_if(ipc, camera, has(Stream::Motion))?,
+            activity: subscriber_if(ipc, camera, has(Stream::Activity))?,
+            events: subscriber_if(ipc, camera, has(Stream::Events))?,
+            detections: subscriber_if(ipc, camera, has(Stream::Detections))?,
         })
     }
 

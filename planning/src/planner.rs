@@ -104,12 +104,7 @@ impl Planner {
         self.config.route(name).ok_or_else(|| {
             PlanError::UnknownRoute(
                 name.to_string(),
-                self.config
-                    .routes
-                    .iter()
-                    .map(|r| r.name.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", "),
+                listed(self.config.routes.iter().map(|r| r.name.as_str())),
             )
         })
     }
@@ -163,12 +158,7 @@ impl Planner {
                 let seg = self.config.segment(name).ok_or_else(|| {
                     PlanError::UnknownSegment(
                         name.to_string(),
-                        self.config
-                            .segments
-                            .iter()
-                            .map(|s| s.name.as_str())
-                            .collect::<Vec<_>>()
-                            .join(", "),
+                        listed(self.config.segments.iter().map(|s| s.name.as_str())),
                     )
                 })?;
                 let blocks = resolve_segment(seg, &self.cameras).map_err(|e| match e {
@@ -313,6 +303,11 @@ impl Planner {
             .max()
             .unwrap_or(0)
     }
+}
+
+/// `names` as a comma-separated list, for errors that say what exists.
+fn listed<'a>(names: impl Iterator<Item = &'a str>) -> String {
+    names.collect::<Vec<_>>().join(", ")
 }
 
 #[cfg(test)]

@@ -561,15 +561,17 @@ impl Store {
         Ok(())
     }
 
+    /// A cached prepared statement of `sql`.
+    fn statement(&self, sql: &str) -> Result<rusqlite::CachedStatement<'_>, StoreError> {
+        self.conn
+            .prepare_cached(sql)
+            .map_err(|e| sql_err(&self.path, e))
+    }
+
     /// The model of bin `t_star`, if it has learned anything. Its checksum is
     /// verified.
     pub fn read_bin(&self, t_star: u32) -> Result<Option<Bin>, StoreError> {
-        let mut stmt = self
-            .conn
-            .prepare_cached(
-                "SELECT t_star, count, last_minute, mean, var, crc FROM bins WHERE t_star = ?1",
-            )
-            .map_err(|e| sql_err(&self.path, e))?;
+        let mut stmt = self.statement(&format!("{SELECT_BINS} WHERE t_star = ?1"))?;
         let raw = stmt
             .query_row(params![t_star as i64], RawBin::from_row)
             .optional()
@@ -582,12 +584,7 @@ impl Store {
     pub fn read_model(&self) -> Result<Model, StoreError> {
         let bins_n = self.meta.bins() as usize;
         let mut bins: Vec<Option<Bin>> = vec![None; bins_n];
-        let mut stmt = self
-            .conn
-            .prepare_cached(
-                "SELECT t_star, count, last_minute, mean, var, crc FROM bins ORDER BY t_star",
-            )
-            .map_err(|e| sql_err(&self.path, e))?;
+        let mut stmt = self.statement(&format!("{SELECT_BINS} ORDER BY t_star"))?;
         let rows = stmt
             .query_map([], RawBin::from_row)
             .map_err(|e| sql_err(&self.path, e))?;
@@ -957,6 +954,9 @@ fn read_meta(conn: &Connection, path: &Path) -> Result<StoreMeta, StoreError> {
     }
     Ok(meta)
 }
+
+/// The columns [`RawBin::from_row`] reads.
+const SELECT_BINS: &str = "SELECT t_star, count, last_minute, mean, var, crc FROM bins";
 
 struct RawBin {
     t_star: i64,

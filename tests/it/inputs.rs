@@ -40,11 +40,7 @@ fn replay_of_a_truncated_file_writes_everything_flags_it_and_exits_65() {
         run.stdout,
         run.stderr
     );
-    let flagged: Vec<&str> = run
-        .stderr
-        .lines()
-        .filter(|l| l.contains("is truncated or damaged"))
-        .collect();
+    let flagged = lines_with(&run.stderr, "is truncated or damaged");
     assert_eq!(flagged.len(), 1, "{}", run.stderr);
     assert!(
         flagged[0].contains("of the 795 frames it states"),
@@ -121,10 +117,7 @@ fn a_source_of_another_aspect_ratio_is_warned_about_once() {
 
     site.write_config(&camera(640, 360));
     let stderr = capture_stderr(&site);
-    let warned: Vec<&str> = stderr
-        .lines()
-        .filter(|l| l.contains("rescaled to the configured"))
-        .collect();
+    let warned = lines_with(&stderr, "rescaled to the configured");
     assert_eq!(warned.len(), 1, "{stderr}");
     assert!(warned[0].contains("WARN"), "{}", warned[0]);
     assert!(
@@ -138,10 +131,10 @@ fn a_source_of_another_aspect_ratio_is_warned_about_once() {
     // Half the size, same aspect ratio: an info line, no warning.
     site.write_config(&camera(384, 288));
     let stderr = capture_stderr(&site);
-    let told: Vec<&str> = stderr
-        .lines()
-        .filter(|l| l.contains("rescaled to the configured 384x288 (same aspect ratio)"))
-        .collect();
+    let told = lines_with(
+        &stderr,
+        "rescaled to the configured 384x288 (same aspect ratio)",
+    );
     assert_eq!(told.len(), 1, "{stderr}");
     assert!(told[0].contains("INFO"), "{}", told[0]);
 
@@ -149,4 +142,9 @@ fn a_source_of_another_aspect_ratio_is_warned_about_once() {
     site.write_config(&camera(768, 576));
     let stderr = capture_stderr(&site);
     assert!(!stderr.contains("rescaled"), "{stderr}");
+}
+
+/// The lines of `text` that contain `needle`.
+fn lines_with<'a>(text: &'a str, needle: &str) -> Vec<&'a str> {
+    text.lines().filter(|l| l.contains(needle)).collect()
 }

@@ -21,6 +21,11 @@ fn parse(text: &str) -> Result<Config, ConfigError> {
     Config::parse(text, Path::new("site.toml"))
 }
 
+/// The error of [`GOOD`] with its `fps = 10` line replaced by `line`.
+fn fps_line(line: &str) -> ConfigError {
+    parse(&GOOD.replace("fps = 10", line)).unwrap_err()
+}
+
 #[test]
 fn good_config_parses_with_defaults() {
     let c = parse(GOOD).unwrap();
@@ -67,8 +72,7 @@ fn syntax_error_names_the_line() {
 
 #[test]
 fn wrong_type_names_line_and_key() {
-    let text = GOOD.replace("fps = 10", "fps = \"fast\"");
-    let err = parse(&text).unwrap_err();
+    let err = fps_line("fps = \"fast\"");
     assert_eq!(err.key.as_deref(), Some("camera[0].fps"), "{err}");
     assert_eq!(err.line, Some(9), "{err}");
     assert!(err.message.contains("expected"), "{err}");
@@ -76,16 +80,14 @@ fn wrong_type_names_line_and_key() {
 
 #[test]
 fn unknown_key_is_rejected_with_its_line() {
-    let text = GOOD.replace("fps = 10", "fsp = 10");
-    let err = parse(&text).unwrap_err();
+    let err = fps_line("fsp = 10");
     assert_eq!(err.line, Some(9), "{err}");
     assert!(err.message.contains("fsp"), "{err}");
 }
 
 #[test]
 fn invalid_values_name_line_key_and_expectation() {
-    let text = GOOD.replace("fps = 10", "fps = -3");
-    let err = parse(&text).unwrap_err();
+    let err = fps_line("fps = -3");
     assert_eq!(err.key.as_deref(), Some("camera[0].fps"));
     assert_eq!(err.line, Some(9));
     assert!(err.message.contains("expected a number"), "{err}");
@@ -134,8 +136,7 @@ fn speed_parses() {
     assert_eq!(Speed::parse("-1"), None);
     let text = GOOD.replace("fps = 10", "speed = \"max\"");
     assert_eq!(parse(&text).unwrap().cameras[0].speed, Speed::Max);
-    let text = GOOD.replace("fps = 10", "speed = \"fast\"");
-    let err = parse(&text).unwrap_err();
+    let err = fps_line("speed = \"fast\"");
     assert_eq!(err.key.as_deref(), Some("camera[0].speed"));
 }
 
