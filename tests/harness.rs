@@ -13,8 +13,9 @@ use std::sync::mpsc::{Receiver, channel};
 use std::time::{Duration, Instant};
 
 use isochron_shared::config::{Config, LoadedConfig};
-use isochron_shared::ipc::Ipc;
+use isochron_shared::ipc::{Ipc, StreamSubscriber, StreamType};
 use isochron_shared::names::ServiceNames;
+use isochron_shared::wire::{CameraId, StreamHeader};
 
 /// The directory holding the built binaries (`target/<profile>`).
 pub fn bin_dir() -> PathBuf {
@@ -463,6 +464,32 @@ impl Drop for Proc {
             }
         }
     }
+}
+
+/// Reads the samples of `subscriber`, each validated as one of `camera`, and hands
+/// them to `each` until it returns `false` (then `true`) or `timeout` passes
+/// (then `false`).
+pub fn read_samples<S: StreamType>(
+    subscriber: &StreamSubscriber<S>,
+    camera: &str,
+    timeout: Duration,
+    mut each: impl FnMut(&S::Header, &[S::Element]) -> bool,
+) -> bool {
+    let camera = CameraId::new(camera).unwrap();
+    let deadline = Instant::now() + timeout;
+    while Instant::now() < deadline {
+        subscriber.wait(Duration::from_millis(50));
+        while let Some(sample) = subscriber.receive().unwrap() {
+            let header = sample.user_header();
+            header
+                .validate(&camera, sample.payload().len())
+                .unwrap_or_else(|e| panic!("a {} sample: {e}", S::STREAM));
+            if !each(header, sample.payload()) {
+                return true;
+            }
+        }
+    }
+    false
 }
 
 /// Polls `f` every 20 ms until it returns `Some` or `timeout` passes.

@@ -1,11 +1,11 @@
 //! isochron-capture as a separate process, read through iceoryx2 by this test.
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use isochron_shared::clock::{NS_PER_S, parse_rfc3339};
 use isochron_shared::ipc::Frames;
 use isochron_shared::wire::{CameraId, FrameHeader, MAGIC, Preamble, Stream};
-use isochron_tests::{Proc, TestSite, VTEST_FRAMES, bin, eventually, vtest};
+use isochron_tests::{Proc, TestSite, VTEST_FRAMES, bin, eventually, read_samples, vtest};
 use opencv::prelude::*;
 use opencv::{imgproc, videoio};
 
@@ -32,33 +32,25 @@ fn publishes_every_frame_with_file_clock_and_opencv_pixels() {
     let frames = ipc.subscriber::<Frames>("cam01").unwrap();
     let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
 
-    let camera = CameraId::new("cam01").unwrap();
     let start_ns = parse_rfc3339(START).unwrap();
     let mut checksums = Vec::new();
-    let mut ended = false;
-    let deadline = Instant::now() + Duration::from_secs(120);
-    while !ended && Instant::now() < deadline {
-        frames.wait(Duration::from_millis(100));
-        while let Some(sample) = frames.receive().unwrap() {
-            let h: &FrameHeader = sample.user_header();
-            h.validate(&camera, sample.payload().len()).unwrap();
-            if h.preamble.is_end_of_stream() {
-                assert_eq!(h.preamble.sequence, checksums.len() as u64);
-                ended = true;
-                break;
-            }
-            let i = checksums.len() as u64;
-            assert_eq!(h.preamble.sequence, i, "sequence must be contiguous");
-            assert_eq!(h.source_index, i);
-            assert_eq!(
-                h.preamble.capture_time_ns,
-                start_ns + i as i64 * NS_PER_S / 10,
-                "frame {i}: capture time must be start + i/fps"
-            );
-            assert_eq!((h.width, h.height, h.stride), (768, 576, 768));
-            checksums.push(crc32fast::hash(sample.payload()));
+    let ended = read_samples(&frames, "cam01", Duration::from_secs(120), |h, pixels| {
+        if h.preamble.is_end_of_stream() {
+            assert_eq!(h.preamble.sequence, checksums.len() as u64);
+            return false;
         }
-    }
+        let i = checksums.len() as u64;
+        assert_eq!(h.preamble.sequence, i, "sequence must be contiguous");
+        assert_eq!(h.source_index, i);
+        assert_eq!(
+            h.preamble.capture_time_ns,
+            start_ns + i as i64 * NS_PER_S / 10,
+            "frame {i}: capture time must be start + i/fps"
+        );
+        assert_eq!((h.width, h.height, h.stride), (768, 576, 768));
+        checksums.push(crc32fast::hash(pixels));
+        true
+    });
     assert!(ended, "no end of stream after {} frames", checksums.len());
     assert_eq!(checksums.len() as u64, VTEST_FRAMES);
     let reference = opencv_reference_checksums();
@@ -120,18 +112,12 @@ fn truncated_file_publishes_what_it_can_then_ends() {
     let ipc = site.ipc("subscriber");
     let frames = ipc.subscriber::<Frames>("cam01").unwrap();
     let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
-    let (mut n, mut ended) = (0u64, false);
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while !ended && Instant::now() < deadline {
-        frames.wait(Duration::from_millis(100));
-        while let Some(sample) = frames.receive().unwrap() {
-            if sample.user_header().preamble.is_end_of_stream() {
-                ended = true;
-            } else {
-                n += 1;
-            }
-        }
-    }
+    let mut n = 0u64;
+    let ended = read_samples(&frames, "cam01", Duration::from_secs(60), |h, _| {
+        let more = !h.preamble.is_end_of_stream();
+        n += more as u64;
+        more
+    });
     assert!(ended, "end of stream must be signalled");
     assert!(
         n > 100 && n < VTEST_FRAMES,

@@ -16,7 +16,7 @@ use isochron_shared::store::{Store, StoreMeta, store_path};
 use isochron_shared::wire::{
     ActivityHeader, BlockMotion, CameraId, FLAG_END_OF_STREAM, MotionHeader, Preamble, Stream,
 };
-use isochron_tests::{Proc, TestSite, bin, eventually};
+use isochron_tests::{Proc, TestSite, bin, eventually, read_samples};
 
 /// The office hallway of the paper's figure: activity from 6 am, a lull at lunch, the
 /// busiest time at 4:30 pm, quiet after 9 pm.
@@ -625,22 +625,14 @@ fn the_service_filters_shared_memory_rejects_bad_samples_and_passes_end_of_strea
         )
         .unwrap();
 
-    let camera = CameraId::new("cam01").unwrap();
     let mut seconds = Vec::new();
-    let mut ended = false;
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while !ended && Instant::now() < deadline {
-        activity.wait(Duration::from_millis(50));
-        while let Some(sample) = activity.receive().unwrap() {
-            let h: ActivityHeader = *sample.user_header();
-            h.validate(&camera, sample.payload().len()).unwrap();
-            if h.preamble.is_end_of_stream() {
-                ended = true;
-            } else {
-                seconds.push((h, sample.payload().to_vec()));
-            }
+    let ended = read_samples(&activity, "cam01", Duration::from_secs(30), |h, blocks| {
+        let more = !h.preamble.is_end_of_stream();
+        if more {
+            seconds.push((*h, blocks.to_vec()));
         }
-    }
+        more
+    });
     assert!(
         ended,
         "no end of stream; got {} seconds:\n{}",

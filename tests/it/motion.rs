@@ -13,7 +13,7 @@ use isochron_shared::wire::{
     BlockMotion, CameraId, DIRECTION_NONE, FLAG_DISCONTINUITY, FLAG_END_OF_STREAM, FrameHeader,
     MAGIC, MotionHeader, PixelFormat, Preamble, Stream,
 };
-use isochron_tests::{TestSite, VTEST_FRAMES, eventually, repo_root};
+use isochron_tests::{TestSite, VTEST_FRAMES, eventually, read_samples, repo_root};
 
 const START: &str = "2026-03-02T07:00:00Z";
 
@@ -33,24 +33,14 @@ fn read_until_end_of_stream(
     timeout: Duration,
 ) -> (Vec<Received>, bool) {
     let mut out = Vec::new();
-    let deadline = Instant::now() + timeout;
-    while Instant::now() < deadline {
-        motion.wait(Duration::from_millis(100));
-        while let Some(sample) = motion.receive().unwrap() {
-            let header = *sample.user_header();
-            header
-                .validate(&cam(), sample.payload().len())
-                .unwrap_or_else(|e| panic!("motion sample {}: {e}", out.len()));
-            out.push(Received {
-                header,
-                blocks: sample.payload().to_vec(),
-            });
-            if header.preamble.is_end_of_stream() {
-                return (out, true);
-            }
-        }
-    }
-    (out, false)
+    let ended = read_samples(motion, "cam01", timeout, |&header, blocks| {
+        out.push(Received {
+            header,
+            blocks: blocks.to_vec(),
+        });
+        !header.preamble.is_end_of_stream()
+    });
+    (out, ended)
 }
 
 #[test]
@@ -269,18 +259,18 @@ fn bad_samples_restarts_gaps_and_end_of_stream_are_handled() {
     feeder.gray(8, 64, 48, 3, 8); // → M7: the service kept running
 
     let mut got: Vec<Received> = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while got.len() < 8 && Instant::now() < deadline {
-        motion.wait(Duration::from_millis(100));
-        while let Some(sample) = motion.receive().unwrap() {
-            let header = *sample.user_header();
-            header.validate(&cam(), sample.payload().len()).unwrap();
+    read_samples(
+        &motion,
+        "cam01",
+        Duration::from_secs(30),
+        |&header, blocks| {
             got.push(Received {
                 header,
-                blocks: sample.payload().to_vec(),
+                blocks: blocks.to_vec(),
             });
-        }
-    }
+            got.len() < 8
+        },
+    );
     let stderr = proc.stderr();
     let indices: Vec<u64> = got.iter().map(|r| r.header.source_index).collect();
     assert_eq!(
