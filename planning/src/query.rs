@@ -107,10 +107,7 @@ impl PlanRequest {
     /// Checks magic, version, kind, counts and minutes.
     pub fn validate(&self) -> Result<PlanKind, WireError> {
         check_layout(self.magic, self.layout_version)?;
-        let kind = PlanKind::from_u32(self.kind).ok_or(WireError::Field {
-            field: "kind",
-            reason: format!("unknown value {}", self.kind),
-        })?;
+        let kind = PlanKind::from_field(self.kind, "kind")?;
         let field = |field: &'static str, reason: String| Err(WireError::Field { field, reason });
         if self.route_count as usize > PLAN_MAX_ROUTES {
             return field(
@@ -271,10 +268,7 @@ impl PlanResponse {
     /// Checks magic, version, status and counts.
     pub fn validate(&self) -> Result<PlanStatus, WireError> {
         check_layout(self.magic, self.layout_version)?;
-        let status = PlanStatus::from_u32(self.status).ok_or(WireError::Field {
-            field: "status",
-            reason: format!("unknown value {}", self.status),
-        })?;
+        let status = PlanStatus::from_field(self.status, "status")?;
         if self.route_count as usize > PLAN_MAX_ROUTES
             || self.curve_len as usize > PLAN_CURVE_LEN
             || self.window_count as usize > PLAN_MAX_WINDOWS

@@ -440,6 +440,18 @@ impl<S: StreamType> Input<S> {
     }
 }
 
+/// How a per-camera stage with one input and one output starts: the input of
+/// `camera`'s upstream stream `I`, and the stage `make` builds on the output of
+/// stream `O`.
+pub fn one_in_one_out<'ipc, I: StreamType, O: StreamType, T>(
+    ipc: &'ipc Ipc,
+    camera: &str,
+    make: impl FnOnce(Output<'ipc, O>) -> Result<T, Fatal>,
+) -> Result<(T, Input<I>), Fatal> {
+    let input = Input::open(ipc, camera)?;
+    Ok((make(Output::new(ipc, camera))?, input))
+}
+
 enum OutputPort<'ipc, S: StreamType> {
     Shared {
         ipc: &'ipc Ipc,

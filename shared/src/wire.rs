@@ -302,6 +302,17 @@ macro_rules! u32_enum {
                     _ => None,
                 }
             }
+
+            /// Parses header field `field`, or says that its value is unknown.
+            pub fn from_field(
+                v: u32,
+                field: &'static str,
+            ) -> Result<$name, $crate::wire::WireError> {
+                $name::from_u32(v).ok_or_else(|| $crate::wire::WireError::Field {
+                    field,
+                    reason: format!("unknown value {v}"),
+                })
+            }
         }
     };
 }
@@ -354,10 +365,7 @@ impl FrameHeader {
         if self.preamble.is_end_of_stream() {
             return Ok(());
         }
-        let format = PixelFormat::from_u32(self.pixel_format).ok_or(WireError::Field {
-            field: "pixel_format",
-            reason: format!("unknown value {}", self.pixel_format),
-        })?;
+        let format = PixelFormat::from_field(self.pixel_format, "pixel_format")?;
         let expected = self.width as usize * format.channels();
         if self.stride as usize != expected {
             return Err(WireError::Size {
@@ -617,14 +625,14 @@ impl ActivityKind {
     }
 }
 
-/// Phase of an event record.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u32)]
-pub enum EventPhase {
-    /// The event started.
-    Start = 1,
-    /// The event ended.
-    End = 2,
+u32_enum! {
+    /// Phase of an event record.
+    pub enum EventPhase {
+        /// The event started.
+        Start = 1,
+        /// The event ended.
+        End = 2,
+    }
 }
 
 /// Longest zone name, in bytes.
@@ -668,18 +676,8 @@ impl EventHeader {
         if self.preamble.is_end_of_stream() {
             return Ok(());
         }
-        if ActivityKind::from_u32(self.kind).is_none() {
-            return Err(WireError::Field {
-                field: "kind",
-                reason: format!("unknown value {}", self.kind),
-            });
-        }
-        if !matches!(self.phase, 1 | 2) {
-            return Err(WireError::Field {
-                field: "phase",
-                reason: format!("unknown value {}", self.phase),
-            });
-        }
+        ActivityKind::from_field(self.kind, "kind")?;
+        EventPhase::from_field(self.phase, "phase")?;
         Ok(())
     }
 

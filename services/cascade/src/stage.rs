@@ -11,7 +11,7 @@ use isochron_shared::exit::{self, Classify, Fatal};
 use isochron_shared::geometry::BlockGrid;
 use isochron_shared::ipc::{Activity, Ipc, Motion};
 use isochron_shared::service::ServiceContext;
-use isochron_shared::stage::{Context, Input, Output, Stage, Woken};
+use isochron_shared::stage::{self, Context, Input, Output, Stage, Woken};
 use isochron_shared::store::{Store, StoreMeta, store_path};
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{CameraId, MotionHeader};
@@ -61,9 +61,7 @@ impl<'ipc> CascadeStage<'ipc> {
         loaded: &LoadedConfig,
         camera: &CameraConfig,
     ) -> Result<(Self, Input<Motion>), Fatal> {
-        let input = Input::open(ipc, &camera.id)?;
-        let stage = Self::new(loaded, camera, Output::new(ipc, &camera.id))?;
-        Ok((stage, input))
+        stage::one_in_one_out(ipc, &camera.id, |output| Self::new(loaded, camera, output))
     }
 
     /// The stage of `camera` writing into `output`.

@@ -7,7 +7,7 @@ use isochron_shared::config::{CameraConfig, MotionConfig, Polygon};
 use isochron_shared::exit::{self, Fatal};
 use isochron_shared::ipc::{Frames, Ipc, Motion};
 use isochron_shared::service::ServiceContext;
-use isochron_shared::stage::{Context, Input, Output, Received, SendError, Stage, Woken};
+use isochron_shared::stage::{self, Context, Input, Output, Received, SendError, Stage, Woken};
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{FLAG_ILLUMINATION, FrameHeader, MotionHeader, PixelFormat};
 
@@ -47,9 +47,7 @@ impl<'ipc> MotionStage<'ipc> {
         camera: &CameraConfig,
         config: &MotionConfig,
     ) -> Result<(Self, Input<Frames>), Fatal> {
-        let input = Input::open(ipc, &camera.id)?;
-        let stage = Self::new(camera, config, Output::new(ipc, &camera.id))?;
-        Ok((stage, input))
+        stage::one_in_one_out(ipc, &camera.id, |output| Self::new(camera, config, output))
     }
 
     /// The stage of `camera` writing into `output`.
