@@ -15,7 +15,7 @@ use isochron_shared::ipc::{
 };
 use isochron_shared::wire::{
     ActivityKind, CameraId, DIRECTION_NONE, EventPhase, FLAG_DISCONTINUITY, FLAG_END_OF_STREAM,
-    FLAG_ILLUMINATION, Preamble, Stream,
+    FLAG_ILLUMINATION, Preamble, Stream, StreamHeader,
 };
 use serde_json::{Value, json};
 
@@ -76,12 +76,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
 }
 
-/// Validates a sample of stream `S` and turns it into a [`Line`].
-type Describe<S> = fn(
-    &<S as StreamType>::Header,
-    &[<S as StreamType>::Element],
-    &CameraId,
-) -> Result<Line, String>;
+/// Turns a valid sample of stream `S`, and its [`common`] fields, into a [`Line`].
+type Describe<S> =
+    fn(&<S as StreamType>::Header, &[<S as StreamType>::Element], (String, Value)) -> Line;
 
 fn tap<S: StreamType>(
     ipc: &Ipc,
@@ -95,8 +92,10 @@ fn tap<S: StreamType>(
     let mut seen = 0u64;
     loop {
         while let Some(sample) = subscriber.receive()? {
-            match describe(sample.user_header(), sample.payload(), &camera) {
-                Ok(line) => {
+            let (h, payload) = (sample.user_header(), sample.payload());
+            match h.validate(&camera, payload.len()) {
+                Ok(()) => {
+                    let line = describe(h, payload, common(h.preamble()));
                     if args.json {
                         println!("{}", line.json);
                     } else {
@@ -183,18 +182,15 @@ fn merge(mut base: Value, extra: Value) -> Value {
 fn describe_frame(
     h: &isochron_shared::wire::FrameHeader,
     pixels: &[u8],
-    camera: &CameraId,
-) -> Result<Line, String> {
-    h.validate(camera, pixels.len())
-        .map_err(|e| e.to_string())?;
-    let (text, json) = common(&h.preamble);
+    (text, json): (String, Value),
+) -> Line {
     let mean = if pixels.is_empty() {
         0.0
     } else {
         pixels.iter().map(|&p| p as u64).sum::<u64>() as f64 / pixels.len() as f64
     };
     let checksum = crc32(pixels);
-    Ok(Line {
+    Line {
         text: format!(
             "{text} index={} {}x{} {:?} mean={mean:.1} crc32={checksum:08x}",
             h.source_index,
@@ -208,7 +204,7 @@ fn describe_frame(
                    "pixel_format": format!("{:?}", h.format()), "mean": mean, "crc32": checksum}),
         ),
         end_of_stream: h.preamble.is_end_of_stream(),
-    })
+    }
 }
 
 /// CRC-32 (IEEE) of the pixels, the same checksum tests compute on OpenCV's decode.
@@ -221,11 +217,8 @@ pub fn crc32(bytes: &[u8]) -> u32 {
 fn describe_motion(
     h: &isochron_shared::wire::MotionHeader,
     blocks: &[isochron_shared::wire::BlockMotion],
-    camera: &CameraId,
-) -> Result<Line, String> {
-    h.validate(camera, blocks.len())
-        .map_err(|e| e.to_string())?;
-    let (text, json) = common(&h.preamble);
+    (text, json): (String, Value),
+) -> Line {
     let moving = blocks.iter().filter(|b| b.density > 0.0).count();
     let directed = blocks
         .iter()
@@ -233,7 +226,7 @@ fn describe_motion(
         .count();
     let total: f32 = blocks.iter().map(|b| b.density).sum();
     let max = blocks.iter().map(|b| b.density).fold(0.0f32, f32::max);
-    Ok(Line {
+    Line {
         text: format!(
             "{text} index={} grid={}x{} moving={moving} directed={directed} density_sum={total:.3} max={max:.3} changed={:.2}",
             h.source_index, h.grid_w, h.grid_h, h.changed_fraction
@@ -245,21 +238,18 @@ fn describe_motion(
                    "density_max": max, "changed_fraction": h.changed_fraction}),
         ),
         end_of_stream: h.preamble.is_end_of_stream(),
-    })
+    }
 }
 
 fn describe_activity(
     h: &isochron_shared::wire::ActivityHeader,
     blocks: &[isochron_shared::wire::BlockActivity],
-    camera: &CameraId,
-) -> Result<Line, String> {
-    h.validate(camera, blocks.len())
-        .map_err(|e| e.to_string())?;
-    let (text, json) = common(&h.preamble);
+    (text, json): (String, Value),
+) -> Line {
     let s1: f32 = blocks.iter().map(|b| b.s1).sum();
     let s2: f32 = blocks.iter().map(|b| b.s2).sum();
     let lt: f32 = blocks.iter().map(|b| b.lt_mean).sum();
-    Ok(Line {
+    Line {
         text: format!(
             "{text} t*={} frames={} [{}..{}] s1_sum={s1:.3} s2_sum={s2:.3} lt_mean_sum={lt:.3} model_days={} r={:.2}",
             format_t_star(h.t_star),
@@ -276,23 +266,20 @@ fn describe_activity(
                    "lt_mean_sum": lt, "model_days": h.model_days, "frame_rate": h.frame_rate}),
         ),
         end_of_stream: h.preamble.is_end_of_stream(),
-    })
+    }
 }
 
 fn describe_event(
     h: &isochron_shared::wire::EventHeader,
     blocks: &[u32],
-    camera: &CameraId,
-) -> Result<Line, String> {
-    h.validate(camera, blocks.len())
-        .map_err(|e| e.to_string())?;
-    let (text, json) = common(&h.preamble);
+    (text, json): (String, Value),
+) -> Line {
     if h.preamble.is_end_of_stream() {
-        return Ok(Line {
+        return Line {
             text,
             json,
             end_of_stream: true,
-        });
+        };
     }
     let phase = if h.phase == EventPhase::Start as u32 {
         "start"
@@ -302,7 +289,7 @@ fn describe_event(
     let kind = ActivityKind::from_u32(h.kind)
         .map(|k| k.name())
         .unwrap_or("?");
-    Ok(Line {
+    Line {
         text: format!(
             "{text} event={} {phase} zone={} kind={kind} start={} end={} frames={}..{} peak={:.3} threshold={:.3} blocks={}",
             h.event_id,
@@ -327,22 +314,20 @@ fn describe_event(
                    "threshold": h.threshold, "blocks": blocks}),
         ),
         end_of_stream: false,
-    })
+    }
 }
 
 fn describe_detections(
     h: &isochron_shared::wire::DetectionHeader,
     dets: &[isochron_shared::wire::Detection],
-    camera: &CameraId,
-) -> Result<Line, String> {
-    h.validate(camera, dets.len()).map_err(|e| e.to_string())?;
-    let (text, json) = common(&h.preamble);
+    (text, json): (String, Value),
+) -> Line {
     let saved = if h.frames_seen > 0 {
         1.0 - h.frames_detected as f64 / h.frames_seen as f64
     } else {
         0.0
     };
-    Ok(Line {
+    Line {
         text: format!(
             "{text} event={} index={} people={} detector_ms={:.1} seen={} detected={} dropped_jobs={} saved={:.1}%",
             h.event_id,
@@ -363,5 +348,5 @@ fn describe_detections(
                    "detector_total_ms": h.detector_total_us as f64 / 1e3}),
         ),
         end_of_stream: h.preamble.is_end_of_stream(),
-    })
+    }
 }

@@ -312,13 +312,13 @@ impl Bin {
     }
 
     fn crc(&self) -> u32 {
-        let mut h = crc32fast::Hasher::new();
-        h.update(&self.t_star.to_le_bytes());
-        h.update(&self.count.to_le_bytes());
-        h.update(&self.last_minute.to_le_bytes());
-        h.update(&f32_bytes(&self.mean));
-        h.update(&f32_bytes(&self.var));
-        h.finalize()
+        crc_of(&[
+            &self.t_star.to_le_bytes(),
+            &self.count.to_le_bytes(),
+            &self.last_minute.to_le_bytes(),
+            &f32_bytes(&self.mean),
+            &f32_bytes(&self.var),
+        ])
     }
 }
 
@@ -337,12 +337,12 @@ pub struct Baseline {
 
 impl Baseline {
     fn crc(&self) -> u32 {
-        let mut h = crc32fast::Hasher::new();
-        h.update(&self.capture_ns.to_le_bytes());
-        h.update(&self.frames.to_le_bytes());
-        h.update(&self.frame_rate.to_le_bytes());
-        h.update(&f32_bytes(&self.level));
-        h.finalize()
+        crc_of(&[
+            &self.capture_ns.to_le_bytes(),
+            &self.frames.to_le_bytes(),
+            &self.frame_rate.to_le_bytes(),
+            &f32_bytes(&self.level),
+        ])
     }
 }
 
@@ -1010,6 +1010,15 @@ impl RawBin {
         }
         Ok(bin)
     }
+}
+
+/// CRC-32 of `parts`, one after the other.
+fn crc_of(parts: &[&[u8]]) -> u32 {
+    let mut h = crc32fast::Hasher::new();
+    for part in parts {
+        h.update(part);
+    }
+    h.finalize()
 }
 
 fn f32_bytes(values: &[f32]) -> Vec<u8> {
