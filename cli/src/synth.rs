@@ -193,13 +193,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             deliver(&mut motion, eos, &[], &mut cascade, &pb)?;
             since = Instant::now();
         }
-        if since.elapsed() > STALL {
-            bail!(
-                "the cascade did not finish within {} s after the end of stream; see {}",
-                STALL.as_secs(),
-                cascade.log.display()
-            );
-        }
+        cascade.stalled(since, "did not finish after the end of stream")?;
         std::thread::sleep(Duration::from_millis(10));
     }
     let wall = started.elapsed();
@@ -260,13 +254,7 @@ fn deliver(
         }
         again += 1;
         cascade.check(motion, pb)?;
-        if since.elapsed() > STALL {
-            bail!(
-                "the cascade took no frame for {} s; see {}",
-                STALL.as_secs(),
-                cascade.log.display()
-            );
-        }
+        cascade.stalled(since, "took no frame")?;
         std::thread::sleep(Duration::from_millis(2));
     }
 }
@@ -620,6 +608,19 @@ struct CascadeProc {
 }
 
 impl CascadeProc {
+    /// Errors, saying the cascade `what` and where its log is, once [`STALL`] has
+    /// passed since `since`.
+    fn stalled(&self, since: Instant, what: &str) -> anyhow::Result<()> {
+        if since.elapsed() > STALL {
+            bail!(
+                "the cascade {what} within {} s; see {}",
+                STALL.as_secs(),
+                self.log.display()
+            );
+        }
+        Ok(())
+    }
+
     fn new(config: &Path, camera: &str, log: &Path) -> anyhow::Result<Self> {
         let program = crate::launch::bin_dir().join(StageKind::Cascade.binary());
         if !program.is_file() {
