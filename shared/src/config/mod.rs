@@ -166,6 +166,23 @@ impl LoadedConfig {
         config
     }
 
+    /// Valid settings a site probably does not want (e.g. `costmap.cap = 100`),
+    /// located in the file like errors: services log them at load.
+    pub fn warnings(&self) -> Vec<ConfigError> {
+        let text = std::fs::read_to_string(&self.path).unwrap_or_default();
+        self.config
+            .costmap
+            .warnings()
+            .into_iter()
+            .map(|w| ConfigError {
+                file: self.path.clone(),
+                line: line_of_key(&text, &w.key),
+                key: Some(w.key),
+                message: w.message,
+            })
+            .collect()
+    }
+
     /// `site.state_dir`, resolved against the config file's directory.
     pub fn state_dir(&self) -> PathBuf {
         let dir = &self.config.site.state_dir;

@@ -188,3 +188,40 @@ fn self_crossing_polygons_are_rejected_with_line_and_key() {
     parse(&mask.replace(bow_tie, square)).unwrap();
     parse(&zone.replace(bow_tie, square)).unwrap();
 }
+
+#[test]
+fn lethal_cap_and_map_yaw_are_warned_with_line_and_key() {
+    let c = parse(GOOD).unwrap();
+    assert_eq!(c.costmap.cap, 99, "activity is never lethal by default");
+    assert!(c.costmap.publish_unknown);
+    assert!(c.costmap.warnings().is_empty());
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("site.toml");
+    std::fs::write(
+        &path,
+        format!("{GOOD}\n[costmap]\ncap = 100\norigin_yaw_rad = 0.5\nwidth_cells = 10\nheight_cells = 10\n"),
+    )
+    .unwrap();
+    let loaded = Config::load(&path).unwrap();
+    let warnings: Vec<String> = loaded.warnings().iter().map(|w| w.to_string()).collect();
+    assert_eq!(warnings.len(), 2, "{warnings:?}");
+    let line = |key: &str| {
+        GOOD.lines().count()
+            + 2
+            + ["cap", "origin_yaw_rad"]
+                .iter()
+                .position(|k| *k == key)
+                .unwrap()
+            + 1
+    };
+    assert!(
+        warnings[0].contains(&format!("site.toml:{}: key `costmap.cap`", line("cap")))
+            && warnings[0].contains("lethal"),
+        "{warnings:?}"
+    );
+    assert!(
+        warnings[1].contains("key `costmap.origin_yaw_rad`") && warnings[1].contains("ignores"),
+        "{warnings:?}"
+    );
+    assert!(parse(&format!("{GOOD}\n[costmap]\ncap = 101\n")).is_err());
+}
