@@ -8,8 +8,9 @@
 //! * [`bridge`]: the service's state between samples (latest activity, confirmed
 //!   people, staleness);
 //! * [`delta`]: full grid or changed rectangle, each tick;
-//! * [`msgs`], [`ros`]: `nav_msgs/OccupancyGrid` and `map_msgs/OccupancyGridUpdate`
-//!   over DDS in pure Rust;
+//! * [`msgs`], [`ros`]: `nav_msgs/OccupancyGrid`, `map_msgs/OccupancyGridUpdate`,
+//!   people as `geometry_msgs/PoseArray` and site markers over DDS in pure Rust;
+//! * [`markers`]: camera footprints, zones, segments and routes for rviz2;
 //! * [`snapshot`]: `map_server` PGM + YAML and a PNG picture;
 //! * [`stage`]: the service's stage for the runtime (every camera's `activity` and
 //!   `detections` in, the cost map out, planning requests answered).
@@ -19,6 +20,7 @@
 
 pub mod bridge;
 pub mod delta;
+pub mod markers;
 pub mod msgs;
 pub mod ros;
 pub mod snapshot;

@@ -1,11 +1,13 @@
 //! The ROS 2 messages the bridge publishes, as plain serde structs in CDR field
 //! order (the order of the `.msg` definitions), so that any DDS implementation reads
-//! them as `nav_msgs/msg/OccupancyGrid` and `map_msgs/msg/OccupancyGridUpdate`.
+//! them as `nav_msgs/msg/OccupancyGrid`, `map_msgs/msg/OccupancyGridUpdate`,
+//! `geometry_msgs/msg/PoseArray` and `visualization_msgs/msg/MarkerArray` (Jazzy's
+//! definition, the release `ros2-client` is built for).
 //!
 //! No ROS install is needed: the DDS type names are
-//! `nav_msgs::msg::dds_::OccupancyGrid_` and `map_msgs::msg::dds_::OccupancyGridUpdate_`,
-//! and the serialised form is plain (XCDR1) little-endian CDR, which is what every
-//! ROS 2 DDS middleware exchanges.
+//! `<package>::msg::dds_::<Type>_` and the serialised form is plain (XCDR1)
+//! little-endian CDR, which is what every ROS 2 DDS middleware exchanges. All the
+//! bridge's ROS 2 types live here.
 
 use serde::{Deserialize, Serialize};
 
@@ -128,6 +130,149 @@ pub struct OccupancyGridUpdate {
     pub height: u32,
     /// The rectangle's cells, row-major.
     pub data: Vec<i8>,
+}
+
+/// `geometry_msgs/msg/PoseArray`: poses in one frame at one time.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PoseArray {
+    /// Stamp and frame.
+    pub header: Header,
+    /// The poses.
+    pub poses: Vec<Pose>,
+}
+
+/// `geometry_msgs/msg/Vector3`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Vector3 {
+    /// x.
+    pub x: f64,
+    /// y.
+    pub y: f64,
+    /// z.
+    pub z: f64,
+}
+
+/// `std_msgs/msg/ColorRGBA`, components 0..=1.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct ColorRGBA {
+    /// Red.
+    pub r: f32,
+    /// Green.
+    pub g: f32,
+    /// Blue.
+    pub b: f32,
+    /// Opacity.
+    pub a: f32,
+}
+
+/// `builtin_interfaces/msg/Duration`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RosDuration {
+    /// Seconds.
+    pub sec: i32,
+    /// Nanoseconds within the second.
+    pub nanosec: u32,
+}
+
+/// `sensor_msgs/msg/CompressedImage` (a marker's texture; the bridge sends none).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct CompressedImage {
+    /// Stamp and frame.
+    pub header: Header,
+    /// `jpeg`, `png`, ...
+    pub format: String,
+    /// The image file's bytes.
+    pub data: Vec<u8>,
+}
+
+/// `visualization_msgs/msg/UVCoordinate`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct UvCoordinate {
+    /// u.
+    pub u: f32,
+    /// v.
+    pub v: f32,
+}
+
+/// `visualization_msgs/msg/MeshFile`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct MeshFile {
+    /// File name.
+    pub filename: String,
+    /// Its bytes.
+    pub data: Vec<u8>,
+}
+
+/// `visualization_msgs/msg/Marker` (Jazzy: with the texture and mesh fields that
+/// Iron added).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Marker {
+    /// Stamp and frame.
+    pub header: Header,
+    /// Namespace: with `id`, what a later marker replaces.
+    pub ns: String,
+    /// Id within the namespace.
+    pub id: i32,
+    /// [`Marker::LINE_STRIP`], [`Marker::TEXT_VIEW_FACING`], ...
+    #[serde(rename = "type")]
+    pub kind: i32,
+    /// [`Marker::ADD`] or [`Marker::DELETEALL`].
+    pub action: i32,
+    /// Pose of the marker's frame.
+    pub pose: Pose,
+    /// Line width (`x`), text height (`z`), metres.
+    pub scale: Vector3,
+    /// Colour.
+    pub color: ColorRGBA,
+    /// 0: forever.
+    pub lifetime: RosDuration,
+    /// Follow the frame.
+    pub frame_locked: bool,
+    /// Line strip points.
+    pub points: Vec<Point>,
+    /// Per-point colours (none).
+    pub colors: Vec<ColorRGBA>,
+    /// Texture resource (none).
+    pub texture_resource: String,
+    /// Texture (none).
+    pub texture: CompressedImage,
+    /// Texture coordinates (none).
+    pub uv_coordinates: Vec<UvCoordinate>,
+    /// Text of a text marker.
+    pub text: String,
+    /// Mesh resource (none).
+    pub mesh_resource: String,
+    /// Mesh (none).
+    pub mesh_file: MeshFile,
+    /// Mesh materials (no).
+    pub mesh_use_embedded_materials: bool,
+}
+
+impl Marker {
+    /// `type` of a line through `points`.
+    pub const LINE_STRIP: i32 = 4;
+    /// `type` of a text label facing the viewer.
+    pub const TEXT_VIEW_FACING: i32 = 9;
+    /// `action`: add or replace.
+    pub const ADD: i32 = 0;
+    /// `action`: delete every marker of this publisher's namespace set.
+    pub const DELETEALL: i32 = 3;
+}
+
+impl Default for Pose {
+    fn default() -> Self {
+        Pose {
+            position: Point::default(),
+            orientation: Quaternion::from_yaw(0.0),
+        }
+    }
+}
+
+/// `visualization_msgs/msg/MarkerArray`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct MarkerArray {
+    /// The markers.
+    pub markers: Vec<Marker>,
 }
 
 #[cfg(test)]

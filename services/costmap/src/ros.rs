@@ -5,7 +5,13 @@
 //!   bridge) gets the current grid at once;
 //! * `<topic>_updates` (or `costmap.updates_topic`): `map_msgs/msg/OccupancyGridUpdate`,
 //!   reliable, volatile, keep last 10 — deltas relative to the last full grid, which
-//!   is what Nav2's StaticLayer subscribes to with `subscribe_to_updates: true`.
+//!   is what Nav2's StaticLayer subscribes to with `subscribe_to_updates: true`;
+//! * `costmap.people_topic`: `geometry_msgs/msg/PoseArray`, reliable, volatile, keep
+//!   last 10 — the people the detector confirmed, one message per detected frame,
+//!   stamped with its capture time;
+//! * `costmap.markers_topic`: `visualization_msgs/msg/MarkerArray`, reliable,
+//!   transient-local, keep last 1 — camera footprints, zones, path segments and
+//!   routes for rviz2 / Foxglove, latched.
 //!
 //! The DDS participant joins `costmap.ros_domain_id` (else `$ROS_DOMAIN_ID`, else 0)
 //! and uses the network interfaces of `costmap.dds_interfaces` (else all; only
@@ -25,7 +31,7 @@ use rustdds::{
     DomainParticipantBuilder, QosPolicies, QosPolicyBuilder, TopicDescription, TopicKind, policy,
 };
 
-use crate::msgs::{OccupancyGrid, OccupancyGridUpdate};
+use crate::msgs::{MarkerArray, OccupancyGrid, OccupancyGridUpdate, PoseArray};
 
 /// Highest DDS domain id whose RTPS ports fit in 16 bits.
 pub const MAX_DOMAIN_ID: u16 = 232;
@@ -33,6 +39,8 @@ pub const MAX_DOMAIN_ID: u16 = 232;
 const GRID_DEPTH: i32 = 1;
 /// Updates kept for slow readers.
 const UPDATES_DEPTH: i32 = 10;
+/// People messages kept for slow readers.
+const PEOPLE_DEPTH: i32 = 10;
 /// How long `publish` waits for a full reliable send window before it gives up.
 const MAX_BLOCKING: Duration = Duration::from_millis(50);
 
@@ -47,6 +55,10 @@ pub struct RosSettings {
     pub topic: String,
     /// The updates topic, e.g. `/isochron/activity_costmap_updates`.
     pub updates_topic: String,
+    /// The people topic, e.g. `/isochron/people`.
+    pub people_topic: String,
+    /// The markers topic, e.g. `/isochron/markers`.
+    pub markers_topic: String,
 }
 
 /// Why ROS 2 output could not start.
@@ -112,6 +124,8 @@ pub fn topic_name(name: &str) -> Result<Name, RosError> {
 pub struct RosOutput {
     grid: Publisher<OccupancyGrid>,
     updates: Publisher<OccupancyGridUpdate>,
+    people: Publisher<PoseArray>,
+    markers: Publisher<MarkerArray>,
     /// The grid topic's DDS name (`rt/...`) and the QoS its writer offers: what
     /// RustDDS matches remote readers against.
     grid_match: (String, QosPolicies),
@@ -130,6 +144,8 @@ impl RosOutput {
         };
         let grid_topic_name = topic_name(&settings.topic)?;
         let updates_topic_name = topic_name(&settings.updates_topic)?;
+        let people_topic_name = topic_name(&settings.people_topic)?;
+        let markers_topic_name = topic_name(&settings.markers_topic)?;
         let mut builder = DomainParticipantBuilder::new(settings.domain_id);
         if !settings.interfaces.is_empty() {
             builder = builder.with_only_networks(settings.interfaces.iter().copied());
@@ -171,6 +187,26 @@ impl RosOutput {
             UPDATES_DEPTH,
         )
         .map_err(|e| dds(format!("creating topic {}: {e:?}", settings.updates_topic)))?;
+        let people_topic = create_topic(
+            &context,
+            &node_name,
+            &people_topic_name,
+            "geometry_msgs",
+            "PoseArray",
+            Durability::Volatile,
+            PEOPLE_DEPTH,
+        )
+        .map_err(|e| dds(format!("creating topic {}: {e:?}", settings.people_topic)))?;
+        let markers_topic = create_topic(
+            &context,
+            &node_name,
+            &markers_topic_name,
+            "visualization_msgs",
+            "MarkerArray",
+            Durability::TransientLocal,
+            GRID_DEPTH,
+        )
+        .map_err(|e| dds(format!("creating topic {}: {e:?}", settings.markers_topic)))?;
         // RustDDS gives a writer the ROS default publisher's QoS overridden by the
         // topic's (`Publisher::create_datawriter`).
         let grid_match = (
@@ -183,6 +219,12 @@ impl RosOutput {
         let updates = node
             .create_publisher::<OccupancyGridUpdate>(&updates_topic, None)
             .map_err(|e| dds(format!("creating the updates publisher: {e:?}")))?;
+        let people = node
+            .create_publisher::<PoseArray>(&people_topic, None)
+            .map_err(|e| dds(format!("creating the people publisher: {e:?}")))?;
+        let markers = node
+            .create_publisher::<MarkerArray>(&markers_topic, None)
+            .map_err(|e| dds(format!("creating the markers publisher: {e:?}")))?;
 
         // The spinner keeps the node visible in the ROS graph (`ros2 node list`) and
         // answers its discovery traffic; it ends when the node is dropped.
@@ -201,6 +243,8 @@ impl RosOutput {
         Ok(RosOutput {
             grid,
             updates,
+            people,
+            markers,
             grid_match,
             _node: node,
             _spinner: spinner,
@@ -218,6 +262,20 @@ impl RosOutput {
     /// Publishes a delta.
     pub fn publish_update(&self, update: OccupancyGridUpdate) -> Result<(), PublishError> {
         self.updates.publish(update).map_err(|e| PublishError {
+            detail: format!("{e:?}"),
+        })
+    }
+
+    /// Publishes the people of one detected frame.
+    pub fn publish_people(&self, people: PoseArray) -> Result<(), PublishError> {
+        self.people.publish(people).map_err(|e| PublishError {
+            detail: format!("{e:?}"),
+        })
+    }
+
+    /// Publishes (and latches) the markers.
+    pub fn publish_markers(&self, markers: MarkerArray) -> Result<(), PublishError> {
+        self.markers.publish(markers).map_err(|e| PublishError {
             detail: format!("{e:?}"),
         })
     }

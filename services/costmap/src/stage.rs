@@ -20,8 +20,10 @@ use isochron_shared::topology::StageKind;
 
 use crate::bridge::{Bridge, count_non_finite};
 use crate::delta::{DeltaTracker, Output};
+use crate::markers::{marker_key, site_markers};
 use crate::msgs::{
-    Header, MapMetaData, OccupancyGrid, OccupancyGridUpdate, Point, Pose, Quaternion, Time,
+    Header, MapMetaData, OccupancyGrid, OccupancyGridUpdate, Point, Pose, PoseArray, Quaternion,
+    Time,
 };
 use crate::ros::{RosOutput, RosSettings, domain_id, interfaces, limit_dds_logging};
 use crate::snapshot::{self, FloorPlan, Snapshot, SnapshotError};
@@ -38,6 +40,8 @@ struct Counters {
     plans: u64,
     snapshots: u64,
     confirmed: u64,
+    people: u64,
+    markers: u64,
 }
 
 /// The ROS 2 side: the output and what was sent.
@@ -46,6 +50,10 @@ struct Ros {
     tracker: DeltaTracker,
     geometry: u64,
     frame_id: String,
+    /// `costmap.publish_unknown`: false sends 0 instead of -1.
+    publish_unknown: bool,
+    /// The camera frame sizes the last markers were drawn with (`None`: none sent).
+    markers_sent: Option<Vec<Option<(u32, u32)>>>,
 }
 
 /// The cost-map stage's inputs: every camera's activity, every camera's
@@ -82,6 +90,9 @@ impl CostmapStage {
         let config_error =
             |e: String| Fatal::new(exit::CONFIG, format!("{}: {e}", loaded.path.display()));
 
+        for warning in loaded.warnings() {
+            tracing::warn!("{warning}");
+        }
         let grid = MapGrid::from_config(loaded).map_err(|e| config_error(e.to_string()))?;
         let bridge =
             Bridge::new(loaded, grid).map_err(|e| Fatal::from(e).context(loaded.path.display()))?;
@@ -125,6 +136,8 @@ impl CostmapStage {
                     ),
                     topic: c.topic.clone(),
                     updates_topic: c.updates_topic(),
+                    people_topic: c.people_topic.clone(),
+                    markers_topic: c.markers_topic.clone(),
                 };
                 limit_dds_logging();
                 let output = RosOutput::start(&settings)?;
@@ -148,6 +161,8 @@ impl CostmapStage {
                     tracker: DeltaTracker::new(Duration::from_secs_f64(c.full_every_s)),
                     geometry: geometry_key(grid),
                     frame_id: c.frame_id.clone(),
+                    publish_unknown: c.publish_unknown,
+                    markers_sent: None,
                 })
             }
             None => {
@@ -215,6 +230,16 @@ impl Stage for CostmapStage {
                 if !h.preamble.is_end_of_stream() {
                     let (placed, bad) = self.bridge.on_detections(k, &h, sample.payload());
                     self.counters.confirmed += placed as u64;
+                    if let Some(ros) = &self.ros {
+                        publish_people(
+                            ros,
+                            &self.bridge,
+                            k,
+                            placed,
+                            h.preamble.capture_time_ns,
+                            &mut self.counters,
+                        );
+                    }
                     count_non_finite(cx, &self.bridge, k, "detection boxes", bad);
                 }
             }
@@ -252,13 +277,38 @@ impl Stage for CostmapStage {
                 self.next_publish = now + self.period;
             }
             if let (Some(ros), Some(grid)) = (&mut self.ros, &self.bridge.grid)
-                && let Some(cells) = self.bridge.compose(now)
+                && let Some(mut cells) = self.bridge.compose(now)
             {
+                if !ros.publish_unknown {
+                    unknown_as_free(&mut cells);
+                }
                 let stamp_ns = self.bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
                 if publish(ros, grid, &cells, stamp_ns, now, &mut self.counters) {
                     let (arrived, origin) =
                         self.newest_arrival.map_or((None, 0), |(a, o)| (Some(a), o));
                     cx.health.sent(arrived, origin);
+                }
+            }
+        }
+        if let Some(ros) = &mut self.ros {
+            let key = marker_key(&self.loaded, &self.bridge);
+            if ros.markers_sent.as_ref() != Some(&key) {
+                let header = Header {
+                    stamp: Time::from_utc_ns(wall_now_ns()),
+                    frame_id: ros.frame_id.clone(),
+                };
+                match ros
+                    .output
+                    .publish_markers(site_markers(&self.loaded, &self.bridge, &header))
+                {
+                    Ok(()) => {
+                        self.counters.markers += 1;
+                        ros.markers_sent = Some(key);
+                    }
+                    Err(e) => {
+                        self.counters.publish_errors += 1;
+                        tracing::warn!("publishing the markers failed: {e}");
+                    }
                 }
             }
         }
@@ -296,7 +346,7 @@ impl Stage for CostmapStage {
             .count();
         let c = &self.counters;
         format!(
-            "cameras_live={live}/{} grids={} updates={} ros_subscribers={} publish_errors={} plans={} snapshots={} confirmed={}",
+            "cameras_live={live}/{} grids={} updates={} ros_subscribers={} publish_errors={} plans={} snapshots={} confirmed={} people_msgs={} markers={}",
             bridge.cameras.len(),
             c.grids,
             c.updates,
@@ -304,7 +354,9 @@ impl Stage for CostmapStage {
             c.publish_errors,
             c.plans,
             c.snapshots,
-            c.confirmed
+            c.confirmed,
+            c.people,
+            c.markers
         )
     }
 }
@@ -317,6 +369,57 @@ fn geometry_key(grid: &MapGrid) -> u64 {
         v.to_bits().hash(&mut h);
     }
     h.finish()
+}
+
+/// Publishes the `placed` people camera `k`'s detected frame (capture time
+/// `capture_ns`) just added to the bridge, as a `PoseArray` in the map frame.
+fn publish_people(
+    ros: &Ros,
+    bridge: &Bridge,
+    k: usize,
+    placed: usize,
+    capture_ns: i64,
+    counters: &mut Counters,
+) {
+    let Some(cam) = bridge.cameras.get(k) else {
+        return;
+    };
+    let mut poses: Vec<Pose> = cam
+        .confirmed
+        .iter()
+        .rev()
+        .take(placed)
+        .map(|(_, p)| Pose {
+            position: Point {
+                x: p[0],
+                y: p[1],
+                z: 0.0,
+            },
+            orientation: Quaternion::from_yaw(0.0),
+        })
+        .collect();
+    poses.reverse();
+    let people = PoseArray {
+        header: Header {
+            stamp: Time::from_utc_ns(capture_ns),
+            frame_id: ros.frame_id.clone(),
+        },
+        poses,
+    };
+    match ros.output.publish_people(people) {
+        Ok(()) => counters.people += 1,
+        Err(e) => {
+            counters.publish_errors += 1;
+            tracing::warn!("publishing people failed: {e}");
+        }
+    }
+}
+
+/// Sets the unknown (-1) cells to 0, for `costmap.publish_unknown = false`.
+pub fn unknown_as_free(cells: &mut [i8]) {
+    for c in cells.iter_mut().filter(|c| **c < 0) {
+        *c = 0;
+    }
 }
 
 /// Publishes what the tracker decides; true if something went out.

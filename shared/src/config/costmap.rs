@@ -35,7 +35,9 @@ pub struct CostmapConfig {
     pub origin_x_m: Option<f64>,
     /// y of the grid's corner in the map frame, metres. Default 0.
     pub origin_y_m: Option<f64>,
-    /// Rotation of the grid about z, radians. Default 0.
+    /// Rotation of the grid about z, radians. Default 0. Nav2's StaticLayer ignores
+    /// a map origin's yaw (the grid lands unrotated): a non-zero value is warned
+    /// at load.
     pub origin_yaw_rad: Option<f64>,
     /// `header.frame_id` of the grid. Default `"map"`.
     pub frame_id: String,
@@ -45,6 +47,14 @@ pub struct CostmapConfig {
     /// ROS 2 topic of the deltas (`map_msgs/msg/OccupancyGridUpdate`). Default
     /// `<topic>_updates`, where Nav2's StaticLayer looks for them.
     pub updates_topic: Option<String>,
+    /// ROS 2 topic of the people the detector confirmed
+    /// (`geometry_msgs/msg/PoseArray` in `frame_id`, stamped with the detected
+    /// frame's capture time). Default `"/isochron/people"`.
+    pub people_topic: String,
+    /// ROS 2 topic of the camera footprints, zones, segments and routes
+    /// (`visualization_msgs/msg/MarkerArray`, transient-local). Default
+    /// `"/isochron/markers"`.
+    pub markers_topic: String,
     /// Publish rate, Hz. Default 1.
     pub publish_hz: f64,
     /// The full grid is republished at least this often, seconds, while deltas went
@@ -69,17 +79,29 @@ pub struct CostmapConfig {
     /// PETS demo: a median active cell costs about 10, the busiest 5 % reach 100);
     /// tune per site with `isochron costmap snapshot`.
     pub cost_scale: f64,
-    /// Highest cost activity can give a cell, 1 to 100 (Nav2 reads 100 as lethal,
-    /// the paper's "people cost as much as walls"; lower it to make busy areas
-    /// expensive but passable). Default 100.
+    /// Highest cost activity can give a cell, 1 to 100. Default 99: busy areas are
+    /// expensive but passable. Nav2's StaticLayer reads 100 (`lethal_cost_threshold`
+    /// in the snippet) as LETHAL_OBSTACLE, so `cap = 100` makes a busy aisle a wall
+    /// (the paper's "people cost as much as walls"); it is allowed, with a warning
+    /// at load.
     pub cap: u8,
     /// A person the detector confirmed raises the cells within this radius of their
     /// feet, metres. Default 0.5.
     pub confirm_radius_m: f64,
     /// ... for this long after the detected frame (capture time), seconds. Default 5.
     pub confirm_hold_s: f64,
-    /// ... to at least this cost, 0 to 100. Default: `cap`.
+    /// ... to at least this cost, 0 to 100 (100 is lethal in Nav2: warned at
+    /// load). Default: `cap`.
     pub confirm_cost: Option<u8>,
+    /// Publish -1 (unknown) where no camera sees. Default true: right for a global
+    /// costmap with `track_unknown_space` and `use_maximum` (Nav2 skips unknown
+    /// cells there), and for a local (rolling) costmap on Nav2 releases whose
+    /// StaticLayer skips unknown cells in rolling mode too (`main` since
+    /// ros-navigation/navigation2 PR #6516, Sept 2026).
+    /// `false` publishes 0 there instead: for a local costmap on Humble, Iron or
+    /// Jazzy, whose rolling StaticLayer takes `max(cost, 255)` and so would wipe
+    /// the obstacle layer wherever no camera sees (README, "Nav2").
+    pub publish_unknown: bool,
     /// A camera whose activity stopped arriving this long ago (wall clock) no
     /// longer counts as seeing: its cells turn unknown (-1), seconds. Default 10.
     pub stale_s: f64,
@@ -120,6 +142,8 @@ impl Default for CostmapConfig {
             frame_id: "map".into(),
             topic: "/isochron/activity_costmap".into(),
             updates_topic: None,
+            people_topic: "/isochron/people".into(),
+            markers_topic: "/isochron/markers".into(),
             publish_hz: 1.0,
             full_every_s: 10.0,
             ros_domain_id: None,
@@ -128,10 +152,11 @@ impl Default for CostmapConfig {
             weight_moving: 1.0,
             weight_long_term: 0.5,
             cost_scale: 0.2,
-            cap: 100,
+            cap: 99,
             confirm_radius_m: 0.5,
             confirm_hold_s: 5.0,
             confirm_cost: None,
+            publish_unknown: true,
             stale_s: 10.0,
             snapshot_dir: None,
             snapshot_every_s: 0.0,
@@ -297,6 +322,8 @@ impl CostmapConfig {
         for (key, topic) in [
             ("costmap.topic", Some(&self.topic)),
             ("costmap.updates_topic", self.updates_topic.as_ref()),
+            ("costmap.people_topic", Some(&self.people_topic)),
+            ("costmap.markers_topic", Some(&self.markers_topic)),
         ] {
             if let Some(topic) = topic
                 && !is_valid_ros_topic(topic)
@@ -420,6 +447,33 @@ impl CostmapConfig {
             }
         }
         Ok(())
+    }
+}
+
+impl CostmapConfig {
+    /// Settings that are valid but probably not what a site wants on Nav2 robots,
+    /// as (key, why): logged at load by the cost map bridge.
+    pub fn warnings(&self) -> Vec<Invalid> {
+        let mut out = Vec::new();
+        if self.cap >= 100 {
+            out.push(Invalid::new(
+                "costmap.cap",
+                "100 makes busy cells lethal in Nav2 (StaticLayer maps 100 to LETHAL_OBSTACLE): a robot with no other way is stuck; use 99 or less unless people must block the way",
+            ));
+        }
+        if self.confirm_cost.is_some_and(|c| c >= 100) {
+            out.push(Invalid::new(
+                "costmap.confirm_cost",
+                "100 makes the cells around a confirmed person lethal in Nav2: use 99 or less unless people must block the way",
+            ));
+        }
+        if self.origin_yaw_rad.is_some_and(|y| y != 0.0) {
+            out.push(Invalid::new(
+                "costmap.origin_yaw_rad",
+                "Nav2 ignores a map origin's yaw: its costmaps place the grid unrotated, so activity lands in the wrong place; rotate the map frame instead (a static transform) and set 0",
+            ));
+        }
+        out
     }
 }
 
