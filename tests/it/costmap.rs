@@ -14,9 +14,11 @@ use std::time::{Duration, Instant};
 
 use isochron_shared::clock::{Cycle, NS_PER_S, parse_rfc3339, wall_now_ns};
 use isochron_shared::geometry::BlockGrid;
-use isochron_shared::ipc::{Activity, Ipc, StreamPublisher};
+use isochron_shared::ipc::{Activity, Detections, Ipc, StreamPublisher};
 use isochron_shared::store::{Bin, MinuteCommit, Store, StoreMeta, store_path};
-use isochron_shared::wire::{ActivityHeader, BlockActivity, CameraId, Preamble, Stream};
+use isochron_shared::wire::{
+    ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader, Preamble, Stream,
+};
 use isochron_tests::{Proc, TestSite, bin, repo_root, setup_file};
 use serde_json::Value;
 
@@ -243,6 +245,19 @@ fn held_grid(msgs: &[Value]) -> Option<Vec<i64>> {
 }
 
 fn listener(domain: u16, updates: bool, grids: u32, timeout_s: u32) -> Proc {
+    let mut args = vec![];
+    if updates {
+        args.push("--updates".into());
+    }
+    if grids > 0 {
+        args.push("--grids".into());
+        args.push(grids.to_string());
+    }
+    listener_with(domain, timeout_s, &args)
+}
+
+/// The listener on the grid topic with `extra` arguments.
+fn listener_with(domain: u16, timeout_s: u32, extra: &[String]) -> Proc {
     let script = repo_root().join("tests/ros2/costmap_listener.py");
     let mut args = vec![
         script.display().to_string(),
@@ -253,13 +268,7 @@ fn listener(domain: u16, updates: bool, grids: u32, timeout_s: u32) -> Proc {
         "--timeout".into(),
         timeout_s.to_string(),
     ];
-    if updates {
-        args.push("--updates".into());
-    }
-    if grids > 0 {
-        args.push("--grids".into());
-        args.push(grids.to_string());
-    }
+    args.extend(extra.iter().cloned());
     Proc::spawn(&python(), &args)
 }
 
@@ -759,5 +768,207 @@ fn the_bridge_binds_the_documented_dds_sockets() {
     assert!(
         sockets.iter().all(|(addr, _)| addr == "0.0.0.0"),
         "RustDDS binds specific addresses now (see this test's doc): {sockets:?}"
+    );
+}
+
+/// The extra topics of the bridge as the peer asks for them (the defaults).
+fn extra_topics() -> Vec<String> {
+    [
+        "--updates",
+        "--people",
+        "/isochron/people",
+        "--markers",
+        "/isochron/markers",
+        "--speed-info",
+        "/isochron/speed_filter_info",
+        "--speed-mask",
+        "/isochron/speed_mask",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect()
+}
+
+/// Publishes one detected frame of cam01 with one person whose feet are at floor
+/// point `feet`, captured at `capture_ns`.
+fn send_person(publisher: &mut StreamPublisher<Detections>, feet: [f64; 2], capture_ns: i64) {
+    let [u, v] = floor_to_image(feet);
+    let d = Detection {
+        x: (u - 10.0) as f32,
+        y: (v - 40.0) as f32,
+        w: 20.0,
+        h: 40.0,
+        score: 1.0,
+        class: 0,
+    };
+    let mut preamble = Preamble::new::<Detection>(
+        Stream::Detections,
+        CameraId::new("cam01").unwrap(),
+        publisher.next_sequence(),
+        1,
+    );
+    preamble.capture_time_ns = capture_ns;
+    preamble.origin_wall_ns = wall_now_ns();
+    let header = DetectionHeader {
+        preamble,
+        ..Default::default()
+    };
+    publisher.send_copy(header, &[d]).unwrap();
+}
+
+/// The newest message of `kind`.
+fn last<'a>(msgs: &'a [Value], kind: &str) -> Option<&'a Value> {
+    msgs.iter().rev().find(|m| m["kind"] == kind)
+}
+
+/// Cost 60 (busy), 99 (crowded, capped from 100) and 20 (quiet) blocks: the
+/// independent Cyclone DDS peer gets a grid with no cell above 99, the speed
+/// filter's info and a mask with the bands' limits, the person as a pose stamped
+/// with the detected frame's capture time, and the latched markers.
+#[test]
+fn a_ros2_peer_gets_people_markers_and_speed_zones() {
+    python();
+    let domain = dds_domain();
+    let extra = r#"confirm_hold_s = 3600
+
+[[costmap.segment]]
+name = "west"
+polygon_m = [[-1, 1.5], [1.6, 1.5], [1.6, 7.5], [-1, 7.5]]
+
+[[costmap.segment]]
+name = "east"
+polygon_m = [[1.6, 1.5], [5, 1.5], [5, 7.5], [1.6, 7.5]]
+
+[[costmap.route]]
+name = "west-east"
+segments = ["west", "east"]
+"#;
+    let site = TestSite::new(
+        "costmap-peer",
+        &format!("{}{}", camera_toml(), costmap_toml(domain, extra)),
+    );
+    let ipc = site.ipc("source");
+    let mut source = Source::new(&ipc, "2026-03-02T11:00:00Z");
+    let mut people = ipc.publisher::<Detections>("cam01", 8).unwrap();
+    let costmap = site.spawn("isochron-costmap", &[]);
+    source.wait_for_subscriber(&costmap);
+    let mut peer = listener_with(domain, 90, &extra_topics());
+    // HOT_BLOCK at cost 60, the block to its right at 100 → 99, two to the left at 20.
+    let hot = [
+        (HOT_BLOCK, HOT_S1),
+        (HOT_BLOCK + 1, 0.05),
+        (HOT_BLOCK - 2, 0.01),
+    ];
+    let feet = [3.0, 6.0]; // image (246, 31): far from the active blocks
+    let capture_ns = parse_rfc3339("2026-03-02T11:00:00.5Z").unwrap();
+    let mut feed = || {
+        source.send(&hot, 660);
+        send_person(&mut people, feet, capture_ns);
+    };
+    wait_until(
+        "grid, mask, filter info, people and markers",
+        &mut peer,
+        &costmap,
+        &mut feed,
+        Duration::from_secs(60),
+        |msgs| {
+            let busy_mask = last(msgs, "speed_mask").is_some_and(|m| data(m).contains(&25));
+            let busy_grid = last(msgs, "grid").is_some_and(|m| data(m).contains(&99));
+            busy_mask
+                && busy_grid
+                && last(msgs, "filter_info").is_some()
+                && last(msgs, "people").is_some()
+                && last(msgs, "markers").is_some()
+        },
+    );
+    // No new input: the next ticks send the grid and mask of the same state.
+    std::thread::sleep(Duration::from_secs(2));
+    let msgs = messages(&mut peer);
+
+    let grid = held_grid(&msgs).unwrap();
+    assert!(grid.iter().all(|&c| c <= 99), "a cell above 99");
+    let info = last(&msgs, "filter_info").unwrap();
+    assert_eq!(info["type"], 1, "{info}");
+    assert_eq!(info["filter_mask_topic"], "/isochron/speed_mask");
+    assert_eq!(info["base"], 0.0);
+    assert_eq!(info["multiplier"], 1.0);
+    assert_eq!(info["frame_id"], "test_map");
+    // The mask: per cell of the grid, the band's limit in percent; 0 = no limit.
+    let mask_msg = last(&msgs, "speed_mask").unwrap();
+    assert_eq!(mask_msg["width"], 60);
+    assert_eq!(mask_msg["frame_id"], "test_map");
+    let mask = data(mask_msg);
+    assert_eq!(mask.len(), grid.len());
+    for (k, (&c, &m)) in grid.iter().zip(&mask).enumerate() {
+        let expected = match c {
+            70.. => 25,
+            30..=69 => 50,
+            _ => 0,
+        };
+        assert_eq!(m, expected, "cell {k}: cost {c}, mask {m}");
+    }
+    assert!(mask.contains(&50) && mask.contains(&25) && grid.contains(&20));
+
+    // The person: feet on the floor, in the map frame, at the capture time.
+    let person = last(&msgs, "people").unwrap();
+    assert_eq!(person["frame_id"], "test_map");
+    assert_eq!(
+        person["stamp"],
+        serde_json::json!([capture_ns / NS_PER_S, capture_ns % NS_PER_S])
+    );
+    let poses = person["poses"].as_array().unwrap();
+    assert_eq!(poses.len(), 1, "{person}");
+    let (x, y) = (poses[0][0].as_f64().unwrap(), poses[0][1].as_f64().unwrap());
+    assert!(
+        (x - feet[0]).abs() < 0.01 && (y - feet[1]).abs() < 0.01,
+        "{person}"
+    );
+
+    // The markers: cleared first, then the camera's footprint, the segments and
+    // the route through their centres, with labels.
+    let markers = last(&msgs, "markers").unwrap()["markers"]
+        .as_array()
+        .unwrap()
+        .clone();
+    assert_eq!(markers[0]["action"], 3, "DELETEALL first");
+    let of = |ns: &str| -> Vec<&Value> { markers.iter().filter(|m| m["ns"] == ns).collect() };
+    assert_eq!(of("cameras").len(), 1);
+    assert!(of("cameras")[0]["points"].as_array().unwrap().len() >= 4);
+    assert_eq!(of("segments").len(), 2);
+    assert_eq!(of("routes").len(), 1);
+    assert_eq!(of("routes")[0]["points"].as_array().unwrap().len(), 2);
+    // The camera sees floor x from about -0.25 (u = 0 at y = 1.5) to 4 m.
+    let xs: Vec<f64> = of("cameras")[0]["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p[0].as_f64().unwrap())
+        .collect();
+    let max_x = xs.iter().cloned().fold(f64::MIN, f64::max);
+    assert!(max_x > 3.0 && max_x < 6.0, "{xs:?}");
+    let texts: Vec<&str> = markers
+        .iter()
+        .filter_map(|m| m["text"].as_str())
+        .filter(|t| !t.is_empty())
+        .collect();
+    assert!(
+        texts.contains(&"cam01") && texts.contains(&"west"),
+        "{texts:?}"
+    );
+    assert!(markers.iter().skip(1).all(|m| m["frame_id"] == "test_map"));
+
+    // A late joiner gets the latched markers, info and mask at once.
+    let mut late = listener_with(domain, 30, &extra_topics());
+    wait_until(
+        "latched markers, filter info and mask",
+        &mut late,
+        &costmap,
+        || {},
+        Duration::from_secs(30),
+        |msgs| {
+            last(msgs, "markers").is_some()
+                && last(msgs, "filter_info").is_some()
+                && last(msgs, "speed_mask").is_some()
+        },
     );
 }

@@ -16,12 +16,24 @@ and flushed at once, so the test reading it sees messages as they arrive:
     {"kind": "update", "frame_id": ..., "x": ..., "y": ..., "width": ...,
      "height": ..., "data": [...]}
 
+With --people, --markers, --speed-info, --speed-mask and --forecast it also reads
+`geometry_msgs/PoseArray` ("people": "stamp", "frame_id", "poses": [[x, y], ...]),
+`visualization_msgs/MarkerArray` ("markers": "markers": [{"ns", "id", "type",
+"action", "points": [[x, y], ...], "text"}]), `nav2_msgs/CostmapFilterInfo`
+("filter_info": "type", "filter_mask_topic", "base", "multiplier") and two more
+grids ("speed_mask", "forecast": like "grid"), all reliable; the markers, the
+filter info, the mask and the forecast transient-local (latched).
+
 The first line is {"kind": "ready"} once the readers exist. DDS stays on this
 machine: Cyclone is bound to the loopback interface, without multicast, and finds
 its peers through unicast discovery on 127.0.0.1.
 
 Usage: costmap_listener.py --domain D --topic /isochron/activity_costmap
-       [--updates] [--grids N] [--timeout S]
+       [--updates] [--grids N] [--timeout S] [--people T] [--markers T]
+       [--speed-info T] [--speed-mask T] [--forecast T] [--multicast]
+
+--multicast: Cyclone's default discovery (multicast SPDP on every interface)
+instead of loopback-only unicast.
 """
 
 import argparse
@@ -51,15 +63,21 @@ def main():
     parser.add_argument("--updates", action="store_true", help="also read <topic>_updates")
     parser.add_argument("--grids", type=int, default=0, help="exit after this many grids")
     parser.add_argument("--timeout", type=float, default=60.0, help="exit after this many seconds")
+    for extra in ["people", "markers", "speed-info", "speed-mask", "forecast"]:
+        parser.add_argument("--" + extra, help="ROS 2 topic to read as well")
+    parser.add_argument("--multicast", action="store_true", help="default multicast discovery")
     args = parser.parse_args()
 
     # Must be set before Cyclone DDS creates its domain.
-    os.environ["CYCLONEDDS_URI"] = LOOPBACK_ONLY
+    if not args.multicast:
+        os.environ["CYCLONEDDS_URI"] = LOOPBACK_ONLY
+    else:
+        os.environ.pop("CYCLONEDDS_URI", None)
 
     from cyclonedds.core import Policy, Qos
     from cyclonedds.domain import DomainParticipant
     from cyclonedds.idl import IdlStruct
-    from cyclonedds.idl.types import float32, float64, int8, int32, sequence, uint32
+    from cyclonedds.idl.types import float32, float64, int8, int32, sequence, uint8, uint32
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
     from cyclonedds.util import duration
@@ -115,6 +133,80 @@ def main():
         height: uint32
         data: sequence[int8]
 
+    @dataclass
+    class PoseArray(IdlStruct, typename="geometry_msgs::msg::dds_::PoseArray_"):
+        header: Header
+        poses: sequence[Pose]
+
+    @dataclass
+    class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
+        x: float64
+        y: float64
+        z: float64
+
+    @dataclass
+    class ColorRGBA(IdlStruct, typename="std_msgs::msg::dds_::ColorRGBA_"):
+        r: float32
+        g: float32
+        b: float32
+        a: float32
+
+    @dataclass
+    class Duration(IdlStruct, typename="builtin_interfaces::msg::dds_::Duration_"):
+        sec: int32
+        nanosec: uint32
+
+    @dataclass
+    class CompressedImage(IdlStruct, typename="sensor_msgs::msg::dds_::CompressedImage_"):
+        header: Header
+        format: str
+        data: sequence[uint8]
+
+    @dataclass
+    class UVCoordinate(IdlStruct, typename="visualization_msgs::msg::dds_::UVCoordinate_"):
+        u: float32
+        v: float32
+
+    @dataclass
+    class MeshFile(IdlStruct, typename="visualization_msgs::msg::dds_::MeshFile_"):
+        filename: str
+        data: sequence[uint8]
+
+    # visualization_msgs/msg/Marker as of Iron/Jazzy.
+    @dataclass
+    class Marker(IdlStruct, typename="visualization_msgs::msg::dds_::Marker_"):
+        header: Header
+        ns: str
+        id: int32
+        type: int32
+        action: int32
+        pose: Pose
+        scale: Vector3
+        color: ColorRGBA
+        lifetime: Duration
+        frame_locked: bool
+        points: sequence[Point]
+        colors: sequence[ColorRGBA]
+        texture_resource: str
+        texture: CompressedImage
+        uv_coordinates: sequence[UVCoordinate]
+        text: str
+        mesh_resource: str
+        mesh_file: MeshFile
+        mesh_use_embedded_materials: bool
+
+    @dataclass
+    class MarkerArray(IdlStruct, typename="visualization_msgs::msg::dds_::MarkerArray_"):
+        markers: sequence[Marker]
+
+    @dataclass
+    class CostmapFilterInfo(IdlStruct, typename="nav2_msgs::msg::dds_::CostmapFilterInfo_"):
+        header: Header
+        type: uint8
+        filter_mask_topic: str
+        base: float32
+        multiplier: float32
+
     def emit(obj):
         sys.stdout.write(json.dumps(obj) + "\n")
         sys.stdout.flush()
@@ -134,14 +226,82 @@ def main():
         xcdr1,
     )
     participant = DomainParticipant(args.domain)
-    dds_name = "rt" + (args.topic if args.topic.startswith("/") else "/" + args.topic)
+    def dds(topic):
+        return "rt" + (topic if topic.startswith("/") else "/" + topic)
+
+    dds_name = dds(args.topic)
     grid_reader = DataReader(participant, Topic(participant, dds_name, OccupancyGrid), qos=grid_qos)
     updates_reader = None
     if args.updates:
         updates_reader = DataReader(
             participant, Topic(participant, dds_name + "_updates", OccupancyGridUpdate), qos=updates_qos
         )
+    people_qos = Qos(
+        Policy.Reliability.Reliable(duration(seconds=1)),
+        Policy.Durability.Volatile,
+        Policy.History.KeepLast(10),
+        xcdr1,
+    )
+    extra = []  # (kind, reader)
+    for kind, topic, cls, qos in [
+        ("people", args.people, PoseArray, people_qos),
+        ("markers", args.markers, MarkerArray, grid_qos),
+        ("filter_info", args.speed_info, CostmapFilterInfo, grid_qos),
+        ("speed_mask", args.speed_mask, OccupancyGrid, grid_qos),
+        ("forecast", args.forecast, OccupancyGrid, grid_qos),
+    ]:
+        if topic:
+            extra.append((kind, DataReader(participant, Topic(participant, dds(topic), cls), qos=qos)))
     emit({"kind": "ready"})
+
+    def grid_json(kind, msg):
+        o = msg.info.origin
+        return {
+            "kind": kind,
+            "frame_id": msg.header.frame_id,
+            "stamp": [msg.header.stamp.sec, msg.header.stamp.nanosec],
+            "resolution": msg.info.resolution,
+            "width": msg.info.width,
+            "height": msg.info.height,
+            "origin": [o.position.x, o.position.y, o.position.z,
+                       o.orientation.x, o.orientation.y, o.orientation.z, o.orientation.w],
+            "data": list(msg.data),
+        }
+
+    def extra_json(kind, msg):
+        if kind == "people":
+            return {
+                "kind": kind,
+                "frame_id": msg.header.frame_id,
+                "stamp": [msg.header.stamp.sec, msg.header.stamp.nanosec],
+                "poses": [[p.position.x, p.position.y] for p in msg.poses],
+            }
+        if kind == "markers":
+            return {
+                "kind": kind,
+                "markers": [
+                    {
+                        "ns": m.ns,
+                        "id": m.id,
+                        "type": m.type,
+                        "action": m.action,
+                        "frame_id": m.header.frame_id,
+                        "points": [[p.x, p.y] for p in m.points],
+                        "text": m.text,
+                    }
+                    for m in msg.markers
+                ],
+            }
+        if kind == "filter_info":
+            return {
+                "kind": kind,
+                "frame_id": msg.header.frame_id,
+                "type": msg.type,
+                "filter_mask_topic": msg.filter_mask_topic,
+                "base": msg.base,
+                "multiplier": msg.multiplier,
+            }
+        return grid_json(kind, msg)
 
     grids = 0
     end = time.monotonic() + args.timeout
@@ -186,6 +346,10 @@ def main():
                         "data": list(msg.data),
                     }
                 )
+        for kind, reader in extra:
+            for msg in reader.take(N=16):
+                got = True
+                emit(extra_json(kind, msg))
         if args.grids and grids >= args.grids:
             break
         if not got:

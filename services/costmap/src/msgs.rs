@@ -132,6 +132,28 @@ pub struct OccupancyGridUpdate {
     pub data: Vec<i8>,
 }
 
+/// `nav2_msgs/msg/CostmapFilterInfo`: which filter a mask is for and how its
+/// values read (`value = base + multiplier · mask`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CostmapFilterInfo {
+    /// Stamp and frame.
+    pub header: Header,
+    /// [`CostmapFilterInfo::SPEED_LIMIT_PERCENT`], ...
+    #[serde(rename = "type")]
+    pub kind: u8,
+    /// The mask's ROS 2 topic.
+    pub filter_mask_topic: String,
+    /// Added to `multiplier · mask`.
+    pub base: f32,
+    /// Factor of the mask value.
+    pub multiplier: f32,
+}
+
+impl CostmapFilterInfo {
+    /// Nav2's SpeedFilter, limits in percent of the maximum speed.
+    pub const SPEED_LIMIT_PERCENT: u8 = 1;
+}
+
 /// `geometry_msgs/msg/PoseArray`: poses in one frame at one time.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PoseArray {

@@ -11,7 +11,10 @@
 //!   stamped with its capture time;
 //! * `costmap.markers_topic`: `visualization_msgs/msg/MarkerArray`, reliable,
 //!   transient-local, keep last 1 — camera footprints, zones, path segments and
-//!   routes for rviz2 / Foxglove, latched.
+//!   routes for rviz2 / Foxglove, latched;
+//! * `costmap.speed_filter_info_topic`: `nav2_msgs/msg/CostmapFilterInfo` and
+//!   `costmap.speed_mask_topic`: its mask `nav_msgs/msg/OccupancyGrid`, both
+//!   reliable, transient-local, keep last 1 — what Nav2's SpeedFilter reads.
 //!
 //! The DDS participant joins `costmap.ros_domain_id` (else `$ROS_DOMAIN_ID`, else 0)
 //! and uses the network interfaces of `costmap.dds_interfaces` (else all; only
@@ -31,7 +34,7 @@ use rustdds::{
     DomainParticipantBuilder, QosPolicies, QosPolicyBuilder, TopicDescription, TopicKind, policy,
 };
 
-use crate::msgs::{MarkerArray, OccupancyGrid, OccupancyGridUpdate, PoseArray};
+use crate::msgs::{CostmapFilterInfo, MarkerArray, OccupancyGrid, OccupancyGridUpdate, PoseArray};
 
 /// Highest DDS domain id whose RTPS ports fit in 16 bits.
 pub const MAX_DOMAIN_ID: u16 = 232;
@@ -59,6 +62,10 @@ pub struct RosSettings {
     pub people_topic: String,
     /// The markers topic, e.g. `/isochron/markers`.
     pub markers_topic: String,
+    /// The speed filter info topic, e.g. `/isochron/speed_filter_info`.
+    pub speed_filter_info_topic: String,
+    /// The speed mask topic, e.g. `/isochron/speed_mask`.
+    pub speed_mask_topic: String,
 }
 
 /// Why ROS 2 output could not start.
@@ -126,6 +133,8 @@ pub struct RosOutput {
     updates: Publisher<OccupancyGridUpdate>,
     people: Publisher<PoseArray>,
     markers: Publisher<MarkerArray>,
+    filter_info: Publisher<CostmapFilterInfo>,
+    mask: Publisher<OccupancyGrid>,
     /// The grid topic's DDS name (`rt/...`) and the QoS its writer offers: what
     /// RustDDS matches remote readers against.
     grid_match: (String, QosPolicies),
@@ -142,10 +151,6 @@ impl RosOutput {
             domain: settings.domain_id,
             detail,
         };
-        let grid_topic_name = topic_name(&settings.topic)?;
-        let updates_topic_name = topic_name(&settings.updates_topic)?;
-        let people_topic_name = topic_name(&settings.people_topic)?;
-        let markers_topic_name = topic_name(&settings.markers_topic)?;
         let mut builder = DomainParticipantBuilder::new(settings.domain_id);
         if !settings.interfaces.is_empty() {
             builder = builder.with_only_networks(settings.interfaces.iter().copied());
@@ -167,64 +172,78 @@ impl RosOutput {
         // every sample no reader has acknowledged, so without them a bridge nobody
         // listens to would pile up grids, and a late joiner would receive all of
         // them before the current one.
-        let grid_topic = create_topic(
-            &context,
-            &node_name,
-            &grid_topic_name,
+        let topic = |name: &str, package: &str, type_name: &str, durability, depth| {
+            let parsed = topic_name(name)?;
+            create_topic(
+                &context, &node_name, &parsed, package, type_name, durability, depth,
+            )
+            .map_err(|e| dds(format!("creating topic {name}: {e:?}")))
+        };
+        let latched = Durability::TransientLocal;
+        let grid_topic = topic(
+            &settings.topic,
             "nav_msgs",
             "OccupancyGrid",
-            Durability::TransientLocal,
+            latched,
             GRID_DEPTH,
-        )
-        .map_err(|e| dds(format!("creating topic {}: {e:?}", settings.topic)))?;
-        let updates_topic = create_topic(
-            &context,
-            &node_name,
-            &updates_topic_name,
+        )?;
+        let updates_topic = topic(
+            &settings.updates_topic,
             "map_msgs",
             "OccupancyGridUpdate",
             Durability::Volatile,
             UPDATES_DEPTH,
-        )
-        .map_err(|e| dds(format!("creating topic {}: {e:?}", settings.updates_topic)))?;
-        let people_topic = create_topic(
-            &context,
-            &node_name,
-            &people_topic_name,
+        )?;
+        let people_topic = topic(
+            &settings.people_topic,
             "geometry_msgs",
             "PoseArray",
             Durability::Volatile,
             PEOPLE_DEPTH,
-        )
-        .map_err(|e| dds(format!("creating topic {}: {e:?}", settings.people_topic)))?;
-        let markers_topic = create_topic(
-            &context,
-            &node_name,
-            &markers_topic_name,
+        )?;
+        let markers_topic = topic(
+            &settings.markers_topic,
             "visualization_msgs",
             "MarkerArray",
-            Durability::TransientLocal,
+            latched,
             GRID_DEPTH,
-        )
-        .map_err(|e| dds(format!("creating topic {}: {e:?}", settings.markers_topic)))?;
+        )?;
+        let filter_info_topic = topic(
+            &settings.speed_filter_info_topic,
+            "nav2_msgs",
+            "CostmapFilterInfo",
+            latched,
+            GRID_DEPTH,
+        )?;
+        let mask_topic = topic(
+            &settings.speed_mask_topic,
+            "nav_msgs",
+            "OccupancyGrid",
+            latched,
+            GRID_DEPTH,
+        )?;
         // RustDDS gives a writer the ROS default publisher's QoS overridden by the
         // topic's (`Publisher::create_datawriter`).
         let grid_match = (
             grid_topic.name(),
             QosPolicies::from(DEFAULT_PUBLISHER_QOS).modify_by(&grid_topic.qos()),
         );
-        let grid = node
-            .create_publisher::<OccupancyGrid>(&grid_topic, None)
-            .map_err(|e| dds(format!("creating the grid publisher: {e:?}")))?;
-        let updates = node
-            .create_publisher::<OccupancyGridUpdate>(&updates_topic, None)
-            .map_err(|e| dds(format!("creating the updates publisher: {e:?}")))?;
-        let people = node
-            .create_publisher::<PoseArray>(&people_topic, None)
-            .map_err(|e| dds(format!("creating the people publisher: {e:?}")))?;
-        let markers = node
-            .create_publisher::<MarkerArray>(&markers_topic, None)
-            .map_err(|e| dds(format!("creating the markers publisher: {e:?}")))?;
+        macro_rules! publisher {
+            ($topic:expr, $what:literal) => {
+                node.create_publisher(&$topic, None).map_err(|e| {
+                    dds(format!(
+                        concat!("creating the ", $what, " publisher: {:?}"),
+                        e
+                    ))
+                })?
+            };
+        }
+        let grid = publisher!(grid_topic, "grid");
+        let updates = publisher!(updates_topic, "updates");
+        let people = publisher!(people_topic, "people");
+        let markers = publisher!(markers_topic, "markers");
+        let filter_info = publisher!(filter_info_topic, "speed filter info");
+        let mask = publisher!(mask_topic, "speed mask");
 
         // The spinner keeps the node visible in the ROS graph (`ros2 node list`) and
         // answers its discovery traffic; it ends when the node is dropped.
@@ -245,6 +264,8 @@ impl RosOutput {
             updates,
             people,
             markers,
+            filter_info,
+            mask,
             grid_match,
             _node: node,
             _spinner: spinner,
@@ -276,6 +297,20 @@ impl RosOutput {
     /// Publishes (and latches) the markers.
     pub fn publish_markers(&self, markers: MarkerArray) -> Result<(), PublishError> {
         self.markers.publish(markers).map_err(|e| PublishError {
+            detail: format!("{e:?}"),
+        })
+    }
+
+    /// Publishes (and latches) the speed filter's info.
+    pub fn publish_filter_info(&self, info: CostmapFilterInfo) -> Result<(), PublishError> {
+        self.filter_info.publish(info).map_err(|e| PublishError {
+            detail: format!("{e:?}"),
+        })
+    }
+
+    /// Publishes (and latches) a speed mask.
+    pub fn publish_mask(&self, mask: OccupancyGrid) -> Result<(), PublishError> {
+        self.mask.publish(mask).map_err(|e| PublishError {
             detail: format!("{e:?}"),
         })
     }

@@ -22,8 +22,8 @@ use crate::bridge::{Bridge, count_non_finite};
 use crate::delta::{DeltaTracker, Output};
 use crate::markers::{marker_key, site_markers};
 use crate::msgs::{
-    Header, MapMetaData, OccupancyGrid, OccupancyGridUpdate, Point, Pose, PoseArray, Quaternion,
-    Time,
+    CostmapFilterInfo, Header, MapMetaData, OccupancyGrid, OccupancyGridUpdate, Point, Pose,
+    PoseArray, Quaternion, Time,
 };
 use crate::ros::{RosOutput, RosSettings, domain_id, interfaces, limit_dds_logging};
 use crate::snapshot::{self, FloorPlan, Snapshot, SnapshotError};
@@ -42,6 +42,7 @@ struct Counters {
     confirmed: u64,
     people: u64,
     markers: u64,
+    masks: u64,
 }
 
 /// The ROS 2 side: the output and what was sent.
@@ -52,6 +53,8 @@ struct Ros {
     frame_id: String,
     /// `costmap.publish_unknown`: false sends 0 instead of -1.
     publish_unknown: bool,
+    /// The last speed mask sent.
+    mask_sent: Option<Vec<i8>>,
     /// The camera frame sizes the last markers were drawn with (`None`: none sent).
     markers_sent: Option<Vec<Option<(u32, u32)>>>,
 }
@@ -138,9 +141,24 @@ impl CostmapStage {
                     updates_topic: c.updates_topic(),
                     people_topic: c.people_topic.clone(),
                     markers_topic: c.markers_topic.clone(),
+                    speed_filter_info_topic: c.speed_filter_info_topic.clone(),
+                    speed_mask_topic: c.speed_mask_topic.clone(),
                 };
                 limit_dds_logging();
                 let output = RosOutput::start(&settings)?;
+                // The speed filter's info never changes: sent once, latched.
+                if let Err(e) = output.publish_filter_info(CostmapFilterInfo {
+                    header: Header {
+                        stamp: Time::from_utc_ns(wall_now_ns()),
+                        frame_id: c.frame_id.clone(),
+                    },
+                    kind: CostmapFilterInfo::SPEED_LIMIT_PERCENT,
+                    filter_mask_topic: c.speed_mask_topic.clone(),
+                    base: 0.0,
+                    multiplier: 1.0,
+                }) {
+                    tracing::warn!("publishing the speed filter info failed: {e}");
+                }
                 tracing::info!(
                     "publishing a {}x{} grid of {} m on {} (+ {}), frame '{}', ROS domain {}, {}",
                     grid.width,
@@ -163,6 +181,7 @@ impl CostmapStage {
                     frame_id: c.frame_id.clone(),
                     publish_unknown: c.publish_unknown,
                     markers_sent: None,
+                    mask_sent: None,
                 })
             }
             None => {
@@ -279,10 +298,25 @@ impl Stage for CostmapStage {
             if let (Some(ros), Some(grid)) = (&mut self.ros, &self.bridge.grid)
                 && let Some(mut cells) = self.bridge.compose(now)
             {
+                let stamp_ns = self.bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
+                let c = &self.loaded.config.costmap;
+                let mask: Vec<i8> = cells.iter().map(|&v| c.speed_mask_value(v)).collect();
+                if ros.mask_sent.as_ref() != Some(&mask) {
+                    let message = occupancy_grid(grid, &ros.frame_id, stamp_ns, mask.clone());
+                    match ros.output.publish_mask(message) {
+                        Ok(()) => {
+                            self.counters.masks += 1;
+                            ros.mask_sent = Some(mask);
+                        }
+                        Err(e) => {
+                            self.counters.publish_errors += 1;
+                            tracing::warn!("publishing the speed mask failed: {e}");
+                        }
+                    }
+                }
                 if !ros.publish_unknown {
                     unknown_as_free(&mut cells);
                 }
-                let stamp_ns = self.bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
                 if publish(ros, grid, &cells, stamp_ns, now, &mut self.counters) {
                     let (arrived, origin) =
                         self.newest_arrival.map_or((None, 0), |(a, o)| (Some(a), o));
@@ -346,7 +380,7 @@ impl Stage for CostmapStage {
             .count();
         let c = &self.counters;
         format!(
-            "cameras_live={live}/{} grids={} updates={} ros_subscribers={} publish_errors={} plans={} snapshots={} confirmed={} people_msgs={} markers={}",
+            "cameras_live={live}/{} grids={} updates={} ros_subscribers={} publish_errors={} plans={} snapshots={} confirmed={} people_msgs={} markers={} speed_masks={}",
             bridge.cameras.len(),
             c.grids,
             c.updates,
@@ -356,7 +390,8 @@ impl Stage for CostmapStage {
             c.snapshots,
             c.confirmed,
             c.people,
-            c.markers
+            c.markers,
+            c.masks
         )
     }
 }
@@ -415,6 +450,32 @@ fn publish_people(
     }
 }
 
+/// A full grid message of `grid`'s geometry.
+fn occupancy_grid(grid: &MapGrid, frame_id: &str, stamp_ns: i64, data: Vec<i8>) -> OccupancyGrid {
+    let stamp = Time::from_utc_ns(stamp_ns);
+    OccupancyGrid {
+        header: Header {
+            stamp,
+            frame_id: frame_id.to_string(),
+        },
+        info: MapMetaData {
+            map_load_time: stamp,
+            resolution: grid.resolution as f32,
+            width: grid.width,
+            height: grid.height,
+            origin: Pose {
+                position: Point {
+                    x: grid.origin_x,
+                    y: grid.origin_y,
+                    z: 0.0,
+                },
+                orientation: Quaternion::from_yaw(grid.yaw),
+            },
+        },
+        data,
+    }
+}
+
 /// Sets the unknown (-1) cells to 0, for `costmap.publish_unknown = false`.
 pub fn unknown_as_free(cells: &mut [i8]) {
     for c in cells.iter_mut().filter(|c| **c < 0) {
@@ -441,21 +502,7 @@ fn publish(
             counters.grids += 1;
             ros.output.publish_grid(OccupancyGrid {
                 header: header.clone(),
-                info: MapMetaData {
-                    map_load_time: header.stamp,
-                    resolution: grid.resolution as f32,
-                    width: grid.width,
-                    height: grid.height,
-                    origin: Pose {
-                        position: Point {
-                            x: grid.origin_x,
-                            y: grid.origin_y,
-                            z: 0.0,
-                        },
-                        orientation: Quaternion::from_yaw(grid.yaw),
-                    },
-                },
-                data: cells.to_vec(),
+                ..occupancy_grid(grid, &ros.frame_id, stamp_ns, cells.to_vec())
             })
         }
         Output::Update {

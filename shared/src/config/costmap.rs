@@ -55,6 +55,27 @@ pub struct CostmapConfig {
     /// (`visualization_msgs/msg/MarkerArray`, transient-local). Default
     /// `"/isochron/markers"`.
     pub markers_topic: String,
+    /// ROS 2 topic of the speed filter's `nav2_msgs/msg/CostmapFilterInfo` (type 1:
+    /// speed limit in percent, base 0, multiplier 1; transient-local), for Nav2's
+    /// SpeedFilter (`config/nav2-speed-filter.yaml`). Default
+    /// `"/isochron/speed_filter_info"`.
+    pub speed_filter_info_topic: String,
+    /// ROS 2 topic of the speed mask (`nav_msgs/msg/OccupancyGrid`, the grid's
+    /// geometry, transient-local): per cell the speed limit in percent of the
+    /// robot's maximum, 0 meaning no limit (quiet cells and cells no camera sees).
+    /// Default `"/isochron/speed_mask"`.
+    pub speed_mask_topic: String,
+    /// A cell whose activity cost is at least this is busy, 1 to 100. Default 30.
+    pub speed_busy_from_cost: u8,
+    /// ... and crowded from this cost, 1 to 100 (at least `speed_busy_from_cost`).
+    /// Default 70.
+    pub speed_crowded_from_cost: u8,
+    /// Speed limit in quiet cells, percent (100: no limit). Default 100.
+    pub speed_quiet_percent: u8,
+    /// Speed limit in busy cells, percent. Default 50.
+    pub speed_busy_percent: u8,
+    /// Speed limit in crowded cells, percent. Default 25.
+    pub speed_crowded_percent: u8,
     /// Publish rate, Hz. Default 1.
     pub publish_hz: f64,
     /// The full grid is republished at least this often, seconds, while deltas went
@@ -144,6 +165,13 @@ impl Default for CostmapConfig {
             updates_topic: None,
             people_topic: "/isochron/people".into(),
             markers_topic: "/isochron/markers".into(),
+            speed_filter_info_topic: "/isochron/speed_filter_info".into(),
+            speed_mask_topic: "/isochron/speed_mask".into(),
+            speed_busy_from_cost: 30,
+            speed_crowded_from_cost: 70,
+            speed_quiet_percent: 100,
+            speed_busy_percent: 50,
+            speed_crowded_percent: 25,
             publish_hz: 1.0,
             full_every_s: 10.0,
             ros_domain_id: None,
@@ -186,6 +214,22 @@ impl CostmapConfig {
     /// The cost a confirmed person gives: `confirm_cost`, else `cap`.
     pub fn confirm_cost(&self) -> u8 {
         self.confirm_cost.unwrap_or(self.cap)
+    }
+
+    /// The speed mask value of a cell of activity cost `cost` (-1: unseen): the
+    /// band's limit in percent, 0 (no limit) for 100 % and unseen cells — Nav2's
+    /// SpeedFilter reads 0 as "no limit" and logs an error on -1.
+    pub fn speed_mask_value(&self, cost: i8) -> i8 {
+        let percent = if cost < 0 {
+            100
+        } else if cost as u8 >= self.speed_crowded_from_cost {
+            self.speed_crowded_percent
+        } else if cost as u8 >= self.speed_busy_from_cost {
+            self.speed_busy_percent
+        } else {
+            self.speed_quiet_percent
+        };
+        if percent >= 100 { 0 } else { percent as i8 }
     }
 
     /// The segment named `name`.
@@ -324,6 +368,11 @@ impl CostmapConfig {
             ("costmap.updates_topic", self.updates_topic.as_ref()),
             ("costmap.people_topic", Some(&self.people_topic)),
             ("costmap.markers_topic", Some(&self.markers_topic)),
+            (
+                "costmap.speed_filter_info_topic",
+                Some(&self.speed_filter_info_topic),
+            ),
+            ("costmap.speed_mask_topic", Some(&self.speed_mask_topic)),
         ] {
             if let Some(topic) = topic
                 && !is_valid_ros_topic(topic)
@@ -372,6 +421,25 @@ impl CostmapConfig {
         check_range("costmap.confirm_hold_s", self.confirm_hold_s, 0.0, 3600.0)?;
         if let Some(v) = self.confirm_cost {
             check_range("costmap.confirm_cost", v as f64, 0.0, 100.0)?;
+        }
+        check_range(
+            "costmap.speed_busy_from_cost",
+            self.speed_busy_from_cost as f64,
+            1.0,
+            100.0,
+        )?;
+        check_range(
+            "costmap.speed_crowded_from_cost",
+            self.speed_crowded_from_cost as f64,
+            self.speed_busy_from_cost as f64,
+            100.0,
+        )?;
+        for (name, v) in [
+            ("speed_quiet_percent", self.speed_quiet_percent),
+            ("speed_busy_percent", self.speed_busy_percent),
+            ("speed_crowded_percent", self.speed_crowded_percent),
+        ] {
+            check_range(&format!("costmap.{name}"), v as f64, 1.0, 100.0)?;
         }
         check_positive("costmap.stale_s", self.stale_s)?;
         check_range("costmap.snapshot_every_s", self.snapshot_every_s, 0.0, 1e7)?;

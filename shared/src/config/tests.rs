@@ -225,3 +225,20 @@ fn lethal_cap_and_map_yaw_are_warned_with_line_and_key() {
     );
     assert!(parse(&format!("{GOOD}\n[costmap]\ncap = 101\n")).is_err());
 }
+
+#[test]
+fn speed_bands_give_nav2_mask_values() {
+    let c = parse(GOOD).unwrap().costmap;
+    // Unseen and quiet: 0 = no limit (Nav2 logs an error on -1).
+    assert_eq!(c.speed_mask_value(-1), 0);
+    assert_eq!(c.speed_mask_value(29), 0);
+    assert_eq!(c.speed_mask_value(30), 50);
+    assert_eq!(c.speed_mask_value(69), 50);
+    assert_eq!(c.speed_mask_value(70), 25);
+    assert_eq!(c.speed_mask_value(99), 25);
+    let err = parse(&format!(
+        "{GOOD}\n[costmap]\nspeed_busy_from_cost = 50\nspeed_crowded_from_cost = 40\n"
+    ))
+    .unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("costmap.speed_crowded_from_cost"));
+}
