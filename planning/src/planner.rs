@@ -294,6 +294,25 @@ impl Planner {
         })
     }
 
+    /// Each camera's long-term mean activity per block at isochronal time `t_star`
+    /// with the block grid of its store (`None`: no store, or the bin never
+    /// learned): what the cost map's forecast is drawn from.
+    pub fn long_term_at(
+        &mut self,
+        t_star: u32,
+    ) -> Result<Vec<Option<(BlockGrid, Vec<f32>)>>, PlanError> {
+        self.refresh()?;
+        Ok(self
+            .models
+            .iter()
+            .map(|m| {
+                let model = &m.as_ref()?.model;
+                let bin = model.bin(t_star)?;
+                Some((store_block_grid(model), bin.mean.clone()))
+            })
+            .collect())
+    }
+
     /// How many days taught the segment's cameras' bins at most (for titles).
     pub fn days(&self) -> u32 {
         self.models

@@ -972,3 +972,74 @@ segments = ["west", "east"]
         },
     );
 }
+
+/// The forecast: with the long-term store of [`write_store`] and live t* = 11:40,
+/// the peer gets the cost the model expects at 11:55 (west blocks 0.04 → 80,
+/// the rest 0.01 → 20; -1 unseen), stamped 15 minutes after the newest activity.
+#[test]
+fn a_ros2_peer_gets_the_forecast_of_the_long_term_model() {
+    python();
+    let domain = dds_domain();
+    let site = TestSite::new(
+        "costmap-forecast",
+        &format!(
+            "{}{}",
+            camera_toml(),
+            costmap_toml(domain, "forecast_every_s = 1")
+        ),
+    );
+    write_store(&site);
+    let ipc = site.ipc("source");
+    let start = "2026-03-02T11:40:00Z";
+    let mut source = Source::new(&ipc, start);
+    let costmap = site.spawn("isochron-costmap", &[]);
+    source.wait_for_subscriber(&costmap);
+    let mut peer = listener_with(
+        domain,
+        60,
+        &["--forecast".into(), "/isochron/activity_forecast".into()],
+    );
+    // Independently: each cell's block through the true mapping.
+    let (x0, y0, res, w, h) = GRID;
+    let mut expected = Vec::new();
+    for j in 0..h {
+        for i in 0..w {
+            let c = [x0 + (i as f64 + 0.5) * res, y0 + (j as f64 + 0.5) * res];
+            let [u, v] = floor_to_image(c);
+            expected.push(
+                if !(0.0..320.0).contains(&u) || !(0.0..240.0).contains(&v) {
+                    -1
+                } else if u < 160.0 {
+                    80
+                } else {
+                    20
+                },
+            );
+        }
+    }
+    let start_ns = parse_rfc3339(start).unwrap();
+    wait_until(
+        "the forecast at 11:55",
+        &mut peer,
+        &costmap,
+        || source.send(&[], 700),
+        Duration::from_secs(40),
+        |msgs| {
+            msgs.iter().any(|m| {
+                m["kind"] == "forecast"
+                    && m["stamp"][0].as_i64().unwrap() >= start_ns / NS_PER_S + 15 * 60
+                    && data(m) == expected
+            })
+        },
+    );
+    let msgs = messages(&mut peer);
+    let forecast = last(&msgs, "forecast").unwrap();
+    assert_eq!(forecast["frame_id"], "test_map");
+    assert_eq!(forecast["width"], 60);
+    let stamp = forecast["stamp"][0].as_i64().unwrap();
+    let newest = start_ns / NS_PER_S + source.seconds;
+    assert!(
+        stamp > start_ns / NS_PER_S + 15 * 60 && stamp <= newest + 15 * 60,
+        "stamp {stamp}, newest activity {newest}"
+    );
+}

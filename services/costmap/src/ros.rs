@@ -14,7 +14,9 @@
 //!   routes for rviz2 / Foxglove, latched;
 //! * `costmap.speed_filter_info_topic`: `nav2_msgs/msg/CostmapFilterInfo` and
 //!   `costmap.speed_mask_topic`: its mask `nav_msgs/msg/OccupancyGrid`, both
-//!   reliable, transient-local, keep last 1 — what Nav2's SpeedFilter reads.
+//!   reliable, transient-local, keep last 1 — what Nav2's SpeedFilter reads;
+//! * `costmap.forecast_topic`: `nav_msgs/msg/OccupancyGrid`, reliable,
+//!   transient-local, keep last 1 — the cost expected `forecast_ahead_min` ahead.
 //!
 //! The DDS participant joins `costmap.ros_domain_id` (else `$ROS_DOMAIN_ID`, else 0)
 //! and uses the network interfaces of `costmap.dds_interfaces` (else all; only
@@ -66,6 +68,8 @@ pub struct RosSettings {
     pub speed_filter_info_topic: String,
     /// The speed mask topic, e.g. `/isochron/speed_mask`.
     pub speed_mask_topic: String,
+    /// The forecast topic, e.g. `/isochron/activity_forecast`.
+    pub forecast_topic: String,
 }
 
 /// Why ROS 2 output could not start.
@@ -135,6 +139,7 @@ pub struct RosOutput {
     markers: Publisher<MarkerArray>,
     filter_info: Publisher<CostmapFilterInfo>,
     mask: Publisher<OccupancyGrid>,
+    forecast: Publisher<OccupancyGrid>,
     /// The grid topic's DDS name (`rt/...`) and the QoS its writer offers: what
     /// RustDDS matches remote readers against.
     grid_match: (String, QosPolicies),
@@ -222,6 +227,13 @@ impl RosOutput {
             latched,
             GRID_DEPTH,
         )?;
+        let forecast_topic = topic(
+            &settings.forecast_topic,
+            "nav_msgs",
+            "OccupancyGrid",
+            latched,
+            GRID_DEPTH,
+        )?;
         // RustDDS gives a writer the ROS default publisher's QoS overridden by the
         // topic's (`Publisher::create_datawriter`).
         let grid_match = (
@@ -244,6 +256,7 @@ impl RosOutput {
         let markers = publisher!(markers_topic, "markers");
         let filter_info = publisher!(filter_info_topic, "speed filter info");
         let mask = publisher!(mask_topic, "speed mask");
+        let forecast = publisher!(forecast_topic, "forecast");
 
         // The spinner keeps the node visible in the ROS graph (`ros2 node list`) and
         // answers its discovery traffic; it ends when the node is dropped.
@@ -266,6 +279,7 @@ impl RosOutput {
             markers,
             filter_info,
             mask,
+            forecast,
             grid_match,
             _node: node,
             _spinner: spinner,
@@ -311,6 +325,13 @@ impl RosOutput {
     /// Publishes (and latches) a speed mask.
     pub fn publish_mask(&self, mask: OccupancyGrid) -> Result<(), PublishError> {
         self.mask.publish(mask).map_err(|e| PublishError {
+            detail: format!("{e:?}"),
+        })
+    }
+
+    /// Publishes (and latches) a forecast grid.
+    pub fn publish_forecast(&self, grid: OccupancyGrid) -> Result<(), PublishError> {
+        self.forecast.publish(grid).map_err(|e| PublishError {
             detail: format!("{e:?}"),
         })
     }

@@ -11,7 +11,8 @@ use isochron_planning::plan::{DayRange, PlanError};
 use isochron_planning::plan_service::{PlanServer, answer_now, answer_offline};
 use isochron_planning::planner::Planner;
 use isochron_planning::query::{PlanKind, PlanRequest, PlanResponse, PlanStatus};
-use isochron_shared::clock::{Cycle, SiteClock, format_rfc3339, timestamp, wall_now_ns};
+use isochron_planning::raster::Footprint;
+use isochron_shared::clock::{Cycle, NS_PER_S, SiteClock, format_rfc3339, timestamp, wall_now_ns};
 use isochron_shared::config::LoadedConfig;
 use isochron_shared::exit::{self, Fatal};
 use isochron_shared::ipc::{Activity, Detections, Ipc};
@@ -43,6 +44,7 @@ struct Counters {
     people: u64,
     markers: u64,
     masks: u64,
+    forecasts: u64,
 }
 
 /// The ROS 2 side: the output and what was sent.
@@ -53,6 +55,10 @@ struct Ros {
     frame_id: String,
     /// `costmap.publish_unknown`: false sends 0 instead of -1.
     publish_unknown: bool,
+    /// When the forecast is next computed.
+    next_forecast: Instant,
+    /// Each camera's footprint on its store's block grid.
+    forecast_footprints: Vec<Option<Footprint>>,
     /// The last speed mask sent.
     mask_sent: Option<Vec<i8>>,
     /// The camera frame sizes the last markers were drawn with (`None`: none sent).
@@ -143,6 +149,7 @@ impl CostmapStage {
                     markers_topic: c.markers_topic.clone(),
                     speed_filter_info_topic: c.speed_filter_info_topic.clone(),
                     speed_mask_topic: c.speed_mask_topic.clone(),
+                    forecast_topic: c.forecast_topic.clone(),
                 };
                 limit_dds_logging();
                 let output = RosOutput::start(&settings)?;
@@ -182,6 +189,8 @@ impl CostmapStage {
                     publish_unknown: c.publish_unknown,
                     markers_sent: None,
                     mask_sent: None,
+                    next_forecast: Instant::now(),
+                    forecast_footprints: Vec::new(),
                 })
             }
             None => {
@@ -324,6 +333,39 @@ impl Stage for CostmapStage {
                 }
             }
         }
+        if let (Some(ros), Some(grid)) = (&mut self.ros, &self.bridge.grid)
+            && now >= ros.next_forecast
+        {
+            let c = &self.loaded.config.costmap;
+            ros.next_forecast = now + Duration::from_secs_f64(c.forecast_every_s);
+            let now_ns = self.bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
+            let t_star = self
+                .bridge
+                .newest(now)
+                .map_or_else(|| self.clock.t_star(now_ns), |(_, t)| t);
+            let ahead = (t_star + c.forecast_ahead_min) % self.planner.cycle().bins();
+            let expected = self.planner.long_term_at(ahead).map(|models| {
+                self.bridge
+                    .compose_expected(&models, &mut ros.forecast_footprints)
+            });
+            match expected {
+                Ok(Some(cells)) => {
+                    let at_ns = now_ns + c.forecast_ahead_min as i64 * 60 * NS_PER_S;
+                    let message = occupancy_grid(grid, &ros.frame_id, at_ns, cells);
+                    match ros.output.publish_forecast(message) {
+                        Ok(()) => self.counters.forecasts += 1,
+                        Err(e) => {
+                            self.counters.publish_errors += 1;
+                            tracing::warn!("publishing the forecast failed: {e}");
+                        }
+                    }
+                }
+                Ok(None) => {}
+                Err(e) => cx.warnings.warn("forecast", || {
+                    format!("no forecast: the long-term store cannot be read: {e}")
+                }),
+            }
+        }
         if let Some(ros) = &mut self.ros {
             let key = marker_key(&self.loaded, &self.bridge);
             if ros.markers_sent.as_ref() != Some(&key) {
@@ -380,7 +422,7 @@ impl Stage for CostmapStage {
             .count();
         let c = &self.counters;
         format!(
-            "cameras_live={live}/{} grids={} updates={} ros_subscribers={} publish_errors={} plans={} snapshots={} confirmed={} people_msgs={} markers={} speed_masks={}",
+            "cameras_live={live}/{} grids={} updates={} ros_subscribers={} publish_errors={} plans={} snapshots={} confirmed={} people_msgs={} markers={} speed_masks={} forecasts={}",
             bridge.cameras.len(),
             c.grids,
             c.updates,
@@ -391,7 +433,8 @@ impl Stage for CostmapStage {
             c.confirmed,
             c.people,
             c.markers,
-            c.masks
+            c.masks,
+            c.forecasts
         )
     }
 }

@@ -76,6 +76,17 @@ pub struct CostmapConfig {
     pub speed_busy_percent: u8,
     /// Speed limit in crowded cells, percent. Default 25.
     pub speed_crowded_percent: u8,
+    /// ROS 2 topic of the forecast (`nav_msgs/msg/OccupancyGrid`, the grid's
+    /// geometry, transient-local): per cell the cost the long-term model expects
+    /// `forecast_ahead_min` from now, `Cost(M(t* + Δ))` as planning costs a
+    /// segment; -1 where no camera with a long-term store sees or its model never
+    /// learned that minute. Stamped with the forecast time. Default
+    /// `"/isochron/activity_forecast"`.
+    pub forecast_topic: String,
+    /// How far ahead the forecast looks, minutes (1 to 1440). Default 15.
+    pub forecast_ahead_min: u32,
+    /// The forecast is recomputed and republished this often, seconds. Default 60.
+    pub forecast_every_s: f64,
     /// Publish rate, Hz. Default 1.
     pub publish_hz: f64,
     /// The full grid is republished at least this often, seconds, while deltas went
@@ -167,6 +178,9 @@ impl Default for CostmapConfig {
             markers_topic: "/isochron/markers".into(),
             speed_filter_info_topic: "/isochron/speed_filter_info".into(),
             speed_mask_topic: "/isochron/speed_mask".into(),
+            forecast_topic: "/isochron/activity_forecast".into(),
+            forecast_ahead_min: 15,
+            forecast_every_s: 60.0,
             speed_busy_from_cost: 30,
             speed_crowded_from_cost: 70,
             speed_quiet_percent: 100,
@@ -373,6 +387,7 @@ impl CostmapConfig {
                 Some(&self.speed_filter_info_topic),
             ),
             ("costmap.speed_mask_topic", Some(&self.speed_mask_topic)),
+            ("costmap.forecast_topic", Some(&self.forecast_topic)),
         ] {
             if let Some(topic) = topic
                 && !is_valid_ros_topic(topic)
@@ -441,6 +456,18 @@ impl CostmapConfig {
         ] {
             check_range(&format!("costmap.{name}"), v as f64, 1.0, 100.0)?;
         }
+        check_range(
+            "costmap.forecast_ahead_min",
+            self.forecast_ahead_min as f64,
+            1.0,
+            1440.0,
+        )?;
+        check_range(
+            "costmap.forecast_every_s",
+            self.forecast_every_s,
+            1.0,
+            86_400.0,
+        )?;
         check_positive("costmap.stale_s", self.stale_s)?;
         check_range("costmap.snapshot_every_s", self.snapshot_every_s, 0.0, 1e7)?;
         check_range("costmap.snapshot_keep", self.snapshot_keep as f64, 1.0, 1e6)?;
