@@ -30,6 +30,10 @@ pub struct LiveCamera<'a> {
     pub activity: &'a [BlockActivity],
 }
 
+/// A camera's long-term mean activity per block at one t*, on its store's block
+/// grid.
+pub type LongTermBin = (BlockGrid, Vec<f32>);
+
 /// A segment's long-term activity per bin of the cycle.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SegmentDaily {
@@ -297,10 +301,7 @@ impl Planner {
     /// Each camera's long-term mean activity per block at isochronal time `t_star`
     /// with the block grid of its store (`None`: no store, or the bin never
     /// learned): what the cost map's forecast is drawn from.
-    pub fn long_term_at(
-        &mut self,
-        t_star: u32,
-    ) -> Result<Vec<Option<(BlockGrid, Vec<f32>)>>, PlanError> {
+    pub fn long_term_at(&mut self, t_star: u32) -> Result<Vec<Option<LongTermBin>>, PlanError> {
         self.refresh()?;
         Ok(self
             .models

@@ -9,11 +9,10 @@ use std::time::{Duration, Instant};
 use isochron_planning::cost::{CostParams, Layer, compose};
 use isochron_planning::grid::MapGrid;
 use isochron_planning::homography::{Homography, HomographyError};
-use isochron_planning::planner::LiveCamera;
+use isochron_planning::planner::{LiveCamera, LongTermBin};
 use isochron_planning::raster::Footprint;
 use isochron_shared::clock::NS_PER_S;
 use isochron_shared::config::{LoadedConfig, Polygon};
-use isochron_shared::geometry::BlockGrid;
 use isochron_shared::stage::Context;
 use isochron_shared::wire::{ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader};
 
@@ -273,7 +272,7 @@ impl Bridge {
     /// each camera's footprint on the store's block grid.
     pub fn compose_expected(
         &self,
-        long_term: &[Option<(BlockGrid, Vec<f32>)>],
+        long_term: &[Option<LongTermBin>],
         footprints: &mut Vec<Option<Footprint>>,
     ) -> Option<Vec<i8>> {
         let grid = self.grid.as_ref()?;
