@@ -1043,3 +1043,160 @@ fn a_ros2_peer_gets_the_forecast_of_the_long_term_model() {
         "stamp {stamp}, newest activity {newest}"
     );
 }
+
+/// Runs `ip args`; its status and stderr.
+fn ip(args: &[&str]) -> (bool, String) {
+    match std::process::Command::new("ip").args(args).output() {
+        Ok(o) => (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        ),
+        Err(e) => (false, e.to_string()),
+    }
+}
+
+/// Two network namespaces joined by a veth pair, deleted on drop.
+struct NetnsPair {
+    names: [String; 2],
+}
+
+impl Drop for NetnsPair {
+    fn drop(&mut self) {
+        for n in &self.names {
+            ip(&["netns", "del", n]);
+        }
+    }
+}
+
+/// Discovery the way robots do it: the bridge (all interfaces, `dds_interfaces`
+/// unset) in one network namespace, the Cyclone DDS peer with its default
+/// multicast discovery in another, joined by a veth pair with a 224.0.0.0/4 route
+/// on each side. Skipped only where the kernel refuses `ip netns add` (not root),
+/// never in CI.
+#[test]
+fn a_peer_in_another_network_namespace_discovers_the_bridge_by_multicast() {
+    python();
+    let tag = format!("{}{}", std::process::id() % 100_000, dds_domain());
+    let (bridge_ns, peer_ns) = (format!("isob{tag}"), format!("isop{tag}"));
+    let (ok, err) = ip(&["netns", "add", &bridge_ns]);
+    if !ok {
+        assert!(
+            std::env::var("CI").is_err(),
+            "`ip netns add` failed in CI (which runs as root): {err}"
+        );
+        eprintln!("skipped: `ip netns add` failed (needs root and iproute2): {err}");
+        return;
+    }
+    let pair = NetnsPair {
+        names: [bridge_ns.clone(), peer_ns.clone()],
+    };
+    let (veth_b, veth_p) = (format!("vb{tag}"), format!("vp{tag}"));
+    let steps: Vec<Vec<String>> = vec![
+        vec!["netns", "add", &peer_ns],
+        vec![
+            "link", "add", &veth_b, "netns", &bridge_ns, "type", "veth", "peer", "name", &veth_p,
+            "netns", &peer_ns,
+        ],
+        vec![
+            "-n",
+            &bridge_ns,
+            "addr",
+            "add",
+            "10.77.0.1/24",
+            "dev",
+            &veth_b,
+        ],
+        vec![
+            "-n",
+            &peer_ns,
+            "addr",
+            "add",
+            "10.77.0.2/24",
+            "dev",
+            &veth_p,
+        ],
+        vec!["-n", &bridge_ns, "link", "set", &veth_b, "up"],
+        vec!["-n", &peer_ns, "link", "set", &veth_p, "up"],
+        vec!["-n", &bridge_ns, "link", "set", "lo", "up"],
+        vec!["-n", &peer_ns, "link", "set", "lo", "up"],
+        vec![
+            "-n",
+            &bridge_ns,
+            "route",
+            "add",
+            "224.0.0.0/4",
+            "dev",
+            &veth_b,
+        ],
+        vec![
+            "-n",
+            &peer_ns,
+            "route",
+            "add",
+            "224.0.0.0/4",
+            "dev",
+            &veth_p,
+        ],
+    ]
+    .into_iter()
+    .map(|v| v.into_iter().map(String::from).collect())
+    .collect();
+    for step in &steps {
+        let args: Vec<&str> = step.iter().map(String::as_str).collect();
+        let (ok, err) = ip(&args);
+        assert!(ok, "ip {}: {err}", args.join(" "));
+    }
+
+    let domain = dds_domain();
+    let toml = format!("{}{}", camera_toml(), costmap_toml(domain, ""))
+        .replace("dds_interfaces = [\"127.0.0.1\"]\n", "");
+    assert!(!toml.contains("dds_interfaces"));
+    let site = TestSite::new("costmap-netns", &toml);
+    let ipc = site.ipc("source");
+    let mut source = Source::new(&ipc, "2026-03-02T11:00:00Z");
+    let config = site.config_path().display().to_string();
+    let costmap_bin = bin("isochron-costmap").display().to_string();
+    let costmap = Proc::spawn(
+        std::path::Path::new("ip"),
+        &[
+            "netns",
+            "exec",
+            &bridge_ns,
+            &costmap_bin,
+            "--config",
+            &config,
+        ],
+    );
+    source.wait_for_subscriber(&costmap);
+    let script = repo_root().join("tests/ros2/costmap_listener.py");
+    let python = python().display().to_string();
+    let mut peer = Proc::spawn(
+        std::path::Path::new("ip"),
+        &[
+            "netns",
+            "exec",
+            &peer_ns,
+            &python,
+            &script.display().to_string(),
+            "--domain",
+            &domain.to_string(),
+            "--topic",
+            "/isochron_test/activity_costmap",
+            "--multicast",
+            "--timeout",
+            "60",
+        ],
+    );
+    let hot = expected_cells(true);
+    wait_until(
+        "the grid across the veth pair",
+        &mut peer,
+        &costmap,
+        || source.send(&[(HOT_BLOCK, HOT_S1)], 660),
+        Duration::from_secs(45),
+        |msgs| msgs.iter().any(|m| m["kind"] == "grid" && data(m) == hot),
+    );
+    drop(peer);
+    drop(costmap);
+    drop(pair);
+}
