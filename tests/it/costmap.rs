@@ -272,6 +272,36 @@ fn listener_with(domain: u16, timeout_s: u32, extra: &[String]) -> Proc {
     Proc::spawn(&python(), &args)
 }
 
+/// Calls a planning service of the bridge with the independent Cyclone DDS client
+/// (`tests/ros2/plan_client.py`); its reply as JSON.
+fn ros_plan(domain: u16, service: &str, args: &[&str]) -> Value {
+    let script = repo_root().join("tests/ros2/plan_client.py");
+    let out = std::process::Command::new(python())
+        .arg(&script)
+        .args(["--domain", &domain.to_string(), "--service", service])
+        .args(args)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let reply: Value = serde_json::from_str(stdout.trim()).unwrap_or_else(|e| {
+        panic!(
+            "plan_client.py: {e}: {stdout}\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+    });
+    assert_eq!(reply["kind"], "reply", "no reply from {service}: {reply}");
+    reply
+}
+
+/// Costs of the CLI's JSON and the ROS 2 reply agree (f32 on the way, 3 decimals
+/// in the CLI's JSON).
+fn same_cost(cli: &Value, ros: &Value) -> bool {
+    match (cli.as_f64(), ros.as_f64()) {
+        (Some(a), Some(b)) => (a - b).abs() < 0.01,
+        _ => cli == ros,
+    }
+}
+
 /// Waits until `f` holds for the listener's messages, feeding the source meanwhile.
 fn wait_until(
     what: &str,
@@ -562,6 +592,82 @@ segments = ["east"]
         (c2 - (c1 + routes[0]["short_term"].as_f64().unwrap())).abs() < 0.01,
         "w1 = w2 = 1"
     );
+    // The same over ROS 2, from the independent client: the same ranking.
+    let ros = ros_plan(
+        domain,
+        "/isochron/plan_now",
+        &["now", "via-west", "via-east"],
+    );
+    assert_eq!(ros["status"], 0, "{ros}");
+    assert_eq!(ros["t_star"], ranked["t_star"]);
+    let ros_routes = ros["routes"].as_array().unwrap();
+    assert_eq!(ros_routes.len(), routes.len());
+    for (c, r) in routes.iter().zip(ros_routes) {
+        assert_eq!(c["route"], r["route"], "{ranked}\n{ros}");
+        for key in ["cost2", "cost1", "short_term"] {
+            assert!(same_cost(&c[key], &r[key]), "{key}: {ranked}\n{ros}");
+        }
+        for key in ["infinite", "estimated", "no_long_term"] {
+            assert_eq!(c[key], r[key], "{key}");
+        }
+    }
+    // Off-line over ROS 2 = the CLI's plan from the store.
+    let ros = ros_plan(
+        domain,
+        "/isochron/plan_offline",
+        &["offline", "via-west", "660", "840", "5"],
+    );
+    assert_eq!(ros["status"], 0, "{ros}");
+    assert_eq!(ros["infinite"], plan["infinite"]);
+    let (cw, rw) = (
+        plan["windows"].as_array().unwrap(),
+        ros["windows"].as_array().unwrap(),
+    );
+    assert_eq!(cw.len(), rw.len(), "{plan}\n{ros}");
+    for (c, r) in cw.iter().zip(rw) {
+        assert_eq!(c["start_minute"], r["start_minute"]);
+        assert_eq!(c["end_minute"], r["end_minute"]);
+        assert!(same_cost(&c["cost"], &r["cost"]), "{c} {r}");
+    }
+    let (cc, rc) = (
+        plan["curve"].as_array().unwrap(),
+        ros["curve"].as_array().unwrap(),
+    );
+    assert_eq!(cc.len(), rc.len());
+    for (c, r) in cc.iter().zip(rc) {
+        assert_eq!(c["minute"], r["minute"]);
+        assert!(same_cost(&c["cost"], &r["cost"]), "{c} {r}");
+    }
+    // Errors come back as a status with the reason, at once.
+    let unknown = ros_plan(domain, "/isochron/plan_now", &["now", "nowhere"]);
+    assert_eq!(unknown["status"], 2, "{unknown}");
+    assert!(
+        unknown["message"].as_str().unwrap().contains("via-west"),
+        "{unknown}"
+    );
+    let unknown = ros_plan(
+        domain,
+        "/isochron/plan_offline",
+        &["offline", "nowhere", "0", "1440", "5"],
+    );
+    assert_eq!(unknown["status"], 2, "{unknown}");
+    let late = ros_plan(
+        domain,
+        "/isochron/plan_offline",
+        &["offline", "via-west", "1500", "1440", "5"],
+    );
+    assert_eq!(late["status"], 1, "{late}");
+    assert!(
+        late["message"]
+            .as_str()
+            .unwrap()
+            .contains("outside the day"),
+        "{late}"
+    );
+    let long = "x".repeat(40);
+    let bad = ros_plan(domain, "/isochron/plan_now", &["now", &long]);
+    assert_eq!(bad["status"], 1, "{bad}");
+
     // An unknown route is refused by the CLI with the configured names.
     let bad = site.isochron(
         &["plan", "now", "--config", &config, "--routes", "nowhere"],
@@ -956,6 +1062,21 @@ segments = ["west", "east"]
         "{texts:?}"
     );
     assert!(markers.iter().skip(1).all(|m| m["frame_id"] == "test_map"));
+
+    // No long-term store yet: planning over ROS 2 says so, it does not hang.
+    let no_store = ros_plan(
+        domain,
+        "/isochron/plan_offline",
+        &["offline", "west-east", "0", "1440", "15"],
+    );
+    assert_eq!(no_store["status"], 3, "{no_store}");
+    assert!(
+        no_store["message"]
+            .as_str()
+            .unwrap()
+            .contains("no long-term store"),
+        "{no_store}"
+    );
 
     // A late joiner gets the latched markers, info and mask at once.
     let mut late = listener_with(domain, 30, &extra_topics());

@@ -297,6 +297,100 @@ pub struct MarkerArray {
     pub markers: Vec<Marker>,
 }
 
+/// `isochron_msgs/msg/CostPoint` (ros/isochron_msgs).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CostPoint {
+    /// Minute of the day.
+    pub minute: u16,
+    /// Mean Cost1 over the step (inf: never active; NaN: no data).
+    pub cost: f64,
+}
+
+/// `isochron_msgs/msg/Window`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Window {
+    /// First minute of the day.
+    pub start_minute: u16,
+    /// End minute, exclusive.
+    pub end_minute: u16,
+    /// Mean Cost1 over the window.
+    pub cost: f64,
+}
+
+/// `isochron_msgs/msg/RouteCost`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RouteCost {
+    /// Route name.
+    pub route: String,
+    /// `w1·cost1 + w2·short_term`.
+    pub cost2: f64,
+    /// Long-term cost at t* = now.
+    pub cost1: f64,
+    /// Short-term cost.
+    pub short_term: f64,
+    /// A segment never saw activity.
+    pub infinite: bool,
+    /// Long-term stood in for missing live activity.
+    pub estimated: bool,
+    /// No long-term data at this t*.
+    pub no_long_term: bool,
+}
+
+/// `isochron_msgs/srv/PlanOffline` request.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlanOfflineRequest {
+    /// Route name.
+    pub route: String,
+    /// First minute, 0..1440.
+    pub start_minute: u16,
+    /// End minute, exclusive, 1..=1440.
+    pub end_minute: u16,
+    /// Minutes per curve point.
+    pub step_min: u16,
+    /// 0 = Monday .. 6, 7 = today.
+    pub weekday: u8,
+}
+
+/// `isochron_msgs/srv/PlanOffline` response.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlanOfflineResponse {
+    /// `STATUS_*` (the values of `PlanStatus`).
+    pub status: u8,
+    /// Why not OK.
+    pub message: String,
+    /// Cheapest windows.
+    pub windows: Vec<Window>,
+    /// The curve.
+    pub curve: Vec<CostPoint>,
+    /// A segment never saw activity.
+    pub infinite: bool,
+}
+
+/// `isochron_msgs/srv/PlanNow` request.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlanNowRequest {
+    /// Route names.
+    pub routes: Vec<String>,
+}
+
+/// `isochron_msgs/srv/PlanNow` response.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlanNowResponse {
+    /// `STATUS_*`.
+    pub status: u8,
+    /// Why not OK.
+    pub message: String,
+    /// t* of the ranking.
+    pub t_star: u16,
+    /// Cheapest first.
+    pub routes: Vec<RouteCost>,
+}
+
+impl ros2_client::Message for PlanOfflineRequest {}
+impl ros2_client::Message for PlanOfflineResponse {}
+impl ros2_client::Message for PlanNowRequest {}
+impl ros2_client::Message for PlanNowResponse {}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -150,6 +150,8 @@ impl CostmapStage {
                     speed_filter_info_topic: c.speed_filter_info_topic.clone(),
                     speed_mask_topic: c.speed_mask_topic.clone(),
                     forecast_topic: c.forecast_topic.clone(),
+                    plan_offline_service: c.plan_offline_service.clone(),
+                    plan_now_service: c.plan_now_service.clone(),
                 };
                 limit_dds_logging();
                 let output = RosOutput::start(&settings)?;
@@ -230,6 +232,29 @@ impl CostmapStage {
     }
 }
 
+impl CostmapStage {
+    /// Answers the planning requests that came over ROS 2.
+    fn serve_ros_plans(&mut self) {
+        let Some(ros) = &self.ros else {
+            return;
+        };
+        let served = ros.output.serve_plans(|kind, request| {
+            answer(
+                kind,
+                request,
+                &mut self.planner,
+                &self.bridge,
+                &self.clock,
+                &self.snapshot_dir,
+                self.floor_plan.as_ref(),
+                &self.loaded,
+                &mut self.counters,
+            )
+        });
+        self.counters.plans += served as u64;
+    }
+}
+
 impl Stage for CostmapStage {
     type Inputs = CostmapInputs;
     const KIND: StageKind = StageKind::Costmap;
@@ -290,6 +315,7 @@ impl Stage for CostmapStage {
             &mut rejected,
         )?;
         self.counters.plans += served as u64;
+        self.serve_ros_plans();
         for _ in 0..rejected {
             cx.health.rejected();
         }
@@ -297,6 +323,7 @@ impl Stage for CostmapStage {
     }
 
     fn on_tick(&mut self, cx: &mut Context) -> Result<(), Fatal> {
+        self.serve_ros_plans();
         let now = Instant::now();
         if now >= self.next_publish {
             self.next_publish += self.period;

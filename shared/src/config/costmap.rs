@@ -87,6 +87,12 @@ pub struct CostmapConfig {
     pub forecast_ahead_min: u32,
     /// The forecast is recomputed and republished this often, seconds. Default 60.
     pub forecast_every_s: f64,
+    /// ROS 2 service `isochron_msgs/srv/PlanOffline` (`isochron plan offline`
+    /// over ROS 2; ros/isochron_msgs). Default `"/isochron/plan_offline"`.
+    pub plan_offline_service: String,
+    /// ROS 2 service `isochron_msgs/srv/PlanNow` (`isochron plan now` over ROS 2).
+    /// Default `"/isochron/plan_now"`.
+    pub plan_now_service: String,
     /// Publish rate, Hz. Default 1.
     pub publish_hz: f64,
     /// The full grid is republished at least this often, seconds, while deltas went
@@ -179,6 +185,8 @@ impl Default for CostmapConfig {
             speed_filter_info_topic: "/isochron/speed_filter_info".into(),
             speed_mask_topic: "/isochron/speed_mask".into(),
             forecast_topic: "/isochron/activity_forecast".into(),
+            plan_offline_service: "/isochron/plan_offline".into(),
+            plan_now_service: "/isochron/plan_now".into(),
             forecast_ahead_min: 15,
             forecast_every_s: 60.0,
             speed_busy_from_cost: 30,
@@ -388,6 +396,11 @@ impl CostmapConfig {
             ),
             ("costmap.speed_mask_topic", Some(&self.speed_mask_topic)),
             ("costmap.forecast_topic", Some(&self.forecast_topic)),
+            (
+                "costmap.plan_offline_service",
+                Some(&self.plan_offline_service),
+            ),
+            ("costmap.plan_now_service", Some(&self.plan_now_service)),
         ] {
             if let Some(topic) = topic
                 && !is_valid_ros_topic(topic)

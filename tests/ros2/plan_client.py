@@ -1,0 +1,208 @@
+#!/usr/bin/env python3
+"""An independent ROS 2 client of isochron's planning services.
+
+Eclipse Cyclone DDS from Python (`cyclonedds` on PyPI) and nothing of isochron or
+ROS: the types are declared here from ros/isochron_msgs/srv/PlanOffline.srv and
+PlanNow.srv with their DDS names (`isochron_msgs::srv::dds_::PlanNow_Request_`,
+..._Response_), on the topics ROS 2 gives a service `/s`: `rq/sRequest` and
+`rr/sReply`. As rmw_cyclonedds does, each request and reply starts with the
+client's id (8 bytes) and a sequence number (8 bytes); the reply carrying our id
+and one of our sequence numbers is ours. The request is sent again every half
+second until a reply comes (discovery may not have matched the first one).
+
+Prints one JSON line: {"kind": "reply", ...fields} with costs as numbers, "inf",
+or null (NaN), or {"kind": "timeout"}. DDS stays on the loopback interface, as in
+costmap_listener.py.
+
+Usage: plan_client.py --domain D --service /isochron/plan_now now ROUTE [ROUTE...]
+       plan_client.py --domain D --service /isochron/plan_offline offline ROUTE
+              START_MINUTE END_MINUTE STEP_MIN [WEEKDAY]
+"""
+
+import argparse
+import json
+import math
+import os
+import random
+import sys
+import time
+from dataclasses import dataclass
+
+LOOPBACK_ONLY = """<CycloneDDS><Domain id="any">
+  <General>
+    <Interfaces><NetworkInterface address="127.0.0.1"/></Interfaces>
+    <AllowMulticast>false</AllowMulticast>
+  </General>
+  <Discovery>
+    <ParticipantIndex>auto</ParticipantIndex>
+    <MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>
+    <Peers><Peer address="127.0.0.1"/></Peers>
+  </Discovery>
+</Domain></CycloneDDS>"""
+
+
+def cost(v):
+    if math.isnan(v):
+        return None
+    if math.isinf(v):
+        return "inf"
+    return v
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--domain", type=int, required=True)
+    parser.add_argument("--service", required=True)
+    parser.add_argument("--timeout", type=float, default=20.0)
+    parser.add_argument("kind", choices=["offline", "now"])
+    parser.add_argument("args", nargs="+")
+    args = parser.parse_args()
+    os.environ["CYCLONEDDS_URI"] = LOOPBACK_ONLY
+
+    from cyclonedds.core import Policy, Qos
+    from cyclonedds.domain import DomainParticipant
+    from cyclonedds.idl import IdlStruct
+    from cyclonedds.idl.types import float64, int64, sequence, uint8, uint16, uint64
+    from cyclonedds.pub import DataWriter
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+    from cyclonedds.util import duration
+
+    @dataclass
+    class CostPoint(IdlStruct, typename="isochron_msgs::msg::dds_::CostPoint_"):
+        minute: uint16
+        cost: float64
+
+    @dataclass
+    class Window(IdlStruct, typename="isochron_msgs::msg::dds_::Window_"):
+        start_minute: uint16
+        end_minute: uint16
+        cost: float64
+
+    @dataclass
+    class RouteCost(IdlStruct, typename="isochron_msgs::msg::dds_::RouteCost_"):
+        route: str
+        cost2: float64
+        cost1: float64
+        short_term: float64
+        infinite: bool
+        estimated: bool
+        no_long_term: bool
+
+    # rmw_cyclonedds request/reply header (client id, sequence number), then the
+    # .srv fields.
+    @dataclass
+    class PlanOfflineRequest(IdlStruct, typename="isochron_msgs::srv::dds_::PlanOffline_Request_"):
+        client: uint64
+        seq: int64
+        route: str
+        start_minute: uint16
+        end_minute: uint16
+        step_min: uint16
+        weekday: uint8
+
+    @dataclass
+    class PlanOfflineResponse(IdlStruct, typename="isochron_msgs::srv::dds_::PlanOffline_Response_"):
+        client: uint64
+        seq: int64
+        status: uint8
+        message: str
+        windows: sequence[Window]
+        curve: sequence[CostPoint]
+        infinite: bool
+
+    @dataclass
+    class PlanNowRequest(IdlStruct, typename="isochron_msgs::srv::dds_::PlanNow_Request_"):
+        client: uint64
+        seq: int64
+        routes: sequence[str]
+
+    @dataclass
+    class PlanNowResponse(IdlStruct, typename="isochron_msgs::srv::dds_::PlanNow_Response_"):
+        client: uint64
+        seq: int64
+        status: uint8
+        message: str
+        t_star: uint16
+        routes: sequence[RouteCost]
+
+    client = random.getrandbits(63)
+    if args.kind == "offline":
+        route, start, end, step = args.args[0], *map(int, args.args[1:4])
+        weekday = int(args.args[4]) if len(args.args) > 4 else 7
+        req_type, resp_type = PlanOfflineRequest, PlanOfflineResponse
+
+        def request(seq):
+            return PlanOfflineRequest(client, seq, route, start, end, step, weekday)
+
+        def reply_json(r):
+            return {
+                "status": r.status,
+                "message": r.message,
+                "windows": [
+                    {"start_minute": w.start_minute, "end_minute": w.end_minute, "cost": cost(w.cost)}
+                    for w in r.windows
+                ],
+                "curve": [{"minute": p.minute, "cost": cost(p.cost)} for p in r.curve],
+                "infinite": r.infinite,
+            }
+    else:
+        req_type, resp_type = PlanNowRequest, PlanNowResponse
+
+        def request(seq):
+            return PlanNowRequest(client, seq, list(args.args))
+
+        def reply_json(r):
+            return {
+                "status": r.status,
+                "message": r.message,
+                "t_star": r.t_star,
+                "routes": [
+                    {
+                        "route": x.route,
+                        "cost2": cost(x.cost2),
+                        "cost1": cost(x.cost1),
+                        "short_term": cost(x.short_term),
+                        "infinite": x.infinite,
+                        "estimated": x.estimated,
+                        "no_long_term": x.no_long_term,
+                    }
+                    for x in r.routes
+                ],
+            }
+
+    qos = Qos(
+        Policy.Reliability.Reliable(duration(seconds=1)),
+        Policy.Durability.Volatile,
+        Policy.History.KeepLast(10),
+        Policy.DataRepresentation(use_cdrv0_representation=True, use_xcdrv2_representation=True),
+    )
+    participant = DomainParticipant(args.domain)
+    name = args.service if args.service.startswith("/") else "/" + args.service
+    writer = DataWriter(participant, Topic(participant, "rq" + name + "Request", req_type), qos=qos)
+    reader = DataReader(participant, Topic(participant, "rr" + name + "Reply", resp_type), qos=qos)
+
+    sent = set()
+    end_at = time.monotonic() + args.timeout
+    next_send = 0.0
+    seq = 0
+    while time.monotonic() < end_at:
+        if time.monotonic() >= next_send:
+            seq += 1
+            sent.add(seq)
+            writer.write(request(seq))
+            next_send = time.monotonic() + 0.5
+        for r in reader.take(N=16):
+            if r.client == client and r.seq in sent:
+                out = {"kind": "reply"}
+                out.update(reply_json(r))
+                sys.stdout.write(json.dumps(out) + "\n")
+                sys.stdout.flush()
+                return
+        time.sleep(0.02)
+    sys.stdout.write(json.dumps({"kind": "timeout"}) + "\n")
+    sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    main()
