@@ -489,8 +489,8 @@ segments = ["door", "west"]
             ranked[0]
         );
         assert!((ranked[0].cost1 - 20.0).abs() < 1e-3);
-        // via-door: door is all crowded → capped at 100.
-        assert!((ranked[1].short_term - (100.0 + 100.0 * west_now / 0.1)).abs() < 1e-3);
+        // via-door: door is all crowded → capped at the default cap, 99.
+        assert!((ranked[1].short_term - (99.0 + 100.0 * west_now / 0.1)).abs() < 1e-3);
         assert!(!ranked[0].estimated);
     }
 

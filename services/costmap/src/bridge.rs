@@ -517,7 +517,11 @@ stale_s = 5
         assert_eq!(b.on_detections(0, &dh, &[person, chair]), (1, 0));
         let grid = b.grid.unwrap();
         let cells = b.compose(t0).unwrap();
-        assert_eq!(cells[grid.index(13, 14)], 100);
+        assert_eq!(
+            cells[grid.index(13, 14)],
+            99,
+            "confirm_cost defaults to cap, 99"
+        );
         assert_eq!(cells[grid.index(20, 20)], 0);
         // 3 s of capture time later the confirmation has expired.
         b.on_activity(0, &header(1_003 * NS_PER_S), &blocks, t0);
