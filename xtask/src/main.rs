@@ -1,7 +1,7 @@
 //! Developer tasks: `cargo xtask <setup|demo|test|bench NAME>`.
 //!
 //! * `setup`: installs the system packages isochron builds against (Debian/Ubuntu:
-//!   libopencv-dev, clang, libclang-dev) if they are missing, and fetches the sample
+//!   libopencv-dev, clang, libclang-dev, iproute2) if they are missing, and fetches the sample
 //!   video (PETS 2009 `vtest.avi`, from Debian's opencv-doc package) into `data/`;
 //! * `demo`: setup, release build, `isochron replay` on the sample video with
 //!   `config/demo.toml`, and a report of what every stage did;
@@ -21,7 +21,9 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 
-const PACKAGES: [&str; 3] = ["libopencv-dev", "clang", "libclang-dev"];
+/// System packages: OpenCV and the bindings' clang; iproute2 (`ip`, `ss`) for the
+/// network-namespace and DDS socket tests.
+const PACKAGES: [&str; 4] = ["libopencv-dev", "clang", "libclang-dev", "iproute2"];
 
 /// Benchmarks: name → (package, bench target).
 const BENCHES: [(&str, &str, &str); 5] = [

@@ -757,3 +757,15 @@ fn answer(
         },
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unknown_cells_become_free_only_when_asked() {
+        let mut cells = vec![-1, 0, 42, 99, -1];
+        unknown_as_free(&mut cells);
+        assert_eq!(cells, vec![0, 0, 42, 99, 0]);
+    }
+}
