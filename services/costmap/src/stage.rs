@@ -76,12 +76,8 @@ pub type CostmapInputs = (
 /// The site's cost map: the bridge from blocks to floor cells, the ROS 2 output,
 /// the planner, snapshots.
 pub struct CostmapStage {
-    loaded: LoadedConfig,
     bridge: Bridge,
-    planner: Planner,
-    clock: SiteClock,
-    floor_plan: Option<FloorPlan>,
-    snapshot_dir: PathBuf,
+    planning: Planning,
     ros: Option<Ros>,
     counters: Counters,
     period: Duration,
@@ -214,12 +210,14 @@ impl CostmapStage {
             (c.snapshot_every_s > 0.0).then(|| Duration::from_secs_f64(c.snapshot_every_s));
         let now = Instant::now();
         let stage = CostmapStage {
-            loaded: loaded.clone(),
             bridge,
-            planner,
-            clock,
-            floor_plan,
-            snapshot_dir,
+            planning: Planning {
+                loaded: loaded.clone(),
+                planner,
+                clock,
+                floor_plan,
+                snapshot_dir,
+            },
             ros,
             counters: Counters::default(),
             period: Duration::from_secs_f64(1.0 / c.publish_hz),
@@ -239,17 +237,8 @@ impl CostmapStage {
             return;
         };
         let served = ros.output.serve_plans(|kind, request| {
-            answer(
-                kind,
-                request,
-                &mut self.planner,
-                &self.bridge,
-                &self.clock,
-                &self.snapshot_dir,
-                self.floor_plan.as_ref(),
-                &self.loaded,
-                &mut self.counters,
-            )
+            self.planning
+                .answer(kind, request, &self.bridge, &mut self.counters)
         });
         self.counters.plans += served as u64;
     }
@@ -300,17 +289,8 @@ impl Stage for CostmapStage {
         let mut rejected = 0;
         let served = plans.0.serve(
             |kind, request| {
-                answer(
-                    kind,
-                    request,
-                    &mut self.planner,
-                    &self.bridge,
-                    &self.clock,
-                    &self.snapshot_dir,
-                    self.floor_plan.as_ref(),
-                    &self.loaded,
-                    &mut self.counters,
-                )
+                self.planning
+                    .answer(kind, request, &self.bridge, &mut self.counters)
             },
             &mut rejected,
         )?;
@@ -335,7 +315,7 @@ impl Stage for CostmapStage {
                 && let Some(mut cells) = self.bridge.compose(now)
             {
                 let stamp_ns = self.bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
-                let c = &self.loaded.config.costmap;
+                let c = &self.planning.loaded.config.costmap;
                 let mask: Vec<i8> = cells.iter().map(|&v| c.speed_mask_value(v)).collect();
                 if ros.mask_sent.as_ref() != Some(&mask) {
                     let message = occupancy_grid(grid, &ros.frame_id, stamp_ns, mask.clone());
@@ -363,15 +343,15 @@ impl Stage for CostmapStage {
         if let (Some(ros), Some(grid)) = (&mut self.ros, &self.bridge.grid)
             && now >= ros.next_forecast
         {
-            let c = &self.loaded.config.costmap;
+            let c = &self.planning.loaded.config.costmap;
             ros.next_forecast = now + Duration::from_secs_f64(c.forecast_every_s);
             let now_ns = self.bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
             let t_star = self
                 .bridge
                 .newest(now)
-                .map_or_else(|| self.clock.t_star(now_ns), |(_, t)| t);
-            let ahead = (t_star + c.forecast_ahead_min) % self.planner.cycle().bins();
-            let expected = self.planner.long_term_at(ahead).map(|models| {
+                .map_or_else(|| self.planning.clock.t_star(now_ns), |(_, t)| t);
+            let ahead = (t_star + c.forecast_ahead_min) % self.planning.planner.cycle().bins();
+            let expected = self.planning.planner.long_term_at(ahead).map(|models| {
                 self.bridge
                     .compose_expected(&models, &mut ros.forecast_footprints)
             });
@@ -394,16 +374,17 @@ impl Stage for CostmapStage {
             }
         }
         if let Some(ros) = &mut self.ros {
-            let key = marker_key(&self.loaded, &self.bridge);
+            let key = marker_key(&self.planning.loaded, &self.bridge);
             if ros.markers_sent.as_ref() != Some(&key) {
                 let header = Header {
                     stamp: Time::from_utc_ns(wall_now_ns()),
                     frame_id: ros.frame_id.clone(),
                 };
-                match ros
-                    .output
-                    .publish_markers(site_markers(&self.loaded, &self.bridge, &header))
-                {
+                match ros.output.publish_markers(site_markers(
+                    &self.planning.loaded,
+                    &self.bridge,
+                    &header,
+                )) {
                     Ok(()) => {
                         self.counters.markers += 1;
                         ros.markers_sent = Some(key);
@@ -419,13 +400,7 @@ impl Stage for CostmapStage {
             && now >= at
         {
             self.next_snapshot = self.snapshot_every.map(|e| now + e);
-            match write_snapshot(
-                &self.bridge,
-                &self.loaded,
-                &self.snapshot_dir,
-                self.floor_plan.as_ref(),
-                now,
-            ) {
+            match self.planning.write_snapshot(&self.bridge, now) {
                 Ok(path) => {
                     self.counters.snapshots += 1;
                     tracing::debug!("snapshot {path}");
@@ -646,115 +621,119 @@ enum SnapshotFailure {
     Write(#[from] SnapshotError),
 }
 
-/// Writes a snapshot of the current cost map; returns the YAML's path.
-fn write_snapshot(
-    bridge: &Bridge,
-    loaded: &LoadedConfig,
-    dir: &std::path::Path,
-    floor_plan: Option<&FloorPlan>,
-    now: Instant,
-) -> Result<String, SnapshotFailure> {
-    let grid = bridge.grid.as_ref().ok_or(SnapshotFailure::NoGrid)?;
-    let cells = bridge.compose(now).ok_or(SnapshotFailure::NoCells)?;
-    let stamp_ns = bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
-    let ts = timestamp(stamp_ns);
-    let stem = format!(
-        "activity-{}{:03}Z",
-        ts.strftime("%Y%m%dT%H%M%S."),
-        ts.subsec_millisecond()
-    );
-    let coverage = bridge.coverage();
-    let polygons: Vec<&[[f64; 2]]> = loaded
-        .config
-        .costmap
-        .segments
-        .iter()
-        .filter_map(|s| s.polygon_m.as_deref())
-        .collect();
-    let stamp = format_rfc3339(stamp_ns);
-    let files = snapshot::write(
-        dir,
-        &stem,
-        &Snapshot {
-            grid,
-            cells: &cells,
-            floor_plan,
-            coverage: &coverage,
-            segments: &polygons,
-            stamp: &stamp,
-        },
-    )?;
-    snapshot::prune(dir, "activity-", loaded.config.costmap.snapshot_keep)?;
-    Ok(files.yaml.display().to_string())
+/// What answers planning requests and writes snapshots: the site, its long-term
+/// planner and clock, the floor plan, where snapshots go.
+struct Planning {
+    loaded: LoadedConfig,
+    planner: Planner,
+    clock: SiteClock,
+    floor_plan: Option<FloorPlan>,
+    snapshot_dir: PathBuf,
 }
 
-/// Answers one planning request.
-#[allow(clippy::too_many_arguments)]
-fn answer(
-    kind: PlanKind,
-    request: &PlanRequest,
-    planner: &mut Planner,
-    bridge: &Bridge,
-    clock: &SiteClock,
-    snapshot_dir: &std::path::Path,
-    floor_plan: Option<&FloorPlan>,
-    loaded: &LoadedConfig,
-    counters: &mut Counters,
-) -> PlanResponse {
-    let now = Instant::now();
-    let failed =
-        |status: PlanStatus, message: String| PlanResponse::new(kind as u32, status, &message);
-    let status_of = |e: &PlanError| match e {
-        PlanError::UnknownRoute(..) => PlanStatus::UnknownRoute,
-        PlanError::NoData(_) | PlanError::EmptySegment(_) => PlanStatus::NoData,
-        _ => PlanStatus::Failed,
-    };
-    // "Now" is the time of the newest activity (header time), else the wall clock.
-    let now_ns = bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
-    match kind {
-        PlanKind::Offline => {
-            let route = request.route_names().remove(0);
-            let cycle_offset = match planner.cycle() {
-                Cycle::Daily => 0,
-                Cycle::Weekly => {
-                    let day = if request.weekday == 7 {
-                        clock.t_star(now_ns) / 1440
-                    } else {
-                        request.weekday
-                    };
-                    day * 1440
+impl Planning {
+    /// Writes a snapshot of the cost map that `bridge` composes now; returns its YAML path.
+    fn write_snapshot(&self, bridge: &Bridge, now: Instant) -> Result<String, SnapshotFailure> {
+        let (loaded, dir, floor_plan) =
+            (&self.loaded, &self.snapshot_dir, self.floor_plan.as_ref());
+        let grid = bridge.grid.as_ref().ok_or(SnapshotFailure::NoGrid)?;
+        let cells = bridge.compose(now).ok_or(SnapshotFailure::NoCells)?;
+        let stamp_ns = bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
+        let ts = timestamp(stamp_ns);
+        let stem = format!(
+            "activity-{}{:03}Z",
+            ts.strftime("%Y%m%dT%H%M%S."),
+            ts.subsec_millisecond()
+        );
+        let coverage = bridge.coverage();
+        let polygons: Vec<&[[f64; 2]]> = loaded
+            .config
+            .costmap
+            .segments
+            .iter()
+            .filter_map(|s| s.polygon_m.as_deref())
+            .collect();
+        let stamp = format_rfc3339(stamp_ns);
+        let files = snapshot::write(
+            dir,
+            &stem,
+            &Snapshot {
+                grid,
+                cells: &cells,
+                floor_plan,
+                coverage: &coverage,
+                segments: &polygons,
+                stamp: &stamp,
+            },
+        )?;
+        snapshot::prune(dir, "activity-", loaded.config.costmap.snapshot_keep)?;
+        Ok(files.yaml.display().to_string())
+    }
+
+    /// Answers one planning request.
+    fn answer(
+        &mut self,
+        kind: PlanKind,
+        request: &PlanRequest,
+        bridge: &Bridge,
+        counters: &mut Counters,
+    ) -> PlanResponse {
+        let (planner, clock) = (&mut self.planner, &self.clock);
+        let now = Instant::now();
+        let failed =
+            |status: PlanStatus, message: String| PlanResponse::new(kind as u32, status, &message);
+        let status_of = |e: &PlanError| match e {
+            PlanError::UnknownRoute(..) => PlanStatus::UnknownRoute,
+            PlanError::NoData(_) | PlanError::EmptySegment(_) => PlanStatus::NoData,
+            _ => PlanStatus::Failed,
+        };
+        // "Now" is the time of the newest activity (header time), else the wall clock.
+        let now_ns = bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
+        match kind {
+            PlanKind::Offline => {
+                let route = request.route_names().remove(0);
+                let cycle_offset = match planner.cycle() {
+                    Cycle::Daily => 0,
+                    Cycle::Weekly => {
+                        let day = if request.weekday == 7 {
+                            clock.t_star(now_ns) / 1440
+                        } else {
+                            request.weekday
+                        };
+                        day * 1440
+                    }
+                };
+                let range = DayRange {
+                    start: request.start_minute,
+                    end: request.end_minute,
+                    step: request.step_min,
+                    cycle_offset,
+                };
+                match planner.offline(&route, range) {
+                    Ok(plan) => answer_offline(&plan),
+                    Err(e) => failed(status_of(&e), e.to_string()),
                 }
-            };
-            let range = DayRange {
-                start: request.start_minute,
-                end: request.end_minute,
-                step: request.step_min,
-                cycle_offset,
-            };
-            match planner.offline(&route, range) {
-                Ok(plan) => answer_offline(&plan),
-                Err(e) => failed(status_of(&e), e.to_string()),
             }
+            PlanKind::Now => {
+                let t_star = bridge
+                    .newest(now)
+                    .map_or_else(|| clock.t_star(now_ns), |(_, t)| t);
+                let live = bridge.live(now);
+                match planner.now(&request.route_names(), &live, t_star) {
+                    Ok(ranked) => answer_now(&ranked, t_star),
+                    Err(e) => failed(status_of(&e), e.to_string()),
+                }
+            }
+            PlanKind::Snapshot => match self.write_snapshot(bridge, now) {
+                Ok(path) => {
+                    counters.snapshots += 1;
+                    tracing::info!("snapshot written: {path}");
+                    PlanResponse::new(kind as u32, PlanStatus::Ok, &path)
+                }
+                Err(e) if bridge.grid.is_none() => failed(PlanStatus::NoData, e.to_string()),
+                Err(e) => failed(PlanStatus::Failed, e.to_string()),
+            },
         }
-        PlanKind::Now => {
-            let t_star = bridge
-                .newest(now)
-                .map_or_else(|| clock.t_star(now_ns), |(_, t)| t);
-            let live = bridge.live(now);
-            match planner.now(&request.route_names(), &live, t_star) {
-                Ok(ranked) => answer_now(&ranked, t_star),
-                Err(e) => failed(status_of(&e), e.to_string()),
-            }
-        }
-        PlanKind::Snapshot => match write_snapshot(bridge, loaded, snapshot_dir, floor_plan, now) {
-            Ok(path) => {
-                counters.snapshots += 1;
-                tracing::info!("snapshot written: {path}");
-                PlanResponse::new(kind as u32, PlanStatus::Ok, &path)
-            }
-            Err(e) if bridge.grid.is_none() => failed(PlanStatus::NoData, e.to_string()),
-            Err(e) => failed(PlanStatus::Failed, e.to_string()),
-        },
     }
 }
 
