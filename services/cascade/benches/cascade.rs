@@ -1,9 +1,15 @@
 //! `cargo xtask bench cascade`: the cascade against the non-cascade reference on the
-//! same motion stream (K = 1200 blocks, 30 fps): time per block-frame, filter
+//! same motion stream (K = 1200 blocks, 30 fps): time per block-frame, arithmetic
 //! operations per block-frame, state bytes per camera; then the durable commit of one
 //! minute to the SQLite store. Prints a table, then as its last line
-//! `{"bench":"cascade","ns_per_block_frame":..,"ops_ratio":..,"state_ratio":..,"time_ratio":..}`
+//! `{"bench":"cascade","ns_per_block_frame":..,"ops_ratio":..,"state_ratio":..,"time_ratio":..,..}`
 //! (ratios are non-cascade / cascade; times are medians over the runs).
+//!
+//! Operations are counted by running both banks once on
+//! [`Counted`](isochron_cascade::filters::Counted), an `f32` that counts every
+//! addition, multiplication, division and max it takes part in; times come from the
+//! same banks on plain `f32`, the service's type. F_L2, which runs once per
+//! block-minute on the minute means of either bank alike, is not in the count.
 //!
 //! Time covers everything the service does per sample except shared memory: header
 //! and value checks, F_L1, the seconds, S1/S2 and the long-term fields, the minutes and
@@ -22,10 +28,10 @@ use std::hint::black_box;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use isochron_cascade::filters::{CascadeBank, FilterBank, NonCascadeBank};
+use isochron_cascade::filters::{CascadeBank, Counted, FilterBank, NonCascadeBank, OpCount};
 use isochron_cascade::{Cascade, LongTerm, MemoryModel, Params, SecondOut};
 use isochron_shared::clock::{Cycle, NS_PER_S, SiteClock, parse_rfc3339};
-use isochron_shared::config::LoadedConfig;
+use isochron_shared::config::Config;
 use isochron_shared::geometry::BlockGrid;
 use isochron_shared::store::{Baseline, Bin, MinuteCommit, Store, StoreMeta, store_path};
 use isochron_shared::wire::{BlockActivity, BlockMotion, CameraId, MotionHeader, Preamble, Stream};
@@ -137,7 +143,6 @@ fn header(camera: CameraId, start: i64, i: i64) -> MotionHeader {
 
 struct RunResult {
     elapsed: Duration,
-    ops_per_block_frame: f64,
     filters: u32,
     state_bytes: usize,
     outputs: Vec<(SecondOut, Vec<BlockActivity>)>,
@@ -171,11 +176,9 @@ fn run<B: FilterBank>(frames: &[Vec<BlockMotion>], seconds: i64, keep: bool) -> 
         }
     }
     let elapsed = t0.elapsed();
-    let block_frames = (seconds * FPS) as f64 * (GRID_W * GRID_H) as f64;
     RunResult {
         elapsed,
-        ops_per_block_frame: cascade.ops().total() as f64 / block_frames,
-        filters: cascade.ops().filters(),
+        filters: B::FILTERS,
         state_bytes: cascade.state_bytes(),
         outputs,
     }
@@ -223,7 +226,11 @@ fn state_dir(args: &[String]) -> Result<PathBuf, String> {
     let value = |flag: &str| {
         args.iter()
             .position(|a| a == flag)
-            .map(|i| args.get(i + 1).cloned().ok_or(format!("{flag} needs a value")))
+            .map(|i| {
+                args.get(i + 1)
+                    .cloned()
+                    .ok_or(format!("{flag} needs a value"))
+            })
             .transpose()
     };
     if let Some(dir) = value("--state-dir")? {
@@ -233,7 +240,7 @@ fn state_dir(args: &[String]) -> Result<PathBuf, String> {
         Some(c) => PathBuf::from(c),
         None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/demo.toml"),
     };
-    let loaded = LoadedConfig::load(&config).map_err(|e| e.to_string())?;
+    let loaded = Config::load(&config).map_err(|e| e.to_string())?;
     Ok(loaded.state_dir())
 }
 
@@ -336,13 +343,30 @@ fn main() {
     } = size;
     let frames = frames();
     let block_frames = (run_seconds * FPS) as f64 * (GRID_W * GRID_H) as f64;
-    // Warm up, and check the outputs once.
-    let c = run::<CascadeBank>(&frames, run_seconds, true);
-    let n = run::<NonCascadeBank>(&frames, run_seconds, true);
-    if let Err(e) = same_outputs(&c, &n) {
-        eprintln!("cascade and non-cascade outputs differ: {e}");
-        std::process::exit(1);
+    // Count the operations (each bank on the counting type), and check the outputs:
+    // the two banks agree, and the counting type computes what f32 does.
+    Counted::take();
+    let c = run::<CascadeBank<Counted>>(&frames, run_seconds, true);
+    let ops_c = Counted::take();
+    let n = run::<NonCascadeBank<Counted>>(&frames, run_seconds, true);
+    let ops_n = Counted::take();
+    let plain = run::<CascadeBank>(&frames, run_seconds, true);
+    for (what, result) in [
+        (
+            "cascade and non-cascade outputs differ",
+            same_outputs(&c, &n),
+        ),
+        (
+            "the cascade's outputs differ on f32 and on the counting type",
+            same_outputs(&plain, &c),
+        ),
+    ] {
+        if let Err(e) = result {
+            eprintln!("{what}: {e}");
+            std::process::exit(1);
+        }
     }
+    let per_block_frame = |n: u64| n as f64 / block_frames;
     let seconds = c.outputs.len();
     let (mut tc, mut tn) = (Vec::new(), Vec::new());
     // Alternate, so that a noisy neighbour hurts both alike.
@@ -364,9 +388,10 @@ fn main() {
             std::process::exit(1);
         }
     };
+    let state_dir = std::fs::canonicalize(&state_dir).unwrap_or(state_dir);
     let fs = filesystem_of(&state_dir);
     let is_durable = durable(&fs);
-    let ops_ratio = n.ops_per_block_frame / c.ops_per_block_frame;
+    let ops_ratio = ops_n.total() as f64 / ops_c.total() as f64;
     let state_ratio = n.state_bytes as f64 / c.state_bytes as f64;
     let time_ratio = ns_n / ns_c;
 
@@ -391,10 +416,21 @@ fn main() {
         min_n,
         min_n / min_c
     );
-    println!(
-        "{:<34} {:>12.3} {:>12.3} {:>12.2}",
-        "filter ops per block-frame", c.ops_per_block_frame, n.ops_per_block_frame, ops_ratio
-    );
+    let ops_row = |what: &str, of: fn(&OpCount) -> u64| {
+        let (a, b) = (of(&ops_c), of(&ops_n));
+        println!(
+            "{:<34} {:>12.3} {:>12.3} {:>12.2}",
+            what,
+            per_block_frame(a),
+            per_block_frame(b),
+            b as f64 / a.max(1) as f64
+        );
+    };
+    ops_row("arithmetic ops per block-frame", OpCount::total);
+    ops_row("  additions and subtractions", |o| o.add);
+    ops_row("  multiplications", |o| o.mul);
+    ops_row("  divisions", |o| o.div);
+    ops_row("  maxima", |o| o.max);
     println!(
         "{:<34} {:>12} {:>12} {:>12.2}",
         "filters (paper's count)",
@@ -415,6 +451,10 @@ fn main() {
     println!(
         "{:<34} {:>12}",
         "outputs", "identical (S1, S2 and vectors bit for bit; long-term within float rounding)"
+    );
+    println!(
+        "non-cascade / cascade: {time_ratio:.2}x the time for {ops_ratio:.2}x the arithmetic \
+         (operations counted on the counting type, F_L2 excluded; times on f32)"
     );
     println!(
         "{:<34} p50 {commit_p50:.3} ms, p99 {commit_p99:.3} ms ({commits} commits of {} blocks, WAL, synchronous=FULL, in {} on {fs}{})",
