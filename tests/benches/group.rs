@@ -364,7 +364,7 @@ fn churn_video() -> Result<(PathBuf, String), String> {
     let dir = repo_root().join("target/bench-data");
     let path = dir.join(format!("churn-busy{BUSY_S}s-quiet{QUIET_S}s.avi"));
     let codec_of = |path: &Path| -> Result<String, String> {
-        let cap = videoio::VideoCapture::from_file(&path.display().to_string(), videoio::CAP_ANY)
+        let cap = videoio::VideoCapture::from_file(path.display().to_string(), videoio::CAP_ANY)
             .map_err(|e| format!("{}: {e}", path.display()))?;
         let fourcc = cap.get(videoio::CAP_PROP_FOURCC).unwrap_or(0.0) as u32;
         Ok(fourcc_name(fourcc))
@@ -376,7 +376,7 @@ fn churn_video() -> Result<(PathBuf, String), String> {
     let t0 = Instant::now();
     let source = vtest();
     let err = |e: opencv::Error| format!("making the churn video from {}: {e}", source.display());
-    let mut cap = videoio::VideoCapture::from_file(&source.display().to_string(), videoio::CAP_ANY)
+    let mut cap = videoio::VideoCapture::from_file(source.display().to_string(), videoio::CAP_ANY)
         .map_err(err)?;
     let fourcc = cap.get(videoio::CAP_PROP_FOURCC).map_err(err)? as i32;
     let mut frames: Vec<Mat> = Vec::new();
@@ -400,7 +400,7 @@ fn churn_video() -> Result<(PathBuf, String), String> {
     let mjpg = videoio::VideoWriter::fourcc('M', 'J', 'P', 'G').map_err(err)?;
     let mut writer = None;
     for code in [fourcc, mjpg] {
-        let w = videoio::VideoWriter::new(&partial.display().to_string(), code, FPS, size, true)
+        let w = videoio::VideoWriter::new(partial.display().to_string(), code, FPS, size, true)
             .map_err(err)?;
         if w.is_opened().map_err(err)? {
             writer = Some(w);

@@ -1,8 +1,9 @@
 //! Video sources through OpenCV: files, V4L2 devices, network URLs, GStreamer.
 //!
-//! [`VideoSource::read_into`] decodes the next frame and converts it (colour, then
-//! size) straight into a caller's buffer — the loaned shared-memory sample — so the
-//! pixels are written once, where every consumer reads them.
+//! [`VideoSource::read_into`] has OpenCV decode the next frame into a buffer of its
+//! own, then converts it (colour, then size) or copies it into a caller's buffer —
+//! the loaned shared-memory sample: one write into shared memory per frame, where
+//! every consumer reads it in place.
 
 use std::path::PathBuf;
 use std::sync::Arc;
