@@ -1120,13 +1120,15 @@ impl Probe {
                 if !record || h.preamble.is_end_of_stream() {
                     continue;
                 }
-                if h.phase == EventPhase::Start as u32 {
-                    self.started[camera] += 1;
-                } else if h.phase == EventPhase::End as u32 {
-                    self.ended[camera] += 1;
-                    if h.preamble.origin_wall_ns > 0 {
-                        self.end_lags_ms.push(ms_since(h.preamble.origin_wall_ns));
+                match EventPhase::from_u32(h.phase) {
+                    Some(EventPhase::Start) => self.started[camera] += 1,
+                    Some(EventPhase::End) => {
+                        self.ended[camera] += 1;
+                        if h.preamble.origin_wall_ns > 0 {
+                            self.end_lags_ms.push(ms_since(h.preamble.origin_wall_ns));
+                        }
                     }
+                    None => {}
                 }
             }
         }

@@ -74,16 +74,12 @@ fn first_frames(site: &TestSite, count: usize) -> Vec<(u64, u32)> {
     let frames = ipc.subscriber::<Frames>("cam01").unwrap();
     let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
     let mut got = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while got.len() < count && Instant::now() < deadline {
-        frames.wait(Duration::from_millis(100));
-        while let Some(sample) = frames.receive().unwrap() {
-            let h: &FrameHeader = sample.user_header();
-            if !h.preamble.is_end_of_stream() && got.len() < count {
-                got.push((h.source_index, crc32fast::hash(sample.payload())));
-            }
+    read_samples(&frames, "cam01", Duration::from_secs(60), |h, pixels| {
+        if !h.preamble.is_end_of_stream() {
+            got.push((h.source_index, crc32fast::hash(pixels)));
         }
-    }
+        got.len() < count
+    });
     capture.terminate(Duration::from_secs(10));
     assert_eq!(got.len(), count, "{}", capture.stderr());
     got
