@@ -6,7 +6,7 @@
 //! under `target/bench-data/`) whose scene alternates between busy and empty:
 //! [`BUSY_S`] seconds of `data/vtest.avi` (people walking), then [`QUIET_S`] seconds
 //! of a still background (the per-pixel median of vtest's frames, so nobody is in
-//! it). Camera *i* of N starts at frame *i*·cycle/N (`start_frame`), so events
+//! it). Camera *i* of N starts at frame (*i* + ½)·cycle/N (`start_frame`), so events
 //! start and end, and detections run, all through the window rather than in
 //! lockstep. The video is written with vtest's own codec when OpenCV can encode it,
 //! else MJPG (the header line says which).
@@ -218,8 +218,11 @@ impl Default for Options {
 
 impl Options {
     /// `--quick`: every mode, two cameras (in one process per stage) each, short
-    /// warm-up and window. The two cameras are half a cycle apart: one ends an
-    /// event and the other starts one (and runs the detector) within 3–13 s.
+    /// warm-up and window. The two cameras are half a cycle apart: one starts 4 s
+    /// into its busy part and ends an event about 6 s after capture starts; the
+    /// other starts 4 s before its busy part and starts an event (and runs the
+    /// detector) about 5 s after — both inside the window (3–13 s), with seconds to
+    /// spare for a slow start.
     fn quick(self) -> Options {
         Options {
             start: 2,
@@ -344,7 +347,7 @@ fn site_body(mode: Mode, cameras: &[String], video: &Path) -> String {
         ros_domain()
     );
     for (i, id) in cameras.iter().enumerate() {
-        let start_frame = i as u64 * u64::from(CYCLE_FRAMES) / cameras.len() as u64;
+        let start_frame = (2 * i as u64 + 1) * u64::from(CYCLE_FRAMES) / (2 * cameras.len() as u64);
         let _ = write!(
             body,
             "\n[[camera]]\nid = \"{id}\"\nsource = {source}\nfps = {FPS:.1}\nloop = true\n\
@@ -1455,7 +1458,7 @@ fn table_line(cells: &[String]) -> String {
 fn print_header(opts: &Options, codec: &str) {
     println!(
         "group benchmark: {FPS} fps per camera in real time, churn video ({codec}: {BUSY_S} s of \
-         vtest.avi, then {QUIET_S} s of its empty background; camera i of N starts i/N of a \
+         vtest.avi, then {QUIET_S} s of its empty background; camera i of N starts (i + 1/2)/N of a \
          cycle in), {} camera(s) per service process, warm-up {:.0} s, window {:.0} s \
          (decode-only {:.0} s); load average (1 min) {}",
         opts.per_process,
