@@ -68,6 +68,55 @@ fn publishes_every_frame_with_file_clock_and_opencv_pixels() {
     assert!(status.success(), "{}", capture.stderr());
 }
 
+/// The first `count` frames cam01 of `site` publishes: source index and checksum.
+fn first_frames(site: &TestSite, count: usize) -> Vec<(u64, u32)> {
+    let ipc = site.ipc("subscriber");
+    let frames = ipc.subscriber::<Frames>("cam01").unwrap();
+    let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
+    let mut got = Vec::new();
+    read_samples(&frames, "cam01", Duration::from_secs(60), |h, pixels| {
+        if !h.preamble.is_end_of_stream() {
+            got.push((h.source_index, crc32fast::hash(pixels)));
+        }
+        got.len() < count
+    });
+    capture.terminate(Duration::from_secs(10));
+    assert_eq!(got.len(), count, "{}", capture.stderr());
+    got
+}
+
+#[test]
+fn start_frame_starts_the_first_pass_there_and_a_loop_from_zero() {
+    let reference = opencv_reference_checksums();
+    let last = VTEST_FRAMES - 3;
+    let expected: Vec<(u64, u32)> = [last, last + 1, last + 2, 0, 1]
+        .iter()
+        .map(|&i| (i, reference[i as usize]))
+        .collect();
+    let camera = |extra: &str| {
+        format!(
+            "[ipc]\nlossless = true\n\n{}loop = true\n{extra}",
+            isochron_tests::vtest_camera("max", START)
+        )
+    };
+    let decoding = TestSite::new(
+        "capture-start-frame",
+        &camera(&format!("start_frame = {last}\n")),
+    );
+    assert_eq!(first_frames(&decoding, 5), expected, "decoding");
+
+    // Preloaded: the start is a frame of the preload, which loops.
+    let preloaded = TestSite::new(
+        "capture-start-frame-preload",
+        &camera("preload_frames = 10\nstart_frame = 8\n"),
+    );
+    let expected: Vec<(u64, u32)> = [8u64, 9, 0, 1]
+        .iter()
+        .map(|&i| (i, reference[i as usize]))
+        .collect();
+    assert_eq!(first_frames(&preloaded, 4), expected, "preloaded");
+}
+
 /// Capture exits within `timeout` with `code`, saying `message`, without a panic.
 fn assert_capture_fails(site: &TestSite, timeout: Duration, code: i32, message: &str) {
     let (exit, stderr) = site.exit_of("isochron-capture", timeout);

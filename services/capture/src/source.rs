@@ -1,8 +1,9 @@
 //! Video sources through OpenCV: files, V4L2 devices, network URLs, GStreamer.
 //!
-//! [`VideoSource::read_into`] decodes the next frame and converts it (colour, then
-//! size) straight into a caller's buffer — the loaned shared-memory sample — so the
-//! pixels are written once, where every consumer reads them.
+//! [`VideoSource::read_into`] has OpenCV decode the next frame into a buffer of its
+//! own, then converts it (colour, then size) or copies it into a caller's buffer —
+//! the loaned shared-memory sample: one write into shared memory per frame, where
+//! every consumer reads it in place.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -67,6 +68,8 @@ pub struct VideoSource {
     kind: SourceKind,
     decoded: Mat,
     scratch: Mat,
+    /// Index in the file of the first frame read (see [`VideoSource::seek`]).
+    first_frame: u64,
     frames_read: u64,
 }
 
@@ -125,6 +128,7 @@ impl VideoSource {
             kind: kind.clone(),
             decoded: Mat::default(),
             scratch: Mat::default(),
+            first_frame: 0,
             frames_read: 0,
         };
         // A file that opens but yields no first frame is as good as corrupt.
@@ -162,6 +166,22 @@ impl VideoSource {
     /// Frames read since the source was opened.
     pub fn frames_read(&self) -> u64 {
         self.frames_read
+    }
+
+    /// Index in the file of the next frame: where reading started plus the frames
+    /// read since.
+    pub fn position(&self) -> u64 {
+        self.first_frame + self.frames_read
+    }
+
+    /// Before the first read of a file: starts reading at frame `frame` (0-based).
+    pub fn seek(&mut self, frame: u64) -> Result<(), SourceError> {
+        if frame > 0 {
+            self.capture
+                .set(videoio::CAP_PROP_POS_FRAMES, frame as f64)?;
+        }
+        self.first_frame = frame;
+        Ok(())
     }
 
     /// The source kind.
@@ -348,6 +368,12 @@ impl PreloadedSource {
     /// Frame rate the file states.
     pub fn stated_fps(&self) -> f64 {
         self.fps
+    }
+
+    /// Starts the loop at frame `frame` of the preload (wrapping).
+    pub fn start_at(mut self, frame: u64) -> Self {
+        self.next = (frame % self.frames.len() as u64) as usize;
+        self
     }
 
     /// Index the next frame will have in the preload.

@@ -66,9 +66,13 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
     let is_file = kind.is_file();
     let fps = cam.fps.unwrap_or_else(|| source.stated_fps());
     let mut source = match cam.preload_frames {
-        None => Source::Video(source),
+        None => {
+            source.seek(cam.start_frame)?;
+            Source::Video(source)
+        }
         Some(n) => {
-            let preloaded = PreloadedSource::load(&kind, n, width, height, format)?;
+            let preloaded =
+                PreloadedSource::load(&kind, n, width, height, format)?.start_at(cam.start_frame);
             tracing::info!(
                 "preloaded {} frames: publishing them in a loop, no decoding",
                 preloaded.len()
@@ -267,7 +271,7 @@ impl Source {
     /// Source index of the frame the next read returns.
     fn next_index(&self) -> u64 {
         match self {
-            Source::Video(v) => v.frames_read(),
+            Source::Video(v) => v.position(),
             Source::Preloaded(p) => p.next_index(),
         }
     }
@@ -298,7 +302,7 @@ impl Source {
         let Source::Video(v) = self else {
             return None;
         };
-        let input = InputCompleteness::of(v.frames_read(), v.stated_frame_count());
+        let input = InputCompleteness::of(v.position(), v.stated_frame_count());
         if input.truncated {
             tracing::warn!(
                 "the file ended after {} of the {} frames it states: it is truncated or damaged",

@@ -1,23 +1,37 @@
 //! `cargo xtask bench cascade`: the cascade against the non-cascade reference on the
-//! same motion stream (K = 1200 blocks, 30 fps): time per block-frame, filter
+//! same motion stream (K = 1200 blocks, 30 fps): time per block-frame, arithmetic
 //! operations per block-frame, state bytes per camera; then the durable commit of one
 //! minute to the SQLite store. Prints a table, then as its last line
-//! `{"bench":"cascade","ns_per_block_frame":..,"ops_ratio":..,"state_ratio":..,"time_ratio":..}`
+//! `{"bench":"cascade","ns_per_block_frame":..,"ops_ratio":..,"state_ratio":..,"time_ratio":..,..}`
 //! (ratios are non-cascade / cascade; times are medians over the runs).
+//!
+//! Operations are counted by running both banks once on
+//! [`Counted`](isochron_cascade::filters::Counted), an `f32` that counts every
+//! addition, multiplication, division and max it takes part in; times come from the
+//! same banks on plain `f32`, the service's type. F_L2, which runs once per
+//! block-minute on the minute means of either bank alike, is not in the count.
 //!
 //! Time covers everything the service does per sample except shared memory: header
 //! and value checks, F_L1, the seconds, S1/S2 and the long-term fields, the minutes and
 //! F_L2 (into a model in memory; the store's commit is measured on its own).
 //!
+//! The store's commits are timed in the state directory a site config names
+//! (`site.state_dir`): `--config FILE` (default `config/demo.toml`, whose state
+//! directory is `out/state`), or `--state-dir DIR` — on the filesystem the
+//! cascade would write to, which the bench names (statfs). A commit is called
+//! durable only off tmpfs and ramfs, where `fsync` reaches no disk.
+//!
 //! `--quick`: the same with 2 minutes of motion, one timed run each and 20 store
 //! commits (a check that the bench runs; the JSON line gets `"quick":true`).
 
 use std::hint::black_box;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use isochron_cascade::filters::{CascadeBank, FilterBank, NonCascadeBank};
+use isochron_cascade::filters::{CascadeBank, Counted, FilterBank, NonCascadeBank, OpCount};
 use isochron_cascade::{Cascade, LongTerm, MemoryModel, Params, SecondOut};
 use isochron_shared::clock::{Cycle, NS_PER_S, SiteClock, parse_rfc3339};
+use isochron_shared::config::Config;
 use isochron_shared::geometry::BlockGrid;
 use isochron_shared::store::{Baseline, Bin, MinuteCommit, Store, StoreMeta, store_path};
 use isochron_shared::wire::{BlockActivity, BlockMotion, CameraId, MotionHeader, Preamble, Stream};
@@ -129,7 +143,6 @@ fn header(camera: CameraId, start: i64, i: i64) -> MotionHeader {
 
 struct RunResult {
     elapsed: Duration,
-    ops_per_block_frame: f64,
     filters: u32,
     state_bytes: usize,
     outputs: Vec<(SecondOut, Vec<BlockActivity>)>,
@@ -163,11 +176,9 @@ fn run<B: FilterBank>(frames: &[Vec<BlockMotion>], seconds: i64, keep: bool) -> 
         }
     }
     let elapsed = t0.elapsed();
-    let block_frames = (seconds * FPS) as f64 * (GRID_W * GRID_H) as f64;
     RunResult {
         elapsed,
-        ops_per_block_frame: cascade.ops().total() as f64 / block_frames,
-        filters: cascade.ops().filters(),
+        filters: B::FILTERS,
         state_bytes: cascade.state_bytes(),
         outputs,
     }
@@ -209,11 +220,72 @@ fn same_outputs(a: &RunResult, b: &RunResult) -> Result<(), String> {
     Ok(())
 }
 
-/// Durable commits of one minute (a bin of K blocks and the baseline) to a store in
-/// the temp directory: (p50, p99) in ms.
-fn commit_latency(commits: usize) -> (f64, f64) {
-    let dir = std::env::temp_dir().join(format!("isochron-bench-{}", std::process::id()));
+/// The state directory to time commits in: `--state-dir DIR`, or `site.state_dir`
+/// of `--config FILE` (default: the repository's `config/demo.toml`).
+fn state_dir(args: &[String]) -> Result<PathBuf, String> {
+    let value = |flag: &str| {
+        args.iter()
+            .position(|a| a == flag)
+            .map(|i| {
+                args.get(i + 1)
+                    .cloned()
+                    .ok_or(format!("{flag} needs a value"))
+            })
+            .transpose()
+    };
+    if let Some(dir) = value("--state-dir")? {
+        return Ok(PathBuf::from(dir));
+    }
+    let config = match value("--config")? {
+        Some(c) => PathBuf::from(c),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/demo.toml"),
+    };
+    let loaded = Config::load(&config).map_err(|e| e.to_string())?;
+    Ok(loaded.state_dir())
+}
+
+/// The filesystem `path` is on, by name, from `statfs(2)`'s magic number.
+fn filesystem_of(path: &Path) -> String {
+    use std::os::unix::ffi::OsStrExt;
+    let Ok(c_path) = std::ffi::CString::new(path.as_os_str().as_bytes()) else {
+        return "unknown".into();
+    };
+    // SAFETY: a zeroed statfs is a valid out-parameter; the path is NUL-terminated.
+    let mut st: libc::statfs = unsafe { std::mem::zeroed() };
+    if unsafe { libc::statfs(c_path.as_ptr(), &mut st) } != 0 {
+        return "unknown".into();
+    }
+    let magic = st.f_type as u64;
+    let name = match magic {
+        0xEF53 => "ext4",
+        0x0102_1994 => "tmpfs",
+        0x8584_58F6 => "ramfs",
+        0x794C_7630 => "overlay",
+        0x5846_5342 => "xfs",
+        0x9123_683E => "btrfs",
+        0x2FC1_2FC1 => "zfs",
+        0xF2F5_2010 => "f2fs",
+        0x6969 => "nfs",
+        0x0102_1997 => "9p",
+        0x6A65_6A63 => "virtiofs",
+        0x6573_5546 => "fuse",
+        _ => return format!("unknown (statfs type {magic:#x})"),
+    };
+    name.into()
+}
+
+/// Whether a commit's `fsync` on filesystem `fs` reaches storage that survives a
+/// power cut (not on tmpfs or ramfs; on overlay, only if its upper layer does).
+fn durable(fs: &str) -> bool {
+    !matches!(fs, "tmpfs" | "ramfs")
+}
+
+/// Commits of one minute (a bin of K blocks and the baseline) to a store in a
+/// fresh directory under `state_dir` (WAL, `synchronous = FULL`): (p50, p99) in ms.
+fn commit_latency(commits: usize, state_dir: &Path) -> Result<(f64, f64), String> {
+    let dir = state_dir.join(format!("isochron-bench-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     let path = store_path(&dir, "bench");
     let k = (GRID_W * GRID_H) as usize;
     let meta = StoreMeta::new("bench", grid(), Cycle::Daily, 0);
@@ -250,11 +322,19 @@ fn commit_latency(commits: usize) -> (f64, f64) {
         v.sort_by(|a, b| a.total_cmp(b));
         v[((v.len() - 1) as f64 * 0.99).round() as usize]
     };
-    (median(ms), p99)
+    Ok((median(ms), p99))
 }
 
 fn main() {
-    let quick = std::env::args().any(|a| a == "--quick");
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let quick = args.iter().any(|a| a == "--quick");
+    let state_dir = match state_dir(&args) {
+        Ok(d) => d,
+        Err(e) => {
+            eprintln!("cascade bench: {e}");
+            std::process::exit(2);
+        }
+    };
     let size = if quick { Size::QUICK } else { Size::FULL };
     let Size {
         seconds: run_seconds,
@@ -263,13 +343,30 @@ fn main() {
     } = size;
     let frames = frames();
     let block_frames = (run_seconds * FPS) as f64 * (GRID_W * GRID_H) as f64;
-    // Warm up, and check the outputs once.
-    let c = run::<CascadeBank>(&frames, run_seconds, true);
-    let n = run::<NonCascadeBank>(&frames, run_seconds, true);
-    if let Err(e) = same_outputs(&c, &n) {
-        eprintln!("cascade and non-cascade outputs differ: {e}");
-        std::process::exit(1);
+    // Count the operations (each bank on the counting type), and check the outputs:
+    // the two banks agree, and the counting type computes what f32 does.
+    Counted::take();
+    let c = run::<CascadeBank<Counted>>(&frames, run_seconds, true);
+    let ops_c = Counted::take();
+    let n = run::<NonCascadeBank<Counted>>(&frames, run_seconds, true);
+    let ops_n = Counted::take();
+    let plain = run::<CascadeBank>(&frames, run_seconds, true);
+    for (what, result) in [
+        (
+            "cascade and non-cascade outputs differ",
+            same_outputs(&c, &n),
+        ),
+        (
+            "the cascade's outputs differ on f32 and on the counting type",
+            same_outputs(&plain, &c),
+        ),
+    ] {
+        if let Err(e) = result {
+            eprintln!("{what}: {e}");
+            std::process::exit(1);
+        }
     }
+    let per_block_frame = |n: u64| n as f64 / block_frames;
     let seconds = c.outputs.len();
     let (mut tc, mut tn) = (Vec::new(), Vec::new());
     // Alternate, so that a noisy neighbour hurts both alike.
@@ -284,8 +381,17 @@ fn main() {
         tn.iter().cloned().fold(f64::MAX, f64::min),
     );
     let k = (GRID_W * GRID_H) as f64;
-    let (commit_p50, commit_p99) = commit_latency(commits);
-    let ops_ratio = n.ops_per_block_frame / c.ops_per_block_frame;
+    let (commit_p50, commit_p99) = match commit_latency(commits, &state_dir) {
+        Ok(t) => t,
+        Err(e) => {
+            eprintln!("cascade bench: store commits in the state directory: {e}");
+            std::process::exit(1);
+        }
+    };
+    let state_dir = std::fs::canonicalize(&state_dir).unwrap_or(state_dir);
+    let fs = filesystem_of(&state_dir);
+    let is_durable = durable(&fs);
+    let ops_ratio = ops_n.total() as f64 / ops_c.total() as f64;
     let state_ratio = n.state_bytes as f64 / c.state_bytes as f64;
     let time_ratio = ns_n / ns_c;
 
@@ -310,10 +416,21 @@ fn main() {
         min_n,
         min_n / min_c
     );
-    println!(
-        "{:<34} {:>12.3} {:>12.3} {:>12.2}",
-        "filter ops per block-frame", c.ops_per_block_frame, n.ops_per_block_frame, ops_ratio
-    );
+    let ops_row = |what: &str, of: fn(&OpCount) -> u64| {
+        let (a, b) = (of(&ops_c), of(&ops_n));
+        println!(
+            "{:<34} {:>12.3} {:>12.3} {:>12.2}",
+            what,
+            per_block_frame(a),
+            per_block_frame(b),
+            b as f64 / a.max(1) as f64
+        );
+    };
+    ops_row("arithmetic ops per block-frame", OpCount::total);
+    ops_row("  additions and subtractions", |o| o.add);
+    ops_row("  multiplications", |o| o.mul);
+    ops_row("  divisions", |o| o.div);
+    ops_row("  maxima", |o| o.max);
     println!(
         "{:<34} {:>12} {:>12} {:>12.2}",
         "filters (paper's count)",
@@ -336,13 +453,26 @@ fn main() {
         "outputs", "identical (S1, S2 and vectors bit for bit; long-term within float rounding)"
     );
     println!(
-        "{:<34} p50 {commit_p50:.3} ms, p99 {commit_p99:.3} ms ({commits} commits of {} blocks, WAL, synchronous=FULL, in {})",
-        "store: durable commit of a minute",
-        k as u32,
-        std::env::temp_dir().display()
+        "non-cascade / cascade: {time_ratio:.2}x the time for {ops_ratio:.2}x the arithmetic \
+         (operations counted on the counting type, F_L2 excluded; times on f32)"
     );
     println!(
-        "{{\"bench\":\"cascade\",\"ns_per_block_frame\":{ns_c:.3},\"ops_ratio\":{ops_ratio:.3},\"state_ratio\":{state_ratio:.3},\"time_ratio\":{time_ratio:.3}{}}}",
+        "{:<34} p50 {commit_p50:.3} ms, p99 {commit_p99:.3} ms ({commits} commits of {} blocks, WAL, synchronous=FULL, in {} on {fs}{})",
+        if is_durable {
+            "store: durable commit of a minute"
+        } else {
+            "store: commit of a minute"
+        },
+        k as u32,
+        state_dir.display(),
+        if is_durable {
+            ""
+        } else {
+            ": memory, not durable"
+        }
+    );
+    println!(
+        "{{\"bench\":\"cascade\",\"ns_per_block_frame\":{ns_c:.3},\"ops_ratio\":{ops_ratio:.3},\"state_ratio\":{state_ratio:.3},\"time_ratio\":{time_ratio:.3},\"commit_p50_ms\":{commit_p50:.3},\"commit_p99_ms\":{commit_p99:.3},\"commit_fs\":\"{fs}\",\"commit_durable\":{is_durable}{}}}",
         if quick { ",\"quick\":true" } else { "" }
     );
 }

@@ -37,10 +37,173 @@
 //! costs of non-cascade versus cascade filter") runs the five filters separately, each
 //! from `M_L1`: in-place (its own 1-s decimation and F_S1), band-pass (its own 1-s FIR
 //! and its own low-pass at T_S1, kept separately), and the long-term minute mean. Both
-//! give the same outputs; both count their filter operations ([`OpCounts`]) and report
-//! their state ([`FilterBank::state_bytes`]) so the benchmark can compare them.
+//! give the same outputs and report their state ([`FilterBank::state_bytes`]).
+//!
+//! Both banks compute in a number type `T` ([`Real`]): `f32` in the service, and
+//! [`Counted`] — an `f32` that counts every addition, multiplication, division and
+//! max it takes part in — when a benchmark or test counts the operations of each.
+//! The count comes from the very code that runs, not from counters kept beside it.
+
+use std::cell::Cell;
+use std::fmt::Debug;
+use std::ops::{Add, AddAssign, Div, Mul, MulAssign, Sub};
 
 use isochron_shared::wire::{BlockActivity, BlockMotion};
+
+/// The number type the filters compute in: `f32`, or [`Counted`] to count the
+/// operations. State is kept in `T` too (a `Counted` is an `f32` in memory).
+pub trait Real:
+    Copy
+    + Default
+    + PartialEq
+    + Debug
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + AddAssign
+    + MulAssign
+{
+    /// The value `v` (a conversion, not an operation).
+    fn of(v: f32) -> Self;
+    /// The value as `f32` (a conversion, not an operation).
+    fn get(self) -> f32;
+    /// The larger of the two.
+    fn max(self, other: Self) -> Self;
+}
+
+impl Real for f32 {
+    #[inline(always)]
+    fn of(v: f32) -> Self {
+        v
+    }
+    #[inline(always)]
+    fn get(self) -> f32 {
+        self
+    }
+    #[inline(always)]
+    fn max(self, other: Self) -> Self {
+        f32::max(self, other)
+    }
+}
+
+/// Arithmetic operations counted by [`Counted`] on this thread.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct OpCount {
+    /// Additions and subtractions.
+    pub add: u64,
+    /// Multiplications.
+    pub mul: u64,
+    /// Divisions.
+    pub div: u64,
+    /// Maxima (the rectifications and guards).
+    pub max: u64,
+}
+
+impl OpCount {
+    /// All operations.
+    pub fn total(&self) -> u64 {
+        self.add + self.mul + self.div + self.max
+    }
+}
+
+thread_local! {
+    static COUNTS: Cell<OpCount> = const { Cell::new(OpCount { add: 0, mul: 0, div: 0, max: 0 }) };
+}
+
+/// An `f32` that counts the operations it takes part in, per thread: run a bank as
+/// `CascadeBank<Counted>`, then read [`Counted::take`].
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[repr(transparent)]
+pub struct Counted(pub f32);
+
+impl Counted {
+    /// The operations counted on this thread since the last call; starts again from 0.
+    pub fn take() -> OpCount {
+        COUNTS.with(|c| c.take())
+    }
+}
+
+/// The kinds of operation [`Counted`] tells apart.
+#[derive(Clone, Copy)]
+enum Op {
+    Add,
+    Mul,
+    Div,
+    Max,
+}
+
+/// Counts one operation of kind `op` on this thread.
+#[inline(always)]
+fn tally(op: Op) {
+    COUNTS.with(|c| {
+        let mut n = c.get();
+        match op {
+            Op::Add => n.add += 1,
+            Op::Mul => n.mul += 1,
+            Op::Div => n.div += 1,
+            Op::Max => n.max += 1,
+        }
+        c.set(n);
+    });
+}
+
+impl Add for Counted {
+    type Output = Counted;
+    fn add(self, o: Counted) -> Counted {
+        tally(Op::Add);
+        Counted(self.0 + o.0)
+    }
+}
+
+impl Sub for Counted {
+    type Output = Counted;
+    fn sub(self, o: Counted) -> Counted {
+        tally(Op::Add);
+        Counted(self.0 - o.0)
+    }
+}
+
+impl Mul for Counted {
+    type Output = Counted;
+    fn mul(self, o: Counted) -> Counted {
+        tally(Op::Mul);
+        Counted(self.0 * o.0)
+    }
+}
+
+impl Div for Counted {
+    type Output = Counted;
+    fn div(self, o: Counted) -> Counted {
+        tally(Op::Div);
+        Counted(self.0 / o.0)
+    }
+}
+
+impl AddAssign for Counted {
+    fn add_assign(&mut self, o: Counted) {
+        *self = *self + o;
+    }
+}
+
+impl MulAssign for Counted {
+    fn mul_assign(&mut self, o: Counted) {
+        *self = *self * o;
+    }
+}
+
+impl Real for Counted {
+    fn of(v: f32) -> Self {
+        Counted(v)
+    }
+    fn get(self) -> f32 {
+        self.0
+    }
+    fn max(self, o: Self) -> Self {
+        tally(Op::Max);
+        Counted(self.0.max(o.0))
+    }
+}
 
 /// α of a first-order IIR whose output decays to 10 % in `t_decay` (in the unit of
 /// time whose sample rate is `rate`): `α = 0.1^(1/(r·T))`.
@@ -66,25 +229,31 @@ pub fn warmup_weight(one_minus_alpha: f64, n: u64) -> f64 {
 /// F_L1 on one block: updates the baseline `b` with weight `w` (`1 − α_L1`, or the
 /// warm-up weight) and returns `M_L1 = max(0, M − b)`.
 #[inline(always)]
-pub fn f_l1(b: &mut f32, m: f32, w: f32) -> f32 {
+pub fn f_l1<T: Real>(b: &mut T, m: T, w: T) -> T {
     *b += w * (m - *b);
-    (m - *b).max(0.0)
+    (m - *b).max(T::of(0.0))
 }
 
 /// The fraction of a block's density that passes F_L1 (`M_L1 / M`, 0 without motion),
 /// by which its flow vector is scaled.
 #[inline(always)]
-pub fn pass_fraction(m: f32, m_l1: f32) -> f32 {
+pub fn pass_fraction<T: Real>(m: T, m_l1: T) -> T {
     // M_L1 <= M always, and M_L1 = 0 when M = 0, so the guard only avoids 0/0.
-    m_l1 / m.max(f32::MIN_POSITIVE)
+    m_l1 / m.max(T::of(f32::MIN_POSITIVE))
+}
+
+/// One step of a first-order low-pass (EMA): `y = α·y + (1−α)·x`.
+#[inline(always)]
+pub fn ema<T: Real>(y: &mut T, x: T, alpha: T) {
+    *y = alpha * *y + (T::of(1.0) - alpha) * x;
 }
 
 /// F_S1 and the low end of the band-pass on one block, once per second: returns
 /// `S2 = max(0, m_sec − S1_prev)` and updates `s1` to `α·S1_prev + (1−α)·m_sec`.
 #[inline(always)]
-pub fn f_s1(s1: &mut f32, m_sec: f32, alpha_s1: f32) -> f32 {
-    let s2 = (m_sec - *s1).max(0.0);
-    *s1 = alpha_s1 * *s1 + (1.0 - alpha_s1) * m_sec;
+pub fn f_s1<T: Real>(s1: &mut T, m_sec: T, alpha_s1: T) -> T {
+    let s2 = (m_sec - *s1).max(T::of(0.0));
+    ema(s1, m_sec, alpha_s1);
     s2
 }
 
@@ -93,54 +262,11 @@ pub fn f_s1(s1: &mut f32, m_sec: f32, alpha_s1: f32) -> f32 {
 /// `d = x − mean; mean += w·d; var = (1 − w)·(var + w·d²)`. With `w = 1/n` this is
 /// exactly the running mean and population variance of the first `n` samples.
 #[inline(always)]
-pub fn f_l2(mean: &mut f32, var: &mut f32, x: f32, w: f32) {
+pub fn f_l2<T: Real>(mean: &mut T, var: &mut T, x: T, w: T) {
     let d = x - *mean;
     let inc = w * d;
     *mean += inc;
-    *var = ((1.0 - w) * (*var + d * inc)).max(0.0);
-}
-
-/// How many filter operations a bank has performed, by filter. One operation is one
-/// filter's update for one block (an EMA step, or one sample added to a FIR or
-/// decimating mean), counted at the rate that filter runs.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct OpCounts {
-    /// F_L1 high-pass steps (per block-frame).
-    pub f_l1: u64,
-    /// Samples added to 1-s FIR / decimating means (per block-frame).
-    pub fir: u64,
-    /// F_S1 low-pass steps (per block-second).
-    pub f_s1: u64,
-    /// Steps of the band-pass's own low-pass (non-cascade only; per block-second).
-    pub band_pass_low: u64,
-    /// Samples added to the per-minute means that feed F_L2.
-    pub minute_mean: u64,
-    /// F_L2 steps (per block-minute with enough frames).
-    pub f_l2: u64,
-}
-
-impl OpCounts {
-    /// All operations.
-    pub fn total(&self) -> u64 {
-        self.f_l1 + self.fir + self.f_s1 + self.band_pass_low + self.minute_mean + self.f_l2
-    }
-
-    /// Number of distinct filters that ran (the paper's "multiples of motion frame
-    /// filter operations"): 4 for the cascade, 5 for the non-cascade once every path
-    /// has run.
-    pub fn filters(&self) -> u32 {
-        // F_L1, the 1-s FIR (F_S2), F_S1, the band-pass low-pass, F_L2.
-        [
-            self.f_l1,
-            self.fir,
-            self.f_s1,
-            self.band_pass_low,
-            self.f_l2,
-        ]
-        .iter()
-        .filter(|&&n| n > 0)
-        .count() as u32
-    }
+    *var = ((T::of(1.0) - w) * (*var + d * inc)).max(T::of(0.0));
 }
 
 /// What a completed second produced, for the bookkeeping around a bank.
@@ -157,6 +283,11 @@ pub struct SecondInput {
 
 /// The per-block filter state of one camera, cascade or not.
 pub trait FilterBank {
+    /// Distinct filters the bank runs, F_L2 (which follows either) included: the
+    /// paper's "multiples of motion frame filter operations" — 4 for the cascade, 5
+    /// for the non-cascade.
+    const FILTERS: u32;
+
     /// A bank for `blocks` blocks, all state zero.
     fn new(blocks: usize) -> Self
     where
@@ -181,16 +312,10 @@ pub trait FilterBank {
     fn reset_short_term(&mut self);
 
     /// The F_L1 baseline per block.
-    fn baseline(&self) -> &[f32];
+    fn baseline(&self) -> Vec<f32>;
 
     /// Sets the F_L1 baseline (resuming from a store).
     fn set_baseline(&mut self, level: &[f32]);
-
-    /// Counts F_L2 steps done on this bank's minute means.
-    fn count_f_l2(&mut self, blocks: u64);
-
-    /// Filter operations so far.
-    fn ops(&self) -> OpCounts;
 
     /// Bytes of per-block filter state this bank keeps (the long-term model, which
     /// both need alike, excluded).
@@ -203,30 +328,31 @@ pub trait FilterBank {
 /// State per block: the F_L1 baseline; the second's sums (density, dx, dy); S1 and its
 /// vector; the minute sum.
 #[derive(Debug, Clone)]
-pub struct CascadeBank {
-    level: Vec<f32>,
-    sec_m: Vec<f32>,
-    sec_dx: Vec<f32>,
-    sec_dy: Vec<f32>,
-    s1: Vec<f32>,
-    s1_dx: Vec<f32>,
-    s1_dy: Vec<f32>,
-    min_m: Vec<f32>,
-    ops: OpCounts,
+pub struct CascadeBank<T: Real = f32> {
+    level: Vec<T>,
+    sec_m: Vec<T>,
+    sec_dx: Vec<T>,
+    sec_dy: Vec<T>,
+    s1: Vec<T>,
+    s1_dx: Vec<T>,
+    s1_dy: Vec<T>,
+    min_m: Vec<T>,
 }
 
-impl FilterBank for CascadeBank {
+impl<T: Real> FilterBank for CascadeBank<T> {
+    const FILTERS: u32 = 4;
+
     fn new(blocks: usize) -> Self {
+        let z = || vec![T::default(); blocks];
         CascadeBank {
-            level: vec![0.0; blocks],
-            sec_m: vec![0.0; blocks],
-            sec_dx: vec![0.0; blocks],
-            sec_dy: vec![0.0; blocks],
-            s1: vec![0.0; blocks],
-            s1_dx: vec![0.0; blocks],
-            s1_dy: vec![0.0; blocks],
-            min_m: vec![0.0; blocks],
-            ops: OpCounts::default(),
+            level: z(),
+            sec_m: z(),
+            sec_dx: z(),
+            sec_dy: z(),
+            s1: z(),
+            s1_dx: z(),
+            s1_dy: z(),
+            min_m: z(),
         }
     }
 
@@ -236,54 +362,52 @@ impl FilterBank for CascadeBank {
 
     fn frame(&mut self, motion: &[BlockMotion], w_l1: f32) {
         let n = self.level.len().min(motion.len());
+        let w = T::of(w_l1);
         let (level, sm, sx, sy) = (
             &mut self.level[..n],
             &mut self.sec_m[..n],
             &mut self.sec_dx[..n],
             &mut self.sec_dy[..n],
         );
-        for k in 0..n {
-            let b = &motion[k];
-            let m_l1 = f_l1(&mut level[k], b.density, w_l1);
-            let frac = pass_fraction(b.density, m_l1);
+        for (k, b) in motion[..n].iter().enumerate() {
+            let m = T::of(b.density);
+            let m_l1 = f_l1(&mut level[k], m, w);
+            let frac = pass_fraction(m, m_l1);
             sm[k] += m_l1;
-            sx[k] += b.dx * frac;
-            sy[k] += b.dy * frac;
+            sx[k] += T::of(b.dx) * frac;
+            sy[k] += T::of(b.dy) * frac;
         }
-        self.ops.f_l1 += n as u64;
-        self.ops.fir += n as u64;
     }
 
     fn second(&mut self, input: SecondInput, out: &mut [BlockActivity]) {
         let n = self.level.len().min(out.len());
-        let inv = 1.0 / input.frames.max(1) as f32;
-        let a = input.alpha_s1;
-        for (k, o) in out.iter_mut().enumerate().take(n) {
+        let inv = T::of(1.0 / input.frames.max(1) as f32);
+        let a = T::of(input.alpha_s1);
+        let gap = (input.gap_decay != 1.0).then(|| T::of(input.gap_decay));
+        for (k, o) in out[..n].iter_mut().enumerate() {
             let m_sec = self.sec_m[k] * inv;
             let (vx, vy) = (self.sec_dx[k] * inv, self.sec_dy[k] * inv);
             // The minute mean is built from the seconds: one add per block-second.
             self.min_m[k] += self.sec_m[k];
-            if input.gap_decay != 1.0 {
-                self.s1[k] *= input.gap_decay;
-                self.s1_dx[k] *= input.gap_decay;
-                self.s1_dy[k] *= input.gap_decay;
+            if let Some(g) = gap {
+                self.s1[k] *= g;
+                self.s1_dx[k] *= g;
+                self.s1_dy[k] *= g;
             }
             let s2 = f_s1(&mut self.s1[k], m_sec, a);
-            self.s1_dx[k] = a * self.s1_dx[k] + (1.0 - a) * vx;
-            self.s1_dy[k] = a * self.s1_dy[k] + (1.0 - a) * vy;
+            ema(&mut self.s1_dx[k], vx, a);
+            ema(&mut self.s1_dy[k], vy, a);
             let frac = pass_fraction(m_sec, s2);
-            o.s1 = self.s1[k];
-            o.s1_dx = self.s1_dx[k];
-            o.s1_dy = self.s1_dy[k];
-            o.s2 = s2;
-            o.s2_dx = vx * frac;
-            o.s2_dy = vy * frac;
-            self.sec_m[k] = 0.0;
-            self.sec_dx[k] = 0.0;
-            self.sec_dy[k] = 0.0;
+            o.s1 = self.s1[k].get();
+            o.s1_dx = self.s1_dx[k].get();
+            o.s1_dy = self.s1_dy[k].get();
+            o.s2 = s2.get();
+            o.s2_dx = (vx * frac).get();
+            o.s2_dy = (vy * frac).get();
+            self.sec_m[k] = T::default();
+            self.sec_dx[k] = T::default();
+            self.sec_dy[k] = T::default();
         }
-        self.ops.f_s1 += n as u64;
-        self.ops.minute_mean += n as u64;
     }
 
     fn minute_mean(&mut self, frames: u32, out: &mut [f32]) {
@@ -302,24 +426,16 @@ impl FilterBank for CascadeBank {
         ]);
     }
 
-    fn baseline(&self) -> &[f32] {
-        &self.level
+    fn baseline(&self) -> Vec<f32> {
+        self.level.iter().map(|v| v.get()).collect()
     }
 
     fn set_baseline(&mut self, level: &[f32]) {
         copy_baseline(&mut self.level, level);
     }
 
-    fn count_f_l2(&mut self, blocks: u64) {
-        self.ops.f_l2 += blocks;
-    }
-
-    fn ops(&self) -> OpCounts {
-        self.ops
-    }
-
     fn state_bytes(&self) -> usize {
-        f32_bytes(&[
+        state_bytes(&[
             &self.level,
             &self.sec_m,
             &self.sec_dx,
@@ -335,34 +451,38 @@ impl FilterBank for CascadeBank {
 /// The non-cascade reference: the same outputs from five separate filters, each fed
 /// from `M_L1` rather than from the filter before it.
 ///
-/// * in-place: its own 1-s decimating mean, then its own F_S1;
+/// * in-place: its own 1-s decimating mean, then its own F_S1 (a low-pass);
 /// * moving: the band-pass as two filters of its own — a 1-s FIR (F_S2) and a
 ///   low-pass at T_S1 whose output it subtracts (the high-pass end) — kept separately
 ///   from the in-place F_S1 although it holds the same values;
 /// * long-term: its own per-minute mean of `M_L1`, accumulated per frame.
+///
+/// Written with the same care as the cascade: the same loops over re-sliced state
+/// (no bounds checks in the per-frame loop), each filter computing only its own output.
 #[derive(Debug, Clone)]
-pub struct NonCascadeBank {
-    level: Vec<f32>,
+pub struct NonCascadeBank<T: Real = f32> {
+    level: Vec<T>,
     // In-place path: decimating mean and F_S1.
-    ip_m: Vec<f32>,
-    ip_dx: Vec<f32>,
-    ip_dy: Vec<f32>,
-    s1: Vec<f32>,
-    s1_dx: Vec<f32>,
-    s1_dy: Vec<f32>,
+    ip_m: Vec<T>,
+    ip_dx: Vec<T>,
+    ip_dy: Vec<T>,
+    s1: Vec<T>,
+    s1_dx: Vec<T>,
+    s1_dy: Vec<T>,
     // Band-pass path: FIR (F_S2) and its own low-pass at T_S1.
-    bp_m: Vec<f32>,
-    bp_dx: Vec<f32>,
-    bp_dy: Vec<f32>,
-    bp_low: Vec<f32>,
+    bp_m: Vec<T>,
+    bp_dx: Vec<T>,
+    bp_dy: Vec<T>,
+    bp_low: Vec<T>,
     // Long-term path: minute mean.
-    min_m: Vec<f32>,
-    ops: OpCounts,
+    min_m: Vec<T>,
 }
 
-impl FilterBank for NonCascadeBank {
+impl<T: Real> FilterBank for NonCascadeBank<T> {
+    const FILTERS: u32 = 5;
+
     fn new(blocks: usize) -> Self {
-        let z = || vec![0.0f32; blocks];
+        let z = || vec![T::default(); blocks];
         NonCascadeBank {
             level: z(),
             ip_m: z(),
@@ -376,7 +496,6 @@ impl FilterBank for NonCascadeBank {
             bp_dy: z(),
             bp_low: z(),
             min_m: z(),
-            ops: OpCounts::default(),
         }
     }
 
@@ -386,65 +505,75 @@ impl FilterBank for NonCascadeBank {
 
     fn frame(&mut self, motion: &[BlockMotion], w_l1: f32) {
         let n = self.level.len().min(motion.len());
-        for (k, b) in motion.iter().enumerate().take(n) {
-            let m_l1 = f_l1(&mut self.level[k], b.density, w_l1);
-            let frac = pass_fraction(b.density, m_l1);
-            let (vx, vy) = (b.dx * frac, b.dy * frac);
+        let w = T::of(w_l1);
+        let (level, ip_m, ip_dx, ip_dy) = (
+            &mut self.level[..n],
+            &mut self.ip_m[..n],
+            &mut self.ip_dx[..n],
+            &mut self.ip_dy[..n],
+        );
+        let (bp_m, bp_dx, bp_dy, min_m) = (
+            &mut self.bp_m[..n],
+            &mut self.bp_dx[..n],
+            &mut self.bp_dy[..n],
+            &mut self.min_m[..n],
+        );
+        for (k, b) in motion[..n].iter().enumerate() {
+            let m = T::of(b.density);
+            let m_l1 = f_l1(&mut level[k], m, w);
+            let frac = pass_fraction(m, m_l1);
+            let (vx, vy) = (T::of(b.dx) * frac, T::of(b.dy) * frac);
             // In-place path.
-            self.ip_m[k] += m_l1;
-            self.ip_dx[k] += vx;
-            self.ip_dy[k] += vy;
+            ip_m[k] += m_l1;
+            ip_dx[k] += vx;
+            ip_dy[k] += vy;
             // Band-pass path.
-            self.bp_m[k] += m_l1;
-            self.bp_dx[k] += vx;
-            self.bp_dy[k] += vy;
+            bp_m[k] += m_l1;
+            bp_dx[k] += vx;
+            bp_dy[k] += vy;
             // Long-term path.
-            self.min_m[k] += m_l1;
+            min_m[k] += m_l1;
         }
-        self.ops.f_l1 += n as u64;
-        self.ops.fir += 2 * n as u64;
-        self.ops.minute_mean += n as u64;
     }
 
     fn second(&mut self, input: SecondInput, out: &mut [BlockActivity]) {
         let n = self.level.len().min(out.len());
-        let inv = 1.0 / input.frames.max(1) as f32;
-        let a = input.alpha_s1;
-        for (k, o) in out.iter_mut().enumerate().take(n) {
-            if input.gap_decay != 1.0 {
-                self.s1[k] *= input.gap_decay;
-                self.s1_dx[k] *= input.gap_decay;
-                self.s1_dy[k] *= input.gap_decay;
-                self.bp_low[k] *= input.gap_decay;
+        let inv = T::of(1.0 / input.frames.max(1) as f32);
+        let a = T::of(input.alpha_s1);
+        let gap = (input.gap_decay != 1.0).then(|| T::of(input.gap_decay));
+        for (k, o) in out[..n].iter_mut().enumerate() {
+            if let Some(g) = gap {
+                self.s1[k] *= g;
+                self.s1_dx[k] *= g;
+                self.s1_dy[k] *= g;
+                self.bp_low[k] *= g;
             }
-            // In-place: F_S1 on the decimated M_L1.
+            // In-place: F_S1, a low-pass, on the decimated M_L1.
             let ip = self.ip_m[k] * inv;
             let (ix, iy) = (self.ip_dx[k] * inv, self.ip_dy[k] * inv);
-            let mut s1 = self.s1[k];
-            f_s1(&mut s1, ip, a);
-            self.s1[k] = s1;
-            self.s1_dx[k] = a * self.s1_dx[k] + (1.0 - a) * ix;
-            self.s1_dy[k] = a * self.s1_dy[k] + (1.0 - a) * iy;
-            // Moving: the FIR's mean minus the band-pass's own low-pass, rectified.
+            ema(&mut self.s1[k], ip, a);
+            ema(&mut self.s1_dx[k], ix, a);
+            ema(&mut self.s1_dy[k], iy, a);
+            // Moving: the FIR's mean minus the band-pass's own low-pass (its previous
+            // output), rectified; then that low-pass steps.
             let fir = self.bp_m[k] * inv;
             let (fx, fy) = (self.bp_dx[k] * inv, self.bp_dy[k] * inv);
-            let s2 = f_s1(&mut self.bp_low[k], fir, a);
+            let s2 = (fir - self.bp_low[k]).max(T::of(0.0));
+            ema(&mut self.bp_low[k], fir, a);
             let frac = pass_fraction(fir, s2);
-            o.s1 = self.s1[k];
-            o.s1_dx = self.s1_dx[k];
-            o.s1_dy = self.s1_dy[k];
-            o.s2 = s2;
-            o.s2_dx = fx * frac;
-            o.s2_dy = fy * frac;
-            self.ip_m[k] = 0.0;
-            self.ip_dx[k] = 0.0;
-            self.ip_dy[k] = 0.0;
-            self.bp_m[k] = 0.0;
-            self.bp_dx[k] = 0.0;
-            self.bp_dy[k] = 0.0;
+            o.s1 = self.s1[k].get();
+            o.s1_dx = self.s1_dx[k].get();
+            o.s1_dy = self.s1_dy[k].get();
+            o.s2 = s2.get();
+            o.s2_dx = (fx * frac).get();
+            o.s2_dy = (fy * frac).get();
+            self.ip_m[k] = T::default();
+            self.ip_dx[k] = T::default();
+            self.ip_dy[k] = T::default();
+            self.bp_m[k] = T::default();
+            self.bp_dx[k] = T::default();
+            self.bp_dy[k] = T::default();
         }
-        self.ops.f_s1 += n as u64;
-        self.ops.band_pass_low += n as u64;
     }
 
     fn minute_mean(&mut self, frames: u32, out: &mut [f32]) {
@@ -467,24 +596,16 @@ impl FilterBank for NonCascadeBank {
         ]);
     }
 
-    fn baseline(&self) -> &[f32] {
-        &self.level
+    fn baseline(&self) -> Vec<f32> {
+        self.level.iter().map(|v| v.get()).collect()
     }
 
     fn set_baseline(&mut self, level: &[f32]) {
         copy_baseline(&mut self.level, level);
     }
 
-    fn count_f_l2(&mut self, blocks: u64) {
-        self.ops.f_l2 += blocks;
-    }
-
-    fn ops(&self) -> OpCounts {
-        self.ops
-    }
-
     fn state_bytes(&self) -> usize {
-        f32_bytes(&[
+        state_bytes(&[
             &self.level,
             &self.ip_m,
             &self.ip_dx,
@@ -503,31 +624,32 @@ impl FilterBank for NonCascadeBank {
 
 /// The completed minute's mean per block, `min_m / frames`, into `out`; zeroes the
 /// minute sums `min_m`.
-fn take_minute_mean(min_m: &mut [f32], frames: u32, out: &mut [f32]) {
-    let inv = 1.0 / frames.max(1) as f32;
+fn take_minute_mean<T: Real>(min_m: &mut [T], frames: u32, out: &mut [f32]) {
+    let inv = T::of(1.0 / frames.max(1) as f32);
     for (o, m) in out.iter_mut().zip(min_m.iter_mut()) {
-        *o = *m * inv;
-        *m = 0.0;
+        *o = (*m * inv).get();
+        *m = T::default();
     }
 }
 
 /// Copies the stored baseline `from` into `level`, as far as both reach.
-fn copy_baseline(level: &mut [f32], from: &[f32]) {
-    let n = level.len().min(from.len());
-    level[..n].copy_from_slice(&from[..n]);
+fn copy_baseline<T: Real>(level: &mut [T], from: &[f32]) {
+    for (l, &f) in level.iter_mut().zip(from) {
+        *l = T::of(f);
+    }
 }
 
 /// Sets every value of the per-block vectors `state` to zero.
-fn zero<const N: usize>(state: [&mut Vec<f32>; N]) {
+fn zero<T: Real, const N: usize>(state: [&mut Vec<T>; N]) {
     for v in state {
-        v.fill(0.0);
+        v.fill(T::default());
     }
 }
 
 /// Bytes held by the per-block vectors `state`.
-fn f32_bytes(state: &[&Vec<f32>]) -> usize {
-    let f32s = state.iter().map(|v| v.len()).sum::<usize>();
-    f32s * std::mem::size_of::<f32>()
+fn state_bytes<T: Real>(state: &[&Vec<T>]) -> usize {
+    let values = state.iter().map(|v| v.len()).sum::<usize>();
+    values * std::mem::size_of::<T>()
 }
 
 /// Intervals the frame-rate estimate is the median of.
@@ -796,8 +918,17 @@ mod tests {
     fn cascade_and_non_cascade_banks_agree_and_the_cascade_is_cheaper() {
         let blocks = 37;
         let mut rng = Lcg(7);
-        let mut c = CascadeBank::new(blocks);
-        let mut nc = NonCascadeBank::new(blocks);
+        // Both on the counting number type: each bank's operations are counted as it
+        // runs (on this thread, one bank at a time).
+        let mut c = CascadeBank::<Counted>::new(blocks);
+        let mut nc = NonCascadeBank::<Counted>::new(blocks);
+        let (mut ops_c, mut ops_nc) = (OpCount::default(), OpCount::default());
+        let add = |sum: &mut OpCount, n: OpCount| {
+            sum.add += n.add;
+            sum.mul += n.mul;
+            sum.div += n.div;
+            sum.max += n.max;
+        };
         let (mut oc, mut onc) = (
             vec![BlockActivity::default(); blocks],
             vec![BlockActivity::default(); blocks],
@@ -805,13 +936,16 @@ mod tests {
         let a = alpha(20.0, 1.0) as f32;
         let (mut mc, mut mnc) = (vec![0.0; blocks], vec![0.0; blocks]);
         let mut frames_in_minute = 0;
+        Counted::take();
         for second in 0..600u32 {
             let frames = 5 + second % 4;
             for f in 0..frames {
                 let frame = random_frame(&mut rng, blocks);
                 let w = warmup_weight(1.0 - 0.999, (second * 10 + f) as u64) as f32;
                 c.frame(&frame, w);
+                add(&mut ops_c, Counted::take());
                 nc.frame(&frame, w);
+                add(&mut ops_nc, Counted::take());
             }
             frames_in_minute += frames;
             let input = SecondInput {
@@ -820,11 +954,15 @@ mod tests {
                 alpha_s1: a,
             };
             c.second(input, &mut oc);
+            add(&mut ops_c, Counted::take());
             nc.second(input, &mut onc);
+            add(&mut ops_nc, Counted::take());
             assert_eq!(oc, onc, "second {second}: short-term outputs differ");
             if second % 60 == 59 {
                 c.minute_mean(frames_in_minute, &mut mc);
+                add(&mut ops_c, Counted::take());
                 nc.minute_mean(frames_in_minute, &mut mnc);
+                add(&mut ops_nc, Counted::take());
                 frames_in_minute = 0;
                 for k in 0..blocks {
                     assert!(
@@ -838,17 +976,38 @@ mod tests {
         }
         assert!(oc.iter().any(|o| o.s1 > 0.0) && oc.iter().any(|o| o.s2 > 0.0));
         assert_eq!(c.baseline(), nc.baseline());
-        assert!(c.ops().total() < nc.ops().total());
         assert!(c.state_bytes() < nc.state_bytes());
-        assert_eq!(c.ops().filters(), 3, "F_L2 not counted yet");
-        c.count_f_l2(1);
-        nc.count_f_l2(1);
-        assert_eq!((c.ops().filters(), nc.ops().filters()), (4, 5));
+        // Per block-frame the cascade adds into one set of sums instead of three:
+        // fewer additions; per second it runs F_S1 once for both outputs.
+        assert!(ops_c.add < ops_nc.add, "{ops_c:?} vs {ops_nc:?}");
+        assert!(ops_c.total() < ops_nc.total(), "{ops_c:?} vs {ops_nc:?}");
+        // The same F_L1 and pass fraction per block-frame in both.
+        assert_eq!(ops_c.div, ops_nc.div);
+    }
+
+    #[test]
+    fn counted_counts_what_it_computes_and_agrees_with_f32() {
+        Counted::take();
+        let (mut b, mut bc) = (0.25f32, Counted(0.25));
+        let plain = f_l1(&mut b, 0.75, 0.5);
+        let counted = f_l1(&mut bc, Counted(0.75), Counted(0.5));
+        assert_eq!((plain, b), (counted.0, bc.0));
+        // b += w·(m − b): sub, mul, add; then max(0, m − b): sub, max.
+        assert_eq!(
+            Counted::take(),
+            OpCount {
+                add: 3,
+                mul: 1,
+                div: 0,
+                max: 1
+            }
+        );
+        assert_eq!(Counted::take(), OpCount::default(), "take starts again");
     }
 
     #[test]
     fn reset_short_term_keeps_the_baseline() {
-        let mut c = CascadeBank::new(2);
+        let mut c = CascadeBank::<f32>::new(2);
         let frame = vec![
             BlockMotion {
                 density: 0.5,
@@ -867,7 +1026,7 @@ mod tests {
             &mut out,
         );
         c.reset_short_term();
-        assert_eq!(c.baseline(), &[0.5, 0.5]);
+        assert_eq!(c.baseline(), [0.5, 0.5]);
         assert!(c.s1.iter().all(|&v| v == 0.0));
     }
 }

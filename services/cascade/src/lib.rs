@@ -39,7 +39,7 @@ use std::collections::HashMap;
 use std::time::Instant;
 
 use crate::filters::{
-    CascadeBank, FilterBank, OpCounts, RateEstimator, SecondInput, alpha, f_l2, warmup_weight,
+    CascadeBank, FilterBank, RateEstimator, SecondInput, alpha, f_l2, warmup_weight,
 };
 use isochron_shared::clock::{NS_PER_S, SiteClock};
 use isochron_shared::config::CascadeConfig;
@@ -406,11 +406,6 @@ impl<B: FilterBank> Cascade<B> {
         self.stats
     }
 
-    /// Filter operations so far.
-    pub fn ops(&self) -> OpCounts {
-        self.bank.ops()
-    }
-
     /// Bytes of per-block filter state.
     pub fn state_bytes(&self) -> usize {
         self.bank.state_bytes()
@@ -427,7 +422,7 @@ impl<B: FilterBank> Cascade<B> {
     }
 
     /// The F_L1 baseline per block.
-    pub fn baseline(&self) -> &[f32] {
+    pub fn baseline(&self) -> Vec<f32> {
         self.bank.baseline()
     }
 
@@ -663,7 +658,7 @@ impl<B: FilterBank> Cascade<B> {
             capture_ns: self.last_capture_ns.unwrap_or(0),
             frames: self.l1_frames,
             frame_rate: self.rate_in_use.unwrap_or(0.0),
-            level: self.bank.baseline().to_vec(),
+            level: self.bank.baseline(),
         };
         if covered && !repeated {
             let mut bin = m.bin.unwrap_or_else(|| Bin::empty(m.t_star, k));
@@ -673,7 +668,6 @@ impl<B: FilterBank> Cascade<B> {
             }
             bin.count = bin.count.saturating_add(1);
             bin.last_minute = m.index;
-            self.bank.count_f_l2(k as u64);
             model.commit(&MinuteCommit {
                 minute: m.index,
                 bin: Some(&bin),

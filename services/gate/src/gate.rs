@@ -139,6 +139,7 @@ impl Gate {
             first_frame: h.first_source_index,
             last_frame: h.last_source_index,
         };
+        let origin = h.preamble.origin_wall_ns;
         let warm = h.model_days >= self.settings.warm_days;
         let g = &self.settings.gate;
         let mut actions = Vec::new();
@@ -178,7 +179,7 @@ impl Gate {
                                 last_ns: i64::MIN,
                             },
                         );
-                        schedule(&mut self.detected, g, &event, second, &mut actions);
+                        schedule(&mut self.detected, g, &event, second, origin, &mut actions);
                         actions.push(Action::Event {
                             phase: EventPhase::Start,
                             zone: zone.config.name.clone(),
@@ -186,7 +187,7 @@ impl Gate {
                         });
                     }
                     Change::Continued(event) => {
-                        schedule(&mut self.detected, g, &event, second, &mut actions);
+                        schedule(&mut self.detected, g, &event, second, origin, &mut actions);
                     }
                     Change::Ended(event) => {
                         ended(&mut self.detected, &zone.config.name, event, &mut actions);
@@ -233,6 +234,7 @@ fn schedule(
     g: &GateConfig,
     event: &Event,
     second: Second,
+    origin_wall_ns: i64,
     actions: &mut Vec<Action>,
 ) {
     let Some(d) = detected.get_mut(&event.id) else {
@@ -250,6 +252,7 @@ fn schedule(
         actions.push(Action::Detect(Job {
             event_id: event.id,
             time_ns: second.end_ns - 1,
+            origin_wall_ns,
         }));
     }
 }

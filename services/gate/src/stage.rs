@@ -259,6 +259,7 @@ impl<'ipc> GateStage<'ipc> {
         let n = o.detections.len().min(MAX_DETECTIONS);
         let from = Preamble {
             capture_time_ns: o.capture_time_ns,
+            origin_wall_ns: o.origin_wall_ns,
             ..Preamble::default()
         };
         let header = DetectionHeader {
@@ -350,13 +351,14 @@ impl Stage for GateStage<'_> {
 
     fn detail(&self) -> String {
         format!(
-            "detector={} events={} open={} frames_seen={} detected={} detector_ms={} jobs_dropped={}",
+            "detector={} events={} open={} frames_seen={} detected={} detector_ms={} jobs={} jobs_dropped={}",
             self.detector_name,
             self.gate.events_started(),
             self.gate.open_events(),
             self.counters.frames_seen,
             self.counters.frames_detected,
             self.counters.detector_total_us / 1000,
+            self.worker.submitted,
             self.jobs_dropped()
         )
     }

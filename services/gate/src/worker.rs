@@ -26,6 +26,9 @@ pub struct Job {
     pub event_id: u64,
     /// Capture time of the frame to detect on (the latest at or before it).
     pub time_ns: i64,
+    /// Wall clock (UTC ns) at which capture published that frame (the activity
+    /// sample's `origin_wall_ns`): carried into the detections, for their latency.
+    pub origin_wall_ns: i64,
 }
 
 /// A finished detection.
@@ -35,6 +38,8 @@ pub struct Outcome {
     pub event_id: u64,
     /// Capture time of the detected frame.
     pub capture_time_ns: i64,
+    /// The job's `origin_wall_ns`.
+    pub origin_wall_ns: i64,
     /// Source index of the detected frame.
     pub source_index: u64,
     /// People found.
@@ -208,6 +213,7 @@ impl Worker {
                             Ok(detections) => Report::Done(Outcome {
                                 event_id: job.event_id,
                                 capture_time_ns: frame.capture_time_ns,
+                                origin_wall_ns: job.origin_wall_ns,
                                 source_index: frame.source_index,
                                 detections,
                                 detector_us: t0.elapsed().as_micros() as u64,
@@ -375,6 +381,7 @@ mod tests {
         let job = Job {
             event_id: 1,
             time_ns: 0,
+            origin_wall_ns: 0,
         };
         assert!(worker.submit(job));
         std::thread::sleep(Duration::from_millis(50));

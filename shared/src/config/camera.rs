@@ -115,6 +115,12 @@ pub struct CameraConfig {
     /// capture process with the same file share the decoded frames.
     #[serde(default)]
     pub preload_frames: Option<u32>,
+    /// File sources only: the frame the first pass starts at (its index in the
+    /// file, or with `preload_frames` in the preloaded frames); a loop starts again
+    /// from frame 0. Cameras replaying one file at different points do not move in
+    /// lockstep. Default 0.
+    #[serde(default)]
+    pub start_frame: u64,
     /// First reconnect delay after a live source drops out, seconds. Default 0.5.
     #[serde(default = "default_reconnect_initial_s")]
     pub reconnect_initial_s: f64,
@@ -319,6 +325,22 @@ impl CameraConfig {
                 return Err(Invalid::new(
                     key("preload_frames"),
                     "expected only for file sources (live sources cannot be preloaded)",
+                ));
+            }
+        }
+        if self.start_frame > 0 {
+            if !self.source_kind(Path::new(".")).is_file() {
+                return Err(Invalid::new(
+                    key("start_frame"),
+                    "expected only for file sources (a live source starts where it is)",
+                ));
+            }
+            if let Some(n) = self.preload_frames
+                && self.start_frame >= u64::from(n)
+            {
+                return Err(Invalid::new(
+                    key("start_frame"),
+                    format!("expected a frame below preload_frames ({n})"),
                 ));
             }
         }

@@ -105,6 +105,26 @@ fn invalid_values_name_line_key_and_expectation() {
 }
 
 #[test]
+fn start_frame_is_for_files_and_within_the_preload() {
+    let c = parse(&GOOD.replace("fps = 10", "fps = 10\nstart_frame = 40")).unwrap();
+    assert_eq!(c.cameras[0].start_frame, 40);
+    assert_eq!(c.cameras[1].start_frame, 0);
+
+    let text = GOOD.replace(
+        "fps = 10",
+        "fps = 10\npreload_frames = 40\nstart_frame = 40",
+    );
+    let err = parse(&text).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("camera[0].start_frame"));
+    assert!(err.message.contains("below preload_frames (40)"), "{err}");
+
+    let text = format!("{GOOD}start_frame = 5\n");
+    let err = parse(&text).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("camera[1].start_frame"));
+    assert!(err.message.contains("only for file sources"), "{err}");
+}
+
+#[test]
 fn missing_cameras_is_an_error() {
     let err = parse("[site]\nname = \"x\"\n").unwrap_err();
     assert_eq!(err.key.as_deref(), Some("camera"));
