@@ -33,6 +33,11 @@ pub struct GateConfig {
     pub detect_per_event: u32,
     /// Instead: one detection every this many seconds while an event lasts.
     pub detect_every_s: Option<f64>,
+    /// While the detector holds a person confirmed in a zone, it runs again on
+    /// that zone every this many seconds; the person stays confirmed (and the
+    /// zone's events open) until a run no longer finds anyone near them.
+    /// Default 5.
+    pub recheck_s: f64,
     /// Recent frames kept for the detector: the last frame of each of the latest
     /// this many seconds (a detection looks at the last frame of a second). Default 8.
     pub ring_frames: usize,
@@ -50,6 +55,7 @@ impl Default for GateConfig {
             hold_s: 3.0,
             detect_per_event: 1,
             detect_every_s: None,
+            recheck_s: 5.0,
             ring_frames: 8,
             detector: DetectorConfig::default(),
         }
@@ -122,6 +128,7 @@ impl GateConfig {
         if let Some(every) = self.detect_every_s {
             check_positive("gate.detect_every_s", every)?;
         }
+        check_range("gate.recheck_s", self.recheck_s, 0.1, 3600.0)?;
         check_range("gate.ring_frames", self.ring_frames as f64, 1.0, 4096.0)?;
         self.detector.validate()
     }
