@@ -250,6 +250,8 @@ impl Gate {
             let thr = threshold(mean, var, warm, g.k_sigma, g.floor, g.min_threshold);
             let hold_open = !zone.people.is_empty();
             let mut quiet = true;
+            let mut wanted = None;
+            let zone_actions = actions.len();
             for (tracker, value) in zone.trackers.iter_mut().zip([s1, s2]) {
                 quiet &= value <= thr;
                 self.scratch.clear();
@@ -271,8 +273,9 @@ impl Gate {
                     &mut self.next_event_id,
                     hold_open,
                 );
-                let mut detect = |event: &Event, started: bool, actions: &mut Vec<Action>| {
-                    if started {
+                match change {
+                    Change::None => {}
+                    Change::Started(event) => {
                         self.detected.insert(
                             event.id,
                             Detected {
@@ -280,63 +283,47 @@ impl Gate {
                                 last_ns: i64::MIN,
                             },
                         );
-                    }
-                    if schedule(&mut self.detected, g, event, second) {
-                        let job = issue(
-                            &mut self.pending,
-                            &mut self.next_job_id,
-                            (zi, &zone.blocks, blocks),
-                            event.id,
-                            second,
-                        );
-                        actions.push(Action::Detect(job));
-                    }
-                };
-                match change {
-                    Change::None => {}
-                    Change::Started(event) => {
-                        detect(&event, true, &mut actions);
+                        if schedule(&mut self.detected, g, &event, second) {
+                            wanted.get_or_insert(event.id);
+                        }
                         actions.push(Action::Event {
                             phase: EventPhase::Start,
                             zone: zone.config.name.clone(),
                             event,
                         });
                     }
-                    Change::Continued(event) => detect(&event, false, &mut actions),
+                    Change::Continued(event) => {
+                        if schedule(&mut self.detected, g, &event, second) {
+                            wanted.get_or_insert(event.id);
+                        }
+                    }
                     Change::Ended(event) => {
                         ended(&mut self.detected, &zone.config.name, event, &mut actions);
                     }
                 }
             }
             // Presence: re-check confirmed people, or check once whether someone
-            // stays where the activity fell quiet.
+            // stays where the activity fell quiet. At most one detection per zone
+            // and second, whoever asks for it; each counts as a check.
             let open = zone
                 .trackers
                 .iter()
                 .filter_map(|t| t.open())
                 .max_by_key(|e| e.end_ns);
-            let waiting = self.pending.values().any(|p| p.zone == zi);
-            if waiting {
-                continue;
-            }
-            let event_id = open.map_or(u64::MAX, |e| e.id);
-            if !zone.people.is_empty() {
-                if second.end_ns.saturating_sub(zone.last_check_ns) >= recheck_ns {
-                    zone.last_check_ns = second.end_ns;
-                    let job = issue(
-                        &mut self.pending,
-                        &mut self.next_job_id,
-                        (zi, &zone.blocks, blocks),
-                        event_id,
-                        second,
-                    );
-                    actions.push(Action::Detect(job));
-                }
-            } else if let Some(event) = open
+            let idle = !self.pending.values().any(|p| p.zone == zi);
+            let recheck = idle
+                && !zone.people.is_empty()
+                && second.end_ns.saturating_sub(zone.last_check_ns) >= recheck_ns;
+            let closing = idle
+                && zone.people.is_empty()
                 && quiet
-                && zone.closing_checked != Some(event.end_ns)
-            {
-                zone.closing_checked = Some(event.end_ns);
+                && open.is_some_and(|e| zone.closing_checked != Some(e.end_ns));
+            if closing {
+                zone.closing_checked = open.map(|e| e.end_ns);
+            }
+            if wanted.is_some() || recheck || closing {
+                zone.last_check_ns = second.end_ns;
+                let event_id = wanted.or(open.map(|e| e.id)).unwrap_or(u64::MAX);
                 let job = issue(
                     &mut self.pending,
                     &mut self.next_job_id,
@@ -344,7 +331,8 @@ impl Gate {
                     event_id,
                     second,
                 );
-                actions.push(Action::Detect(job));
+                // Before the zone's event records: the job names the event.
+                actions.insert(zone_actions, Action::Detect(job));
             }
         }
         actions

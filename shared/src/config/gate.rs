@@ -70,8 +70,12 @@ pub struct DetectorConfig {
     /// ONNX model file (a YOLOv5/YOLOv8 export; see the README); relative to the
     /// config file. Default: none (HOG).
     pub model: Option<PathBuf>,
-    /// Square input size of the ONNX model, pixels. Default 640.
+    /// Square input size of the ONNX model, pixels. Frames are letterboxed into
+    /// it (scaled to fit, aspect kept, padded with grey 114). Default 640.
     pub input_px: u32,
+    /// Channels the ONNX model's input has: 3 (the frame as RGB, grey frames
+    /// replicated) or 1 (grey). Default 3.
+    pub input_channels: u32,
     /// Lowest score of a kept detection (ONNX: class score; HOG: SVM margin).
     /// Default 0.4 (ONNX) — HOG uses `hog_hit_threshold`.
     pub score_threshold: f32,
@@ -96,6 +100,7 @@ impl Default for DetectorConfig {
         DetectorConfig {
             model: None,
             input_px: 640,
+            input_channels: 3,
             score_threshold: 0.4,
             nms_threshold: 0.45,
             hog_upscale: 1.0,
@@ -138,6 +143,12 @@ impl DetectorConfig {
     /// Checks the `gate.detector.*` keys.
     fn validate(&self) -> Result<(), Invalid> {
         check_range("gate.detector.input_px", self.input_px as f64, 32.0, 4096.0)?;
+        if !matches!(self.input_channels, 1 | 3) {
+            return Err(Invalid::new(
+                "gate.detector.input_channels",
+                format!("expected 1 or 3, found {}", self.input_channels),
+            ));
+        }
         check_range(
             "gate.detector.score_threshold",
             self.score_threshold as f64,
