@@ -21,6 +21,13 @@ use opencv::core::{Mat, Rect, Scalar, Size, Vector};
 use opencv::prelude::*;
 use opencv::{dnn, imgproc, objdetect};
 
+/// Fraction of a HOG window's width left and right of the person.
+const HOG_MARGIN_X: f32 = 0.1;
+/// Fraction of a HOG window's height above the person's head.
+const HOG_MARGIN_TOP: f32 = 0.07;
+/// Fraction of a HOG window's height below the person's feet.
+const HOG_MARGIN_BOTTOM: f32 = 0.13;
+
 /// A ready detector.
 pub enum Detector {
     /// OpenCV HOG + linear SVM for people.
@@ -194,16 +201,22 @@ impl Detector {
                     run(&frame)?;
                 }
                 let s = *upscale as f32;
+                // HOG's window has a margin around the person (64×128 for a
+                // person about 50×100): the box is shrunk to the person, so it
+                // overlaps an annotation as tightly and its bottom is at the feet.
                 Ok(rects
                     .iter()
                     .zip(weights.iter())
-                    .map(|(r, w)| Detection {
-                        x: r.x as f32 / s,
-                        y: r.y as f32 / s,
-                        w: r.width as f32 / s,
-                        h: r.height as f32 / s,
-                        score: w as f32,
-                        class: 0,
+                    .map(|(r, w)| {
+                        let (rw, rh) = (r.width as f32, r.height as f32);
+                        Detection {
+                            x: (r.x as f32 + HOG_MARGIN_X * rw) / s,
+                            y: (r.y as f32 + HOG_MARGIN_TOP * rh) / s,
+                            w: rw * (1.0 - 2.0 * HOG_MARGIN_X) / s,
+                            h: rh * (1.0 - HOG_MARGIN_TOP - HOG_MARGIN_BOTTOM) / s,
+                            score: w as f32,
+                            class: 0,
+                        }
                     })
                     .collect())
             }
