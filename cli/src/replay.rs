@@ -489,6 +489,7 @@ impl Tally {
                         "frame": h.source_index,
                         "capture_time": format_rfc3339(h.preamble.capture_time_ns),
                         "detector_ms": h.detector_us as f64 / 1e3,
+                        "searched": [h.roi_x, h.roi_y, h.roi_w, h.roi_h],
                         "detections": dets.iter().map(|d| json!({
                             "x": d.x, "y": d.y, "w": d.w, "h": d.h, "score": d.score, "class": d.class
                         })).collect::<Vec<_>>(),

@@ -19,7 +19,7 @@ pub const MAGIC: u32 = u32::from_le_bytes(*b"ISOC");
 
 /// Version of the layout of all headers and payload elements in this file. Bump it on
 /// any change to a `#[repr(C)]` type here.
-pub const LAYOUT_VERSION: u16 = 1;
+pub const LAYOUT_VERSION: u16 = 2;
 
 /// Longest camera id, in bytes.
 pub const CAMERA_ID_LEN: usize = 24;
@@ -744,9 +744,28 @@ pub struct DetectionHeader {
     pub jobs_dropped: u64,
     /// Total detector time so far, microseconds.
     pub detector_total_us: u64,
+    /// The region of the frame the detector searched (frame pixels): a person
+    /// confirmed earlier whose feet lie inside it and who is not among this
+    /// sample's detections is gone. Width 0: the whole frame.
+    pub roi_x: u32,
+    /// Top of the searched region.
+    pub roi_y: u32,
+    /// Width of the searched region; 0 means the whole frame.
+    pub roi_w: u32,
+    /// Height of the searched region.
+    pub roi_h: u32,
 }
 
 impl DetectionHeader {
+    /// True if the frame point `(x, y)` lies in the searched region.
+    pub fn searched(&self, x: f32, y: f32) -> bool {
+        self.roi_w == 0
+            || (x >= self.roi_x as f32
+                && y >= self.roi_y as f32
+                && x <= (self.roi_x + self.roi_w) as f32
+                && y <= (self.roi_y + self.roi_h) as f32)
+    }
+
     /// Validates the header against the sample's real payload length.
     pub fn validate(&self, camera: &CameraId, detections: usize) -> Result<(), WireError> {
         self.preamble

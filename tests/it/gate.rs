@@ -164,7 +164,7 @@ fn start_gate(site: &TestSite, width: u32, height: u32) -> Fed {
 }
 
 #[test]
-fn events_start_and_end_with_hysteresis_and_the_detector_runs_once_per_event() {
+fn events_start_and_end_with_hysteresis_and_the_detector_runs_at_start_and_when_quiet() {
     let site = site("gate-events", true, "hold_s = 2.0");
     let mut fed = start_gate(&site, 320, 240);
 
@@ -193,7 +193,9 @@ fn events_start_and_end_with_hysteresis_and_the_detector_runs_once_per_event() {
             if h.preamble.is_end_of_stream() {
                 ended.1 = true;
                 assert_eq!(h.frames_seen, 200);
-                assert_eq!(h.frames_detected, 1, "one detection for one event");
+                // When the event starts, and each time its activity falls quiet
+                // (the dip at 7, the end at 10): does someone stay?
+                assert_eq!(h.frames_detected, 3, "{h:?}");
             } else {
                 dets.push(h);
             }
@@ -217,11 +219,13 @@ fn events_start_and_end_with_hysteresis_and_the_detector_runs_once_per_event() {
         end.peak >= 1.0 && (end.threshold - 0.5).abs() < 1e-6,
         "cold: the floor"
     );
-    assert_eq!(dets.len(), 1);
-    assert_eq!(dets[0].event_id, start.event_id);
+    assert_eq!(dets.len(), 3);
+    assert!(dets.iter().all(|d| d.event_id == start.event_id));
+    let frames: Vec<u64> = dets.iter().map(|d| d.source_index).collect();
     assert_eq!(
-        dets[0].source_index, 59,
-        "the last frame of the triggering second"
+        frames,
+        [59, 79, 109],
+        "the last frame of the triggering second, then of the quiet ones"
     );
 }
 
@@ -277,4 +281,81 @@ fn a_slow_detector_does_not_delay_events() {
         "a busy detector drops work instead of queueing it"
     );
     assert!(eos.frames_detected >= 1 && eos.frames_detected < 8);
+}
+
+/// The Python of the test venv with the `onnx` package (`cargo xtask setup`).
+fn onnx_python() -> std::path::PathBuf {
+    let path = isochron_tests::setup_file(
+        "ISOCHRON_ROS2_PYTHON",
+        "target/ros2-venv/bin/python3",
+        "(it makes a Python venv with the onnx package)",
+    );
+    let ok = std::process::Command::new(&path)
+        .args(["-c", "import onnx"])
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(
+        ok,
+        "{} cannot import onnx: run `cargo xtask setup` again",
+        path.display()
+    );
+    path
+}
+
+#[test]
+fn an_onnx_model_runs_through_opencv_dnn_on_the_letterboxed_frame() {
+    for channels in [3, 1] {
+        // A model with the YOLOv8 output layout whose boxes are known, made here.
+        let dir = tempfile::tempdir().unwrap();
+        let model = dir.path().join("yolo.onnx");
+        let made = std::process::Command::new(onnx_python())
+            .arg(isochron_tests::repo_root().join("tests/data/yolo_constant.py"))
+            .arg(&model)
+            .args([channels.to_string(), "64".into()])
+            .status()
+            .unwrap();
+        assert!(made.success(), "tests/data/yolo_constant.py failed");
+        let site = site(
+            &format!("gate-onnx{channels}"),
+            true,
+            &format!(
+                "[gate.detector]\nmodel = \"{}\"\ninput_px = 64\ninput_channels = {channels}",
+                model.display()
+            ),
+        );
+        // 128x64 frames in a 64x64 input: scale 0.5, 16 px of grey above and below.
+        let mut fed = start_gate(&site, 128, 64);
+        for s in 0..4 {
+            fed.feeder.second(s, if s == 1 { 1.0 } else { 0.0 });
+        }
+        fed.feeder.end_of_stream(4 * NS_PER_S);
+        let found = eventually(Duration::from_secs(60), || {
+            while let Some(s) = fed.detections.receive().unwrap() {
+                if !s.user_header().preamble.is_end_of_stream() {
+                    return Some(s.payload().to_vec());
+                }
+            }
+            None
+        })
+        .unwrap_or_else(|| panic!("no detection; the gate said:\n{}", fed._gate.stderr()));
+        // The person at (32, 32) 16x24 of the input, in frame pixels: x = (32 - 8)
+        // / 0.5, y = (32 - 12 - 16) / 0.5. Stretched instead of letterboxed, y
+        // would be 20 and h 24. The weak person and the other class are dropped.
+        assert_eq!(found.len(), 1, "{found:?}");
+        let d = found[0];
+        assert_eq!((d.x, d.y, d.w, d.h, d.class), (48.0, 8.0, 32.0, 48.0, 0));
+        // Its score is the input's mean: half frame (≈ its mean), half grey 114.
+        let pixels = &fed.feeder.pixels;
+        let frame_mean = pixels.iter().map(|&p| p as f64).sum::<f64>() / pixels.len() as f64;
+        let expected = (frame_mean + 114.0) / 2.0 / 255.0;
+        println!(
+            "{channels} channel(s): score {} (expected ≈ {expected:.3})",
+            d.score
+        );
+        assert!(
+            (d.score as f64 - expected).abs() < 0.03,
+            "score {} expected {expected}",
+            d.score
+        );
+    }
 }

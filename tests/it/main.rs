@@ -15,6 +15,7 @@ mod launcher;
 mod motion;
 mod operations;
 mod pipeline;
+mod presence;
 mod reliability;
 mod scale;
 mod systemd;

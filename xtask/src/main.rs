@@ -145,8 +145,13 @@ fn setup(root: &Path) -> anyhow::Result<()> {
 /// never builds it from source).
 const CYCLONEDDS: &str = "cyclonedds==11.0.1";
 
+/// The Python package `tests/data/yolo_constant.py` builds a small ONNX model with,
+/// for the test of the gate's OpenCV dnn path (no model is downloaded).
+const ONNX: &str = "onnx==1.17.0";
+
 /// Makes `target/ros2-venv`, a Python venv with [`CYCLONEDDS`], for
-/// `tests/it/costmap.rs` (an independent ROS 2 subscriber: no ROS install needed).
+/// `tests/it/costmap.rs` (an independent ROS 2 subscriber: no ROS install needed),
+/// and [`ONNX`], for `tests/it/gate.rs`.
 fn ros2_venv(root: &Path) -> anyhow::Result<()> {
     let venv = root.join("target/ros2-venv");
     let python = venv.join("bin/python3");
@@ -154,7 +159,7 @@ fn ros2_venv(root: &Path) -> anyhow::Result<()> {
     let ready = Command::new(&python)
         .args([
             "-c",
-            &format!("import importlib.metadata as m, cyclonedds.domain; assert m.version('cyclonedds') == '{version}'"),
+            &format!("import importlib.metadata as m, cyclonedds.domain, onnx; assert m.version('cyclonedds') == '{version}'"),
         ])
         .output()
         .is_ok_and(|o| o.status.success());
@@ -177,7 +182,10 @@ fn ros2_venv(root: &Path) -> anyhow::Result<()> {
             "python3-venv",
         ]))?;
     }
-    eprintln!("xtask: making {} with {CYCLONEDDS}", venv.display());
+    eprintln!(
+        "xtask: making {} with {CYCLONEDDS} and {ONNX}",
+        venv.display()
+    );
     let _ = std::fs::remove_dir_all(&venv);
     run(Command::new("python3").arg("-m").arg("venv").arg(&venv))?;
     run(Command::new(&python).args([
@@ -187,6 +195,7 @@ fn ros2_venv(root: &Path) -> anyhow::Result<()> {
         "--quiet",
         "--only-binary=:all:",
         CYCLONEDDS,
+        ONNX,
     ]))
 }
 

@@ -47,8 +47,9 @@ pub struct CameraState {
     pub footprint: Option<Footprint>,
     /// The latest activity.
     pub latest: Option<Latest>,
-    /// Confirmed people: (capture time of the detected frame, feet on the floor).
-    pub confirmed: VecDeque<(i64, [f64; 2])>,
+    /// Confirmed people: (capture time of the detected frame, feet in the frame,
+    /// feet on the floor).
+    pub confirmed: VecDeque<(i64, [f32; 2], [f64; 2])>,
 }
 
 /// The cost map bridge's state.
@@ -182,14 +183,16 @@ impl Bridge {
             .count();
         latest.arrived = now;
         let horizon = header.preamble.capture_time_ns - self.confirm_hold_ns;
-        while cam.confirmed.front().is_some_and(|(t, _)| *t < horizon) {
+        while cam.confirmed.front().is_some_and(|(t, _, _)| *t < horizon) {
             cam.confirmed.pop_front();
         }
         non_finite
     }
 
     /// Takes camera `k`'s detections (validated by the caller): each person's feet
-    /// (the bottom centre of their box) on the floor. Returns how many were placed,
+    /// (the bottom centre of their box) on the floor. They replace the camera's
+    /// earlier confirmations in the region the detector searched (a person it no
+    /// longer finds there is gone). Returns how many were placed,
     /// and how many boxes (of any class) were ignored for a NaN or infinite
     /// coordinate (for the caller to count as rejected, see [`count_non_finite`]).
     pub fn on_detections(
@@ -209,15 +212,17 @@ impl Bridge {
             return (0, non_finite);
         };
         let t = header.preamble.capture_time_ns;
+        cam.confirmed
+            .retain(|(seen, feet, _)| *seen > t || !header.searched(feet[0], feet[1]));
         let mut placed = 0;
         for d in detections
             .iter()
             .filter(finite)
             .filter(|d| d.class == PERSON)
         {
-            let feet = [(d.x + d.w / 2.0) as f64, (d.y + d.h) as f64];
-            if let Some(p) = h.apply(feet) {
-                cam.confirmed.push_back((t, p));
+            let feet = [d.x + d.w / 2.0, d.y + d.h];
+            if let Some(p) = h.apply([feet[0] as f64, feet[1] as f64]) {
+                cam.confirmed.push_back((t, feet, p));
                 placed += 1;
             }
         }
@@ -258,8 +263,8 @@ impl Bridge {
             confirmed.extend(
                 cam.confirmed
                     .iter()
-                    .filter(|(t, _)| *t >= since)
-                    .map(|(_, p)| *p),
+                    .filter(|(t, _, _)| *t >= since)
+                    .map(|(_, _, p)| *p),
             );
         }
         Some(compose(grid, &self.params, &layers, &confirmed))
@@ -526,6 +531,39 @@ stale_s = 5
         // 3 s of capture time later the confirmation has expired.
         b.on_activity(0, &header(1_003 * NS_PER_S), &blocks, t0);
         assert_eq!(b.compose(t0).unwrap()[grid.index(13, 14)], 0);
+    }
+
+    #[test]
+    fn a_detection_that_searched_there_and_found_nobody_ends_a_confirmation() {
+        let mut b = bridge();
+        let t0 = Instant::now();
+        let blocks = vec![BlockActivity::default(); 300];
+        b.on_activity(0, &header(1_000 * NS_PER_S), &blocks, t0);
+        b.on_detections(0, &detections_at_1000_s(1), &[person_at_feet_105_124()]);
+        let grid = b.grid.unwrap();
+        let at_feet = |b: &Bridge| b.compose(t0).unwrap()[grid.index(13, 14)];
+        assert_eq!(at_feet(&b), 100);
+        // 1 s later a search of the left half finds nobody: the person's feet
+        // (105, 124) are elsewhere, so they stay confirmed.
+        let mut later = detections_at_1000_s(0);
+        later.preamble.capture_time_ns += NS_PER_S;
+        let left = DetectionHeader {
+            roi_w: 50,
+            roi_h: 240,
+            ..later
+        };
+        b.on_detections(0, &left, &[]);
+        assert_eq!(at_feet(&b), 100);
+        // A search around them finds nobody: gone, long before `confirm_hold_s`.
+        let around = DetectionHeader {
+            roi_x: 80,
+            roi_y: 40,
+            roi_w: 60,
+            roi_h: 100,
+            ..later
+        };
+        b.on_detections(0, &around, &[]);
+        assert_eq!(at_feet(&b), 0);
     }
 
     #[test]

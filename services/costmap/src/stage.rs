@@ -469,7 +469,7 @@ fn publish_people(
         .iter()
         .rev()
         .take(placed)
-        .map(|(_, p)| Pose {
+        .map(|(_, _, p)| Pose {
             position: Point {
                 x: p[0],
                 y: p[1],

@@ -5,7 +5,9 @@
 //!   tall and more; `hog_upscale` enlarges frames of small, distant people first.
 //! * **ONNX** (when `gate.detector.model` is set): a YOLO export run through
 //!   OpenCV's dnn module on the CPU. Expected model: one input `1×3×S×S` (RGB,
-//!   0..1, S = `input_px`, e.g. 640) and one output, either YOLOv8 style
+//!   0..1, S = `input_px`, e.g. 640; `1×1×S×S` grey with `input_channels = 1`),
+//!   fed the frame letterboxed (scaled to fit with its aspect ratio kept, centred,
+//!   padded with grey 114, as YOLO trains), and one output, either YOLOv8 style
 //!   `1×(4+C)×N` (rows cx, cy, w, h, then C class scores) or YOLOv5 style
 //!   `1×N×(5+C)` (cx, cy, w, h, objectness, C class scores), boxes in input
 //!   pixels. Class 0 must be "person" (COCO order); other classes are ignored.
@@ -18,6 +20,13 @@ use isochron_shared::wire::Detection;
 use opencv::core::{Mat, Rect, Scalar, Size, Vector};
 use opencv::prelude::*;
 use opencv::{dnn, imgproc, objdetect};
+
+/// Fraction of a HOG window's width left and right of the person.
+const HOG_MARGIN_X: f32 = 0.1;
+/// Fraction of a HOG window's height above the person's head.
+const HOG_MARGIN_TOP: f32 = 0.07;
+/// Fraction of a HOG window's height below the person's feet.
+const HOG_MARGIN_BOTTOM: f32 = 0.13;
 
 /// A ready detector.
 pub enum Detector {
@@ -38,12 +47,14 @@ pub enum Detector {
         net: dnn::Net,
         /// Square input size.
         input_px: i32,
+        /// Input channels (1 or 3).
+        channels: u32,
         /// Lowest kept class score.
         score_threshold: f32,
         /// NMS overlap threshold.
         nms_threshold: f32,
-        /// Reused buffer for the colour frame.
-        bgr: Mat,
+        /// Reused buffers: the scaled frame, the letterboxed input, its colour version.
+        buffers: [Mat; 3],
     },
 }
 
@@ -116,9 +127,10 @@ impl Detector {
                 Ok(Detector::Onnx {
                     net,
                     input_px: config.input_px as i32,
+                    channels: config.input_channels,
                     score_threshold: config.score_threshold,
                     nms_threshold: config.nms_threshold,
-                    bgr: Mat::default(),
+                    buffers: Default::default(),
                 })
             }
         }
@@ -189,51 +201,123 @@ impl Detector {
                     run(&frame)?;
                 }
                 let s = *upscale as f32;
+                // HOG's window has a margin around the person (64×128 for a
+                // person about 50×100): the box is shrunk to the person, so it
+                // overlaps an annotation as tightly and its bottom is at the feet.
                 Ok(rects
                     .iter()
                     .zip(weights.iter())
-                    .map(|(r, w)| Detection {
-                        x: r.x as f32 / s,
-                        y: r.y as f32 / s,
-                        w: r.width as f32 / s,
-                        h: r.height as f32 / s,
-                        score: w as f32,
-                        class: 0,
+                    .map(|(r, w)| {
+                        let (rw, rh) = (r.width as f32, r.height as f32);
+                        Detection {
+                            x: (r.x as f32 + HOG_MARGIN_X * rw) / s,
+                            y: (r.y as f32 + HOG_MARGIN_TOP * rh) / s,
+                            w: rw * (1.0 - 2.0 * HOG_MARGIN_X) / s,
+                            h: rh * (1.0 - HOG_MARGIN_TOP - HOG_MARGIN_BOTTOM) / s,
+                            score: w as f32,
+                            class: 0,
+                        }
                     })
                     .collect())
             }
             Detector::Onnx {
                 net,
                 input_px,
+                channels,
                 score_threshold,
                 nms_threshold,
-                bgr,
+                buffers: [scaled, boxed, bgr],
             } => {
-                imgproc::cvt_color(&frame, bgr, imgproc::COLOR_GRAY2BGR, 0)?;
+                let fit = Letterbox::new(width, height, *input_px);
+                imgproc::resize(
+                    &frame,
+                    scaled,
+                    Size::new(fit.width, fit.height),
+                    0.0,
+                    0.0,
+                    imgproc::INTER_LINEAR,
+                )?;
+                let (left, top) = (fit.pad_x as i32, fit.pad_y as i32);
+                opencv::core::copy_make_border(
+                    scaled,
+                    boxed,
+                    top,
+                    *input_px - fit.height - top,
+                    left,
+                    *input_px - fit.width - left,
+                    opencv::core::BORDER_CONSTANT,
+                    Scalar::all(114.0),
+                )?;
+                let input = if *channels == 3 {
+                    imgproc::cvt_color(boxed, bgr, imgproc::COLOR_GRAY2BGR, 0)?;
+                    &*bgr
+                } else {
+                    &*boxed
+                };
                 let blob = dnn::blob_from_image(
-                    bgr,
+                    input,
                     1.0 / 255.0,
                     Size::new(*input_px, *input_px),
                     Scalar::default(),
-                    true,
+                    *channels == 3,
                     false,
                     opencv::core::CV_32F,
                 )?;
                 net.set_input(&blob, "", 1.0, Scalar::default())?;
                 let out = net.forward_single("")?;
-                let (sx, sy) = (
-                    width as f32 / *input_px as f32,
-                    height as f32 / *input_px as f32,
-                );
                 let candidates = parse_yolo(&out, *score_threshold)?;
                 Ok(non_max_suppression(
                     candidates,
                     *score_threshold,
                     *nms_threshold,
-                    sx,
-                    sy,
+                    &fit,
                 )?)
             }
+        }
+    }
+}
+
+/// How a frame sits in the square model input: scaled by `scale` to
+/// `width × height`, centred with `pad_x`, `pad_y` pixels of padding.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Letterbox {
+    /// Model input pixels per frame pixel.
+    pub scale: f32,
+    /// Scaled frame width, input pixels.
+    pub width: i32,
+    /// Scaled frame height, input pixels.
+    pub height: i32,
+    /// Padding left of the frame, input pixels.
+    pub pad_x: f32,
+    /// Padding above the frame, input pixels.
+    pub pad_y: f32,
+}
+
+impl Letterbox {
+    /// A `width × height` frame in a square input of `input_px`.
+    pub fn new(width: u32, height: u32, input_px: i32) -> Self {
+        let s = input_px as f64;
+        let scale = (s / width as f64).min(s / height as f64);
+        let w = ((width as f64 * scale).round() as i32).clamp(1, input_px);
+        let h = ((height as f64 * scale).round() as i32).clamp(1, input_px);
+        Letterbox {
+            scale: scale as f32,
+            width: w,
+            height: h,
+            pad_x: ((input_px - w) / 2) as f32,
+            pad_y: ((input_px - h) / 2) as f32,
+        }
+    }
+
+    /// A candidate (input pixels) as a detection in frame pixels.
+    pub fn to_frame(&self, c: &Candidate) -> Detection {
+        Detection {
+            x: (c.cx - c.w / 2.0 - self.pad_x) / self.scale,
+            y: (c.cy - c.h / 2.0 - self.pad_y) / self.scale,
+            w: c.w / self.scale,
+            h: c.h / self.scale,
+            score: c.score,
+            class: 0,
         }
     }
 }
@@ -308,13 +392,12 @@ pub fn parse_yolo(out: &Mat, score_threshold: f32) -> opencv::Result<Vec<Candida
     Ok(found)
 }
 
-/// Non-maximum suppression, then scaling to frame pixels.
+/// Non-maximum suppression, then from input to frame pixels.
 fn non_max_suppression(
     candidates: Vec<Candidate>,
     score_threshold: f32,
     nms_threshold: f32,
-    sx: f32,
-    sy: f32,
+    fit: &Letterbox,
 ) -> opencv::Result<Vec<Detection>> {
     let boxes: Vector<Rect> = candidates
         .iter()
@@ -340,17 +423,7 @@ fn non_max_suppression(
     )?;
     Ok(keep
         .iter()
-        .map(|i| {
-            let c = candidates[i as usize];
-            Detection {
-                x: (c.cx - c.w / 2.0) * sx,
-                y: (c.cy - c.h / 2.0) * sy,
-                w: c.w * sx,
-                h: c.h * sy,
-                score: c.score,
-                class: 0,
-            }
-        })
+        .map(|i| fit.to_frame(&candidates[i as usize]))
         .collect())
 }
 
@@ -403,21 +476,27 @@ mod tests {
     fn overlapping_boxes_are_suppressed_and_scaled_to_the_frame() {
         let c = |cx, score| Candidate {
             cx,
-            cy: 50.0,
+            cy: 300.0,
             w: 20.0,
             h: 40.0,
             score,
         };
+        // A 1280x640 frame in a 640 input: scale 0.5, 160 px of padding above.
+        let fit = Letterbox::new(1280, 640, 640);
+        assert_eq!(
+            (fit.scale, fit.width, fit.height, fit.pad_x, fit.pad_y),
+            (0.5, 640, 320, 0.0, 160.0)
+        );
         let kept = non_max_suppression(
             vec![c(100.0, 0.9), c(102.0, 0.8), c(300.0, 0.7)],
             0.5,
             0.45,
-            2.0,
-            1.0,
+            &fit,
         )
         .unwrap();
         assert_eq!(kept.len(), 2);
         assert_eq!((kept[0].x, kept[0].w), (180.0, 40.0));
+        assert_eq!((kept[0].y, kept[0].h), (240.0, 80.0), "(280 - 160) / 0.5");
     }
 
     #[test]

@@ -2,8 +2,11 @@
 //!
 //! Each activity second the tracker gets the zone's activity sum and the threshold
 //! in force. Above it, an event starts (or continues, raising its peak); below it
-//! for `hold` after the last second above, the event ends. The event spans from the
-//! start of its first second above the threshold to the end of its last.
+//! for `hold` after the last second above, the event ends — unless the caller
+//! holds it open (someone is still confirmed there). The event spans from the
+//! start of its first second above the threshold to the end of its last, or to the
+//! last frame a person was confirmed in ([`EventTracker::extend`]), whichever is
+//! later.
 
 use isochron_shared::wire::ActivityKind;
 
@@ -101,7 +104,8 @@ impl EventTracker {
     }
 
     /// Feeds one second: the zone's activity sum `value`, the `threshold` in force,
-    /// and the blocks active this second. `next_id` numbers new events.
+    /// and the blocks active this second. `next_id` numbers new events. With
+    /// `hold_open`, an open event does not end however long it stays below.
     pub fn update(
         &mut self,
         second: Second,
@@ -109,6 +113,7 @@ impl EventTracker {
         threshold: f32,
         active_blocks: &[u32],
         next_id: &mut u64,
+        hold_open: bool,
     ) -> Change {
         let above = value > threshold;
         match (&mut self.open, above) {
@@ -137,12 +142,23 @@ impl EventTracker {
                 Change::Continued(event.clone())
             }
             (Some(event), false) => {
-                if second.end_ns - event.end_ns >= self.hold_ns {
+                if !hold_open && second.end_ns - event.end_ns >= self.hold_ns {
                     Change::Ended(self.open.take().expect("open event"))
                 } else {
                     Change::None
                 }
             }
+        }
+    }
+
+    /// Someone was seen at `time_ns` (frame `frame`): the open event, if any, lasts
+    /// at least until then.
+    pub fn extend(&mut self, time_ns: i64, frame: u64) {
+        if let Some(event) = &mut self.open
+            && time_ns > event.end_ns
+        {
+            event.end_ns = time_ns;
+            event.end_frame = event.end_frame.max(frame);
         }
     }
 
@@ -187,7 +203,7 @@ mod tests {
             .map(|(i, &v)| {
                 (
                     i as i64,
-                    t.update(second(i as i64), v, 1.0, &[i as u32], &mut id),
+                    t.update(second(i as i64), v, 1.0, &[i as u32], &mut id, false),
                 )
             })
             .filter(|(_, c)| !matches!(c, Change::None | Change::Continued(_)))
@@ -230,6 +246,33 @@ mod tests {
         assert!((threshold(0.3, 0.04, true, 3.0, 0.5, 0.2) - 0.9).abs() < 1e-6);
         // A quiet warm minute: sigma 0 → never below the minimum.
         assert_eq!(threshold(0.0, 0.0, true, 3.0, 0.5, 0.2), 0.2);
+    }
+
+    #[test]
+    fn a_held_event_outlasts_the_hold_and_ends_after_its_last_sighting() {
+        let mut t = EventTracker::new(ActivityKind::Moving, 3.0);
+        let mut id = 0;
+        assert!(matches!(
+            t.update(second(0), 2.0, 1.0, &[], &mut id, false),
+            Change::Started(_)
+        ));
+        // Quiet for 20 s, but held open: someone is still confirmed there.
+        for i in 1..20 {
+            assert_eq!(
+                t.update(second(i), 0.0, 1.0, &[], &mut id, true),
+                Change::None
+            );
+        }
+        t.extend(15 * S, 155);
+        // Released: it ends once the hold has passed since the last sighting.
+        assert_eq!(
+            t.update(second(16), 0.0, 1.0, &[], &mut id, false),
+            Change::None
+        );
+        let Change::Ended(end) = t.update(second(17), 0.0, 1.0, &[], &mut id, false) else {
+            panic!("ends 3 s after 15 s")
+        };
+        assert_eq!((end.start_ns, end.end_ns, end.end_frame), (0, 15 * S, 155));
     }
 
     #[test]

@@ -1,18 +1,43 @@
-//! The gate of one camera: zones, their event trackers, and the choice of frames
-//! to detect. Pure logic over activity samples; the service wires it to iceoryx2.
+//! The gate of one camera: zones, their event trackers, the people the detector
+//! confirmed, and the choice of frames to detect. Pure logic over activity samples
+//! and detector results; the service wires it to iceoryx2 and the detector thread.
+//!
+//! **Presence.** A zone's events stay open while its activity is above the
+//! threshold (or was, within `hold_s`), and while the detector holds a person
+//! confirmed there:
+//!
+//! * a detection creates a confirmed person where a person box overlaps a block
+//!   that was active in the detected second (a detector hit on a background that
+//!   never moved confirms nobody);
+//! * while a zone has confirmed people, the detector runs again on it every
+//!   `recheck_s`; a person it no longer finds near where they were (centres
+//!   within half a box height) is no longer confirmed;
+//! * when a zone's activity falls quiet while its event is open and nobody is
+//!   confirmed, one more detection checks whether someone stays there. Events
+//!   never wait for the detector: a check that reports after the hold is too
+//!   late to keep its event open, but the person it finds is confirmed all the
+//!   same (a lossless replay waits for every report before the next second).
+//!
+//! So an event ends only when its activity has been quiet for `hold_s` **and**
+//! nobody is confirmed in its zone; its end is the later of its last second above
+//! the threshold and the last frame a person was confirmed in.
 
 use std::collections::HashMap;
 
 use isochron_shared::clock::NS_PER_S;
 use isochron_shared::config::{GateConfig, ZoneConfig};
 use isochron_shared::geometry::BlockGrid;
-use isochron_shared::wire::{ActivityHeader, ActivityKind, BlockActivity, EventPhase};
+use isochron_shared::wire::{ActivityHeader, ActivityKind, BlockActivity, Detection, EventPhase};
 
 use crate::events::{Change, Event, EventTracker, Second, threshold};
-use crate::worker::Job;
+use crate::worker::{Job, Region};
 
 /// A block counts as involved in an event when its own activity is at least this.
 pub const BLOCK_ACTIVE: f32 = 0.01;
+
+/// A detection job the gate has not heard back about for this long (capture
+/// time) is forgotten, so a lost report cannot hold events open for ever.
+const PENDING_MAX_NS: i64 = 60 * NS_PER_S;
 
 /// What the gate asks the service to do.
 #[derive(Debug, Clone, PartialEq)]
@@ -26,14 +51,66 @@ pub enum Action {
         /// The event.
         event: Event,
     },
-    /// Run the detector.
+    /// Run the detector, then report back with [`Gate::on_detections`].
     Detect(Job),
+}
+
+/// A person the detector confirmed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Person {
+    /// The latest box, frame pixels: x, y, w, h.
+    pub bbox: [f32; 4],
+    /// Capture time of the last frame the detector found them in, UTC ns.
+    pub seen_ns: i64,
+}
+
+impl Person {
+    fn centre(&self) -> (f32, f32) {
+        (
+            self.bbox[0] + self.bbox[2] / 2.0,
+            self.bbox[1] + self.bbox[3] / 2.0,
+        )
+    }
+
+    /// True if `d` is near enough to be the same person: centres within half
+    /// the taller box's height.
+    fn near(&self, d: &Detection) -> bool {
+        let (cx, cy) = self.centre();
+        let (dx, dy) = (d.x + d.w / 2.0 - cx, d.y + d.h / 2.0 - cy);
+        let reach = 0.5 * self.bbox[3].max(d.h);
+        dx * dx + dy * dy <= reach * reach
+    }
+}
+
+/// What a finished detection job found.
+#[derive(Debug, Clone, Copy)]
+pub struct Found<'a> {
+    /// Capture time of the detected frame.
+    pub capture_time_ns: i64,
+    /// Its source index.
+    pub source_index: u64,
+    /// The boxes found (any class; only people count).
+    pub detections: &'a [Detection],
 }
 
 struct Zone {
     config: ZoneConfig,
     blocks: Vec<u32>,
     trackers: [EventTracker; 2],
+    /// People the detector confirmed in this zone.
+    people: Vec<Person>,
+    /// When the last re-check of `people` was asked for.
+    last_check_ns: i64,
+    /// The latest event end a closing check was made for.
+    closing_checked: Option<i64>,
+}
+
+/// A detection job the gate waits to hear about.
+struct Pending {
+    zone: usize,
+    issued_ns: i64,
+    /// The zone's blocks active in the job's second.
+    active: Vec<u32>,
 }
 
 /// How often an event has been detected so far.
@@ -59,7 +136,9 @@ pub struct Gate {
     zone_configs: Vec<ZoneConfig>,
     grid: Option<BlockGrid>,
     next_event_id: u64,
+    next_job_id: u64,
     detected: HashMap<u64, Detected>,
+    pending: HashMap<u64, Pending>,
     scratch: Vec<u32>,
 }
 
@@ -72,7 +151,9 @@ impl Gate {
             zone_configs: zones,
             grid: None,
             next_event_id: 0,
+            next_job_id: 0,
             detected: HashMap::new(),
+            pending: HashMap::new(),
             scratch: Vec::new(),
         }
     }
@@ -89,6 +170,11 @@ impl Gate {
             .flat_map(|z| &z.trackers)
             .filter(|t| t.open().is_some())
             .count()
+    }
+
+    /// People confirmed now, over all zones.
+    pub fn confirmed(&self) -> usize {
+        self.zones.iter().map(|z| z.people.len()).sum()
     }
 
     fn ensure_zones(&mut self, grid: BlockGrid) {
@@ -124,9 +210,13 @@ impl Gate {
                         EventTracker::new(ActivityKind::InPlace, hold),
                         EventTracker::new(ActivityKind::Moving, hold),
                     ],
+                    people: Vec::new(),
+                    last_check_ns: i64::MIN,
+                    closing_checked: None,
                 }
             })
             .collect();
+        self.pending.clear();
         self.grid = Some(grid);
     }
 
@@ -139,11 +229,14 @@ impl Gate {
             first_frame: h.first_source_index,
             last_frame: h.last_source_index,
         };
-        let origin = h.preamble.origin_wall_ns;
+        // Reports that never came (they should) hold nothing open for ever.
+        self.pending
+            .retain(|_, p| second.end_ns - p.issued_ns < PENDING_MAX_NS);
         let warm = h.model_days >= self.settings.warm_days;
         let g = &self.settings.gate;
+        let recheck_ns = (g.recheck_s * 1e9) as i64;
         let mut actions = Vec::new();
-        for zone in &mut self.zones {
+        for (zi, zone) in self.zones.iter_mut().enumerate() {
             let (mut s1, mut s2, mut mean, mut var) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
             for &i in &zone.blocks {
                 let b = &blocks[i as usize];
@@ -155,7 +248,12 @@ impl Gate {
                 var += b.lt_sigma * b.lt_sigma;
             }
             let thr = threshold(mean, var, warm, g.k_sigma, g.floor, g.min_threshold);
+            let hold_open = !zone.people.is_empty();
+            let mut quiet = true;
+            let mut wanted = None;
+            let zone_actions = actions.len();
             for (tracker, value) in zone.trackers.iter_mut().zip([s1, s2]) {
+                quiet &= value <= thr;
                 self.scratch.clear();
                 let (pick, min): (fn(&BlockActivity) -> f32, f32) = match tracker.kind() {
                     ActivityKind::InPlace => (|b| b.s1, g.in_place_block_min.max(BLOCK_ACTIVE)),
@@ -167,8 +265,14 @@ impl Gate {
                         .copied()
                         .filter(|&i| pick(&blocks[i as usize]) >= min),
                 );
-                let change =
-                    tracker.update(second, value, thr, &self.scratch, &mut self.next_event_id);
+                let change = tracker.update(
+                    second,
+                    value,
+                    thr,
+                    &self.scratch,
+                    &mut self.next_event_id,
+                    hold_open,
+                );
                 match change {
                     Change::None => {}
                     Change::Started(event) => {
@@ -179,7 +283,9 @@ impl Gate {
                                 last_ns: i64::MIN,
                             },
                         );
-                        schedule(&mut self.detected, g, &event, second, origin, &mut actions);
+                        if schedule(&mut self.detected, g, &event, second) {
+                            wanted.get_or_insert(event.id);
+                        }
                         actions.push(Action::Event {
                             phase: EventPhase::Start,
                             zone: zone.config.name.clone(),
@@ -187,21 +293,118 @@ impl Gate {
                         });
                     }
                     Change::Continued(event) => {
-                        schedule(&mut self.detected, g, &event, second, origin, &mut actions);
+                        if schedule(&mut self.detected, g, &event, second) {
+                            wanted.get_or_insert(event.id);
+                        }
                     }
                     Change::Ended(event) => {
                         ended(&mut self.detected, &zone.config.name, event, &mut actions);
                     }
                 }
             }
+            // Presence: re-check confirmed people, or check once whether someone
+            // stays where the activity fell quiet. At most one detection per zone
+            // and second, whoever asks for it; each counts as a check.
+            let open = zone
+                .trackers
+                .iter()
+                .filter_map(|t| t.open())
+                .max_by_key(|e| e.end_ns);
+            let idle = !self.pending.values().any(|p| p.zone == zi);
+            let recheck = idle
+                && !zone.people.is_empty()
+                && second.end_ns.saturating_sub(zone.last_check_ns) >= recheck_ns;
+            let closing = idle
+                && zone.people.is_empty()
+                && quiet
+                && open.is_some_and(|e| zone.closing_checked != Some(e.end_ns));
+            if closing {
+                zone.closing_checked = open.map(|e| e.end_ns);
+            }
+            if wanted.is_some() || recheck || closing {
+                zone.last_check_ns = second.end_ns;
+                let event_id = wanted.or(open.map(|e| e.id)).unwrap_or(u64::MAX);
+                let job = issue(
+                    &mut self.pending,
+                    &mut self.next_job_id,
+                    (zi, &zone.blocks, blocks),
+                    event_id,
+                    second,
+                    h.preamble.origin_wall_ns,
+                );
+                // Before the zone's event records: the job names the event.
+                actions.insert(zone_actions, Action::Detect(job));
+            }
         }
         actions
+    }
+
+    /// What detection job `job_id` found; `None` if it did not run (dropped, its
+    /// frame gone, the detector failed). Updates the confirmed people of its
+    /// zone: those it searched for and no longer finds near where they were are
+    /// no longer confirmed; people it finds on blocks active in its second are.
+    pub fn on_detections(&mut self, job_id: u64, region: Region, found: Option<Found<'_>>) {
+        let Some(pending) = self.pending.remove(&job_id) else {
+            return;
+        };
+        let (Some(zone), Some(grid)) = (self.zones.get_mut(pending.zone), self.grid) else {
+            return;
+        };
+        let Some(found) = found else {
+            // Not run: a re-check is due again at once.
+            if !zone.people.is_empty() {
+                zone.last_check_ns = i64::MIN;
+            }
+            return;
+        };
+        let t = found.capture_time_ns;
+        let in_zone = |d: &&Detection| {
+            d.class == 0
+                && d.w > 0.0
+                && d.h > 0.0
+                && block_at(&grid, d.x + d.w / 2.0, d.y + d.h)
+                    .is_some_and(|b| zone.blocks.binary_search(&b).is_ok())
+        };
+        let people: Vec<&Detection> = found.detections.iter().filter(in_zone).collect();
+        zone.people.retain_mut(|person| {
+            let (cx, cy) = person.centre();
+            if !region.contains(cx, cy) {
+                return true; // not searched this time
+            }
+            match people.iter().find(|d| person.near(d)) {
+                Some(d) => {
+                    person.bbox = [d.x, d.y, d.w, d.h];
+                    person.seen_ns = person.seen_ns.max(t);
+                    true
+                }
+                None => false,
+            }
+        });
+        for d in people {
+            let known = zone.people.iter().any(|p| p.near(d));
+            if !known && overlaps_blocks(&grid, &pending.active, d) {
+                if zone.people.is_empty() {
+                    zone.last_check_ns = t; // the next check is a re-check away
+                }
+                zone.people.push(Person {
+                    bbox: [d.x, d.y, d.w, d.h],
+                    seen_ns: t,
+                });
+            }
+        }
+        if zone.people.iter().any(|p| p.seen_ns == t) {
+            for tracker in &mut zone.trackers {
+                tracker.extend(t, found.source_index);
+            }
+        }
     }
 
     /// Ends every open event (end of stream).
     pub fn finish(&mut self) -> Vec<Action> {
         let mut actions = Vec::new();
+        self.pending.clear();
         for zone in &mut self.zones {
+            zone.people.clear();
             for tracker in &mut zone.trackers {
                 if let Some(event) = tracker.finish() {
                     ended(&mut self.detected, &zone.config.name, event, &mut actions);
@@ -210,6 +413,66 @@ impl Gate {
         }
         actions
     }
+}
+
+/// A detection job on the last frame of `second` (published by capture at
+/// `origin_wall_ns`) for `event_id`, in zone `zi` (its `zone_blocks`, of the
+/// sample's `blocks`), remembered until its report.
+fn issue(
+    pending: &mut HashMap<u64, Pending>,
+    next_job_id: &mut u64,
+    (zi, zone_blocks, blocks): (usize, &[u32], &[BlockActivity]),
+    event_id: u64,
+    second: Second,
+    origin_wall_ns: i64,
+) -> Job {
+    let active = zone_blocks
+        .iter()
+        .copied()
+        .filter(|&i| {
+            let b = &blocks[i as usize];
+            b.s1 >= BLOCK_ACTIVE || b.s2 >= BLOCK_ACTIVE
+        })
+        .collect();
+    let id = *next_job_id;
+    *next_job_id += 1;
+    pending.insert(
+        id,
+        Pending {
+            zone: zi,
+            issued_ns: second.end_ns,
+            active,
+        },
+    );
+    // The last frame of the second: its end is exclusive (the next second's
+    // first frame is captured exactly at it).
+    Job {
+        id,
+        event_id,
+        time_ns: second.end_ns - 1,
+        region: Region::WHOLE,
+        origin_wall_ns,
+    }
+}
+
+/// The block (row-major index) under the frame point `(x, y)`, if inside.
+fn block_at(grid: &BlockGrid, x: f32, y: f32) -> Option<u32> {
+    // Feet on the bottom edge belong to the last row.
+    let (x, y) = (x.floor(), y.floor().min(grid.frame_height as f32 - 1.0));
+    if x < 0.0 || y < 0.0 || x >= grid.frame_width as f32 {
+        return None;
+    }
+    let (bx, by) = (x as u32 / grid.block_px, y as u32 / grid.block_px);
+    Some(by * grid.grid_w() + bx)
+}
+
+/// True if the box `d` overlaps one of `blocks`.
+fn overlaps_blocks(grid: &BlockGrid, blocks: &[u32], d: &Detection) -> bool {
+    let (w, px) = (grid.grid_w(), grid.block_px as f32);
+    blocks.iter().any(|&i| {
+        let (x0, y0) = ((i % w) as f32 * px, (i / w) as f32 * px);
+        d.x < x0 + px && d.x + d.w > x0 && d.y < y0 + px && d.y + d.h > y0
+    })
 }
 
 /// `event` of `zone` ended: no more detection jobs for it, and its end record.
@@ -227,18 +490,16 @@ fn ended(
     });
 }
 
-/// Adds a detection job for `event` this second if the policy wants one: every
+/// True if `event` is due a detection this second by the policy: every
 /// `detect_every_s` while it lasts, or else its first `detect_per_event` seconds.
 fn schedule(
     detected: &mut HashMap<u64, Detected>,
     g: &GateConfig,
     event: &Event,
     second: Second,
-    origin_wall_ns: i64,
-    actions: &mut Vec<Action>,
-) {
+) -> bool {
     let Some(d) = detected.get_mut(&event.id) else {
-        return;
+        return false;
     };
     let due = match g.detect_every_s {
         Some(every) => d.last_ns == i64::MIN || second.end_ns - d.last_ns >= (every * 1e9) as i64,
@@ -247,14 +508,8 @@ fn schedule(
     if due {
         d.count += 1;
         d.last_ns = second.end_ns;
-        // The last frame of the second: its end is exclusive (the next second's
-        // first frame is captured exactly at it).
-        actions.push(Action::Detect(Job {
-            event_id: event.id,
-            time_ns: second.end_ns - 1,
-            origin_wall_ns,
-        }));
     }
+    due
 }
 
 #[cfg(test)]
@@ -308,6 +563,35 @@ mod tests {
         )
     }
 
+    /// Feeds second `s` with `b`, answering each detection job at once with
+    /// `found` (the boxes on the second's last frame); returns the actions.
+    fn feed(g: &mut Gate, s: i64, b: &[BlockActivity], found: &[Detection]) -> Vec<Action> {
+        let actions = g.on_activity(&header(s, 0), b);
+        for a in &actions {
+            if let Action::Detect(job) = a {
+                let result = Found {
+                    capture_time_ns: job.time_ns,
+                    source_index: s as u64 * 10 + 9,
+                    detections: found,
+                };
+                g.on_detections(job.id, job.region, Some(result));
+            }
+        }
+        actions
+    }
+
+    /// A person box standing on blocks 1 and 5 (feet in block 5).
+    fn person() -> Detection {
+        Detection {
+            x: 18.0,
+            y: 2.0,
+            w: 10.0,
+            h: 28.0,
+            score: 1.0,
+            class: 0,
+        }
+    }
+
     fn kinds(actions: &[Action]) -> Vec<String> {
         actions
             .iter()
@@ -341,15 +625,23 @@ mod tests {
         let mut all = Vec::new();
         for s in 0..30 {
             let on = (5..12).contains(&s) || (20..22).contains(&s);
-            all.extend(g.on_activity(&header(s, 0), &blocks(if on { 1.0 } else { 0.0 }, 0.0, 0.0)));
+            all.extend(feed(
+                &mut g,
+                s,
+                &blocks(if on { 1.0 } else { 0.0 }, 0.0, 0.0),
+                &[],
+            ));
         }
+        // Each event: a detection when it starts, one more when it falls quiet
+        // (does someone stay?), which finds nobody.
         assert_eq!(
             kinds(&all),
             [
-                "Detect#0", "Start#0", "End#0", "Detect#1", "Start#1", "End#1"
+                "Detect#0", "Start#0", "Detect#0", "End#0", "Detect#1", "Start#1", "Detect#1",
+                "End#1"
             ]
         );
-        let Action::Event { event, .. } = &all[2] else {
+        let Action::Event { event, .. } = &all[3] else {
             panic!()
         };
         assert_eq!((event.start_frame, event.end_frame), (50, 119));
@@ -362,13 +654,15 @@ mod tests {
             let mut g = gate(config);
             let mut detects = 0;
             for s in 0..20 {
-                let a = g.on_activity(
-                    &header(s, 0),
+                let a = feed(
+                    &mut g,
+                    s,
                     &blocks(if s < 10 { 1.0 } else { 0.0 }, 0.0, 0.0),
+                    &[],
                 );
                 detects += a.iter().filter(|a| matches!(a, Action::Detect(_))).count();
             }
-            detects
+            detects - 1 // the check when the event falls quiet
         };
         assert_eq!(
             run(GateConfig {
@@ -438,6 +732,165 @@ mod tests {
         assert_eq!(
             (event.kind, event.blocks.clone()),
             (ActivityKind::InPlace, vec![3])
+        );
+    }
+
+    /// Walks in (moving activity in block 1 for 5 s), then stands still (no
+    /// activity at all) until `leaves`; the detector sees the person on every
+    /// frame before `leaves`. Returns the actions per second.
+    fn stand_still(config: GateConfig, leaves: i64, seconds: i64) -> (Gate, Vec<(i64, Action)>) {
+        let mut g = gate(config);
+        let mut out = Vec::new();
+        for s in 0..seconds {
+            let mut b = blocks(if s < 5 { 1.0 } else { 0.0 }, 0.0, 0.0);
+            // S1 decays after the walk: the blocks stay weakly active a while.
+            if (5..15).contains(&s) {
+                b[1].s1 = 0.2 * 0.9f32.powi(s as i32 - 4);
+                b[5].s1 = b[1].s1;
+            }
+            let found = if s < leaves { vec![person()] } else { vec![] };
+            out.extend(feed(&mut g, s, &b, &found).into_iter().map(|a| (s, a)));
+        }
+        (g, out)
+    }
+
+    #[test]
+    fn a_confirmed_person_keeps_the_event_open_until_a_recheck_misses_them() {
+        let (g, actions) = stand_still(GateConfig::default(), 40, 60);
+        let detects: Vec<i64> = actions
+            .iter()
+            .filter(|(_, a)| matches!(a, Action::Detect(_)))
+            .map(|(s, _)| *s)
+            .collect();
+        // At the start; then re-checks every 5 s while confirmed; the one at 40
+        // finds nobody.
+        assert_eq!(detects, [0, 5, 10, 15, 20, 25, 30, 35, 40], "{actions:?}");
+        let ends: Vec<&(i64, Action)> = actions
+            .iter()
+            .filter(|(_, a)| {
+                matches!(
+                    a,
+                    Action::Event {
+                        phase: EventPhase::End,
+                        ..
+                    }
+                )
+            })
+            .collect();
+        assert_eq!(ends.len(), 1, "one event for the whole stay: {actions:?}");
+        let (when, Action::Event { event, .. }) = ends[0] else {
+            panic!()
+        };
+        // Last seen on the last frame of second 35 (a re-check); the re-check of
+        // second 40 misses them, and the hold after 36 s has passed: the event
+        // ends with the next second.
+        assert_eq!((*when, event.end_frame), (41, 359));
+        assert_eq!(g.confirmed(), 0);
+    }
+
+    #[test]
+    fn a_check_when_activity_falls_quiet_finds_who_stays() {
+        // The start detection misses the person (the detector sees them only from
+        // second 3 on): the check when the walk's activity falls quiet (second 5)
+        // confirms them; re-checks at 10, 15, 20 find them, the one at 25 does
+        // not.
+        let mut g = gate(GateConfig::default());
+        let mut ends = Vec::new();
+        for s in 0..30 {
+            let mut b = blocks(if s < 5 { 1.0 } else { 0.0 }, 0.0, 0.0);
+            b[5].s1 = if s < 15 { 0.1 } else { 0.0 };
+            let found = if (3..25).contains(&s) {
+                vec![person()]
+            } else {
+                vec![]
+            };
+            for a in feed(&mut g, s, &b, &found) {
+                if let Action::Event {
+                    phase: EventPhase::End,
+                    event,
+                    ..
+                } = a
+                {
+                    ends.push((s, event.end_frame));
+                }
+            }
+        }
+        assert_eq!(ends, [(26, 209)], "held open while the person stayed");
+    }
+
+    #[test]
+    fn a_detector_hit_where_nothing_moved_confirms_nobody() {
+        // A "person" on block 3 and 7, which never move: no confirmation.
+        let ghost = Detection {
+            x: 50.0,
+            ..person()
+        };
+        let mut g = gate(GateConfig::default());
+        let mut ended_at = None;
+        for s in 0..20 {
+            let b = blocks(if s < 5 { 1.0 } else { 0.0 }, 0.0, 0.0);
+            for a in feed(&mut g, s, &b, &[ghost]) {
+                if let Action::Event {
+                    phase: EventPhase::End,
+                    ..
+                } = a
+                {
+                    ended_at = Some(s);
+                }
+            }
+        }
+        assert_eq!(
+            ended_at,
+            Some(7),
+            "ends after the hold as without a detector"
+        );
+        assert_eq!(g.confirmed(), 0);
+    }
+
+    #[test]
+    fn events_never_wait_for_the_detector_and_a_dropped_recheck_is_retried() {
+        let mut g = gate(GateConfig::default());
+        let a = g.on_activity(&header(0, 0), &blocks(1.0, 0.0, 0.0));
+        let Some(Action::Detect(start)) = a.first().cloned() else {
+            panic!("{a:?}")
+        };
+        // Quiet, and the start job has not reported: the event ends after the
+        // hold all the same.
+        let mut ended = 0;
+        for s in 1..10 {
+            let a = g.on_activity(&header(s, 0), &blocks(0.0, 0.0, 0.0));
+            ended += a
+                .iter()
+                .filter(|a| matches!(a, Action::Event { .. }))
+                .count();
+        }
+        assert_eq!((ended, g.open_events()), (1, 0));
+        let found = Found {
+            capture_time_ns: start.time_ns,
+            source_index: 9,
+            detections: &[person()],
+        };
+        g.on_detections(start.id, start.region, Some(found));
+        assert_eq!(g.confirmed(), 1, "a person on block 1, active in second 0");
+        // Confirmed: a re-check at once; it is dropped, so it is asked again.
+        let detect = |a: Vec<Action>| match a.as_slice() {
+            [Action::Detect(job)] => *job,
+            _ => panic!("{a:?}"),
+        };
+        let recheck = detect(g.on_activity(&header(10, 0), &blocks(0.0, 0.0, 0.0)));
+        g.on_detections(recheck.id, recheck.region, None);
+        assert_eq!(g.confirmed(), 1, "a check that did not run changes nothing");
+        let recheck = detect(g.on_activity(&header(11, 0), &blocks(0.0, 0.0, 0.0)));
+        let nobody = Found {
+            capture_time_ns: recheck.time_ns,
+            source_index: 119,
+            detections: &[],
+        };
+        g.on_detections(recheck.id, recheck.region, Some(nobody));
+        assert_eq!(g.confirmed(), 0);
+        assert!(
+            g.on_activity(&header(12, 0), &blocks(0.0, 0.0, 0.0))
+                .is_empty()
         );
     }
 

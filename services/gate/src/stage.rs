@@ -19,7 +19,7 @@ use parking_lot::Mutex;
 
 use crate::detector::Detector;
 use crate::events::Event;
-use crate::gate::{Action, Gate, GateSettings};
+use crate::gate::{Action, Found, Gate, GateSettings};
 use crate::ring::FrameRing;
 use crate::worker::{DetectorSlots, Outcome, Report, Worker};
 
@@ -159,6 +159,11 @@ impl<'ipc> GateStage<'ipc> {
         for action in self.gate.on_activity(&h, sample.payload()) {
             self.execute(&action, &h.preamble, grid_len, cx, arrived)?;
         }
+        if self.lossless {
+            // A replay decides presence as live would with a detector fast enough:
+            // the next second is judged with this second's detections known.
+            self.drain_detector(DRAIN_TIMEOUT)?;
+        }
         Ok(())
     }
 
@@ -187,6 +192,7 @@ impl<'ipc> GateStage<'ipc> {
                 };
                 if !queued {
                     tracing::debug!(event = job.event_id, "detector busy: detection dropped");
+                    self.gate.on_detections(job.id, job.region, None);
                 }
             }
         }
@@ -225,13 +231,22 @@ impl<'ipc> GateStage<'ipc> {
         self.worker.dropped + self.counters.jobs_lost()
     }
 
+    /// Publishes a finished detection, or counts a job that did not run; either
+    /// way the gate hears how its job went.
     fn handle_report(&mut self, report: Report) -> Result<(), Fatal> {
         let c = &mut self.counters;
-        match report {
+        let job = match report {
             Report::Done(outcome) => {
                 c.frames_detected += 1;
                 c.detector_total_us += outcome.detector_us;
-                self.publish_detections(&outcome)?;
+                let found = Found {
+                    capture_time_ns: outcome.capture_time_ns,
+                    source_index: outcome.source_index,
+                    detections: &outcome.detections,
+                };
+                self.gate
+                    .on_detections(outcome.job_id, outcome.region, Some(found));
+                return self.publish_detections(&outcome);
             }
             Report::FrameGone(job) => {
                 c.frames_gone += 1;
@@ -239,6 +254,7 @@ impl<'ipc> GateStage<'ipc> {
                     event = job.event_id,
                     "the gated frame left the ring before the detector got to it"
                 );
+                job
             }
             Report::Busy(job) => {
                 c.detector_busy += 1;
@@ -246,12 +262,15 @@ impl<'ipc> GateStage<'ipc> {
                     event = job.event_id,
                     "every detector slot of the process was busy: detection dropped"
                 );
+                job
             }
             Report::Failed(job, e) => {
                 c.detector_errors += 1;
                 tracing::warn!(event = job.event_id, "detector failed: {e}");
+                job
             }
-        }
+        };
+        self.gate.on_detections(job.id, job.region, None);
         Ok(())
     }
 
@@ -267,6 +286,10 @@ impl<'ipc> GateStage<'ipc> {
             event_id: o.event_id,
             source_index: o.source_index,
             detector_us: o.detector_us,
+            roi_x: o.region.x,
+            roi_y: o.region.y,
+            roi_w: o.region.w,
+            roi_h: o.region.h,
             ..self.totals()
         };
         Ok(self.detections.send_copy(header, &o.detections[..n])?)
@@ -351,10 +374,11 @@ impl Stage for GateStage<'_> {
 
     fn detail(&self) -> String {
         format!(
-            "detector={} events={} open={} frames_seen={} detected={} detector_ms={} jobs={} jobs_dropped={}",
+            "detector={} events={} open={} confirmed={} frames_seen={} detected={} detector_ms={} jobs={} jobs_dropped={}",
             self.detector_name,
             self.gate.events_started(),
             self.gate.open_events(),
+            self.gate.confirmed(),
             self.counters.frames_seen,
             self.counters.frames_detected,
             self.counters.detector_total_us / 1000,

@@ -19,13 +19,54 @@ use parking_lot::Mutex;
 use crate::detector::{Detector, DetectorError};
 use crate::ring::{FrameRing, StoredFrame};
 
+/// A rectangle of the frame, pixels; width 0 means the whole frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Region {
+    /// Left edge.
+    pub x: u32,
+    /// Top edge.
+    pub y: u32,
+    /// Width (0: the whole frame).
+    pub w: u32,
+    /// Height.
+    pub h: u32,
+}
+
+impl Region {
+    /// The whole frame.
+    pub const WHOLE: Region = Region {
+        x: 0,
+        y: 0,
+        w: 0,
+        h: 0,
+    };
+
+    /// True for the whole frame.
+    pub fn is_whole(&self) -> bool {
+        self.w == 0
+    }
+
+    /// True if the point `(x, y)` lies in the region.
+    pub fn contains(&self, x: f32, y: f32) -> bool {
+        self.is_whole()
+            || (x >= self.x as f32
+                && y >= self.y as f32
+                && x <= (self.x + self.w) as f32
+                && y <= (self.y + self.h) as f32)
+    }
+}
+
 /// A request to run the detector on the latest frame at or before `time_ns`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Job {
+    /// Per-gate job number: the gate hears back about every job under it.
+    pub id: u64,
     /// The event that gated it.
     pub event_id: u64,
     /// Capture time of the frame to detect on (the latest at or before it).
     pub time_ns: i64,
+    /// Where in the frame to search.
+    pub region: Region,
     /// Wall clock (UTC ns) at which capture published that frame (the activity
     /// sample's `origin_wall_ns`): carried into the detections, for their latency.
     pub origin_wall_ns: i64,
@@ -34,6 +75,10 @@ pub struct Job {
 /// A finished detection.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Outcome {
+    /// The job.
+    pub job_id: u64,
+    /// Where the detector searched.
+    pub region: Region,
     /// The event that gated it.
     pub event_id: u64,
     /// Capture time of the detected frame.
@@ -211,6 +256,8 @@ impl Worker {
                         let t0 = Instant::now();
                         match detector.detect(&frame.pixels, frame.width, frame.height) {
                             Ok(detections) => Report::Done(Outcome {
+                                job_id: job.id,
+                                region: job.region,
                                 event_id: job.event_id,
                                 capture_time_ns: frame.capture_time_ns,
                                 origin_wall_ns: job.origin_wall_ns,
@@ -379,8 +426,10 @@ mod tests {
         .expect("HOG detector");
         // The first job waits for the slot; eight more wait in the queue.
         let job = Job {
+            id: 0,
             event_id: 1,
             time_ns: 0,
+            region: Region::WHOLE,
             origin_wall_ns: 0,
         };
         assert!(worker.submit(job));

@@ -126,7 +126,10 @@ pub struct CostmapConfig {
     /// A person the detector confirmed raises the cells within this radius of their
     /// feet, metres. Default 0.5.
     pub confirm_radius_m: f64,
-    /// ... for this long after the detected frame (capture time), seconds. Default 5.
+    /// ... until a later detection that searched where they stood no longer finds
+    /// them, or at most this long after the last frame they were detected in
+    /// (capture time), seconds: a safety expiry for when the gate's re-checks
+    /// (`gate.recheck_s`) stop coming. Default 15.
     pub confirm_hold_s: f64,
     /// ... to at least this cost, 0 to 100 (100 is lethal in Nav2: warned at
     /// load). Default: `cap`.
@@ -204,7 +207,7 @@ impl Default for CostmapConfig {
             cost_scale: 0.2,
             cap: 99,
             confirm_radius_m: 0.5,
-            confirm_hold_s: 5.0,
+            confirm_hold_s: 15.0,
             confirm_cost: None,
             publish_unknown: true,
             stale_s: 10.0,

@@ -33,6 +33,11 @@ pub struct GateConfig {
     pub detect_per_event: u32,
     /// Instead: one detection every this many seconds while an event lasts.
     pub detect_every_s: Option<f64>,
+    /// While the detector holds a person confirmed in a zone, it runs again on
+    /// that zone every this many seconds; the person stays confirmed (and the
+    /// zone's events open) until a run no longer finds anyone near them.
+    /// Default 5.
+    pub recheck_s: f64,
     /// Recent frames kept for the detector: the last frame of each of the latest
     /// this many seconds (a detection looks at the last frame of a second). Default 8.
     pub ring_frames: usize,
@@ -50,6 +55,7 @@ impl Default for GateConfig {
             hold_s: 3.0,
             detect_per_event: 1,
             detect_every_s: None,
+            recheck_s: 5.0,
             ring_frames: 8,
             detector: DetectorConfig::default(),
         }
@@ -64,8 +70,12 @@ pub struct DetectorConfig {
     /// ONNX model file (a YOLOv5/YOLOv8 export; see the README); relative to the
     /// config file. Default: none (HOG).
     pub model: Option<PathBuf>,
-    /// Square input size of the ONNX model, pixels. Default 640.
+    /// Square input size of the ONNX model, pixels. Frames are letterboxed into
+    /// it (scaled to fit, aspect kept, padded with grey 114). Default 640.
     pub input_px: u32,
+    /// Channels the ONNX model's input has: 3 (the frame as RGB, grey frames
+    /// replicated) or 1 (grey). Default 3.
+    pub input_channels: u32,
     /// Lowest score of a kept detection (ONNX: class score; HOG: SVM margin).
     /// Default 0.4 (ONNX) — HOG uses `hog_hit_threshold`.
     pub score_threshold: f32,
@@ -90,6 +100,7 @@ impl Default for DetectorConfig {
         DetectorConfig {
             model: None,
             input_px: 640,
+            input_channels: 3,
             score_threshold: 0.4,
             nms_threshold: 0.45,
             hog_upscale: 1.0,
@@ -122,6 +133,7 @@ impl GateConfig {
         if let Some(every) = self.detect_every_s {
             check_positive("gate.detect_every_s", every)?;
         }
+        check_range("gate.recheck_s", self.recheck_s, 0.1, 3600.0)?;
         check_range("gate.ring_frames", self.ring_frames as f64, 1.0, 4096.0)?;
         self.detector.validate()
     }
@@ -131,6 +143,12 @@ impl DetectorConfig {
     /// Checks the `gate.detector.*` keys.
     fn validate(&self) -> Result<(), Invalid> {
         check_range("gate.detector.input_px", self.input_px as f64, 32.0, 4096.0)?;
+        if !matches!(self.input_channels, 1 | 3) {
+            return Err(Invalid::new(
+                "gate.detector.input_channels",
+                format!("expected 1 or 3, found {}", self.input_channels),
+            ));
+        }
         check_range(
             "gate.detector.score_threshold",
             self.score_threshold as f64,
