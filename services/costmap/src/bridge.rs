@@ -542,7 +542,7 @@ stale_s = 5
         b.on_detections(0, &detections_at_1000_s(1), &[person_at_feet_105_124()]);
         let grid = b.grid.unwrap();
         let at_feet = |b: &Bridge| b.compose(t0).unwrap()[grid.index(13, 14)];
-        assert_eq!(at_feet(&b), 100);
+        assert_eq!(at_feet(&b), 99);
         // 1 s later a search of the left half finds nobody: the person's feet
         // (105, 124) are elsewhere, so they stay confirmed.
         let mut later = detections_at_1000_s(0);
@@ -553,7 +553,7 @@ stale_s = 5
             ..later
         };
         b.on_detections(0, &left, &[]);
-        assert_eq!(at_feet(&b), 100);
+        assert_eq!(at_feet(&b), 99);
         // A search around them finds nobody: gone, long before `confirm_hold_s`.
         let around = DetectionHeader {
             roi_x: 80,
