@@ -9,6 +9,7 @@ mod capture;
 mod cascade;
 mod costmap;
 mod doctor;
+mod exporter;
 mod gate;
 mod inputs;
 mod launcher;

@@ -22,8 +22,15 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 
 /// System packages: OpenCV and the bindings' clang; iproute2 (`ip`, `ss`) for the
-/// network-namespace and DDS socket tests.
-const PACKAGES: [&str; 4] = ["libopencv-dev", "clang", "libclang-dev", "iproute2"];
+/// network-namespace and DDS socket tests; `prometheus` for promtool, which checks
+/// the exporter's output and the alert rules.
+const PACKAGES: [&str; 5] = [
+    "libopencv-dev",
+    "clang",
+    "libclang-dev",
+    "iproute2",
+    "prometheus",
+];
 
 /// Benchmarks: name → (package, bench target).
 const BENCHES: [(&str, &str, &str); 5] = [
@@ -380,13 +387,14 @@ fn bench(package: &str, target: &str, extra: &[String]) -> anyhow::Result<()> {
 }
 
 /// The binaries a site runs.
-const BINARIES: [&str; 6] = [
+const BINARIES: [&str; 7] = [
     "isochron",
     "isochron-capture",
     "isochron-motion",
     "isochron-cascade",
     "isochron-gate",
     "isochron-costmap",
+    "isochron-exporter",
 ];
 
 fn install(root: &Path, args: &[String]) -> anyhow::Result<()> {
@@ -474,6 +482,9 @@ fn install(root: &Path, args: &[String]) -> anyhow::Result<()> {
     println!("  systemctl enable --now isochron.target isochron-costmap.service");
     println!(
         "  for c in cam01; do systemctl enable --now isochron-{{capture,motion,cascade,gate}}@$c; done"
+    );
+    println!(
+        "  systemctl enable --now isochron-exporter         # optional: metrics at 127.0.0.1:9464"
     );
     println!(
         "  sudo -u isochron {}/isochron doctor               # checks it all",
