@@ -16,6 +16,7 @@ mod up;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use isochron_shared::exit;
 
 /// Learn where and when people are active from fixed cameras.
 #[derive(Parser)]
@@ -73,7 +74,9 @@ fn main() -> ExitCode {
         Ok(code) => code,
         Err(e) => {
             eprintln!("isochron: {e:#}");
-            ExitCode::from(1)
+            // The services' table: a config error is 78 here too.
+            let chain = e.chain().map(|c| c as &(dyn std::error::Error + 'static));
+            ExitCode::from(exit::code_of_chain(chain) as u8)
         }
     }
 }

@@ -7,6 +7,7 @@
 
 mod capture;
 mod cascade;
+mod conventions;
 mod costmap;
 mod doctor;
 mod exporter;
