@@ -126,7 +126,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         Ok(l) => l,
         Err(e) => {
             report.say(Level::Fail, "config", e.to_string());
-            return Ok(ExitCode::from(1));
+            return Ok(ExitCode::from(isochron_shared::exit::FAILURE as u8));
         }
     };
     let c = &loaded.config;
@@ -156,7 +156,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         report.say(Level::Warn, "services", SKIPPED_FOR_STALE);
     }
     Ok(match report.worst {
-        Level::Fail => ExitCode::from(1),
+        Level::Fail => ExitCode::from(isochron_shared::exit::FAILURE as u8),
         _ => ExitCode::SUCCESS,
     })
 }

@@ -52,9 +52,22 @@ pub struct ServiceSpec {
     pub args: Vec<OsString>,
 }
 
+/// The optional services of `config` whose binaries are installed: the exporter
+/// when the config has an `[exporter]` section.
+pub fn optional_services(config: &LoadedConfig) -> Vec<(StageKind, PathBuf)> {
+    let dir = bin_dir();
+    [(StageKind::Exporter, config.config.exporter.is_some())]
+        .into_iter()
+        .filter(|(_, wanted)| *wanted)
+        .map(|(stage, _)| (stage, dir.join(stage.binary())))
+        .filter(|(_, path)| path.is_file())
+        .collect()
+}
+
 /// The services of every stage for every camera of `config` — one process per
-/// `site.cameras_per_process` cameras — and the costmap bridge once per site,
-/// downstream first, so consumers are up before producers.
+/// `site.cameras_per_process` cameras — the costmap bridge once per site, and the
+/// optional services the config asks for ([`optional_services`]), downstream
+/// first, so consumers are up before producers.
 pub fn group_specs(config: &LoadedConfig) -> Vec<ServiceSpec> {
     let config_arg = OsString::from(
         config
@@ -62,7 +75,15 @@ pub fn group_specs(config: &LoadedConfig) -> Vec<ServiceSpec> {
             .canonicalize()
             .unwrap_or_else(|_| config.path.clone()),
     );
-    let mut specs = Vec::new();
+    let mut specs: Vec<ServiceSpec> = optional_services(config)
+        .into_iter()
+        .map(|(stage, program)| ServiceSpec {
+            name: stage.name().to_string(),
+            stage,
+            program,
+            args: vec!["--config".into(), config_arg.clone()],
+        })
+        .collect();
     for (stage, program) in installed_stages().into_iter().rev() {
         if !stage.per_camera() {
             specs.push(ServiceSpec {

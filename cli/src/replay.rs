@@ -143,6 +143,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         if let Some((name, state)) = supervisor
             .states()
             .into_iter()
+            .filter(|(name, _)| !is_optional(name))
             .find(|(_, s)| matches!(s, State::Failed { .. }))
         {
             bail!(
@@ -234,6 +235,12 @@ source = """#,
     Ok((loaded, id))
 }
 
+/// True for the service `name` of an optional stage (the exporter): its failure
+/// is logged (in `DIR/logs`) but does not stop the replay.
+fn is_optional(name: &str) -> bool {
+    name == StageKind::Exporter.name()
+}
+
 /// Waits until every installed consumer has subscribed to its inputs (each stream
 /// also has the replay's own subscriber).
 fn wait_for_consumers(
@@ -264,6 +271,7 @@ fn wait_for_consumers(
         if let Some((name, state)) = supervisor
             .states()
             .into_iter()
+            .filter(|(name, _)| !is_optional(name))
             .find(|(_, s)| matches!(s, State::Failed { .. } | State::Finished))
         {
             bail!("{name} stopped during start-up ({state:?}); see its log");

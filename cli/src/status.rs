@@ -14,7 +14,8 @@ use serde_json::json;
 use crate::common::load_config;
 use crate::launch::installed_stages;
 
-/// Show the status of every service of the site.
+/// Show the status of every service of the site. Exits with 0 when every
+/// service runs, 3 when some does not.
 #[derive(clap::Args)]
 pub struct Args {
     /// Site configuration (default: $ISOCHRON_CONFIG or /etc/isochron/isochron.toml).
@@ -168,6 +169,6 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     Ok(if all_running {
         ExitCode::SUCCESS
     } else {
-        ExitCode::from(3)
+        ExitCode::from(isochron_shared::exit::NOT_RUNNING as u8)
     })
 }

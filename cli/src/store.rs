@@ -10,8 +10,11 @@
 //!   with `--block X,Y`, that block's own mean and sigma. `count` is the number of
 //!   days (weeks) that taught the bin; bins that never learned anything have empty
 //!   `mean` and `sigma` and count 0.
-//! * `isochron store info --store PATH --camera ID`: what the store is about, how far
-//!   it got, and a full check of its checksums.
+//! * `isochron store info --store PATH --camera ID [--json]`: what the store is
+//!   about, how far it got, and a full check of its checksums.
+//!
+//! `--store` is the store file, or a directory (a `state_dir`, or what `isochron
+//! synth --out DIR` wrote): then `DIR/<camera>.isochron.sqlite`.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -20,7 +23,8 @@ use std::process::ExitCode;
 use anyhow::{Context, bail};
 use isochron_planning::profile::{ProfilePoint, daily_profile};
 use isochron_shared::clock::{Cycle, format_rfc3339, format_t_star};
-use isochron_shared::store::{Model, Store};
+use isochron_shared::store::{FILE_SUFFIX, Model, Store};
+use serde_json::json;
 
 use crate::common::Subcommands;
 
@@ -32,13 +36,23 @@ pub(crate) enum Command {
     /// Write the isochronal profile as CSV `minute_of_day,mean,sigma,count`.
     Export(ExportArgs),
     /// Show what a store holds and check all of it.
-    Info(StoreArgs),
+    Info(InfoArgs),
+}
+
+#[derive(clap::Args)]
+pub(crate) struct InfoArgs {
+    #[command(flatten)]
+    store: StoreArgs,
+    /// One JSON object instead of lines for people.
+    #[arg(long)]
+    json: bool,
 }
 
 /// Which store.
 #[derive(clap::Args)]
 pub struct StoreArgs {
-    /// The store file (`<state_dir>/<camera>.isochron.sqlite`).
+    /// The store file (`<state_dir>/<camera>.isochron.sqlite`), or the directory
+    /// that holds it.
     #[arg(long)]
     pub store: PathBuf,
     /// The camera it belongs to.
@@ -120,9 +134,44 @@ pub fn profile(model: &Model, selection: &Selection) -> anyhow::Result<Vec<Profi
     Ok(daily_profile(&[(model, &blocks)], model.bins.len()))
 }
 
-/// Opens a store read-only with the error naming the file.
+/// Opens a store read-only with the error naming the file; `path` may be the
+/// directory holding it (see [`resolve`]).
 pub fn open(path: &Path, camera: &str) -> anyhow::Result<Store> {
-    Ok(Store::open_read_only(path, camera)?)
+    let path = resolve(path, camera)?;
+    Ok(Store::open_read_only(&path, camera)?)
+}
+
+/// The store file `path` names: `path` itself, or for a directory
+/// `path/<camera>.isochron.sqlite`, which must exist (the error lists the stores
+/// the directory has).
+pub fn resolve(path: &Path, camera: &str) -> anyhow::Result<PathBuf> {
+    if !path.is_dir() {
+        return Ok(path.to_path_buf());
+    }
+    let file = path.join(format!("{camera}{FILE_SUFFIX}"));
+    if file.is_file() {
+        return Ok(file);
+    }
+    let mut found: Vec<String> = std::fs::read_dir(path)
+        .map(|entries| {
+            entries
+                .filter_map(Result::ok)
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|name| name.ends_with(FILE_SUFFIX))
+                .collect()
+        })
+        .unwrap_or_default();
+    found.sort();
+    bail!(
+        "--store {} is a directory without a store of camera '{camera}': expected {} ({})",
+        path.display(),
+        file.display(),
+        if found.is_empty() {
+            "it has no *.isochron.sqlite".to_string()
+        } else {
+            format!("it has {}", found.join(", "))
+        }
+    )
 }
 
 fn export(args: ExportArgs) -> anyhow::Result<ExitCode> {
@@ -154,8 +203,8 @@ fn export(args: ExportArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-fn info(args: StoreArgs) -> anyhow::Result<ExitCode> {
-    let store = open(&args.store, &args.camera)?;
+fn info(args: InfoArgs) -> anyhow::Result<ExitCode> {
+    let store = open(&args.store.store, &args.store.camera)?;
     let meta = store.meta().clone();
     let report = store.verify()?;
     let model = store.read_model()?;
@@ -164,6 +213,33 @@ fn info(args: StoreArgs) -> anyhow::Result<ExitCode> {
         .learned()
         .map(|b| b.count)
         .fold((u32::MAX, 0), |(lo, hi), c| (lo.min(c), hi.max(c)));
+    let p = report.progress;
+    if args.json {
+        let o = json!({
+            "store": store.path(),
+            "camera": meta.camera,
+            "blocks": meta.grid(),
+            "block_px": meta.grid.block_px,
+            "frame_width": meta.grid.frame_width,
+            "frame_height": meta.grid.frame_height,
+            "cycle": format!("{:?}", meta.cycle).to_lowercase(),
+            "bins": meta.bins(),
+            "bins_learned": report.bins,
+            "days_per_bin": (report.bins > 0).then(|| json!({"min": min_days, "max": max_days})),
+            "created": format_rfc3339(meta.created_ns),
+            "last_minute": p.last_minute.map(|m| format_rfc3339(m * 60_000_000_000)),
+            "minutes_learned": p.committed,
+            "minutes_skipped": p.skipped,
+            "baseline": baseline.map(|b| json!({
+                "capture": format_rfc3339(b.capture_ns),
+                "frames": b.frames,
+                "frame_rate": b.frame_rate,
+            })),
+            "check": "ok",
+        });
+        println!("{o}");
+        return Ok(ExitCode::SUCCESS);
+    }
     println!("store       {}", store.path().display());
     println!("camera      {}", meta.camera);
     println!(
@@ -183,7 +259,6 @@ fn info(args: StoreArgs) -> anyhow::Result<ExitCode> {
         println!("days/bin    {min_days}..{max_days}");
     }
     println!("created     {}", format_rfc3339(meta.created_ns));
-    let p = report.progress;
     match p.last_minute {
         Some(m) => println!(
             "progress    last minute {} ({}), {} minutes learned, {} skipped",
@@ -243,5 +318,19 @@ mod tests {
         );
         assert!(Selection::parse(Some("3")).is_err());
         assert!(Selection::parse(Some("a,b")).is_err());
+    }
+
+    #[test]
+    fn a_directory_means_the_camera_s_store_in_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("cam01.isochron.sqlite");
+        std::fs::write(&file, b"").unwrap();
+        assert_eq!(resolve(dir.path(), "cam01").unwrap(), file);
+        assert_eq!(resolve(&file, "cam01").unwrap(), file);
+        let err = resolve(dir.path(), "cam02").unwrap_err().to_string();
+        assert!(
+            err.contains("cam02.isochron.sqlite") && err.contains("it has cam01.isochron.sqlite"),
+            "{err}"
+        );
     }
 }

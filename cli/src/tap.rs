@@ -37,8 +37,8 @@ pub struct Args {
     /// Exit 0 after this many samples.
     #[arg(long)]
     count: Option<u64>,
-    /// Exit non-zero if no sample (or not all of `--count`) arrived within this many
-    /// seconds.
+    /// Exit with 75 (try again) if no sample (or not all of `--count`) arrived
+    /// within this many seconds.
     #[arg(long)]
     timeout: Option<f64>,
     /// Exit 0 after the end-of-stream sample of a finite source.
@@ -122,7 +122,7 @@ fn tap<S: StreamType>(
                 started.elapsed().as_secs_f64(),
                 args.count.map(|n| format!(" of {n}")).unwrap_or_default()
             );
-            return Ok(ExitCode::from(2));
+            return Ok(ExitCode::from(isochron_shared::exit::TEMPFAIL as u8));
         }
         subscriber.wait(Duration::from_millis(100));
     }

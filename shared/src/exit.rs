@@ -1,10 +1,17 @@
 //! Exit codes (sysexits.h) and the one rule that maps a library error to one.
+//! The services and the `isochron` command share this table (README, "Exit
+//! codes"); clap's own usage errors exit with 2.
 //!
 //! Every library error type implements [`Classify`]; a binary turns any of them
 //! into a [`Fatal`] with `?` (the blanket `From`), so no call site chooses an exit
 //! code by hand. A supervisor must not restart a service that exits with a
 //! permanent code ([`is_permanent`]): the same input would fail the same way.
 
+/// A check failed or the command could not do its work (`doctor` found a
+/// problem, an error no other code describes).
+pub const FAILURE: i32 = 1;
+/// `isochron status`: some service is not running (as LSB `status` says).
+pub const NOT_RUNNING: i32 = 3;
 /// Bad command line.
 pub const USAGE: i32 = 64;
 /// Input data is malformed (an undecodable video, a damaged store).
@@ -15,6 +22,8 @@ pub const NO_INPUT: i32 = 66;
 pub const UNAVAILABLE: i32 = 69;
 /// Internal error.
 pub const SOFTWARE: i32 = 70;
+/// Gave up waiting (`isochron tap --timeout`): trying again may succeed.
+pub const TEMPFAIL: i32 = 75;
 /// Configuration error.
 pub const CONFIG: i32 = 78;
 
@@ -87,6 +96,32 @@ always! {
     CONFIG: crate::config::ConfigError, crate::config::UnknownCamera;
 }
 
+/// The exit code of a command that failed with `error` and the errors it was
+/// caused by (context layers of `anyhow` and the like): the code of the first
+/// one this module classifies, else [`FAILURE`].
+pub fn code_of_chain<'a>(
+    chain: impl IntoIterator<Item = &'a (dyn std::error::Error + 'static)>,
+) -> i32 {
+    chain
+        .into_iter()
+        .find_map(|e| {
+            use crate::config::{ConfigError, UnknownCamera};
+            if let Some(e) = e.downcast_ref::<ConfigError>() {
+                Some(e.exit_code())
+            } else if let Some(e) = e.downcast_ref::<UnknownCamera>() {
+                Some(e.exit_code())
+            } else if let Some(e) = e.downcast_ref::<crate::store::StoreError>() {
+                Some(e.exit_code())
+            } else if let Some(e) = e.downcast_ref::<crate::wire::WireError>() {
+                Some(e.exit_code())
+            } else {
+                e.downcast_ref::<crate::ipc::IpcError>()
+                    .map(Classify::exit_code)
+            }
+        })
+        .unwrap_or(FAILURE)
+}
+
 impl Classify for crate::store::StoreError {
     /// Foreign, damaged or mismatched files are permanent (restarting cannot
     /// help); I/O may pass.
@@ -114,6 +149,21 @@ mod tests {
         assert!(is_permanent(NO_INPUT));
         assert!(!is_permanent(1));
         assert!(!is_permanent(UNAVAILABLE));
+    }
+
+    #[test]
+    fn a_chain_takes_the_code_of_its_first_known_error() {
+        let config = crate::config::ConfigError {
+            file: "site.toml".into(),
+            line: Some(3),
+            key: Some("camera[0].fps".into()),
+            message: "expected a number > 0".into(),
+        };
+        let io = std::io::Error::other("x");
+        let chain: Vec<&(dyn std::error::Error + 'static)> = vec![&io, &config];
+        assert_eq!(code_of_chain(chain), CONFIG);
+        let chain: Vec<&(dyn std::error::Error + 'static)> = vec![&io];
+        assert_eq!(code_of_chain(chain), FAILURE);
     }
 
     #[test]

@@ -19,6 +19,9 @@ pub enum StageKind {
     Gate,
     /// The site-wide cost map for robots and the planning service.
     Costmap,
+    /// Serves every stage's status as Prometheus metrics (site-wide, optional:
+    /// not a pipeline stage, so not in [`StageKind::ALL`]).
+    Exporter,
 }
 
 impl StageKind {
@@ -39,6 +42,7 @@ impl StageKind {
             StageKind::Cascade => "cascade",
             StageKind::Gate => "gate",
             StageKind::Costmap => "costmap",
+            StageKind::Exporter => "exporter",
         }
     }
 
@@ -55,6 +59,7 @@ impl StageKind {
             StageKind::Cascade => "isochron-cascade",
             StageKind::Gate => "isochron-gate",
             StageKind::Costmap => "isochron-costmap",
+            StageKind::Exporter => "isochron-exporter",
         }
     }
 
@@ -66,6 +71,7 @@ impl StageKind {
             StageKind::Cascade => &[Stream::Motion],
             StageKind::Gate => &[Stream::Frames, Stream::Activity],
             StageKind::Costmap => &[Stream::Activity, Stream::Detections],
+            StageKind::Exporter => &[],
         }
     }
 
@@ -76,7 +82,7 @@ impl StageKind {
             StageKind::Motion => &[Stream::Motion],
             StageKind::Cascade => &[Stream::Activity],
             StageKind::Gate => &[Stream::Events, Stream::Detections],
-            StageKind::Costmap => &[],
+            StageKind::Costmap | StageKind::Exporter => &[],
         }
     }
 
@@ -86,9 +92,10 @@ impl StageKind {
         self.produces().first().copied()
     }
 
-    /// True for stages that run once per camera; false for the site-wide costmap.
+    /// True for stages that run once per camera; false for the site-wide costmap
+    /// and exporter.
     pub fn per_camera(self) -> bool {
-        !matches!(self, StageKind::Costmap)
+        !matches!(self, StageKind::Costmap | StageKind::Exporter)
     }
 }
 

@@ -247,6 +247,33 @@ fn fourteen_simulated_days_of_an_office_are_learned() {
         info.contains("1440 learned") && info.contains("days/bin    14..14"),
         "{info}"
     );
+    let json: serde_json::Value = serde_json::from_str(&store_command(
+        &site,
+        &["store", "info"],
+        &store,
+        &["--json"],
+    ))
+    .expect("store info --json is one JSON object");
+    assert_eq!(json["bins_learned"], 1440, "{json}");
+    assert_eq!(json["days_per_bin"]["min"], 14, "{json}");
+    assert_eq!(json["check"], "ok");
+    // The directory synth wrote stands for the camera's store in it.
+    let dir = store.parent().unwrap();
+    let from_dir = store_command(&site, &["store", "export"], dir, &["--block", "8,6"]);
+    assert_eq!(parse_export(&from_dir), one);
+    let dir_arg = dir.display().to_string();
+    let other = site.isochron(
+        &["store", "export", "--store", &dir_arg, "--camera", "cam09"],
+        Duration::from_secs(60),
+    );
+    assert_eq!(other.status.code(), Some(1), "{}", other.stderr);
+    assert!(
+        other.stderr.contains("cam09.isochron.sqlite")
+            && other.stderr.contains("it has cam01.isochron.sqlite")
+            && other.stderr.lines().count() == 1,
+        "{}",
+        other.stderr
+    );
 }
 
 /// Follows a synth run from outside: the cascade's pid (from synth's output) and its

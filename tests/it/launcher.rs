@@ -47,3 +47,86 @@ fn up_restarts_a_killed_capture_and_frames_flow_again() {
     assert!(status.success(), "{}", up.stderr());
     assert!(up.stdout().contains("up: stopping"));
 }
+
+/// Binds a stand-in journal at journald's socket when none exists (as root), so
+/// that a process logging to "the journal" really can, and drains it until the
+/// returned guard is dropped. With a real journald, nothing is done.
+struct StandInJournal {
+    path: Option<std::path::PathBuf>,
+    made_dir: bool,
+}
+
+impl StandInJournal {
+    fn bind() -> StandInJournal {
+        let path = std::path::Path::new("/run/systemd/journal/socket");
+        let none = StandInJournal {
+            path: None,
+            made_dir: false,
+        };
+        let made_dir = !path.parent().unwrap().exists();
+        if path.exists() || std::fs::create_dir_all(path.parent().unwrap()).is_err() {
+            return none;
+        }
+        let Ok(socket) = std::os::unix::net::UnixDatagram::bind(path) else {
+            return none;
+        };
+        std::thread::spawn(move || {
+            let mut buf = vec![0u8; 1 << 16];
+            while socket.recv(&mut buf).is_ok() {}
+        });
+        StandInJournal {
+            path: Some(path.to_path_buf()),
+            made_dir,
+        }
+    }
+}
+
+impl Drop for StandInJournal {
+    fn drop(&mut self) {
+        if let Some(path) = &self.path {
+            let _ = std::fs::remove_file(path);
+            if self.made_dir {
+                let _ = std::fs::remove_dir(path.parent().unwrap());
+            }
+        }
+    }
+}
+
+/// A launcher started from a unit has `JOURNAL_STREAM` naming its own stderr; the
+/// services it starts inherit the variable but write to their log files, which
+/// must not stay empty (systemd.exec(5): compare stderr's device:inode).
+#[test]
+fn services_under_a_journal_parent_still_write_their_log_files() {
+    use std::os::unix::fs::MetadataExt;
+
+    let _journal = StandInJournal::bind();
+    let site = TestSite::looping_vtest("journal", "2");
+    let logs = site.path("logs");
+    let stderr = std::fs::File::create(site.path("up.stderr")).unwrap();
+    let meta = stderr.metadata().unwrap();
+    let mut up = std::process::Command::new(isochron_tests::bin("isochron"))
+        .args(["up", "--config", site.config_path().to_str().unwrap()])
+        .args(["--status-every-s", "0", "--log-dir", logs.to_str().unwrap()])
+        .env("JOURNAL_STREAM", format!("{}:{}", meta.dev(), meta.ino()))
+        .env("RUST_LOG", "info")
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(stderr)
+        .spawn()
+        .unwrap();
+    let log = logs.join("capture-cam01.log");
+    let written = isochron_tests::eventually(Duration::from_secs(60), || {
+        std::fs::read_to_string(&log)
+            .ok()
+            .filter(|t| t.contains("in="))
+    });
+    // SAFETY: kill(2) on our own child.
+    unsafe { libc::kill(up.id() as i32, libc::SIGINT) };
+    let _ = up.wait();
+    assert!(
+        written.is_some(),
+        "{} has no status line: {:?}",
+        log.display(),
+        std::fs::read_to_string(&log)
+    );
+}

@@ -7,8 +7,10 @@
 
 mod capture;
 mod cascade;
+mod conventions;
 mod costmap;
 mod doctor;
+mod exporter;
 mod gate;
 mod inputs;
 mod launcher;

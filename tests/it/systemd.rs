@@ -9,12 +9,13 @@ use std::process::Command;
 
 use isochron_tests::{bin_dir, repo_root};
 
-const SERVICES: [&str; 5] = [
+const SERVICES: [&str; 6] = [
     "isochron-capture@cam01.service",
     "isochron-motion@cam01.service",
     "isochron-cascade@cam01.service",
     "isochron-gate@cam01.service",
     "isochron-costmap.service",
+    "isochron-exporter.service",
 ];
 
 /// Copies `systemd/` into `dir` with binaries pointing at the build.
@@ -136,6 +137,18 @@ fn each_service_gets_the_access_it_needs_and_no_more() {
         "isochron-costmap.service",
         &[
             ("PrivateDevices=", true),
+            ("IPAddressDeny=", false),
+            ("RestrictAddressFamilies=~AF_(INET|INET6)", false),
+            ("NoNewPrivileges=", true),
+        ],
+    );
+    // The exporter serves HTTP to this machine only (an allow list, which the
+    // analyser marks as open), and needs no device.
+    expect(
+        "isochron-exporter.service",
+        &[
+            ("PrivateDevices=", true),
+            ("PrivateUsers=", true),
             ("IPAddressDeny=", false),
             ("RestrictAddressFamilies=~AF_(INET|INET6)", false),
             ("NoNewPrivileges=", true),

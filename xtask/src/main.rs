@@ -10,9 +10,13 @@
 //! * `bench NAME`: setup and one benchmark (motion, cascade, gate, ipc, group);
 //!   `bench NAME --quick`: the same code with few iterations, in the dev profile (no
 //!   release build), checked for its closing JSON line as `test` does;
+//! * `docs [OUT]`: the man pages (`OUT/man/*.1`) and bash, zsh and fish
+//!   completions (`OUT/completions/`) of `isochron`, made from its clap definition
+//!   with clap_mangen and clap_complete (default `OUT` = `target/docs`);
 //! * `install [--prefix P] [--destdir D]`: release build, then binaries, systemd
-//!   units, sysusers/tmpfiles entries, an example config and the README installed
-//!   under `D/P` (default `P` = `/usr/local`), and what to do next.
+//!   units, sysusers/tmpfiles entries, an example config, the README, the man
+//!   pages and completions installed under `D/P` (default `P` = `/usr/local`), and
+//!   what to do next.
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -22,8 +26,15 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 
 /// System packages: OpenCV and the bindings' clang; iproute2 (`ip`, `ss`) for the
-/// network-namespace and DDS socket tests.
-const PACKAGES: [&str; 4] = ["libopencv-dev", "clang", "libclang-dev", "iproute2"];
+/// network-namespace and DDS socket tests; `prometheus` for promtool, which checks
+/// the exporter's output and the alert rules.
+const PACKAGES: [&str; 5] = [
+    "libopencv-dev",
+    "clang",
+    "libclang-dev",
+    "iproute2",
+    "prometheus",
+];
 
 /// Benchmarks: name → (package, bench target).
 const BENCHES: [(&str, &str, &str); 5] = [
@@ -68,9 +79,15 @@ fn main() -> anyhow::Result<()> {
                 bench(package, target, extra)
             }
         }
+        Some("docs") => {
+            let out = args
+                .get(1)
+                .map_or_else(|| root.join("target/docs"), PathBuf::from);
+            docs(&out, false)
+        }
         Some("install") => install(&root, &args[1..]),
         _ => bail!(
-            "usage: cargo xtask <setup|demo|test|bench NAME|install [--prefix P] [--destdir D]>"
+            "usage: cargo xtask <setup|demo|test|bench NAME|docs [OUT]|install [--prefix P] [--destdir D]>"
         ),
     }
 }
@@ -380,14 +397,33 @@ fn bench(package: &str, target: &str, extra: &[String]) -> anyhow::Result<()> {
 }
 
 /// The binaries a site runs.
-const BINARIES: [&str; 6] = [
+const BINARIES: [&str; 7] = [
     "isochron",
     "isochron-capture",
     "isochron-motion",
     "isochron-cascade",
     "isochron-gate",
     "isochron-costmap",
+    "isochron-exporter",
 ];
+
+/// Writes the man pages and completions of `isochron` into `out` (see the
+/// `isochron-docs` example of the cli crate).
+fn docs(out: &Path, release: bool) -> anyhow::Result<()> {
+    let mut cmd = cargo();
+    cmd.args([
+        "run",
+        "-q",
+        "-p",
+        "isochron-cli",
+        "--example",
+        "isochron-docs",
+    ]);
+    if release {
+        cmd.arg("--release");
+    }
+    run(cmd.arg("--").arg(out))
+}
 
 fn install(root: &Path, args: &[String]) -> anyhow::Result<()> {
     let mut prefix = PathBuf::from("/usr/local");
@@ -459,6 +495,35 @@ fn install(root: &Path, args: &[String]) -> anyhow::Result<()> {
         root.join("README.md"),
         under(&prefix.join("share/doc/isochron/README.md")),
     )?;
+    let docs_dir = root.join("target/release/docs");
+    docs(&docs_dir, true)?;
+    let copy_all = |from: &Path, to: &Path| -> anyhow::Result<()> {
+        std::fs::create_dir_all(to)?;
+        for entry in std::fs::read_dir(from)? {
+            let path = entry?.path();
+            std::fs::copy(&path, to.join(path.file_name().context("file name")?))?;
+        }
+        Ok(())
+    };
+    copy_all(
+        &docs_dir.join("man"),
+        &under(&prefix.join("share/man/man1")),
+    )?;
+    let completions = docs_dir.join("completions");
+    for (file, dir) in [
+        ("isochron.bash", "share/bash-completion/completions"),
+        ("_isochron", "share/zsh/vendor-completions"),
+        ("isochron.fish", "share/fish/vendor_completions.d"),
+    ] {
+        let to = under(&prefix.join(dir));
+        std::fs::create_dir_all(&to)?;
+        let name = if file == "isochron.bash" {
+            "isochron"
+        } else {
+            file
+        };
+        std::fs::copy(completions.join(file), to.join(name))?;
+    }
     let config = under(Path::new("/etc/isochron/isochron.toml"));
     if !config.exists() {
         std::fs::create_dir_all(config.parent().expect("config dir"))?;
@@ -474,6 +539,9 @@ fn install(root: &Path, args: &[String]) -> anyhow::Result<()> {
     println!("  systemctl enable --now isochron.target isochron-costmap.service");
     println!(
         "  for c in cam01; do systemctl enable --now isochron-{{capture,motion,cascade,gate}}@$c; done"
+    );
+    println!(
+        "  systemctl enable --now isochron-exporter         # optional: metrics at 127.0.0.1:9464"
     );
     println!(
         "  sudo -u isochron {}/isochron doctor               # checks it all",

@@ -13,6 +13,7 @@ mod camera;
 mod cascade;
 mod check;
 mod costmap;
+mod exporter;
 mod gate;
 mod ipc;
 mod motion;
@@ -34,6 +35,7 @@ pub use check::{check_positive, check_range};
 pub use costmap::{
     CostmapConfig, MAX_GRID_CELLS, PLAN_NAME_LEN, RouteConfig, SegmentConfig, is_valid_ros_topic,
 };
+pub use exporter::ExporterConfig;
 pub use gate::{DetectorConfig, GateConfig};
 pub use ipc::IpcConfig;
 pub use motion::{MotionBackend, MotionConfig};
@@ -103,6 +105,9 @@ pub struct Config {
     pub gate: GateConfig,
     /// The cost map on the robots' floor, its ROS 2 output, and path planning.
     pub costmap: CostmapConfig,
+    /// The Prometheus exporter; absent: `isochron up` and `replay` do not start it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub exporter: Option<ExporterConfig>,
 }
 
 /// A loaded configuration and where it came from.
@@ -266,6 +271,9 @@ impl Config {
         self.motion.validate()?;
         self.cascade.validate()?;
         self.gate.validate()?;
+        if let Some(exporter) = &self.exporter {
+            exporter.validate()?;
+        }
         camera::validate_cameras(&self.cameras)?;
         self.costmap.validate(&self.cameras)
     }

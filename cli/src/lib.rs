@@ -1,0 +1,92 @@
+//! `isochron`: the command-line tool people use to run and watch a site.
+//!
+//! The binary's `main` calls [`main`]; [`command`] is its clap definition, from
+//! which `cargo xtask docs` makes the man pages and shell completions.
+
+mod common;
+mod costmap;
+pub mod docs;
+mod doctor;
+mod launch;
+mod plan;
+mod plot;
+mod replay;
+mod status;
+mod store;
+mod synth;
+mod tap;
+mod up;
+
+use std::process::ExitCode;
+
+use clap::{CommandFactory, Parser, Subcommand};
+use isochron_shared::exit;
+
+/// Learn where and when people are active from fixed cameras.
+#[derive(Parser)]
+#[command(name = "isochron", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Start the configured services as separate processes and keep them running.
+    Up(up::Args),
+    /// Attach to a stream and print one line per sample.
+    Tap(tap::Args),
+    /// Show every service of the site: state, rates, drops, latency.
+    Status(status::Args),
+    /// Check config, sources, state, shared memory and services; say what to fix.
+    Doctor(doctor::Args),
+    /// Run the whole group on a video file and write what every stage produced.
+    Replay(replay::Args),
+    /// Simulate days of people through a real isochron-cascade; leaves its store.
+    Synth(synth::Args),
+    /// Read a camera's long-term store (export CSV, info), also while it is written.
+    Store(store::Args),
+    /// Plot a camera's long-term activity over the day (PNG or SVG).
+    Plot(plot::Args),
+    /// Plan routes and departure times around people (Cost1 off-line, Cost2 now).
+    Plan(plan::Args),
+    /// Snapshots of the cost map, and a check of the cameras' floor mappings.
+    Costmap(costmap::Args),
+}
+
+/// The whole `main` of the `isochron` binary.
+pub fn main() -> ExitCode {
+    // Output into a closed pipe (`isochron tap ... | head`) ends the process
+    // quietly, as for any Unix tool, instead of a panic in println!.
+    // SAFETY: called before any other thread exists.
+    unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
+    let cli = Cli::parse();
+    isochron_shared::logging::init("isochron");
+    isochron_shared::service::owner_only_files();
+    let result = match cli.command {
+        Command::Up(args) => up::run(args),
+        Command::Tap(args) => tap::run(args),
+        Command::Status(args) => status::run(args),
+        Command::Doctor(args) => doctor::run(args),
+        Command::Replay(args) => replay::run(args),
+        Command::Synth(args) => synth::run(args),
+        Command::Store(args) => store::run(args),
+        Command::Plot(args) => plot::run(args),
+        Command::Plan(args) => plan::run(args),
+        Command::Costmap(args) => costmap::run(args),
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("isochron: {e:#}");
+            // The services' table: a config error is 78 here too.
+            let chain = e.chain().map(|c| c as &(dyn std::error::Error + 'static));
+            ExitCode::from(exit::code_of_chain(chain) as u8)
+        }
+    }
+}
+
+/// The command line of `isochron`, every subcommand included.
+pub fn command() -> clap::Command {
+    Cli::command()
+}

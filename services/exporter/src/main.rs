@@ -1,0 +1,16 @@
+//! isochron-exporter: config → node → every stage's status in, `/metrics` over
+//! HTTP out → the stage runtime. Runs once per site.
+
+use std::process::ExitCode;
+
+use isochron_exporter::stage;
+use isochron_shared::service::main_site_wide;
+use isochron_shared::topology::StageKind;
+
+fn main() -> ExitCode {
+    main_site_wide(
+        StageKind::Exporter,
+        "Serves every isochron service's status as Prometheus metrics at /metrics",
+        stage::run,
+    )
+}
