@@ -3,7 +3,9 @@
 mod common;
 mod costmap;
 mod doctor;
+mod font;
 mod launch;
+mod overlay;
 mod plan;
 mod plot;
 mod replay;

@@ -19,3 +19,4 @@ mod presence;
 mod reliability;
 mod scale;
 mod systemd;
+mod view;
