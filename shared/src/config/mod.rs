@@ -19,6 +19,7 @@ mod motion;
 mod site;
 #[cfg(test)]
 mod tests;
+mod view;
 
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -38,6 +39,7 @@ pub use gate::{DetectorConfig, GateConfig};
 pub use ipc::IpcConfig;
 pub use motion::{MotionBackend, MotionConfig};
 pub use site::SiteConfig;
+pub use view::ViewConfig;
 
 /// A configuration error located in its file.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -103,6 +105,8 @@ pub struct Config {
     pub gate: GateConfig,
     /// The cost map on the robots' floor, its ROS 2 output, and path planning.
     pub costmap: CostmapConfig,
+    /// The live view (`isochron view`) and recordings (`isochron record`).
+    pub view: ViewConfig,
 }
 
 /// A loaded configuration and where it came from.
@@ -267,7 +271,8 @@ impl Config {
         self.cascade.validate()?;
         self.gate.validate()?;
         camera::validate_cameras(&self.cameras)?;
-        self.costmap.validate(&self.cameras)
+        self.costmap.validate(&self.cameras)?;
+        self.view.validate()
     }
 }
 
