@@ -33,6 +33,8 @@ pub type Args = Subcommands<Command>;
 pub(crate) enum Command {
     /// Activity over the day (PNG or SVG, by the file's extension).
     Daily(DailyArgs),
+    /// Blocks × minute of the day: where and when the view is active (PNG).
+    Heatmap(crate::heatmap::HeatmapArgs),
 }
 
 #[derive(clap::Args)]
@@ -73,6 +75,7 @@ pub(crate) struct DailyArgs {
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     match args.command {
         Command::Daily(a) => daily(a),
+        Command::Heatmap(a) => crate::heatmap::heatmap(a),
     }
 }
 
