@@ -47,7 +47,7 @@ pub struct Heat {
 impl Heat {
     /// The heat map of `model`'s blocks.
     pub fn of(model: &Model) -> Heat {
-        let blocks = (model.meta.grid_w * model.meta.grid_h) as usize;
+        let blocks = model.meta.grid.len();
         let per = blocks.div_ceil(MAX_ROWS).max(1);
         let rows = blocks.div_ceil(per);
         let minutes = MINUTES_PER_DAY as usize;
@@ -122,7 +122,7 @@ pub(crate) fn heatmap(args: HeatmapArgs) -> anyhow::Result<ExitCode> {
         format!(
             "Activity by block and time of day, camera {} ({} blocks{}), {} {}{}",
             model.meta.camera,
-            model.meta.grid_w * model.meta.grid_h,
+            model.meta.grid.len(),
             if heat.blocks_per_row > 1 {
                 format!(", {} per row", heat.blocks_per_row)
             } else {

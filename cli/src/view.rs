@@ -1,5 +1,6 @@
 //! `isochron view --config site.toml [--listen ADDR]`: the site live in Foxglove —
-//! a Foxglove WebSocket server (`foxglove.websocket.v1`) with the same channels as
+//! a Foxglove WebSocket server (subprotocol `foxglove.sdk.v1`, the renamed
+//! `foxglove.websocket.v1`) with the same channels as
 //! `isochron record` ([`isochron_view::channels`]). Listens on `view.listen`
 //! (default 127.0.0.1:8765, loopback) unless `--listen` says otherwise. Open
 //! Foxglove, "Open connection", `ws://127.0.0.1:8765`.

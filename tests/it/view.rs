@@ -205,7 +205,7 @@ fn bad_overlay_input_is_one_clear_line() {
 
 // ---------------------------------------------------------------------------
 // Recordings and the live view: checked by independent Python peers (the `mcap`
-// reader and a `websockets` client speaking foxglove.websocket.v1), from the venv
+// reader and a `websockets` client speaking foxglove.sdk.v1), from the venv
 // `cargo xtask setup` makes.
 
 /// The venv's Python with `mcap` and `websockets`.
@@ -421,7 +421,7 @@ fn the_live_view_serves_foxglove_clients_during_a_replay() {
 
     // Without images: the cost map arrives, no image channel is advertised.
     let got = ws_client(p2, "/costmap", 3, 40);
-    assert_eq!(got["subprotocol"], "foxglove.websocket.v1", "{got}");
+    assert_eq!(got["subprotocol"], "foxglove.sdk.v1", "{got}");
     assert!(got["server"].is_string(), "serverInfo: {got}");
     let channels = got["channels"].as_object().unwrap();
     for (topic, schema) in [

@@ -1,6 +1,7 @@
 """An independent Foxglove WebSocket client for tests/it/view.rs (the `websockets`
-package, protocol foxglove.websocket.v1 written out here, not the SDK isochron
-uses): connects, reads serverInfo and the advertised channels, subscribes to one
+package, the protocol written out here, not the SDK isochron uses): connects with
+subprotocol foxglove.sdk.v1 (the name the `foxglove` crate gives
+foxglove.websocket.v1 since it was renamed; same messages), reads serverInfo and the advertised channels, subscribes to one
 topic and counts the binary message-data frames for it.
 
 usage: python3 ws_client.py URL TOPIC COUNT TIMEOUT_S
@@ -19,7 +20,7 @@ import websockets
 async def run(url: str, topic: str, want: int, timeout: float) -> dict:
     out = {"server": None, "channels": {}, "received": 0, "first_bytes": None}
     async with websockets.connect(
-        url, subprotocols=["foxglove.websocket.v1"], max_size=None
+        url, subprotocols=["foxglove.sdk.v1"], max_size=None
     ) as ws:
         out["subprotocol"] = ws.subprotocol
         subscribed = False

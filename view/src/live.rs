@@ -1,5 +1,5 @@
-//! The live view: a Foxglove WebSocket server (protocol `foxglove.websocket.v1`,
-//! the `foxglove` crate's server on its own tokio runtime) on the site's channels.
+//! The live view: a Foxglove WebSocket server (protocol `foxglove.sdk.v1` — the
+//! renamed `foxglove.websocket.v1`, same messages — the `foxglove` crate's server on its own tokio runtime) on the site's channels.
 //! A client subscribes to the topics it wants; the server sends only those, and a
 //! client that cannot keep up loses messages from its own backlog — the group never
 //! waits for it.
@@ -13,20 +13,20 @@ use foxglove::{Context, WebSocketServer, WebSocketServerHandle};
 #[derive(Debug, thiserror::Error)]
 pub enum LiveError {
     /// The address cannot be listened on (in use, not local, no permission).
-    #[error("--listen {addr}: {source}")]
+    #[error("--listen {addr}: {error}")]
     Bind {
         /// The address.
         addr: SocketAddr,
         /// Why.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// The server failed to start.
-    #[error("starting the Foxglove server on {addr}: {source}")]
+    #[error("starting the Foxglove server on {addr}: {error}")]
     Start {
         /// The address.
         addr: SocketAddr,
         /// Why.
-        source: foxglove::FoxgloveError,
+        error: foxglove::FoxgloveError,
     },
 }
 
@@ -37,11 +37,11 @@ pub fn serve(
     name: &str,
 ) -> Result<WebSocketServerHandle, LiveError> {
     // The crate reports a taken port as a generic error; try it first to say so.
-    drop(std::net::TcpListener::bind(addr).map_err(|source| LiveError::Bind { addr, source })?);
+    drop(std::net::TcpListener::bind(addr).map_err(|error| LiveError::Bind { addr, error })?);
     WebSocketServer::new()
         .name(name)
         .bind(addr.ip().to_string(), addr.port())
         .context(ctx)
         .start_blocking()
-        .map_err(|source| LiveError::Start { addr, source })
+        .map_err(|error| LiveError::Start { addr, error })
 }

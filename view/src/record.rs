@@ -21,20 +21,20 @@ const CHUNK_BYTES: u64 = 1 << 20;
 #[derive(Debug, thiserror::Error)]
 pub enum RecordError {
     /// The file cannot be created.
-    #[error("--out {path}: cannot write: {source}")]
+    #[error("--out {path}: cannot write: {error}")]
     Create {
         /// The file.
         path: PathBuf,
         /// Why.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// The MCAP writer failed.
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Mcap {
         /// The file.
         path: PathBuf,
         /// Why.
-        source: foxglove::FoxgloveError,
+        error: foxglove::FoxgloveError,
     },
 }
 
@@ -47,9 +47,9 @@ pub struct Recording {
 impl Recording {
     /// Creates (or truncates) `path` and records every channel of `ctx` into it.
     pub fn create(path: &Path, ctx: &Arc<Context>) -> Result<Recording, RecordError> {
-        let file = File::create(path).map_err(|source| RecordError::Create {
+        let file = File::create(path).map_err(|error| RecordError::Create {
             path: path.to_path_buf(),
-            source,
+            error,
         })?;
         let options = McapWriteOptions::new()
             .compression(Some(McapCompression::Lz4))
@@ -58,9 +58,9 @@ impl Recording {
         let handle = ctx
             .mcap_writer_with_options(options)
             .create(BufWriter::new(file))
-            .map_err(|source| RecordError::Mcap {
+            .map_err(|error| RecordError::Mcap {
                 path: path.to_path_buf(),
-                source,
+                error,
             })?;
         Ok(Recording {
             handle,
@@ -85,9 +85,9 @@ impl Recording {
 
     /// Writes the last chunk, the summary and the footer; returns the file's size.
     pub fn close(self) -> Result<u64, RecordError> {
-        let err = |source| RecordError::Mcap {
+        let err = |error| RecordError::Mcap {
             path: self.path.clone(),
-            source,
+            error,
         };
         let writer = self.handle.close().map_err(err)?;
         let file = writer
