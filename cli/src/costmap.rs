@@ -4,25 +4,32 @@
 //!   write a snapshot of the current cost map (`map_server` PGM + YAML in raw mode,
 //!   and a PNG picture) into its snapshot directory (`costmap.snapshot_dir`, by
 //!   default `<state_dir>/costmap`), prints the files, and copies them to `DIR`.
-//! * `isochron costmap check`: each camera's floor mapping — the fit's error at
-//!   its own points, where the frame's corners land on the floor, and how much of
-//!   the grid it covers — to set up `floor_points` and the grid.
+//! * `isochron costmap check [--camera ID] [--overlay OUT.png [--frame FILE]]
+//!   [--json]`: each camera's floor mapping — the fit's error at each of its own
+//!   points in metres and pixels, the leave-one-out error (at a point, of the fit
+//!   to the others), the point that stands out, where the frame's corners land on
+//!   the floor, and how much of the grid it covers — to set up `floor_points` and
+//!   the grid; with `--overlay`, all of it drawn on a frame of the camera
+//!   ([`crate::overlay`]). Exits 1 when a camera's floor points define no mapping
+//!   or a point stands out.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{Context, bail};
+use isochron_planning::calibration::Calibration;
 use isochron_planning::grid::MapGrid;
-use isochron_planning::homography::Homography;
 use isochron_planning::plan_service::PlanClient;
 use isochron_planning::query::{PlanKind, PlanRequest, PlanStatus};
 use isochron_planning::raster::Footprint;
+use isochron_shared::config::{CameraConfig, LoadedConfig, SourceKind};
 use isochron_shared::geometry::BlockGrid;
 use isochron_shared::ipc::Ipc;
 use isochron_shared::store::{Store, store_path};
 
 use crate::common::{Subcommands, load_config};
+use crate::overlay::{self, FloorPolygon, Frame, Scene};
 
 /// Snapshots and checks of the site's cost map.
 pub type Args = Subcommands<Command>;
@@ -31,7 +38,7 @@ pub type Args = Subcommands<Command>;
 pub(crate) enum Command {
     /// Write a snapshot of the current cost map (PGM + YAML + PNG).
     Snapshot(SnapshotArgs),
-    /// Show each camera's floor mapping and grid coverage.
+    /// Show each camera's floor mapping, its residuals and grid coverage; draw an overlay.
     Check(CheckArgs),
 }
 
@@ -53,6 +60,21 @@ pub(crate) struct CheckArgs {
     /// Site configuration (default: $ISOCHRON_CONFIG or /etc/isochron/isochron.toml).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Only this camera.
+    #[arg(long)]
+    camera: Option<String>,
+    /// Draw the calibration overlay of `--camera` into this PNG: block grid, masks,
+    /// zones, the floor grid (1 m) and route segments through the homography, and
+    /// every calibration point with its residual.
+    #[arg(long, requires = "camera")]
+    overlay: Option<PathBuf>,
+    /// The picture for the overlay: a video (its first frame) or an image. Default:
+    /// the camera's source, if it is a file.
+    #[arg(long, requires = "overlay")]
+    frame: Option<PathBuf>,
+    /// Print the findings as JSON.
+    #[arg(long)]
+    json: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -107,7 +129,196 @@ fn check(args: CheckArgs) -> anyhow::Result<ExitCode> {
     let loaded = load_config(args.config)?;
     let config = &loaded.config;
     let grid = MapGrid::from_config(&loaded)?;
-    match &grid {
+    let cameras: Vec<&CameraConfig> = match &args.camera {
+        Some(id) => vec![loaded.camera(id)?],
+        None => config.cameras.iter().collect(),
+    };
+    // The overlay's paths first: a bad one fails before anything is printed.
+    let frame = match (&args.overlay, cameras.first()) {
+        (Some(out), Some(cam)) => {
+            std::fs::File::create(out)
+                .with_context(|| format!("--overlay {}: cannot write", out.display()))?;
+            let path = match &args.frame {
+                Some(p) => p.clone(),
+                None => match cam.source_kind(&loaded.base_dir()) {
+                    SourceKind::File(p) => p,
+                    _ => bail!(
+                        "camera {}'s source is not a file: give --frame VIDEO_OR_IMAGE",
+                        cam.id
+                    ),
+                },
+            };
+            let size = cam.width.zip(cam.height);
+            Some(Frame::read(&path, size)?)
+        }
+        _ => None,
+    };
+    let reports: Vec<CameraCheck> = cameras
+        .iter()
+        .map(|cam| {
+            let index = config
+                .cameras
+                .iter()
+                .position(|c| c.id == cam.id)
+                .unwrap_or_default();
+            check_camera(&loaded, grid.as_ref(), index, cam, frame.as_ref())
+        })
+        .collect();
+    if let (Some(out), Some(frame), Some(cam), Some(report)) =
+        (&args.overlay, &frame, cameras.first(), reports.first())
+    {
+        let segments: Vec<FloorPolygon> = config
+            .costmap
+            .segments
+            .iter()
+            .filter_map(|s| {
+                Some(FloorPolygon {
+                    name: s.name.clone(),
+                    polygon_m: s.polygon_m.clone()?,
+                })
+            })
+            .collect();
+        let zones = cam.zones_or_default(frame.width, frame.height);
+        let scene = Scene {
+            camera: &cam.id,
+            block_px: config.motion.block_px,
+            masks: &cam.mask,
+            zones: &zones,
+            calibration: report.calibration.as_ref(),
+            floor_extent: report
+                .calibration
+                .as_ref()
+                .map(|c| overlay::floor_extent(grid.as_ref(), c)),
+            segments: &segments,
+        };
+        overlay::draw(out, frame, &scene)?;
+    }
+    let failed = reports.iter().any(|r| {
+        r.error.is_some()
+            || r.calibration
+                .iter()
+                .flat_map(|c| &c.points)
+                .any(|p| p.flagged)
+    });
+    if args.json {
+        let json = serde_json::json!({
+            "grid": grid.as_ref().map(|g| serde_json::json!({
+                "width_cells": g.width,
+                "height_cells": g.height,
+                "resolution_m": g.resolution,
+                "origin_m": [g.origin_x, g.origin_y],
+                "yaw_rad": g.yaw,
+            })),
+            "cameras": reports,
+            "overlay": args.overlay,
+        });
+        println!("{}", serde_json::to_string_pretty(&json)?);
+    } else {
+        print_text(grid.as_ref(), &reports);
+        if let Some(out) = &args.overlay {
+            println!("overlay: {} written", out.display());
+        }
+    }
+    Ok(if failed {
+        ExitCode::from(1)
+    } else {
+        ExitCode::SUCCESS
+    })
+}
+
+/// What `costmap check` found about one camera.
+#[derive(serde::Serialize)]
+struct CameraCheck {
+    id: String,
+    /// Why the floor points do not define a mapping (`camera[i].floor_points: ...`).
+    error: Option<String>,
+    #[serde(flatten)]
+    calibration: Option<Calibration>,
+    /// Analysis frame size, if known.
+    frame_px: Option<[u32; 2]>,
+    /// Where the frame's corners land on the floor (`None`: beyond the horizon).
+    corners: Vec<Corner>,
+    /// Grid cells the camera covers, and their share of the grid.
+    covered_cells: Option<usize>,
+    covered_percent: Option<f64>,
+}
+
+#[derive(serde::Serialize)]
+struct Corner {
+    name: &'static str,
+    image_px: [f64; 2],
+    floor_m: Option<[f64; 2]>,
+}
+
+fn check_camera(
+    loaded: &LoadedConfig,
+    grid: Option<&MapGrid>,
+    i: usize,
+    cam: &CameraConfig,
+    frame: Option<&Frame>,
+) -> CameraCheck {
+    let mut report = CameraCheck {
+        id: cam.id.clone(),
+        error: None,
+        calibration: None,
+        frame_px: None,
+        corners: Vec::new(),
+        covered_cells: None,
+        covered_percent: None,
+    };
+    if cam.floor_points.is_empty() {
+        return report;
+    }
+    let image: Vec<[f64; 2]> = cam.floor_points.iter().map(|p| p.image_px).collect();
+    let floor: Vec<[f64; 2]> = cam.floor_points.iter().map(|p| p.floor_m).collect();
+    let cal = match Calibration::analyse(&image, &floor) {
+        Ok(c) => c,
+        Err(e) => {
+            report.error = Some(format!("camera[{i}].floor_points: {e}"));
+            return report;
+        }
+    };
+    let h = cal.homography;
+    report.calibration = Some(cal);
+    // The frame size: config, else the frame drawn on, else the long-term store's.
+    let config = &loaded.config;
+    let size = match (cam.width, cam.height, frame) {
+        (Some(w), Some(h), _) => Some((w, h, config.motion.block_px)),
+        (_, _, Some(f)) => Some((f.width, f.height, config.motion.block_px)),
+        _ => Store::open_read_only(&store_path(&loaded.state_dir(), &cam.id), &cam.id)
+            .ok()
+            .map(|s| {
+                let g = s.meta().grid;
+                (g.frame_width, g.frame_height, g.block_px)
+            }),
+    };
+    let Some((w, hgt, block_px)) = size else {
+        return report;
+    };
+    report.frame_px = Some([w, hgt]);
+    for (name, p) in [
+        ("top left", [0.0, 0.0]),
+        ("top right", [w as f64, 0.0]),
+        ("bottom right", [w as f64, hgt as f64]),
+        ("bottom left", [0.0, hgt as f64]),
+    ] {
+        report.corners.push(Corner {
+            name,
+            image_px: p,
+            floor_m: h.apply(p),
+        });
+    }
+    if let Some(g) = grid {
+        let blocks = BlockGrid::new(w, hgt, block_px);
+        let fp = Footprint::build(g, &h, blocks, &cam.mask);
+        report.covered_cells = Some(fp.seen);
+        report.covered_percent = Some(100.0 * fp.seen as f64 / g.len().max(1) as f64);
+    }
+    report
+}
+
+fn print_text(grid: Option<&MapGrid>, reports: &[CameraCheck]) {
+    match grid {
         Some(g) => println!(
             "grid: {}x{} cells of {} m, origin ({}, {}) yaw {} rad, covering x {:.2}..{:.2} m, y {:.2}..{:.2} m (yaw 0)",
             g.width,
@@ -123,73 +334,76 @@ fn check(args: CheckArgs) -> anyhow::Result<ExitCode> {
         ),
         None => println!("grid: none configured (planning only, nothing published to ROS 2)"),
     }
-    let mut failed = false;
-    for (i, cam) in config.cameras.iter().enumerate() {
-        let (h, rms) = match Homography::of_camera(cam) {
-            Ok(Some(fit)) => fit,
-            Ok(None) => {
-                println!("{}: no floor_points, not on the cost map", cam.id);
-                continue;
-            }
-            Err(e) => {
-                println!("{}: camera[{i}].floor_points: {e}", cam.id);
-                failed = true;
-                continue;
-            }
+    for r in reports {
+        if let Some(e) = &r.error {
+            println!("{}: {e}", r.id);
+            continue;
+        }
+        let Some(c) = &r.calibration else {
+            println!("{}: no floor_points, not on the cost map", r.id);
+            continue;
         };
         println!(
-            "{}: {} floor points, RMS error {:.3} m at them",
-            cam.id,
-            cam.floor_points.len(),
-            rms
+            "{}: {} floor points, RMS error {:.3} m at them ({:.2} px in the image)",
+            r.id,
+            c.points.len(),
+            c.rms_m,
+            c.rms_px
         );
-        // The frame size: config, else the long-term store's.
-        let size = match (cam.width, cam.height) {
-            (Some(w), Some(h)) => Some((w, h, config.motion.block_px)),
-            _ => Store::open_read_only(&store_path(&loaded.state_dir(), &cam.id), &cam.id)
-                .ok()
-                .map(|s| {
-                    let g = s.meta().grid;
-                    (g.frame_width, g.frame_height, g.block_px)
-                }),
-        };
-        let Some((w, hgt, block_px)) = size else {
+        match (c.loo_rms_m, c.loo_rms_px) {
+            (Some(m), Some(px)) => println!(
+                "  leave-one-out: RMS {m:.3} m ({px:.2} px) at a point the fit did not see"
+            ),
+            _ => println!("  leave-one-out: needs 5 or more points"),
+        }
+        println!(
+            "  point  image px          floor m               residual m   px   leave-one-out m   px"
+        );
+        for p in &c.points {
+            let loo =
+                |v: Option<f64>, prec: usize| v.map_or("-".to_string(), |v| format!("{v:.prec$}"));
+            println!(
+                "  #{:<4} ({:>6.1}, {:>6.1})  ({:>8.3}, {:>8.3})  {:>10.3} {:>6.2} {:>12} {:>6}{}",
+                p.index,
+                p.image_px[0],
+                p.image_px[1],
+                p.floor_m[0],
+                p.floor_m[1],
+                p.residual_m,
+                p.residual_px,
+                loo(p.loo_m, 3),
+                loo(p.loo_px, 2),
+                if p.flagged {
+                    "  <- far above the others: check this tape mark"
+                } else {
+                    ""
+                }
+            );
+        }
+        let Some([w, h]) = r.frame_px else {
             println!(
                 "  frame size unknown (set camera width/height, or let the cascade create its store) — coverage not computed"
             );
             continue;
         };
-        for (name, p) in [
-            ("top left", [0.0, 0.0]),
-            ("top right", [w as f64, 0.0]),
-            ("bottom right", [w as f64, hgt as f64]),
-            ("bottom left", [0.0, hgt as f64]),
-        ] {
-            match h.apply(p) {
+        for corner in &r.corners {
+            let p = corner.image_px;
+            match corner.floor_m {
                 Some(f) => println!(
-                    "  {name} corner ({}, {}) px → ({:.2}, {:.2}) m",
-                    p[0], p[1], f[0], f[1]
+                    "  {} corner ({}, {}) px → ({:.2}, {:.2}) m",
+                    corner.name, p[0], p[1], f[0], f[1]
                 ),
                 None => println!(
-                    "  {name} corner ({}, {}) px → beyond the horizon",
-                    p[0], p[1]
+                    "  {} corner ({}, {}) px → beyond the horizon",
+                    corner.name, p[0], p[1]
                 ),
             }
         }
-        if let Some(g) = &grid {
-            let blocks = BlockGrid::new(w, hgt, block_px);
-            let fp = Footprint::build(g, &h, blocks, &cam.mask);
+        if let (Some(n), Some(pct), Some(g)) = (r.covered_cells, r.covered_percent, grid) {
             println!(
-                "  covers {} of {} grid cells ({:.1} %)",
-                fp.seen,
-                g.len(),
-                100.0 * fp.seen as f64 / g.len().max(1) as f64
+                "  covers {n} of {} grid cells ({pct:.1} %) of the {w}x{h} px view",
+                g.len()
             );
         }
     }
-    Ok(if failed {
-        ExitCode::from(1)
-    } else {
-        ExitCode::SUCCESS
-    })
 }

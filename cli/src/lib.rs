@@ -7,15 +7,20 @@ mod common;
 mod costmap;
 pub mod docs;
 mod doctor;
+mod font;
+mod heatmap;
 mod launch;
+mod overlay;
 mod plan;
 mod plot;
+mod record;
 mod replay;
 mod status;
 mod store;
 mod synth;
 mod tap;
 mod up;
+mod view;
 
 use std::process::ExitCode;
 
@@ -52,6 +57,10 @@ enum Command {
     Plan(plan::Args),
     /// Snapshots of the cost map, and a check of the cameras' floor mappings.
     Costmap(costmap::Args),
+    /// Show the site live in Foxglove (a Foxglove WebSocket server).
+    View(view::Args),
+    /// Record the site's streams into an MCAP file (opens in Foxglove).
+    Record(record::Args),
 }
 
 /// The whole `main` of the `isochron` binary.
@@ -74,6 +83,8 @@ pub fn main() -> ExitCode {
         Command::Plot(args) => plot::run(args),
         Command::Plan(args) => plan::run(args),
         Command::Costmap(args) => costmap::run(args),
+        Command::View(args) => view::run(args),
+        Command::Record(args) => record::run(args),
     };
     match result {
         Ok(code) => code,

@@ -10,8 +10,7 @@
 //! selection of blocks is a [`Selection`], so a later `--segment NAME` (a floor
 //! polygon of the site) adds a variant there, not a new plot.
 //!
-//! Text needs a TrueType font: `$ISOCHRON_FONT`, else DejaVu Sans, Liberation Sans or
-//! Noto Sans from the usual system directories.
+//! Text is drawn with the font inside the binary ([`crate::font`]).
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -23,7 +22,6 @@ use isochron_shared::clock::{Cycle, MINUTES_PER_DAY, format_t_star};
 use isochron_shared::store::Model;
 use plotters::coord::Shift;
 use plotters::prelude::*;
-use plotters::style::{FontStyle, register_font};
 
 use crate::common::{Subcommands, load_config};
 use crate::store::{Selection, StoreArgs, open, profile};
@@ -35,6 +33,8 @@ pub type Args = Subcommands<Command>;
 pub(crate) enum Command {
     /// Activity over the day (PNG or SVG, by the file's extension).
     Daily(DailyArgs),
+    /// Blocks × minute of the day: where and when the view is active (PNG).
+    Heatmap(crate::heatmap::HeatmapArgs),
 }
 
 #[derive(clap::Args)]
@@ -75,6 +75,7 @@ pub(crate) struct DailyArgs {
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     match args.command {
         Command::Daily(a) => daily(a),
+        Command::Heatmap(a) => crate::heatmap::heatmap(a),
     }
 }
 
@@ -278,7 +279,7 @@ fn render(
     title: &str,
 ) -> anyhow::Result<ExitCode> {
     let quiet = daily.quiet_times(day_start, day_end, 3);
-    load_font()?;
+    crate::font::load()?;
     let size = (args.width.clamp(300, 8000), args.height.clamp(200, 8000));
     match format {
         Format::Png => {
@@ -466,46 +467,6 @@ fn runs(values: &[Option<f64>]) -> Vec<std::ops::Range<usize>> {
     out
 }
 
-/// Registers the font for all text, once.
-fn load_font() -> anyhow::Result<()> {
-    static LOADED: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
-    LOADED
-        .get_or_init(|| {
-            let candidates: Vec<PathBuf> = std::env::var_os("ISOCHRON_FONT")
-                .map(PathBuf::from)
-                .into_iter()
-                .chain(
-                    [
-                        "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-                        "/usr/share/fonts/dejavu/DejaVuSans.ttf",
-                        "/usr/share/fonts/TTF/DejaVuSans.ttf",
-                        "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
-                        "/usr/share/fonts/liberation/LiberationSans-Regular.ttf",
-                        "/usr/share/fonts/truetype/noto/NotoSans-Regular.ttf",
-                        "/usr/share/fonts/noto/NotoSans-Regular.ttf",
-                        "/System/Library/Fonts/Supplemental/Arial.ttf",
-                    ]
-                    .map(PathBuf::from),
-                )
-                .collect();
-            for path in &candidates {
-                if let Ok(bytes) = std::fs::read(path) {
-                    // plotters keeps fonts for the life of the process.
-                    let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-                    if register_font("sans-serif", FontStyle::Normal, bytes).is_ok() {
-                        return Ok(());
-                    }
-                }
-            }
-            Err(
-                "no TrueType font found for the plot's text: install one (Debian: fonts-dejavu-core) or set ISOCHRON_FONT=/path/to/font.ttf"
-                    .to_string(),
-            )
-        })
-        .clone()
-        .map_err(anyhow::Error::msg)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -573,7 +534,7 @@ mod tests {
     #[test]
     fn renders_png_and_svg() {
         let dir = tempfile::tempdir().unwrap();
-        load_font().unwrap();
+        crate::font::load().unwrap();
         let daily = office();
         let quiet = daily.quiet_times(360, 1260, 3);
         let png = dir.path().join("a.png");

@@ -10,7 +10,8 @@
 //!   before its end of stream, which replay subscribes to;
 //! * `DIR/events.jsonl`: one object per finished event;
 //! * `DIR/detections.jsonl`: one object per detected frame;
-//! * `DIR/logs/`: each service's log; `DIR/state/`: the long-term store.
+//! * `DIR/logs/`: each service's log; `DIR/state/`: the long-term store;
+//! * with `--record FILE.mcap`: the run as `isochron record` writes it.
 //!
 //! With `--speed max` (the default) delivery is lossless: every stage sees every
 //! sample, and the run goes as fast as the slowest stage.
@@ -35,6 +36,7 @@ use isochron_shared::wire::{ActivityKind, DetectionHeader, EventPhase, Stream, f
 use serde_json::json;
 
 use crate::launch::{ServiceSpec, State, Supervisor, group_specs, installed_stages};
+use crate::record::Recorder;
 
 /// Run the whole group on a video file and write what every stage produced.
 #[derive(clap::Args)]
@@ -60,6 +62,10 @@ pub struct Args {
     /// Give up if no stage makes progress for this many seconds.
     #[arg(long, default_value_t = 120.0)]
     stall_timeout_s: f64,
+    /// Also record the run into this MCAP file, as `isochron record` does (opens in
+    /// Foxglove; images only with `view.frames = true`).
+    #[arg(long)]
+    record: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -88,6 +94,16 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
     let ipc = Ipc::of_site("isochron-replay", &loaded.config)?;
     let subscribers = Subscribers::open(&ipc, &camera, &stages)?;
+    let mut recorder = match &args.record {
+        Some(path) => Some(Recorder::start(
+            &ipc,
+            &loaded,
+            path,
+            crate::record::streams_of(None, &loaded)?,
+        )?),
+        None => None,
+    };
+    let mut recording_failed = false;
     let mut tally = Tally::new(&camera, &subscribers, &out)?;
 
     let specs = group_specs(&loaded);
@@ -128,6 +144,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             Duration::from_millis(100),
         );
         tally.drain(&subscribers)?;
+        if let Some(r) = &mut recorder
+            && r.poll()?
+        {
+            // The disk runs low: the recording ends here, cleanly; the replay goes on.
+            recording_failed =
+                recorder.take().map(Recorder::finish).transpose()? != Some(ExitCode::SUCCESS);
+        }
         if let Some(status) = capture_status.latest() {
             capture_detail = Some(fixed_str(&status.detail));
         }
@@ -167,6 +190,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let wall = started.elapsed();
     drop(guards);
     supervisor.stop_all(Duration::from_secs(10));
+    if let Some(mut r) = recorder {
+        r.poll()?;
+        recording_failed |= r.finish()? != ExitCode::SUCCESS;
+    }
     let input = capture_detail
         .as_deref()
         .and_then(InputCompleteness::from_detail);
@@ -185,6 +212,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             isochron_shared::exit::DATA
         );
         return Ok(ExitCode::from(isochron_shared::exit::DATA as u8));
+    }
+    if recording_failed {
+        return Ok(ExitCode::from(1));
     }
     Ok(ExitCode::SUCCESS)
 }

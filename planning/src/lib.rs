@@ -9,6 +9,8 @@
 //!
 //! * [`homography`]: image → floor from a camera's `floor_points` (normalised DLT,
 //!   least squares, degenerate sets refused);
+//! * [`calibration`]: per-point and leave-one-out residuals of that fit, and the
+//!   point that stands out;
 //! * [`grid`]: the map grid (from `[costmap]` or a `map_server` YAML);
 //! * [`raster`]: which block of a camera covers each grid cell;
 //! * [`cost`]: weighted activity → cost 0..100, and the composed cost map;
@@ -20,6 +22,7 @@
 
 #![warn(missing_docs)]
 
+pub mod calibration;
 pub mod cost;
 pub mod grid;
 pub mod homography;

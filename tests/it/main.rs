@@ -21,3 +21,4 @@ mod presence;
 mod reliability;
 mod scale;
 mod systemd;
+mod view;

@@ -166,6 +166,10 @@ const CYCLONEDDS: &str = "cyclonedds==11.0.1";
 /// for the test of the gate's OpenCV dnn path (no model is downloaded).
 const ONNX: &str = "onnx==1.17.0";
 
+/// The other Python test peers: an independent MCAP reader and WebSocket client
+/// for `tests/it/view.rs` (recordings and the live Foxglove view).
+const PY_PEERS: &[(&str, &str)] = &[("mcap", "1.6.0"), ("websockets", "17.4")];
+
 /// Makes `target/ros2-venv`, a Python venv with [`CYCLONEDDS`], for
 /// `tests/it/costmap.rs` (an independent ROS 2 subscriber: no ROS install needed),
 /// and [`ONNX`], for `tests/it/gate.rs`.
@@ -176,7 +180,13 @@ fn ros2_venv(root: &Path) -> anyhow::Result<()> {
     let ready = Command::new(&python)
         .args([
             "-c",
-            &format!("import importlib.metadata as m, cyclonedds.domain, onnx; assert m.version('cyclonedds') == '{version}'"),
+            &format!(
+                "import importlib.metadata as m, cyclonedds.domain, onnx; assert m.version('cyclonedds') == '{version}'{}",
+                PY_PEERS
+                    .iter()
+                    .map(|(p, v)| format!("; assert m.version('{p}') == '{v}'"))
+                    .collect::<String>()
+            ),
         ])
         .output()
         .is_ok_and(|o| o.status.success());
@@ -205,15 +215,18 @@ fn ros2_venv(root: &Path) -> anyhow::Result<()> {
     );
     let _ = std::fs::remove_dir_all(&venv);
     run(Command::new("python3").arg("-m").arg("venv").arg(&venv))?;
-    run(Command::new(&python).args([
-        "-m",
-        "pip",
-        "install",
-        "--quiet",
-        "--only-binary=:all:",
-        CYCLONEDDS,
-        ONNX,
-    ]))
+    let peers: Vec<String> = PY_PEERS.iter().map(|(p, v)| format!("{p}=={v}")).collect();
+    run(Command::new(&python)
+        .args([
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--only-binary=:all:",
+            CYCLONEDDS,
+            ONNX,
+        ])
+        .args(&peers))
 }
 
 /// Fetches `data/vtest.avi` from Debian's opencv-doc package (downloaded, not

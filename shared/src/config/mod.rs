@@ -20,6 +20,7 @@ mod motion;
 mod site;
 #[cfg(test)]
 mod tests;
+mod view;
 
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -40,6 +41,7 @@ pub use gate::{DetectorConfig, GateConfig};
 pub use ipc::IpcConfig;
 pub use motion::{MotionBackend, MotionConfig};
 pub use site::SiteConfig;
+pub use view::ViewConfig;
 
 /// A configuration error located in its file.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -108,6 +110,8 @@ pub struct Config {
     /// The Prometheus exporter; absent: `isochron up` and `replay` do not start it.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub exporter: Option<ExporterConfig>,
+    /// The live view (`isochron view`) and recordings (`isochron record`).
+    pub view: ViewConfig,
 }
 
 /// A loaded configuration and where it came from.
@@ -275,7 +279,8 @@ impl Config {
             exporter.validate()?;
         }
         camera::validate_cameras(&self.cameras)?;
-        self.costmap.validate(&self.cameras)
+        self.costmap.validate(&self.cameras)?;
+        self.view.validate()
     }
 }
 

@@ -262,3 +262,26 @@ fn speed_bands_give_nav2_mask_values() {
     .unwrap_err();
     assert_eq!(err.key.as_deref(), Some("costmap.speed_crowded_from_cost"));
 }
+
+#[test]
+fn view_is_off_and_on_loopback_by_default_and_checked() {
+    let c = parse(GOOD).unwrap();
+    assert!(!c.view.frames, "no pixel leaves the box by default");
+    assert_eq!(c.view.listen, "127.0.0.1:8765");
+    let on = parse(&format!(
+        "{GOOD}\n[view]\nframes = true\nframe_rate_hz = 1\n"
+    ))
+    .unwrap();
+    assert!(on.view.frames);
+    assert_eq!(on.view.frame_rate_hz, 1.0);
+    let err = parse(&format!("{GOOD}\n[view]\nlisten = \"localhost\"\n")).unwrap_err();
+    let line = GOOD.lines().count() + 3;
+    assert!(
+        err.to_string().starts_with(&format!(
+            "site.toml:{line}: key `view.listen`: expected an IP address and port"
+        )),
+        "{err}"
+    );
+    let err = parse(&format!("{GOOD}\n[view]\nframe_rate_hz = 0\n")).unwrap_err();
+    assert!(err.to_string().contains("view.frame_rate_hz"), "{err}");
+}

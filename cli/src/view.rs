@@ -1,0 +1,68 @@
+//! `isochron view --config site.toml [--listen ADDR]`: the site live in Foxglove —
+//! a Foxglove WebSocket server (subprotocol `foxglove.sdk.v1`, the renamed
+//! `foxglove.websocket.v1`) with the same channels as
+//! `isochron record` ([`isochron_view::channels`]). Listens on `view.listen`
+//! (default 127.0.0.1:8765, loopback) unless `--listen` says otherwise. Open
+//! Foxglove, "Open connection", `ws://127.0.0.1:8765`.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{Context as _, bail};
+use isochron_shared::ipc::Ipc;
+use isochron_view::Context;
+use isochron_view::channels::SiteChannels;
+use isochron_view::follow::{Follower, Streams};
+
+use crate::common::load_config;
+
+/// Show the site live in Foxglove (WebSocket server).
+#[derive(clap::Args)]
+pub struct Args {
+    /// Site configuration (default: $ISOCHRON_CONFIG or /etc/isochron/isochron.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Address and port to listen on (default: `view.listen`, 127.0.0.1:8765). A
+    /// non-loopback address makes the view reachable from the network.
+    #[arg(long)]
+    listen: Option<String>,
+}
+
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let loaded = load_config(args.config)?;
+    let listen = args.listen.as_deref().unwrap_or(&loaded.config.view.listen);
+    let Ok(addr) = listen.parse::<SocketAddr>() else {
+        bail!("--listen: expected an IP address and port such as 127.0.0.1:8765, found '{listen}'");
+    };
+    let ctx = Context::new();
+    let mut channels = SiteChannels::new(&loaded, &ctx)?;
+    // The port first: a taken one fails before joining the group.
+    let server = isochron_view::live::serve(&ctx, addr, &loaded.config.site.name)?;
+    let ipc = Ipc::of_site(
+        &format!("isochron-view-{}", std::process::id()),
+        &loaded.config,
+    )?;
+    let mut follower = Follower::open(&ipc, &loaded, &channels, Streams::all(&loaded))?;
+    println!(
+        "view: Foxglove WebSocket on ws://{addr} (images {})",
+        if loaded.config.view.frames {
+            "on"
+        } else {
+            "off: view.frames = false"
+        }
+    );
+    if !addr.ip().is_loopback() {
+        eprintln!("isochron view: listening on {addr}, reachable from the network");
+    }
+    while !ipc.should_stop() {
+        follower
+            .poll(&mut channels)
+            .context("reading the streams")?;
+        follower.wait(Duration::from_millis(50));
+    }
+    // Clients are dropped with the process; nothing to wait for.
+    server.stop().detach_all();
+    Ok(ExitCode::SUCCESS)
+}

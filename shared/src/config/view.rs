@@ -1,0 +1,58 @@
+//! `[view]`: what `isochron view` (live, Foxglove WebSocket) and `isochron record`
+//! (MCAP files) show of the site.
+
+use std::net::SocketAddr;
+
+use serde::{Deserialize, Serialize};
+
+use super::{Invalid, check_range};
+
+/// `[view]`: the live view and recordings.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ViewConfig {
+    /// Publish the cameras' images (downscaled JPEG) in the live view and in
+    /// recordings. Default `false`: no pixel leaves the box unless the site says so.
+    pub frames: bool,
+    /// Most images per second per camera, when `frames` is on. Default 2.
+    pub frame_rate_hz: f64,
+    /// Longest side of a published image, pixels (larger frames are scaled down by
+    /// a whole factor). Default 640.
+    pub frame_max_px: u32,
+    /// JPEG quality of published images, 1..=100. Default 75.
+    pub jpeg_quality: u8,
+    /// Address `isochron view` listens on. Default `"127.0.0.1:8765"`, loopback: a
+    /// non-loopback address is the site's explicit choice.
+    pub listen: String,
+}
+
+impl Default for ViewConfig {
+    fn default() -> Self {
+        ViewConfig {
+            frames: false,
+            frame_rate_hz: 2.0,
+            frame_max_px: 640,
+            jpeg_quality: 75,
+            listen: "127.0.0.1:8765".into(),
+        }
+    }
+}
+
+impl ViewConfig {
+    /// Checks the `view.*` keys.
+    pub(super) fn validate(&self) -> Result<(), Invalid> {
+        check_range("view.frame_rate_hz", self.frame_rate_hz, 0.01, 30.0)?;
+        check_range("view.frame_max_px", self.frame_max_px as f64, 16.0, 8192.0)?;
+        check_range("view.jpeg_quality", self.jpeg_quality as f64, 1.0, 100.0)?;
+        if self.listen.parse::<SocketAddr>().is_err() {
+            return Err(Invalid::new(
+                "view.listen",
+                format!(
+                    "expected an IP address and port such as \"127.0.0.1:8765\", found \"{}\"",
+                    self.listen
+                ),
+            ));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,608 @@
+//! Looking at what isochron sees: the calibration overlay of `isochron costmap
+//! check --overlay`, drawn on a real frame of vtest.avi with the demo site's
+//! calibration; MCAP recordings read by the Python `mcap` package; the live
+//! Foxglove view, with a Python `websockets` client.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use isochron_tests::{Proc, TestSite, bin, repo_root, setup_file, vtest};
+use serde_json::Value;
+
+/// config/demo.toml without its `[site]` section (the test site has its own), the
+/// video at its absolute path; `edit` may change the text.
+fn demo_site(name: &str, edit: impl Fn(String) -> String) -> TestSite {
+    let text = std::fs::read_to_string(repo_root().join("config/demo.toml")).unwrap();
+    let body = &text[text.find("[[camera]]").expect("demo has a camera")..];
+    let body = body.replace(
+        "source = \"../data/vtest.avi\"",
+        &format!("source = \"{}\"", vtest().display()),
+    );
+    TestSite::new(name, &edit(body))
+}
+
+/// Width and height from a PNG's IHDR chunk.
+fn png_size(path: &Path) -> (u32, u32) {
+    let bytes = std::fs::read(path).unwrap();
+    assert_eq!(
+        &bytes[..8],
+        b"\x89PNG\r\n\x1a\n",
+        "{} is a PNG",
+        path.display()
+    );
+    assert_eq!(&bytes[12..16], b"IHDR");
+    let be = |b: &[u8]| u32::from_be_bytes(b.try_into().unwrap());
+    (be(&bytes[16..20]), be(&bytes[20..24]))
+}
+
+fn check(site: &TestSite, extra: &[&str]) -> (Option<i32>, Value, String) {
+    let config = site.config_path().display().to_string();
+    let mut args = vec!["costmap", "check", "--config", &config, "--camera", "cam01"];
+    args.extend_from_slice(extra);
+    args.push("--json");
+    let done = site.isochron(&args, Duration::from_secs(60));
+    let json = serde_json::from_str(&done.stdout)
+        .unwrap_or_else(|e| panic!("{e}: not JSON:\n{}\nstderr:\n{}", done.stdout, done.stderr));
+    (done.status.code(), json, done.stderr)
+}
+
+#[test]
+fn overlay_of_the_demo_camera_has_the_frame_size_and_the_known_error() {
+    let site = demo_site("overlay", |b| b);
+    let out = site.path("overlay.png");
+    let (code, json, stderr) = check(&site, &["--overlay", out.to_str().unwrap()]);
+    assert_eq!(code, Some(0), "{stderr}");
+    // vtest.avi is 768×576, and the demo sets no analysis size.
+    assert_eq!(png_size(&out), (768, 576));
+    let cam = &json["cameras"][0];
+    assert_eq!(cam["frame_px"], serde_json::json!([768, 576]));
+    let points = cam["points"].as_array().unwrap();
+    assert_eq!(points.len(), 12);
+    // The calibration's known error: the lens distortion a homography cannot model
+    // leaves about 0.1 m (config/demo.toml), a pixel or two in the image.
+    let rms_m = cam["rms_m"].as_f64().unwrap();
+    let rms_px = cam["rms_px"].as_f64().unwrap();
+    assert!((0.03..0.15).contains(&rms_m), "RMS {rms_m} m");
+    assert!((0.5..3.0).contains(&rms_px), "RMS {rms_px} px");
+    let per_point =
+        |key: &str| -> Vec<f64> { points.iter().map(|p| p[key].as_f64().unwrap()).collect() };
+    let residual_m = per_point("residual_m");
+    let mean_sq = residual_m.iter().map(|r| r * r).sum::<f64>() / 12.0;
+    assert!((mean_sq.sqrt() - rms_m).abs() < 1e-9);
+    assert!(residual_m.iter().all(|&r| r < 0.15), "{residual_m:?}");
+    assert!(per_point("residual_px").iter().all(|&r| r < 3.0));
+    // Leaving a point out costs accuracy at it, but not much in a good set.
+    let loo = cam["loo_rms_m"].as_f64().unwrap();
+    assert!(loo > rms_m && loo < 0.3, "leave-one-out {loo} m");
+    assert!(points.iter().all(|p| p["flagged"] == false));
+
+    // The overlay itself is an image OpenCV reads back as a frame to draw on.
+    let again = site.path("again.png");
+    let (code, _, stderr) = check(
+        &site,
+        &[
+            "--overlay",
+            again.to_str().unwrap(),
+            "--frame",
+            out.to_str().unwrap(),
+        ],
+    );
+    assert_eq!(code, Some(0), "{stderr}");
+    assert_eq!(png_size(&again), (768, 576));
+}
+
+#[test]
+fn overlay_scales_the_frame_to_the_analysis_size() {
+    // The analysis size is half the video's; the floor points are halved with it.
+    let site = demo_site("overlay-half", |b| {
+        let mut out = b.replace("loop = true", "loop = true\nwidth = 384\nheight = 288");
+        for (x, y) in [(40, 180), (270, 180), (500, 180), (730, 180)]
+            .into_iter()
+            .chain([(40, 330), (270, 330), (500, 330), (730, 330)])
+            .chain([(40, 560), (270, 560), (500, 560), (730, 560)])
+        {
+            out = out.replace(
+                &format!("image_px = [{x}, {y}]"),
+                &format!("image_px = [{}, {}]", x as f64 / 2.0, y as f64 / 2.0),
+            );
+        }
+        out
+    });
+    let out = site.path("half.png");
+    let (code, json, stderr) = check(&site, &["--overlay", out.to_str().unwrap()]);
+    assert_eq!(code, Some(0), "{stderr}");
+    assert_eq!(png_size(&out), (384, 288));
+    let rms_px = json["cameras"][0]["rms_px"].as_f64().unwrap();
+    assert!(
+        (0.25..1.5).contains(&rms_px),
+        "RMS {rms_px} px at half size"
+    );
+}
+
+#[test]
+fn a_wrong_tape_mark_is_flagged() {
+    // Point 5 measured 2 m off along x.
+    let site = demo_site("overlay-outlier", |b| {
+        b.replace("floor_m = [-12.51, -6.441]", "floor_m = [-10.51, -6.441]")
+    });
+    let out = site.path("outlier.png");
+    let (code, json, _) = check(&site, &["--overlay", out.to_str().unwrap()]);
+    assert_eq!(code, Some(1), "a point that stands out fails the check");
+    let flagged: Vec<u64> = json["cameras"][0]["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|p| p["flagged"] == true)
+        .map(|p| p["index"].as_u64().unwrap())
+        .collect();
+    assert_eq!(flagged, vec![5]);
+    assert_eq!(
+        png_size(&out),
+        (768, 576),
+        "the overlay is drawn all the same"
+    );
+    // And the text says which.
+    let config = site.config_path().display().to_string();
+    let done = site.isochron(
+        &["costmap", "check", "--config", &config, "--camera", "cam01"],
+        Duration::from_secs(60),
+    );
+    let line = done
+        .stdout
+        .lines()
+        .find(|l| l.contains("far above the others"))
+        .unwrap_or_else(|| panic!("no flagged point in:\n{}", done.stdout));
+    assert!(line.trim_start().starts_with("#5 "), "{line}");
+}
+
+#[test]
+fn bad_overlay_input_is_one_clear_line() {
+    let site = demo_site("overlay-bad", |b| b);
+    let config = site.config_path().display().to_string();
+    let png = site.path("x.png").display().to_string();
+    let not_video = site.config_path().display().to_string();
+    for (args, expect) in [
+        (
+            vec!["--camera", "cam09", "--overlay", &png],
+            "no camera 'cam09'",
+        ),
+        (
+            vec!["--camera", "cam01", "--overlay", "/nonexistent/dir/x.png"],
+            "--overlay /nonexistent/dir/x.png: cannot write",
+        ),
+        (
+            vec![
+                "--camera",
+                "cam01",
+                "--overlay",
+                &png,
+                "--frame",
+                &not_video,
+            ],
+            "not a video or image",
+        ),
+        (
+            vec![
+                "--camera",
+                "cam01",
+                "--overlay",
+                &png,
+                "--frame",
+                "/nonexistent.avi",
+            ],
+            "--frame /nonexistent.avi: no such file",
+        ),
+    ] {
+        let mut all = vec!["costmap", "check", "--config", &config];
+        all.extend(args);
+        let done = site.isochron(&all, Duration::from_secs(60));
+        assert_eq!(done.status.code(), Some(1), "{all:?}: {}", done.stderr);
+        let lines: Vec<&str> = done.stderr.lines().collect();
+        assert_eq!(lines.len(), 1, "{all:?}: {}", done.stderr);
+        assert!(lines[0].contains(expect), "{all:?}: {}", done.stderr);
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Recordings and the live view: checked by independent Python peers (the `mcap`
+// reader and a `websockets` client speaking foxglove.sdk.v1), from the venv
+// `cargo xtask setup` makes.
+
+/// The venv's Python with `mcap` and `websockets`.
+fn python() -> PathBuf {
+    let path = setup_file(
+        "ISOCHRON_ROS2_PYTHON",
+        "target/ros2-venv/bin/python3",
+        "(it makes a Python venv with the mcap and websockets packages)",
+    );
+    let ok = std::process::Command::new(&path)
+        .args(["-c", "import mcap.reader, websockets"])
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(
+        ok,
+        "{} cannot import mcap and websockets: run `cargo xtask setup` again",
+        path.display()
+    );
+    path
+}
+
+/// What `tests/view/mcap_summary.py` reads in `file`.
+fn mcap_summary(file: &Path) -> Value {
+    let out = std::process::Command::new(python())
+        .arg(repo_root().join("tests/view/mcap_summary.py"))
+        .arg(file)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "the MCAP reader failed on {}: {}",
+        file.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// The channel of `topic` in a summary.
+fn channel<'a>(summary: &'a Value, topic: &str) -> Option<&'a Value> {
+    summary["channels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["topic"] == topic)
+}
+
+/// Runs `isochron replay` of vtest on `site` with `--record file` (and `extra`).
+fn replay_recorded(site: &TestSite, file: &Path, extra: &[&str]) -> isochron_tests::Finished {
+    let video = vtest().display().to_string();
+    let out = site.path("replay").display().to_string();
+    let config = site.config_path().display().to_string();
+    let mut args = vec![
+        "replay",
+        &video,
+        "--out",
+        &out,
+        "--config",
+        &config,
+        "--record",
+        file.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    site.isochron(&args, Duration::from_secs(600))
+}
+
+#[test]
+fn a_recording_of_the_demo_video_opens_in_an_independent_mcap_reader() {
+    let site = demo_site("record", |b| b);
+    let file = site.path("run.mcap");
+    let done = replay_recorded(&site, &file, &[]);
+    assert!(done.status.success(), "{}\n{}", done.stdout, done.stderr);
+    let summary = mcap_summary(&file);
+    assert_eq!(summary["has_summary"], true, "closed cleanly: {summary}");
+    assert_eq!(summary["compression"], serde_json::json!(["lz4"]));
+    assert!(summary["chunks"].as_u64().unwrap() >= 1);
+    assert_eq!(summary["messages_read"], summary["message_count"]);
+    for (topic, schema) in [
+        ("/costmap", "foxglove.Grid"),
+        ("/scene", "foxglove.SceneUpdate"),
+        ("/cam01/activity", "foxglove.Grid"),
+        ("/cam01/events", "foxglove.Log"),
+        ("/cam01/detections", "foxglove.ImageAnnotations"),
+    ] {
+        let ch = channel(&summary, topic).unwrap_or_else(|| panic!("no {topic}: {summary}"));
+        assert_eq!(ch["schema"], schema, "{ch}");
+        assert_eq!(ch["schema_encoding"], "protobuf", "{ch}");
+        assert_eq!(ch["message_encoding"], "protobuf", "{ch}");
+        assert!(ch["count"].as_u64().unwrap() > 0, "{ch}");
+        // The recorder's own count of the topic is what the reader found.
+        let line = format!("  {topic}: {}", ch["count"]);
+        assert!(done.stdout.contains(&line), "{line} in\n{}", done.stdout);
+    }
+    // vtest is ~80 s at 10 fps: an activity sample per second, a cost map each time.
+    let activity = channel(&summary, "/cam01/activity").unwrap()["count"]
+        .as_u64()
+        .unwrap();
+    assert!((70..=90).contains(&activity), "{activity} activity samples");
+    assert_eq!(channel(&summary, "/costmap").unwrap()["count"], activity);
+    // The 320 × 300 cell grid of the demo, one int8 per cell (+ the message around it).
+    assert!(
+        channel(&summary, "/costmap").unwrap()["first_message_bytes"]
+            .as_u64()
+            .unwrap()
+            > 96_000
+    );
+    assert!(
+        channel(&summary, "/cam01/image").is_none(),
+        "no images unless view.frames = true: {summary}"
+    );
+}
+
+/// A free TCP port on loopback.
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// What `tests/view/ws_client.py` gets from `port` on `topic` (up to `want`).
+fn ws_client(port: u16, topic: &str, want: u32, timeout_s: u32) -> Value {
+    let out = std::process::Command::new(python())
+        .arg(repo_root().join("tests/view/ws_client.py"))
+        .arg(format!("ws://127.0.0.1:{port}"))
+        .arg(topic)
+        .arg(want.to_string())
+        .arg(timeout_s.to_string())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "the WebSocket client failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+#[test]
+fn the_live_view_serves_foxglove_clients_during_a_replay() {
+    // Images on for this site; the replay's effective config (its private prefix)
+    // is what the view and the recorder join.
+    // Two views and a recorder join the group: room for them.
+    let site = demo_site("live", |b| {
+        format!("[ipc]\nmax_subscribers = 8\n\n{b}\n[view]\nframes = true\n")
+    });
+    let video = vtest().display().to_string();
+    let out = site.path("replay");
+    let config = site.config_path().display().to_string();
+    let mut replay = Proc::spawn(
+        &bin("isochron"),
+        &[
+            "replay",
+            &video,
+            "--out",
+            out.to_str().unwrap(),
+            "--config",
+            &config,
+            "--speed",
+            "1",
+        ],
+    );
+    assert!(
+        replay
+            .wait_for_line("replay:", Duration::from_secs(120))
+            .is_some(),
+        "replay did not start: {}",
+        replay.stderr()
+    );
+    let with_frames = out.join("config.toml");
+    let text = std::fs::read_to_string(&with_frames).unwrap();
+    assert!(text.contains("frames = true"), "{text}");
+    let without = site.path("no-frames.toml");
+    std::fs::write(&without, text.replace("frames = true", "frames = false")).unwrap();
+
+    let (p1, p2) = (free_port(), free_port());
+    let view = |config: &Path, port: u16| {
+        Proc::spawn(
+            &bin("isochron"),
+            &[
+                "view",
+                "--config",
+                config.to_str().unwrap(),
+                "--listen",
+                &format!("127.0.0.1:{port}"),
+            ],
+        )
+    };
+    let mut with = view(&with_frames, p1);
+    let mut plain = view(&without, p2);
+    for v in [&mut with, &mut plain] {
+        assert!(
+            v.wait_for_line("view: Foxglove WebSocket", Duration::from_secs(30))
+                .is_some(),
+            "view did not start: {}",
+            v.stderr()
+        );
+    }
+    // A recorder on the same group, for a few seconds, with images.
+    let mcap = site.path("live.mcap");
+    let mut record = Proc::spawn(
+        &bin("isochron"),
+        &[
+            "record",
+            "--config",
+            with_frames.to_str().unwrap(),
+            "--out",
+            mcap.to_str().unwrap(),
+            "--duration",
+            "6",
+        ],
+    );
+
+    // Without images: the cost map arrives, no image channel is advertised.
+    let got = ws_client(p2, "/costmap", 3, 40);
+    assert_eq!(got["subprotocol"], "foxglove.sdk.v1", "{got}");
+    assert!(got["server"].is_string(), "serverInfo: {got}");
+    let channels = got["channels"].as_object().unwrap();
+    for (topic, schema) in [
+        ("/costmap", "foxglove.Grid"),
+        ("/scene", "foxglove.SceneUpdate"),
+        ("/cam01/activity", "foxglove.Grid"),
+        ("/cam01/events", "foxglove.Log"),
+        ("/cam01/detections", "foxglove.ImageAnnotations"),
+    ] {
+        assert_eq!(channels[topic]["schema"], schema, "{got}");
+    }
+    assert!(!channels.contains_key("/cam01/image"), "{got}");
+    assert_eq!(got["received"], 3, "{got}");
+    assert!(got["first_bytes"].as_u64().unwrap() > 96_000, "{got}");
+
+    // With images: JPEGs at most 2 per second.
+    let got = ws_client(p1, "/cam01/image", 2, 30);
+    assert_eq!(
+        channels_schema(&got, "/cam01/image"),
+        "foxglove.CompressedImage"
+    );
+    assert_eq!(got["received"], 2, "{got}");
+
+    // A second view on a taken port: one line, non-zero exit.
+    let mut taken = view(&with_frames, p1);
+    let status = taken.wait(Duration::from_secs(30)).expect("exits");
+    assert!(!status.success());
+    let err = taken.stderr();
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.contains(&format!("--listen 127.0.0.1:{p1}")) && err.contains("in use"),
+        "{err}"
+    );
+
+    let finished = record.finish(Duration::from_secs(30));
+    assert!(finished.status.success(), "{}", finished.stderr);
+    let summary = mcap_summary(&mcap);
+    let image = channel(&summary, "/cam01/image").unwrap_or_else(|| panic!("{summary}"));
+    assert_eq!(image["schema"], "foxglove.CompressedImage");
+    let n = image["count"].as_u64().unwrap();
+    assert!(
+        (4..=14).contains(&n),
+        "{n} images in 6 s at most 2 per second"
+    );
+    drop(replay);
+}
+
+fn channels_schema(got: &Value, topic: &str) -> String {
+    got["channels"][topic]["schema"]
+        .as_str()
+        .unwrap_or_else(|| panic!("{topic} not advertised: {got}"))
+        .to_string()
+}
+
+#[test]
+fn a_recorder_whose_disk_fills_closes_the_file_cleanly() {
+    // A 5 MiB file system: the recorder stops at 4 MiB free, with ~1 MiB written.
+    let site = demo_site("record-full", |b| format!("{b}\n[view]\nframes = true\n"));
+    let mnt = site.path("small");
+    std::fs::create_dir(&mnt).unwrap();
+    let mounted = std::process::Command::new("mount")
+        .args(["-t", "tmpfs", "-o", "size=5m", "tmpfs"])
+        .arg(&mnt)
+        .status()
+        .is_ok_and(|s| s.success());
+    if !mounted {
+        eprintln!("SKIPPED: mounting a tmpfs needs root");
+        return;
+    }
+    struct Unmount(PathBuf);
+    impl Drop for Unmount {
+        fn drop(&mut self) {
+            let _ = std::process::Command::new("umount").arg(&self.0).status();
+        }
+    }
+    let _unmount = Unmount(mnt.clone());
+    let file = mnt.join("run.mcap");
+    let done = replay_recorded(&site, &file, &[]);
+    assert_eq!(
+        done.status.code(),
+        Some(1),
+        "{}\n{}",
+        done.stdout,
+        done.stderr
+    );
+    assert!(
+        done.stderr
+            .contains("recording closed early (the file is complete and readable)"),
+        "{}",
+        done.stderr
+    );
+    // The replay itself finished: its summary is there.
+    assert!(site.path("replay/summary.json").is_file());
+    let summary = mcap_summary(&file);
+    assert_eq!(summary["has_summary"], true, "{summary}");
+    assert_eq!(summary["messages_read"], summary["message_count"]);
+    assert!(summary["messages_read"].as_u64().unwrap() > 0);
+    let size = std::fs::metadata(&file).unwrap().len();
+    assert!(
+        size < 2 << 20,
+        "{size} bytes on a 5 MiB disk with 4 MiB reserve"
+    );
+}
+
+// ---------------------------------------------------------------------------
+// Heat maps of the long-term store.
+
+/// A store of `camera` (320×240 in 16-px blocks): the top half of the view busy
+/// from 08:00 to 18:00 (0.04), the bottom half a little (0.01), nights unlearned.
+fn heat_store(path: &Path, camera: &str) {
+    use isochron_shared::clock::Cycle;
+    use isochron_shared::geometry::BlockGrid;
+    use isochron_shared::store::{Bin, MinuteCommit, Store, StoreMeta};
+    let meta = StoreMeta::new(camera, BlockGrid::new(320, 240, 16), Cycle::Daily, 0);
+    let mut store = Store::open_or_create(path, &meta).unwrap();
+    for t in 6 * 60..20 * 60 {
+        let mean: Vec<f32> = (0..300)
+            .map(|b| {
+                if b < 150 && (8 * 60..18 * 60).contains(&t) {
+                    0.04
+                } else {
+                    0.01
+                }
+            })
+            .collect();
+        let bin = Bin {
+            t_star: t,
+            count: 7,
+            last_minute: t as i64,
+            var: vec![0.0; 300],
+            mean,
+        };
+        store
+            .commit_minute(&MinuteCommit {
+                minute: t as i64,
+                bin: Some(&bin),
+                baseline: None,
+            })
+            .unwrap();
+    }
+}
+
+#[test]
+fn a_heat_map_draws_blocks_by_minute_of_day() {
+    let site = TestSite::new("heatmap", "");
+    let store = site.path("cam01.isochron.sqlite");
+    heat_store(&store, "cam01");
+    let out = site.path("heat.png");
+    let store_arg = store.display().to_string();
+    let plot = |camera: &str, out: &str| {
+        site.isochron(
+            &[
+                "plot", "heatmap", "--store", &store_arg, "--camera", camera, "--out", out,
+            ],
+            Duration::from_secs(60),
+        )
+    };
+    let done = plot("cam01", out.to_str().unwrap());
+    assert!(done.status.success(), "{}", done.stderr);
+    // 300 blocks in 300 rows of 1 px... scaled to 1 px each; 720 two-minute columns.
+    assert!(
+        done.stdout.contains("300 rows × 1440 minutes"),
+        "{}",
+        done.stdout
+    );
+    assert!(
+        done.stdout.contains("colour scale 0..0.0400"),
+        "{}",
+        done.stdout
+    );
+    let (w, h) = png_size(&out);
+    assert_eq!((w, h), (80 + 720 + 110, 50 + 300 + 50));
+
+    // A store of another camera, and an output that is not a PNG: one line each.
+    for (camera, out, expect) in [
+        ("cam02", out.to_str().unwrap(), "cam01"),
+        ("cam01", "/tmp/heat.svg", "expected a .png file name"),
+    ] {
+        let done = plot(camera, out);
+        assert_eq!(done.status.code(), Some(1), "{}", done.stderr);
+        assert_eq!(done.stderr.lines().count(), 1, "{}", done.stderr);
+        assert!(done.stderr.contains(expect), "{}", done.stderr);
+    }
+}

@@ -1,0 +1,571 @@
+//! The site as Foxglove channels: every topic, its well-known schema, and how an
+//! isochron sample becomes a message. The live view and the recorder both publish
+//! through [`SiteChannels`]; only the sink differs (a WebSocket server or an MCAP
+//! file, attached to the same [`Context`]).
+//!
+//! | topic | schema | from |
+//! |---|---|---|
+//! | `/costmap` | `foxglove.Grid` (`cost`, int8, -1 unknown) in `costmap.frame_id` | the `activity` of every camera with floor points, composed as the bridge does (without the detections' confirmed people) |
+//! | `/scene` | `foxglove.SceneUpdate` in `costmap.frame_id` | route segments and camera footprints on the floor (config), re-sent every 5 s |
+//! | `/<camera>/activity` | `foxglove.Grid` (`s1`, `s2`, `lt_mean`, float32) in frame `<camera>`, cell = one block in pixels | `activity` |
+//! | `/<camera>/events` | `foxglove.Log` | `events` |
+//! | `/<camera>/detections` | `foxglove.ImageAnnotations` (boxes and scores, in the published image's pixels) | `detections` |
+//! | `/<camera>/image` | `foxglove.CompressedImage` (JPEG) | `frames`, only with `view.frames = true`, at most `view.frame_rate_hz` |
+//!
+//! Message time (the MCAP log time) is the samples' capture time.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use foxglove::messages::{
+    Color, CompressedImage, Grid, ImageAnnotations, LinePrimitive, Log, PackedElementField, Point2,
+    Point3, PointsAnnotation, Pose, Quaternion, SceneEntity, SceneUpdate, TextAnnotation,
+    TextPrimitive, Timestamp, Vector2, Vector3,
+};
+use foxglove::{Channel, Context};
+use isochron_planning::cost::{CostParams, Layer, compose};
+use isochron_planning::grid::MapGrid;
+use isochron_planning::homography::Homography;
+use isochron_planning::raster::Footprint;
+use isochron_shared::config::{LoadedConfig, ViewConfig};
+use isochron_shared::geometry::BlockGrid;
+use isochron_shared::wire::{
+    ActivityHeader, ActivityKind, BlockActivity, Detection, DetectionHeader, EventHeader,
+    EventPhase, FrameHeader, PixelFormat,
+};
+
+use crate::jpeg;
+
+/// Topic of the site's cost map.
+pub const COSTMAP_TOPIC: &str = "/costmap";
+/// Topic of the floor scene (segments, footprints).
+pub const SCENE_TOPIC: &str = "/scene";
+/// Scene updates are re-sent this often (capture time), for late joiners.
+const SCENE_EVERY_NS: i64 = 5_000_000_000;
+
+/// The topic of one camera's stream: `/<camera>/<what>`.
+pub fn camera_topic(camera: &str, what: &str) -> String {
+    format!("/{camera}/{what}")
+}
+
+/// Why the channels cannot be set up.
+#[derive(Debug, thiserror::Error)]
+pub enum ChannelError {
+    /// The map grid of the config is unusable.
+    #[error("{0}")]
+    Grid(#[from] isochron_planning::grid::GridError),
+    /// A camera's floor points define no mapping.
+    #[error("camera {camera}: floor_points: {error}")]
+    Floor {
+        /// Camera id.
+        camera: String,
+        /// Why.
+        error: isochron_planning::homography::HomographyError,
+    },
+}
+
+/// One camera's channels and what the cost map needs of it.
+struct CameraChannels {
+    id: String,
+    homography: Option<Homography>,
+    mask: Vec<Vec<[f64; 2]>>,
+    /// Built from the first activity sample's block grid.
+    footprint: Option<(BlockGrid, Footprint)>,
+    latest: Vec<BlockActivity>,
+    activity: Channel<Grid>,
+    events: Channel<Log>,
+    detections: Channel<ImageAnnotations>,
+    image: Option<Channel<CompressedImage>>,
+    last_image_ns: Option<i64>,
+    /// Frame size, once known (for the published image's scale).
+    frame_px: Option<(u32, u32)>,
+}
+
+/// Counts of messages published per topic.
+pub type Counts = HashMap<String, u64>;
+
+/// Every channel of a site, on one [`Context`].
+pub struct SiteChannels {
+    grid: Option<MapGrid>,
+    params: CostParams,
+    frame_id: String,
+    view: ViewConfig,
+    cameras: Vec<CameraChannels>,
+    costmap: Option<Channel<Grid>>,
+    scene: Channel<SceneUpdate>,
+    last_scene_ns: Option<i64>,
+    segments: Vec<(String, Vec<[f64; 2]>)>,
+    counts: Counts,
+}
+
+impl SiteChannels {
+    /// The channels of `loaded`'s site on `ctx` (images only if `view.frames`).
+    pub fn new(loaded: &LoadedConfig, ctx: &Arc<Context>) -> Result<SiteChannels, ChannelError> {
+        let config = &loaded.config;
+        let grid = MapGrid::from_config(loaded)?;
+        let mut cameras = Vec::new();
+        for cam in &config.cameras {
+            let homography = match Homography::of_camera(cam) {
+                Ok(fit) => fit.map(|(h, _)| h),
+                Err(error) => {
+                    return Err(ChannelError::Floor {
+                        camera: cam.id.clone(),
+                        error,
+                    });
+                }
+            };
+            cameras.push(CameraChannels {
+                id: cam.id.clone(),
+                homography,
+                mask: cam.mask.clone(),
+                footprint: None,
+                latest: Vec::new(),
+                activity: ctx
+                    .channel_builder(camera_topic(&cam.id, "activity"))
+                    .build(),
+                events: ctx.channel_builder(camera_topic(&cam.id, "events")).build(),
+                detections: ctx
+                    .channel_builder(camera_topic(&cam.id, "detections"))
+                    .build(),
+                image: config
+                    .view
+                    .frames
+                    .then(|| ctx.channel_builder(camera_topic(&cam.id, "image")).build()),
+                last_image_ns: None,
+                frame_px: cam.width.zip(cam.height),
+            });
+        }
+        let costmap = (grid.is_some() && cameras.iter().any(|c| c.homography.is_some()))
+            .then(|| ctx.channel_builder(COSTMAP_TOPIC).build());
+        Ok(SiteChannels {
+            grid,
+            params: CostParams::from_config(&config.costmap),
+            frame_id: config.costmap.frame_id.clone(),
+            view: config.view.clone(),
+            cameras,
+            costmap,
+            scene: ctx.channel_builder(SCENE_TOPIC).build(),
+            last_scene_ns: None,
+            segments: config
+                .costmap
+                .segments
+                .iter()
+                .filter_map(|s| Some((s.name.clone(), s.polygon_m.clone()?)))
+                .collect(),
+            counts: Counts::new(),
+        })
+    }
+
+    /// Messages published so far, per topic.
+    pub fn counts(&self) -> &Counts {
+        &self.counts
+    }
+
+    /// Index of camera `id`.
+    pub fn camera_index(&self, id: &str) -> Option<usize> {
+        self.cameras.iter().position(|c| c.id == id)
+    }
+
+    fn count(&mut self, topic: &str) {
+        *self.counts.entry(topic.to_string()).or_default() += 1;
+    }
+
+    /// An `activity` sample of camera `k`: its grid, and the cost map anew.
+    pub fn on_activity(&mut self, k: usize, h: &ActivityHeader, blocks: &[BlockActivity]) {
+        let t = h.preamble.capture_time_ns;
+        let Some(cam) = self.cameras.get_mut(k) else {
+            return;
+        };
+        cam.frame_px = Some((h.frame_width, h.frame_height));
+        let mut data = Vec::with_capacity(blocks.len() * 12);
+        for b in blocks {
+            for v in [b.s1, b.s2, b.lt_mean] {
+                data.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        let field = |name: &str, offset: u32| PackedElementField {
+            name: name.into(),
+            offset,
+            r#type: foxglove::messages::packed_element_field::NumericType::Float32 as i32,
+        };
+        let bp = h.block_px as f64;
+        cam.activity.log_with_time(
+            &Grid {
+                timestamp: Some(timestamp(t)),
+                frame_id: cam.id.clone(),
+                pose: Some(identity()),
+                column_count: h.grid_w,
+                cell_size: Some(Vector2 { x: bp, y: bp }),
+                row_stride: h.grid_w * 12,
+                cell_stride: 12,
+                fields: vec![field("s1", 0), field("s2", 4), field("lt_mean", 8)],
+                data: data.into(),
+            },
+            nanos(t),
+        );
+        let topic = camera_topic(&cam.id, "activity");
+        cam.latest.clear();
+        cam.latest.extend_from_slice(blocks);
+        let blocks_grid = BlockGrid::new(h.frame_width, h.frame_height, h.block_px);
+        if let (Some(g), Some(hom)) = (&self.grid, &cam.homography)
+            && cam
+                .footprint
+                .as_ref()
+                .is_none_or(|(b, _)| *b != blocks_grid)
+        {
+            cam.footprint = Some((
+                blocks_grid,
+                Footprint::build(g, hom, blocks_grid, &cam.mask),
+            ));
+        }
+        self.count(&topic);
+        self.publish_costmap(t);
+        self.publish_scene(t);
+    }
+
+    fn publish_costmap(&mut self, t: i64) {
+        let (Some(g), Some(channel)) = (&self.grid, &self.costmap) else {
+            return;
+        };
+        let layers: Vec<Layer> = self
+            .cameras
+            .iter()
+            .filter_map(|c| {
+                let (_, fp) = c.footprint.as_ref()?;
+                (!c.latest.is_empty()).then_some(Layer {
+                    footprint: fp,
+                    blocks: &c.latest,
+                })
+            })
+            .collect();
+        let cells = compose(g, &self.params, &layers, &[]);
+        let (s, c) = (g.yaw / 2.0).sin_cos();
+        channel.log_with_time(
+            &Grid {
+                timestamp: Some(timestamp(t)),
+                frame_id: self.frame_id.clone(),
+                pose: Some(Pose {
+                    position: Some(Vector3 {
+                        x: g.origin_x,
+                        y: g.origin_y,
+                        z: 0.0,
+                    }),
+                    orientation: Some(Quaternion {
+                        x: 0.0,
+                        y: 0.0,
+                        z: s,
+                        w: c,
+                    }),
+                }),
+                column_count: g.width,
+                cell_size: Some(Vector2 {
+                    x: g.resolution,
+                    y: g.resolution,
+                }),
+                row_stride: g.width,
+                cell_stride: 1,
+                fields: vec![PackedElementField {
+                    name: "cost".into(),
+                    offset: 0,
+                    r#type: foxglove::messages::packed_element_field::NumericType::Int8 as i32,
+                }],
+                data: cells.iter().map(|&v| v as u8).collect::<Vec<u8>>().into(),
+            },
+            nanos(t),
+        );
+        self.count(COSTMAP_TOPIC);
+    }
+
+    /// The floor scene (segments, footprints), at most every 5 s of capture time.
+    fn publish_scene(&mut self, t: i64) {
+        if self
+            .last_scene_ns
+            .is_some_and(|last| (0..SCENE_EVERY_NS).contains(&(t - last)))
+        {
+            return;
+        }
+        self.last_scene_ns = Some(t);
+        let mut entities = Vec::new();
+        for (name, polygon) in &self.segments {
+            entities.push(floor_entity(
+                &self.frame_id,
+                t,
+                &format!("segment/{name}"),
+                polygon,
+                Color {
+                    r: 0.3,
+                    g: 1.0,
+                    b: 0.3,
+                    a: 1.0,
+                },
+                name,
+            ));
+        }
+        for cam in &self.cameras {
+            let (Some((blocks, _)), Some(h)) = (&cam.footprint, &cam.homography) else {
+                continue;
+            };
+            let outline = view_outline(h, blocks.frame_width, blocks.frame_height, &self.grid);
+            if outline.len() >= 3 {
+                entities.push(floor_entity(
+                    &self.frame_id,
+                    t,
+                    &format!("footprint/{}", cam.id),
+                    &outline,
+                    Color {
+                        r: 0.0,
+                        g: 0.9,
+                        b: 1.0,
+                        a: 1.0,
+                    },
+                    &cam.id,
+                ));
+            }
+        }
+        self.scene.log_with_time(
+            &SceneUpdate {
+                deletions: Vec::new(),
+                entities,
+            },
+            nanos(t),
+        );
+        self.count(SCENE_TOPIC);
+    }
+
+    /// An `events` sample of camera `k`, as a log line.
+    pub fn on_event(&mut self, k: usize, h: &EventHeader, blocks: &[u32]) {
+        let Some(cam) = self.cameras.get(k) else {
+            return;
+        };
+        let t = h.preamble.capture_time_ns;
+        let phase = if h.phase == EventPhase::Start as u32 {
+            "start"
+        } else {
+            "end"
+        };
+        let kind = ActivityKind::from_u32(h.kind).map_or("?", |k| k.name());
+        cam.events.log_with_time(
+            &Log {
+                timestamp: Some(timestamp(t)),
+                level: foxglove::messages::log::Level::Info as i32,
+                message: format!(
+                    "event {} {phase}: zone {} {kind}, peak {:.3} over threshold {:.3}, {} blocks",
+                    h.event_id,
+                    h.zone_name(),
+                    h.peak,
+                    h.threshold,
+                    blocks.len()
+                ),
+                name: format!("isochron-gate/{}", cam.id),
+                file: String::new(),
+                line: 0,
+            },
+            nanos(t),
+        );
+        let topic = camera_topic(&cam.id, "events");
+        self.count(&topic);
+    }
+
+    /// A `detections` sample of camera `k`: boxes and scores on the image.
+    pub fn on_detections(&mut self, k: usize, h: &DetectionHeader, dets: &[Detection]) {
+        let Some(cam) = self.cameras.get(k) else {
+            return;
+        };
+        let t = h.preamble.capture_time_ns;
+        let f = cam.frame_px.map_or(1, |(w, hgt)| {
+            jpeg::scale_factor(w, hgt, self.view.frame_max_px)
+        }) as f64;
+        let color = Color {
+            r: 1.0,
+            g: 0.2,
+            b: 0.2,
+            a: 1.0,
+        };
+        let mut points = Vec::new();
+        let mut texts = Vec::new();
+        for d in dets {
+            let (x0, y0) = (d.x as f64 / f, d.y as f64 / f);
+            let (x1, y1) = (x0 + d.w as f64 / f, y0 + d.h as f64 / f);
+            points.push(PointsAnnotation {
+                timestamp: Some(timestamp(t)),
+                r#type: foxglove::messages::points_annotation::Type::LineLoop as i32,
+                points: [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+                    .map(|(x, y)| Point2 { x, y })
+                    .to_vec(),
+                outline_color: Some(color),
+                thickness: 2.0,
+                ..Default::default()
+            });
+            texts.push(TextAnnotation {
+                timestamp: Some(timestamp(t)),
+                position: Some(Point2 { x: x0, y: y0 }),
+                text: format!("{:.2}", d.score),
+                font_size: 12.0,
+                text_color: Some(color),
+                ..Default::default()
+            });
+        }
+        cam.detections.log_with_time(
+            &ImageAnnotations {
+                timestamp: Some(timestamp(t)),
+                points,
+                texts,
+                ..Default::default()
+            },
+            nanos(t),
+        );
+        let topic = camera_topic(&cam.id, "detections");
+        self.count(&topic);
+    }
+
+    /// True if camera `k` publishes an image for a frame captured at `t` (images on,
+    /// and the last one at least 1 / `frame_rate_hz` ago).
+    pub fn wants_frame(&self, k: usize, t: i64) -> bool {
+        let every = (1e9 / self.view.frame_rate_hz) as i64;
+        self.cameras.get(k).is_some_and(|c| {
+            c.image.is_some()
+                && c.last_image_ns
+                    .is_none_or(|last| t - last >= every || t < last)
+        })
+    }
+
+    /// A `frames` sample of camera `k` (call when [`Self::wants_frame`]): downscaled,
+    /// JPEG.
+    pub fn on_frame(&mut self, k: usize, h: &FrameHeader, pixels: &[u8]) {
+        let quality = self.view.jpeg_quality;
+        let max_px = self.view.frame_max_px;
+        let Some(cam) = self.cameras.get_mut(k) else {
+            return;
+        };
+        let Some(channel) = &cam.image else {
+            return;
+        };
+        let t = h.preamble.capture_time_ns;
+        let format = match PixelFormat::from_u32(h.pixel_format) {
+            Some(f) => f,
+            None => return,
+        };
+        let Some(data) = jpeg::encode(pixels, h.width, h.height, h.stride, format, max_px, quality)
+        else {
+            return;
+        };
+        cam.last_image_ns = Some(t);
+        cam.frame_px = Some((h.width, h.height));
+        channel.log_with_time(
+            &CompressedImage {
+                timestamp: Some(timestamp(t)),
+                frame_id: cam.id.clone(),
+                data: data.into(),
+                format: "jpeg".into(),
+            },
+            nanos(t),
+        );
+        let topic = camera_topic(&cam.id, "image");
+        self.count(&topic);
+    }
+}
+
+fn timestamp(ns: i64) -> Timestamp {
+    let ns = ns.max(0);
+    Timestamp::new(
+        (ns / 1_000_000_000).min(u32::MAX as i64) as u32,
+        (ns % 1_000_000_000) as u32,
+    )
+}
+
+fn nanos(ns: i64) -> u64 {
+    ns.max(0) as u64
+}
+
+fn identity() -> Pose {
+    Pose {
+        position: Some(Vector3 {
+            x: 0.0,
+            y: 0.0,
+            z: 0.0,
+        }),
+        orientation: Some(Quaternion {
+            x: 0.0,
+            y: 0.0,
+            z: 0.0,
+            w: 1.0,
+        }),
+    }
+}
+
+/// A closed floor outline with a label, as a scene entity.
+fn floor_entity(
+    frame_id: &str,
+    t: i64,
+    id: &str,
+    polygon: &[[f64; 2]],
+    color: Color,
+    label: &str,
+) -> SceneEntity {
+    let n = polygon.len().max(1) as f64;
+    let (cx, cy) = (
+        polygon.iter().map(|p| p[0]).sum::<f64>() / n,
+        polygon.iter().map(|p| p[1]).sum::<f64>() / n,
+    );
+    SceneEntity {
+        timestamp: Some(timestamp(t)),
+        frame_id: frame_id.into(),
+        id: id.into(),
+        lines: vec![LinePrimitive {
+            r#type: foxglove::messages::line_primitive::Type::LineLoop as i32,
+            pose: Some(identity()),
+            thickness: 0.08,
+            points: polygon
+                .iter()
+                .map(|p| Point3 {
+                    x: p[0],
+                    y: p[1],
+                    z: 0.02,
+                })
+                .collect(),
+            color: Some(color),
+            ..Default::default()
+        }],
+        texts: vec![TextPrimitive {
+            pose: Some(Pose {
+                position: Some(Vector3 {
+                    x: cx,
+                    y: cy,
+                    z: 0.3,
+                }),
+                orientation: identity().orientation,
+            }),
+            billboard: true,
+            font_size: 14.0,
+            scale_invariant: true,
+            color: Some(color),
+            text: label.into(),
+        }],
+        ..Default::default()
+    }
+}
+
+/// The floor outline of a camera's view: its frame border mapped to the floor,
+/// where it maps and lies on the map grid.
+fn view_outline(h: &Homography, w: u32, hgt: u32, grid: &Option<MapGrid>) -> Vec<[f64; 2]> {
+    let (w, hgt) = (w as f64, hgt as f64);
+    let mut border = Vec::new();
+    const STEPS: usize = 32;
+    for i in 0..STEPS {
+        border.push([w * i as f64 / STEPS as f64, hgt]);
+    }
+    for i in 0..STEPS {
+        border.push([w, hgt * (1.0 - i as f64 / STEPS as f64)]);
+    }
+    for i in 0..STEPS {
+        border.push([w * (1.0 - i as f64 / STEPS as f64), 0.0]);
+    }
+    for i in 0..STEPS {
+        border.push([0.0, hgt * i as f64 / STEPS as f64]);
+    }
+    border
+        .into_iter()
+        .filter_map(|p| h.apply(p))
+        .filter(|p| grid.as_ref().is_none_or(|g| g.cell_of(*p).is_some()))
+        .collect()
+}

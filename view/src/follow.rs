@@ -1,0 +1,206 @@
+//! The view's and recorder's side of the group: one more subscriber of each
+//! camera's streams, which takes what is there and never waits for anything, so it
+//! cannot slow a producer (on a live site delivery is lossy: a reader that falls
+//! behind loses its own oldest samples). Images are taken latest-first and at most
+//! `view.frame_rate_hz`; frames are not subscribed to at all unless
+//! `view.frames = true`.
+
+use std::time::Duration;
+
+use isochron_shared::config::LoadedConfig;
+use isochron_shared::ipc::{Activity, Detections, Events, Frames, Ipc, IpcError, StreamSubscriber};
+use isochron_shared::wire::{CameraId, Stream};
+
+use crate::channels::SiteChannels;
+
+/// Which streams to follow (the cost map and scene come with `activity`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Streams {
+    /// `activity`: the cameras' activity grids, the cost map, the scene.
+    pub activity: bool,
+    /// `events`: log lines.
+    pub events: bool,
+    /// `detections`: image annotations.
+    pub detections: bool,
+    /// `frames`: images (only with `view.frames = true`).
+    pub frames: bool,
+}
+
+impl Streams {
+    /// Every stream the config allows.
+    pub fn all(loaded: &LoadedConfig) -> Streams {
+        Streams {
+            activity: true,
+            events: true,
+            detections: true,
+            frames: loaded.config.view.frames,
+        }
+    }
+
+    /// A comma-separated list of `activity`, `events`, `detections`, `frames`.
+    pub fn parse(list: &str, loaded: &LoadedConfig) -> Result<Streams, String> {
+        let mut s = Streams {
+            activity: false,
+            events: false,
+            detections: false,
+            frames: false,
+        };
+        for name in list.split(',').map(str::trim).filter(|n| !n.is_empty()) {
+            match Stream::from_name(name) {
+                Some(Stream::Activity) => s.activity = true,
+                Some(Stream::Events) => s.events = true,
+                Some(Stream::Detections) => s.detections = true,
+                Some(Stream::Frames) if loaded.config.view.frames => s.frames = true,
+                Some(Stream::Frames) => {
+                    return Err(format!(
+                        "--streams frames: images are off for this site (set view.frames = true in {})",
+                        loaded.path.display()
+                    ));
+                }
+                _ => {
+                    return Err(format!(
+                        "--streams: unknown stream '{name}': expected activity, events, detections or frames"
+                    ));
+                }
+            }
+        }
+        Ok(s)
+    }
+}
+
+struct CameraSubscribers {
+    k: usize,
+    camera: CameraId,
+    activity: Option<StreamSubscriber<Activity>>,
+    events: Option<StreamSubscriber<Events>>,
+    detections: Option<StreamSubscriber<Detections>>,
+    frames: Option<StreamSubscriber<Frames>>,
+    ended: bool,
+}
+
+/// The subscribers of every camera.
+pub struct Follower {
+    cameras: Vec<CameraSubscribers>,
+    /// Samples taken and published.
+    pub samples: u64,
+    /// Samples whose header did not check out (skipped).
+    pub rejected: u64,
+}
+
+impl Follower {
+    /// Subscribes to `streams` of every camera of the site.
+    pub fn open(
+        ipc: &Ipc,
+        loaded: &LoadedConfig,
+        channels: &SiteChannels,
+        streams: Streams,
+    ) -> Result<Follower, IpcError> {
+        let mut cameras = Vec::new();
+        for cam in &loaded.config.cameras {
+            let (Some(k), Some(camera)) = (channels.camera_index(&cam.id), CameraId::new(&cam.id))
+            else {
+                continue;
+            };
+            cameras.push(CameraSubscribers {
+                k,
+                camera,
+                activity: streams
+                    .activity
+                    .then(|| ipc.subscriber(&cam.id))
+                    .transpose()?,
+                events: streams
+                    .events
+                    .then(|| ipc.subscriber(&cam.id))
+                    .transpose()?,
+                detections: streams
+                    .detections
+                    .then(|| ipc.subscriber(&cam.id))
+                    .transpose()?,
+                frames: (streams.frames && loaded.config.view.frames)
+                    .then(|| ipc.subscriber(&cam.id))
+                    .transpose()?,
+                ended: false,
+            });
+        }
+        Ok(Follower {
+            cameras,
+            samples: 0,
+            rejected: 0,
+        })
+    }
+
+    /// Takes every waiting sample and publishes it on `channels`; returns how many.
+    pub fn poll(&mut self, channels: &mut SiteChannels) -> Result<u64, IpcError> {
+        let before = self.samples;
+        for c in &mut self.cameras {
+            if let Some(sub) = &c.frames {
+                // Latest first: of what waits, only the newest frame can be shown.
+                let mut newest = None;
+                while let Some(sample) = sub.receive()? {
+                    newest = Some(sample);
+                }
+                if let Some(s) = newest {
+                    let h = s.user_header();
+                    if h.validate(&c.camera, s.payload().len()).is_err() {
+                        self.rejected += 1;
+                    } else if !h.preamble.is_end_of_stream() {
+                        self.samples += 1;
+                        if channels.wants_frame(c.k, h.preamble.capture_time_ns) {
+                            channels.on_frame(c.k, h, s.payload());
+                        }
+                    }
+                }
+            }
+            if let Some(sub) = &c.activity {
+                while let Some(s) = sub.receive()? {
+                    let h = s.user_header();
+                    if h.validate(&c.camera, s.payload().len()).is_err() {
+                        self.rejected += 1;
+                    } else if h.preamble.is_end_of_stream() {
+                        c.ended = true;
+                    } else {
+                        self.samples += 1;
+                        channels.on_activity(c.k, h, s.payload());
+                    }
+                }
+            }
+            if let Some(sub) = &c.events {
+                while let Some(s) = sub.receive()? {
+                    let h = s.user_header();
+                    if h.validate(&c.camera, s.payload().len()).is_err() {
+                        self.rejected += 1;
+                    } else if !h.preamble.is_end_of_stream() {
+                        self.samples += 1;
+                        channels.on_event(c.k, h, s.payload());
+                    }
+                }
+            }
+            if let Some(sub) = &c.detections {
+                while let Some(s) = sub.receive()? {
+                    let h = s.user_header();
+                    if h.validate(&c.camera, s.payload().len()).is_err() {
+                        self.rejected += 1;
+                    } else if !h.preamble.is_end_of_stream() {
+                        self.samples += 1;
+                        channels.on_detections(c.k, h, s.payload());
+                    }
+                }
+            }
+        }
+        Ok(self.samples - before)
+    }
+
+    /// True once every followed camera's activity has ended (a file source ran
+    /// out); never without `activity`.
+    pub fn all_ended(&self) -> bool {
+        !self.cameras.is_empty() && self.cameras.iter().all(|c| c.activity.is_some() && c.ended)
+    }
+
+    /// Sleeps until a followed stream may have news, at most `timeout`.
+    pub fn wait(&self, timeout: Duration) {
+        match self.cameras.first().and_then(|c| c.activity.as_ref()) {
+            Some(sub) => sub.wait(timeout),
+            None => std::thread::sleep(timeout),
+        }
+    }
+}

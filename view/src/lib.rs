@@ -1,0 +1,24 @@
+//! isochron-view: what the group sees, for people — live in Foxglove over its
+//! WebSocket protocol (`isochron view`), and in MCAP recordings (`isochron record`,
+//! `isochron replay --record`) that open in Foxglove the same way.
+//!
+//! * [`channels`]: the topics, their Foxglove well-known schemas, and how samples
+//!   become messages — one module for both sinks;
+//! * [`follow`]: one more subscriber of the cameras' streams that never slows a
+//!   producer;
+//! * [`record`]: the MCAP file, closed cleanly also when the disk runs low;
+//! * [`live`]: the WebSocket server, on loopback unless the site says otherwise;
+//! * [`jpeg`]: camera frames as small JPEGs (only with `view.frames = true`).
+//!
+//! The `foxglove` crate (and with it tokio) lives here only, so that the services
+//! and the rest of the CLI build without it.
+
+#![warn(missing_docs)]
+
+pub mod channels;
+pub mod follow;
+pub mod jpeg;
+pub mod live;
+pub mod record;
+
+pub use foxglove::Context;
