@@ -16,6 +16,7 @@ mod costmap;
 mod exporter;
 mod gate;
 mod ipc;
+mod link;
 mod motion;
 mod site;
 #[cfg(test)]
@@ -38,6 +39,7 @@ pub use costmap::{
 pub use exporter::ExporterConfig;
 pub use gate::{DetectorConfig, GateConfig};
 pub use ipc::IpcConfig;
+pub use link::{DEFAULT_LINK_NAMESPACE, LinkConfig, is_ros_token};
 pub use motion::{MotionBackend, MotionConfig};
 pub use site::SiteConfig;
 
@@ -108,6 +110,8 @@ pub struct Config {
     /// The Prometheus exporter; absent: `isochron up` and `replay` do not start it.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub exporter: Option<ExporterConfig>,
+    /// The link to the site's other base stations (`isochron-link`).
+    pub link: LinkConfig,
 }
 
 /// A loaded configuration and where it came from.
@@ -275,7 +279,8 @@ impl Config {
             exporter.validate()?;
         }
         camera::validate_cameras(&self.cameras)?;
-        self.costmap.validate(&self.cameras)
+        self.costmap.validate(&self.cameras)?;
+        self.link.validate(&self.cameras)
     }
 }
 
