@@ -112,7 +112,10 @@ impl Activity {
     /// The iceoryx2 sample of this message for `camera`: the header as the
     /// exporting box's cascade wrote it, validated like any received sample (a
     /// message of another camera, or whose sizes disagree, is an error).
-    pub fn to_sample(&self, camera: &CameraId) -> Result<(ActivityHeader, Vec<WireBlock>), WireError> {
+    pub fn to_sample(
+        &self,
+        camera: &CameraId,
+    ) -> Result<(ActivityHeader, Vec<WireBlock>), WireError> {
         let mut preamble = Preamble::new::<WireBlock>(
             Stream::Activity,
             CameraId::new(&self.camera).unwrap_or_default(),

@@ -202,7 +202,8 @@ impl Stage for LinkStage<'_> {
                 import.output.send_copy(header, &blocks)?;
                 import.messages += 1;
                 import.last = Some(arrived);
-                cx.health.sent(Some(arrived), header.preamble.origin_wall_ns);
+                cx.health
+                    .sent(Some(arrived), header.preamble.origin_wall_ns);
             }
         }
         Ok(())
@@ -212,10 +213,11 @@ impl Stage for LinkStage<'_> {
         let secs = self.started.elapsed().as_secs_f64().max(1e-3);
         for e in &self.exports {
             tracing::info!(
-                "exported {}: {} messages, {} bytes of CDR, {:.0} B/s",
+                "exported {}: {} messages, {} bytes of CDR ({} B/message), {:.0} B/s over {secs:.1} s",
                 e.camera,
                 e.messages,
                 e.bytes,
+                e.bytes / e.messages.max(1),
                 e.bytes as f64 / secs
             );
         }
@@ -246,11 +248,9 @@ impl Stage for LinkStage<'_> {
             .imports
             .iter()
             .map(|i| {
-                let age = i
-                    .last
-                    .map_or("never".to_string(), |t| {
-                        format!("{:.1}s", now.duration_since(t).as_secs_f64())
-                    });
+                let age = i.last.map_or("never".to_string(), |t| {
+                    format!("{:.1}s", now.duration_since(t).as_secs_f64())
+                });
                 format!("{}:msgs={},last={age}", i.camera, i.messages)
             })
             .collect();

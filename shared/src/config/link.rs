@@ -37,9 +37,7 @@ pub const DEFAULT_LINK_NAMESPACE: &str = "/isochron/link";
 /// starting with a digit.
 pub fn is_ros_token(name: &str) -> bool {
     name.bytes().next().is_some_and(|b| !b.is_ascii_digit())
-        && name
-            .bytes()
-            .all(|b| b.is_ascii_alphanumeric() || b == b'_')
+        && name.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_')
 }
 
 impl LinkConfig {
@@ -117,8 +115,7 @@ impl LinkConfig {
             }
         }
         if let Some(ns) = &self.namespace {
-            let ok = ns.starts_with('/')
-                && ns[1..].split('/').all(is_ros_token);
+            let ok = ns.starts_with('/') && ns[1..].split('/').all(is_ros_token);
             if !ok {
                 return Err(Invalid::new(
                     "link.namespace",
