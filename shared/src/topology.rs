@@ -22,6 +22,10 @@ pub enum StageKind {
     /// Serves every stage's status as Prometheus metrics (site-wide, optional:
     /// not a pipeline stage, so not in [`StageKind::ALL`]).
     Exporter,
+    /// The link to the site's other base stations (`isochron-link`): optional,
+    /// started by its own unit, so it is not in [`StageKind::ALL`] (the stages
+    /// `isochron up` starts).
+    Link,
 }
 
 impl StageKind {
@@ -43,12 +47,16 @@ impl StageKind {
             StageKind::Gate => "gate",
             StageKind::Costmap => "costmap",
             StageKind::Exporter => "exporter",
+            StageKind::Link => "link",
         }
     }
 
     /// The stage named `name`, if any.
     pub fn from_name(name: &str) -> Option<StageKind> {
-        StageKind::ALL.into_iter().find(|s| s.name() == name)
+        StageKind::ALL
+            .into_iter()
+            .chain([StageKind::Link])
+            .find(|s| s.name() == name)
     }
 
     /// The binary that runs the stage.
@@ -60,6 +68,7 @@ impl StageKind {
             StageKind::Gate => "isochron-gate",
             StageKind::Costmap => "isochron-costmap",
             StageKind::Exporter => "isochron-exporter",
+            StageKind::Link => "isochron-link",
         }
     }
 
@@ -72,6 +81,7 @@ impl StageKind {
             StageKind::Gate => &[Stream::Frames, Stream::Activity],
             StageKind::Costmap => &[Stream::Activity, Stream::Detections],
             StageKind::Exporter => &[],
+            StageKind::Link => &[Stream::Activity],
         }
     }
 
@@ -83,6 +93,7 @@ impl StageKind {
             StageKind::Cascade => &[Stream::Activity],
             StageKind::Gate => &[Stream::Events, Stream::Detections],
             StageKind::Costmap | StageKind::Exporter => &[],
+            StageKind::Link => &[Stream::Activity],
         }
     }
 
@@ -93,9 +104,12 @@ impl StageKind {
     }
 
     /// True for stages that run once per camera; false for the site-wide costmap
-    /// and exporter.
+    /// exporter and link.
     pub fn per_camera(self) -> bool {
-        !matches!(self, StageKind::Costmap | StageKind::Exporter)
+        !matches!(
+            self,
+            StageKind::Costmap | StageKind::Exporter | StageKind::Link
+        )
     }
 }
 

@@ -19,7 +19,7 @@ use isochron_shared::store::{Bin, MinuteCommit, Store, StoreMeta, store_path};
 use isochron_shared::wire::{
     ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader, Preamble, Stream,
 };
-use isochron_tests::{Proc, TestSite, bin, repo_root, setup_file};
+use isochron_tests::{NetnsPair, Proc, TestSite, bin, repo_root, setup_file};
 use serde_json::Value;
 
 /// The frame: 320×240 in 16-px blocks (20×15).
@@ -38,19 +38,19 @@ fn floor_to_image(p: [f64; 2]) -> [f64; 2] {
 }
 
 /// The grid: 60×60 cells of 0.1 m from (-1, 1.5).
-const GRID: (f64, f64, f64, u32, u32) = (-1.0, 1.5, 0.1, 60, 60);
+pub(crate) const GRID: (f64, f64, f64, u32, u32) = (-1.0, 1.5, 0.1, 60, 60);
 
 /// Block (10, 7) is the synthetic activity source: pixels x 160..176, y 112..128.
-const HOT_BLOCK: usize = 7 * 20 + 10;
+pub(crate) const HOT_BLOCK: usize = 7 * 20 + 10;
 /// Its in-place activity and the cost that gives with `cost_scale = 0.05`.
-const HOT_S1: f32 = 0.03;
+pub(crate) const HOT_S1: f32 = 0.03;
 const HOT_COST: i64 = 60;
 
 static NEXT_DOMAIN: AtomicU16 = AtomicU16::new(0);
 
 /// A DDS domain no other test process uses at the same time: derived from the pid,
 /// plus a counter for the tests of this process.
-fn dds_domain() -> u16 {
+pub(crate) fn dds_domain() -> u16 {
     let n = NEXT_DOMAIN.fetch_add(1, Ordering::Relaxed);
     1 + ((std::process::id() as u16)
         .wrapping_mul(7)
@@ -59,7 +59,7 @@ fn dds_domain() -> u16 {
 }
 
 /// The Python of the venv with `cyclonedds`; fails with what to do when missing.
-fn python() -> PathBuf {
+pub(crate) fn python() -> PathBuf {
     let path = setup_file(
         "ISOCHRON_ROS2_PYTHON",
         "target/ros2-venv/bin/python3",
@@ -79,7 +79,7 @@ fn python() -> PathBuf {
 
 /// The camera table, with floor points taken from [`floor_to_image`] at 5 floor
 /// positions (so the bridge fits by least squares).
-fn camera_toml() -> String {
+pub(crate) fn camera_toml() -> String {
     let floor = [[0.0, 2.5], [3.5, 2.5], [4.0, 6.0], [-0.5, 6.0], [1.5, 4.0]];
     let pairs: Vec<String> = floor
         .iter()
@@ -97,7 +97,7 @@ fn camera_toml() -> String {
     )
 }
 
-fn costmap_toml(domain: u16, extra: &str) -> String {
+pub(crate) fn costmap_toml(domain: u16, extra: &str) -> String {
     let (x, y, res, w, h) = GRID;
     format!(
         r#"
@@ -123,7 +123,7 @@ stale_s = 120
 
 /// The grid the bridge should publish while [`HOT_BLOCK`] is active (or not):
 /// computed with the true mapping, independently of the bridge's fit.
-fn expected_cells(hot: bool) -> Vec<i64> {
+pub(crate) fn expected_cells(hot: bool) -> Vec<i64> {
     let (x0, y0, res, w, h) = GRID;
     let mut cells = Vec::with_capacity((w * h) as usize);
     for j in 0..h {
@@ -144,14 +144,14 @@ fn expected_cells(hot: bool) -> Vec<i64> {
 }
 
 /// Publishes synthetic activity of cam01.
-struct Source {
+pub(crate) struct Source {
     publisher: StreamPublisher<Activity>,
     start_ns: i64,
-    seconds: i64,
+    pub(crate) seconds: i64,
 }
 
 impl Source {
-    fn new(ipc: &Ipc, start: &str) -> Source {
+    pub(crate) fn new(ipc: &Ipc, start: &str) -> Source {
         Source {
             publisher: ipc.publisher::<Activity>("cam01", BLOCKS).unwrap(),
             start_ns: parse_rfc3339(start).unwrap(),
@@ -160,7 +160,7 @@ impl Source {
     }
 
     /// One second of activity: `s1` on the blocks `hot` lists, nothing elsewhere.
-    fn send(&mut self, hot: &[(usize, f32)], t_star: u32) {
+    pub(crate) fn send(&mut self, hot: &[(usize, f32)], t_star: u32) {
         let mut blocks = vec![BlockActivity::default(); BLOCKS];
         for &(b, s1) in hot {
             blocks[b].s1 = s1;
@@ -190,7 +190,7 @@ impl Source {
         self.publisher.send_copy(header, &blocks).unwrap();
     }
 
-    fn wait_for_subscriber(&self, costmap: &Proc) {
+    pub(crate) fn wait_for_subscriber(&self, costmap: &Proc) {
         let end = Instant::now() + Duration::from_secs(30);
         while self.publisher.subscriber_count() == 0 {
             assert!(
@@ -204,7 +204,7 @@ impl Source {
 }
 
 /// The listener's JSON lines so far.
-fn messages(listener: &mut Proc) -> Vec<Value> {
+pub(crate) fn messages(listener: &mut Proc) -> Vec<Value> {
     listener
         .stdout()
         .lines()
@@ -212,7 +212,7 @@ fn messages(listener: &mut Proc) -> Vec<Value> {
         .collect()
 }
 
-fn data(v: &Value) -> Vec<i64> {
+pub(crate) fn data(v: &Value) -> Vec<i64> {
     v["data"]
         .as_array()
         .unwrap()
@@ -223,7 +223,7 @@ fn data(v: &Value) -> Vec<i64> {
 
 /// The grid a subscriber holds after the messages so far: the last full grid with
 /// the updates since applied.
-fn held_grid(msgs: &[Value]) -> Option<Vec<i64>> {
+pub(crate) fn held_grid(msgs: &[Value]) -> Option<Vec<i64>> {
     let last = msgs.iter().rposition(|m| m["kind"] == "grid")?;
     let mut cells = data(&msgs[last]);
     let width = msgs[last]["width"].as_i64().unwrap();
@@ -1165,30 +1165,6 @@ fn a_ros2_peer_gets_the_forecast_of_the_long_term_model() {
     );
 }
 
-/// Runs `ip args`; its status and stderr.
-fn ip(args: &[&str]) -> (bool, String) {
-    match std::process::Command::new("ip").args(args).output() {
-        Ok(o) => (
-            o.status.success(),
-            String::from_utf8_lossy(&o.stderr).into_owned(),
-        ),
-        Err(e) => (false, e.to_string()),
-    }
-}
-
-/// Two network namespaces joined by a veth pair, deleted on drop.
-struct NetnsPair {
-    names: [String; 2],
-}
-
-impl Drop for NetnsPair {
-    fn drop(&mut self) {
-        for n in &self.names {
-            ip(&["netns", "del", n]);
-        }
-    }
-}
-
 /// Discovery the way robots do it: the bridge (all interfaces, `dds_interfaces`
 /// unset) in one network namespace, the Cyclone DDS peer with its default
 /// multicast discovery in another, joined by a veth pair with a 224.0.0.0/4 route
@@ -1198,75 +1174,10 @@ impl Drop for NetnsPair {
 fn a_peer_in_another_network_namespace_discovers_the_bridge_by_multicast() {
     python();
     let tag = format!("{}{}", std::process::id() % 100_000, dds_domain());
-    let (bridge_ns, peer_ns) = (format!("isob{tag}"), format!("isop{tag}"));
-    let (ok, err) = ip(&["netns", "add", &bridge_ns]);
-    if !ok {
-        assert!(
-            std::env::var("CI").is_err(),
-            "`ip netns add` failed in CI (which runs as root): {err}"
-        );
-        eprintln!("skipped: `ip netns add` failed (needs root and iproute2): {err}");
+    let Some(pair) = NetnsPair::new(&tag, 0) else {
         return;
-    }
-    let pair = NetnsPair {
-        names: [bridge_ns.clone(), peer_ns.clone()],
     };
-    let (veth_b, veth_p) = (format!("vb{tag}"), format!("vp{tag}"));
-    let steps: Vec<Vec<String>> = vec![
-        vec!["netns", "add", &peer_ns],
-        vec![
-            "link", "add", &veth_b, "netns", &bridge_ns, "type", "veth", "peer", "name", &veth_p,
-            "netns", &peer_ns,
-        ],
-        vec![
-            "-n",
-            &bridge_ns,
-            "addr",
-            "add",
-            "10.77.0.1/24",
-            "dev",
-            &veth_b,
-        ],
-        vec![
-            "-n",
-            &peer_ns,
-            "addr",
-            "add",
-            "10.77.0.2/24",
-            "dev",
-            &veth_p,
-        ],
-        vec!["-n", &bridge_ns, "link", "set", &veth_b, "up"],
-        vec!["-n", &peer_ns, "link", "set", &veth_p, "up"],
-        vec!["-n", &bridge_ns, "link", "set", "lo", "up"],
-        vec!["-n", &peer_ns, "link", "set", "lo", "up"],
-        vec![
-            "-n",
-            &bridge_ns,
-            "route",
-            "add",
-            "224.0.0.0/4",
-            "dev",
-            &veth_b,
-        ],
-        vec![
-            "-n",
-            &peer_ns,
-            "route",
-            "add",
-            "224.0.0.0/4",
-            "dev",
-            &veth_p,
-        ],
-    ]
-    .into_iter()
-    .map(|v| v.into_iter().map(String::from).collect())
-    .collect();
-    for step in &steps {
-        let args: Vec<&str> = step.iter().map(String::as_str).collect();
-        let (ok, err) = ip(&args);
-        assert!(ok, "ip {}: {err}", args.join(" "));
-    }
+    let [bridge_ns, peer_ns] = pair.names.clone();
 
     let domain = dds_domain();
     let toml = format!("{}{}", camera_toml(), costmap_toml(domain, ""))

@@ -14,6 +14,7 @@ mod exporter;
 mod gate;
 mod inputs;
 mod launcher;
+mod link;
 mod motion;
 mod operations;
 mod pipeline;

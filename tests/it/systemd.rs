@@ -9,13 +9,14 @@ use std::process::Command;
 
 use isochron_tests::{bin_dir, repo_root};
 
-const SERVICES: [&str; 6] = [
+const SERVICES: [&str; 7] = [
     "isochron-capture@cam01.service",
     "isochron-motion@cam01.service",
     "isochron-cascade@cam01.service",
     "isochron-gate@cam01.service",
     "isochron-costmap.service",
     "isochron-exporter.service",
+    "isochron-link.service",
 ];
 
 /// Copies `systemd/` into `dir` with binaries pointing at the build.
@@ -146,6 +147,17 @@ fn each_service_gets_the_access_it_needs_and_no_more() {
     // analyser marks as open), and needs no device.
     expect(
         "isochron-exporter.service",
+        &[
+            ("PrivateDevices=", true),
+            ("PrivateUsers=", true),
+            ("IPAddressDeny=", false),
+            ("RestrictAddressFamilies=~AF_(INET|INET6)", false),
+            ("NoNewPrivileges=", true),
+        ],
+    );
+    // The link talks DDS to the other boxes, and needs no device.
+    expect(
+        "isochron-link.service",
         &[
             ("PrivateDevices=", true),
             ("PrivateUsers=", true),

@@ -410,7 +410,7 @@ fn bench(package: &str, target: &str, extra: &[String]) -> anyhow::Result<()> {
 }
 
 /// The binaries a site runs.
-const BINARIES: [&str; 7] = [
+const BINARIES: [&str; 8] = [
     "isochron",
     "isochron-capture",
     "isochron-motion",
@@ -418,6 +418,7 @@ const BINARIES: [&str; 7] = [
     "isochron-gate",
     "isochron-costmap",
     "isochron-exporter",
+    "isochron-link",
 ];
 
 /// Writes the man pages and completions of `isochron` into `out` (see the

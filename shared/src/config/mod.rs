@@ -16,6 +16,7 @@ mod costmap;
 mod exporter;
 mod gate;
 mod ipc;
+mod link;
 mod motion;
 mod site;
 #[cfg(test)]
@@ -39,6 +40,7 @@ pub use costmap::{
 pub use exporter::ExporterConfig;
 pub use gate::{DetectorConfig, GateConfig};
 pub use ipc::IpcConfig;
+pub use link::{DEFAULT_LINK_NAMESPACE, LinkConfig, is_ros_token};
 pub use motion::{MotionBackend, MotionConfig};
 pub use site::SiteConfig;
 pub use view::ViewConfig;
@@ -112,6 +114,8 @@ pub struct Config {
     pub exporter: Option<ExporterConfig>,
     /// The live view (`isochron view`) and recordings (`isochron record`).
     pub view: ViewConfig,
+    /// The link to the site's other base stations (`isochron-link`).
+    pub link: LinkConfig,
 }
 
 /// A loaded configuration and where it came from.
@@ -280,7 +284,8 @@ impl Config {
         }
         camera::validate_cameras(&self.cameras)?;
         self.costmap.validate(&self.cameras)?;
-        self.view.validate()
+        self.view.validate()?;
+        self.link.validate(&self.cameras)
     }
 }
 

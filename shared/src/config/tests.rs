@@ -285,3 +285,34 @@ fn view_is_off_and_on_loopback_by_default_and_checked() {
     let err = parse(&format!("{GOOD}\n[view]\nframe_rate_hz = 0\n")).unwrap_err();
     assert!(err.to_string().contains("view.frame_rate_hz"), "{err}");
 }
+
+#[test]
+fn link_sections_are_checked_with_line_and_key() {
+    let link = |body: &str| parse(&format!("{GOOD}\n[link]\n{body}\n"));
+    let c = link("box_id = \"box_a\"\nexport = [\"cam01\"]\nimport = [\"cam07\"]\nros_domain_id = 7\ndds_interfaces = [\"10.0.0.5\"]").unwrap();
+    assert_eq!(c.link.export, ["cam01"]);
+    assert_eq!(c.link.namespace(), DEFAULT_LINK_NAMESPACE);
+    assert!(!parse(GOOD).unwrap().link.is_enabled());
+
+    let err = link("box_id = \"box_a\"\nexport = [\"cam01\", \"cam09\"]").unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("link.export[1]"));
+    assert_eq!(err.line, Some(17));
+    assert!(err.message.contains("[[camera]] id"), "{err}");
+
+    let err = link("export = [\"cam01\"]").unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("link.box_id"));
+
+    let err = link("import = [\"cam-7\"]").unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("link.import[0]"));
+    assert!(err.message.contains("ROS 2 name token"), "{err}");
+
+    let err = link("box_id = \"a\"\nexport = [\"cam01\"]\nimport = [\"cam01\"]").unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("link.export[0]"));
+
+    let err = link("dds_interfaces = [\"eth0\"]").unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("link.dds_interfaces[0]"));
+    assert!(err.message.contains("IP address"), "{err}");
+
+    let err = link("namespace = \"isochron/link\"").unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("link.namespace"));
+}

@@ -1,0 +1,23 @@
+//! isochron-link: config → node → exported cameras' `activity` out to DDS, imported
+//! cameras' activity from DDS into local iceoryx2 services → the stage runtime.
+//! Runs once per box, started by its own unit (`systemd/isochron-link.service`).
+
+use std::process::ExitCode;
+
+use isochron_link::stage::LinkStage;
+use isochron_shared::service::main_site_wide;
+use isochron_shared::stage;
+use isochron_shared::topology::StageKind;
+
+fn main() -> ExitCode {
+    main_site_wide(
+        StageKind::Link,
+        "Carries the activity of this box's exported cameras to the site's other base \
+         stations over ROS 2 DDS, and writes the imported cameras' activity into this \
+         box's services as if local",
+        |ctx| {
+            let (mut link, inputs) = LinkStage::open(&ctx.ipc, &ctx.config)?;
+            stage::run(&ctx.ipc, "", &mut link, &inputs)
+        },
+    )
+}

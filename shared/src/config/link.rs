@@ -1,0 +1,130 @@
+//! `[link]`: which cameras' small streams this box sends to the site's other base
+//! stations over ROS 2 DDS, and which remote cameras it receives (`isochron-link`).
+//!
+//! Nothing leaves the box unless `export` names it; nothing is received unless
+//! `import` names it.
+
+use serde::{Deserialize, Serialize};
+
+use super::{CameraConfig, Invalid, check_range};
+
+/// `[link]`: the box-to-box link.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LinkConfig {
+    /// This base station's name on the site (letters, digits, `_`), carried in
+    /// every message it sends. Required when `export` is not empty.
+    pub box_id: String,
+    /// Cameras of this box (`[[camera]]` ids) whose activity is sent. Default none.
+    pub export: Vec<String>,
+    /// Remote cameras whose activity is received and published into this box's
+    /// iceoryx2 services as if local. Default none.
+    pub import: Vec<String>,
+    /// DDS domain (`ROS_DOMAIN_ID`) of the link; default `$ROS_DOMAIN_ID`, else 0.
+    pub ros_domain_id: Option<u16>,
+    /// IP addresses of the network interfaces DDS may use (e.g. the site network's
+    /// `["10.0.0.5"]`); default all.
+    pub dds_interfaces: Vec<String>,
+    /// ROS 2 namespace of the link's topics: `<namespace>/<camera>/activity`.
+    /// Default `/isochron/link`.
+    pub namespace: Option<String>,
+}
+
+/// The default topic namespace.
+pub const DEFAULT_LINK_NAMESPACE: &str = "/isochron/link";
+
+/// True if `name` can be one token of a ROS 2 name: letters, digits and `_`, not
+/// starting with a digit.
+pub fn is_ros_token(name: &str) -> bool {
+    name.bytes().next().is_some_and(|b| !b.is_ascii_digit())
+        && name.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_')
+}
+
+impl LinkConfig {
+    /// The namespace of the link's topics.
+    pub fn namespace(&self) -> &str {
+        self.namespace.as_deref().unwrap_or(DEFAULT_LINK_NAMESPACE)
+    }
+
+    /// True if the link has anything to do.
+    pub fn is_enabled(&self) -> bool {
+        !self.export.is_empty() || !self.import.is_empty()
+    }
+
+    /// Checks the `link.*` keys against the configured cameras.
+    pub(super) fn validate(&self, cameras: &[CameraConfig]) -> Result<(), Invalid> {
+        if !self.box_id.is_empty() && !is_ros_token(&self.box_id) {
+            return Err(Invalid::new(
+                "link.box_id",
+                format!(
+                    "expected a name of letters, digits and '_' not starting with a digit, such as \"box_a\", found \"{}\"",
+                    self.box_id
+                ),
+            ));
+        }
+        if !self.export.is_empty() && self.box_id.is_empty() {
+            return Err(Invalid::new(
+                "link.box_id",
+                "expected this box's name (such as \"box_a\") when link.export names cameras",
+            ));
+        }
+        for (key, list) in [("export", &self.export), ("import", &self.import)] {
+            for (i, id) in list.iter().enumerate() {
+                if !is_ros_token(id) || id.len() > crate::wire::CAMERA_ID_LEN {
+                    return Err(Invalid::new(
+                        format!("link.{key}[{i}]"),
+                        format!(
+                            "expected a camera id of 1 to {} letters, digits and '_' not starting with a digit (a ROS 2 name token), found \"{id}\"",
+                            crate::wire::CAMERA_ID_LEN
+                        ),
+                    ));
+                }
+                if list[..i].contains(id) {
+                    return Err(Invalid::new(
+                        format!("link.{key}[{i}]"),
+                        format!("expected each camera once, found \"{id}\" again"),
+                    ));
+                }
+            }
+        }
+        for (i, id) in self.export.iter().enumerate() {
+            if !cameras.iter().any(|c| &c.id == id) {
+                return Err(Invalid::new(
+                    format!("link.export[{i}]"),
+                    format!("expected a [[camera]] id of this site, found \"{id}\""),
+                ));
+            }
+            if self.import.contains(id) {
+                return Err(Invalid::new(
+                    format!("link.export[{i}]"),
+                    format!("camera \"{id}\" is both exported and imported: expected one"),
+                ));
+            }
+        }
+        if let Some(d) = self.ros_domain_id {
+            check_range("link.ros_domain_id", d as f64, 0.0, 232.0)?;
+        }
+        for (i, addr) in self.dds_interfaces.iter().enumerate() {
+            if addr.parse::<std::net::IpAddr>().is_err() {
+                return Err(Invalid::new(
+                    format!("link.dds_interfaces[{i}]"),
+                    format!(
+                        "expected the IP address of a network interface such as \"10.0.0.5\", found \"{addr}\""
+                    ),
+                ));
+            }
+        }
+        if let Some(ns) = &self.namespace {
+            let ok = ns.starts_with('/') && ns[1..].split('/').all(is_ros_token);
+            if !ok {
+                return Err(Invalid::new(
+                    "link.namespace",
+                    format!(
+                        "expected an absolute ROS 2 namespace such as \"/isochron/link\", found \"{ns}\""
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+}

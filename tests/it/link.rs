@@ -1,0 +1,438 @@
+//! isochron-link between two base stations: two network namespaces joined by a
+//! veth pair (`NetnsPair`), each box with its own iceoryx2 services (its own site
+//! prefix) and DDS only over the veth.
+//!
+//! Box A: a source of cam01's activity — synthetic 1 Hz samples the test publishes
+//! through the real iceoryx2 service, or the real capture → motion → cascade on the
+//! demo video — and its link, exporting cam01. Box B: its link importing cam01, a costmap bridge
+//! that has cam01's floor points, and the independent Cyclone DDS peer reading the
+//! grid. Checked: the grid under cam01's footprint on B is what A's activity
+//! gives; headers cross unchanged; veth down → unknown, up → back; kill -9 of A's
+//! link → unknown, restarted → back. Measured (printed): bytes per second on the
+//! link and origin-to-B latency.
+
+use std::time::{Duration, Instant};
+
+use isochron_shared::clock::{NS_PER_S, parse_rfc3339, wall_now_ns};
+use isochron_shared::ipc::Activity;
+use isochron_shared::wire::CameraId;
+use isochron_tests::{NetnsPair, Proc, TestSite, bin, repo_root};
+
+use crate::costmap::{
+    HOT_BLOCK, HOT_S1, Source, camera_toml, costmap_toml, dds_domain, expected_cells, held_grid,
+    messages, python,
+};
+
+const START: &str = "2026-03-02T11:00:00Z";
+/// The bridge's `costmap.stale_s` on box B.
+const STALE_S: u32 = 3;
+/// How soon the grid must follow the link going down or up.
+const FOLLOW: Duration = Duration::from_secs(5);
+
+/// The `[link]` section of a box.
+fn link_toml(box_id: &str, key: &str, domain: u16, addr: &str) -> String {
+    format!(
+        "\n[link]\nbox_id = \"{box_id}\"\n{key} = [\"cam01\"]\nros_domain_id = {domain}\ndds_interfaces = [\"{addr}\"]\n"
+    )
+}
+
+/// Every cell of cam01's footprint is unknown (-1) in `grid`.
+fn footprint_unknown(grid: &[i64], hot: &[i64]) -> bool {
+    grid.iter().zip(hot).all(|(g, h)| *h == -1 || *g == -1)
+}
+
+/// The test's view of box B: the peer's messages and the probe on B's activity.
+struct BoxB {
+    peer: Proc,
+    probe: isochron_shared::ipc::StreamSubscriber<Activity>,
+    latencies_ms: Vec<f64>,
+    /// The synthetic source's start: its samples' capture times are checked.
+    synthetic_start_ns: Option<i64>,
+}
+
+impl BoxB {
+    /// The grid the peer holds now.
+    fn grid(&mut self) -> Option<Vec<i64>> {
+        held_grid(&messages(&mut self.peer))
+    }
+
+    /// Reads what B's link wrote into B's cam01 activity service: the header as
+    /// A's source wrote it, and the latency from its origin.
+    fn probe(&mut self) {
+        let cam = CameraId::new("cam01").unwrap();
+        while let Some(sample) = self.probe.receive().unwrap() {
+            let h = sample.user_header();
+            h.validate(&cam, sample.payload().len()).unwrap();
+            let p = &h.preamble;
+            if let Some(start_ns) = self.synthetic_start_ns {
+                assert_eq!(
+                    p.capture_time_ns,
+                    start_ns + (p.sequence as i64 + 1) * NS_PER_S,
+                    "sequence and capture time cross together"
+                );
+                assert_eq!(sample.payload()[HOT_BLOCK].s1, HOT_S1);
+            }
+            self.latencies_ms
+                .push((wall_now_ns() - p.origin_wall_ns) as f64 / 1e6);
+        }
+    }
+}
+
+/// Calls `feed` at 1 Hz (A's source) and reads B until `f` holds for the peer's
+/// grid; how long that took. Fails after `timeout`.
+fn until(
+    what: &str,
+    feed: &mut dyn FnMut(),
+    b: &mut BoxB,
+    procs: &[&Proc],
+    timeout: Duration,
+    mut f: impl FnMut(&[i64]) -> bool,
+) -> Duration {
+    let begin = Instant::now();
+    let mut last_sent: Option<Instant> = None;
+    loop {
+        if last_sent.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
+            feed();
+            last_sent = Some(Instant::now());
+        }
+        b.probe();
+        if b.grid().is_some_and(|g| f(&g)) {
+            return begin.elapsed();
+        }
+        if begin.elapsed() > timeout {
+            let logs: Vec<String> = procs.iter().map(|p| p.stderr()).collect();
+            panic!(
+                "timed out ({timeout:?}) waiting for {what}\npeer stderr:\n{}\nprocess logs:\n{}",
+                b.peer.stderr(),
+                logs.join("\n-----\n")
+            );
+        }
+        // Wakes as soon as B's link writes a sample: the latency is measured on arrival.
+        b.probe.wait(Duration::from_millis(100));
+    }
+}
+
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
+}
+
+#[test]
+fn activity_crosses_boxes_and_goes_unknown_while_the_link_is_down() {
+    python();
+    let tag = format!("{}{}", std::process::id() % 100_000, dds_domain());
+    let Some(pair) = NetnsPair::new(&tag, 1) else {
+        return;
+    };
+    let (link_domain, bridge_domain) = (dds_domain(), dds_domain());
+    let site_a = TestSite::new(
+        "link-a",
+        &format!(
+            "{}{}",
+            camera_toml(),
+            link_toml("box_a", "export", link_domain, &pair.addrs[0])
+        ),
+    );
+    let costmap =
+        costmap_toml(bridge_domain, "").replace("stale_s = 120", &format!("stale_s = {STALE_S}"));
+    let site_b = TestSite::new(
+        "link-b",
+        &format!(
+            "{}{costmap}{}",
+            camera_toml(),
+            link_toml("box_b", "import", link_domain, &pair.addrs[1])
+        ),
+    );
+    let link_bin = bin("isochron-link");
+    let config_a = site_a.config_path().display().to_string();
+    let config_b = site_b.config_path().display().to_string();
+    let start_link_a = || pair.spawn(0, &link_bin, &["--config", &config_a]);
+
+    let ipc_a = site_a.ipc("source");
+    let mut source = Source::new(&ipc_a, START);
+    let mut link_a = start_link_a();
+    source.wait_for_subscriber(&link_a);
+    let link_b = pair.spawn(1, &link_bin, &["--config", &config_b]);
+    let bridge = pair.spawn(1, &bin("isochron-costmap"), &["--config", &config_b]);
+    let script = repo_root().join("tests/ros2/costmap_listener.py");
+    let peer = pair.spawn(
+        1,
+        &python(),
+        &[
+            script.display().to_string(),
+            "--domain".into(),
+            bridge_domain.to_string(),
+            "--topic".into(),
+            "/isochron_test/activity_costmap".into(),
+            "--updates".into(),
+            "--timeout".into(),
+            "150".into(),
+        ],
+    );
+    let ipc_b = site_b.ipc("probe");
+    let mut b = BoxB {
+        peer,
+        probe: ipc_b.subscriber::<Activity>("cam01").unwrap(),
+        latencies_ms: Vec::new(),
+        synthetic_start_ns: Some(parse_rfc3339(START).unwrap()),
+    };
+    let hot = expected_cells(true);
+    let mut feed = || source.send(&[(HOT_BLOCK, HOT_S1)], 660);
+
+    // 1. A's activity reaches B's grid.
+    let t = until(
+        "cam01's activity in B's grid",
+        &mut feed,
+        &mut b,
+        &[&link_a, &link_b, &bridge],
+        Duration::from_secs(60),
+        |g| g == hot,
+    );
+    eprintln!("first grid with A's activity on B after {t:?}");
+
+    // 2. Steady state: bytes on the veth and latency over 10 s.
+    b.latencies_ms.clear();
+    let tx0 = pair.tx_bytes(0);
+    let t0 = Instant::now();
+    let steady = until(
+        "10 s of steady state",
+        &mut feed,
+        &mut b,
+        &[&link_a, &link_b, &bridge],
+        Duration::from_secs(20),
+        |_| t0.elapsed() >= Duration::from_secs(10),
+    );
+    let veth_bps = (pair.tx_bytes(0) - tx0) as f64 / steady.as_secs_f64();
+    let mut lat = b.latencies_ms.clone();
+    lat.sort_by(f64::total_cmp);
+    assert!(
+        lat.len() >= 8,
+        "only {} samples reached B in 10 s",
+        lat.len()
+    );
+    eprintln!(
+        "MEASURED veth A→B {veth_bps:.0} B/s (all traffic, 1 camera); origin→B iceoryx2 latency over {} samples: p50 {:.1} ms, p99 {:.1} ms",
+        lat.len(),
+        percentile(&lat, 0.5),
+        percentile(&lat, 0.99)
+    );
+
+    // 3. The veth goes down: B's cells of cam01 turn unknown; up: they come back.
+    pair.set_link(0, false);
+    let t = until(
+        "unknown cells while the veth is down",
+        &mut feed,
+        &mut b,
+        &[&link_a, &link_b, &bridge],
+        FOLLOW,
+        |g| footprint_unknown(g, &hot),
+    );
+    eprintln!("veth down → unknown after {t:?}");
+    pair.set_link(0, true);
+    let t = until(
+        "activity again once the veth is up",
+        &mut feed,
+        &mut b,
+        &[&link_a, &link_b, &bridge],
+        FOLLOW,
+        |g| g == hot,
+    );
+    eprintln!("veth up → activity after {t:?}");
+
+    // 4. kill -9 A's link: unknown; restarted: back, without touching B.
+    link_a.signal(libc::SIGKILL);
+    link_a.wait(Duration::from_secs(5));
+    let t = until(
+        "unknown cells while A's link is dead",
+        &mut feed,
+        &mut b,
+        &[&link_b, &bridge],
+        FOLLOW,
+        |g| footprint_unknown(g, &hot),
+    );
+    eprintln!("link A killed → unknown after {t:?}");
+    let mut link_a = start_link_a();
+    let t = until(
+        "activity again from the restarted link",
+        &mut feed,
+        &mut b,
+        &[&link_a, &link_b, &bridge],
+        Duration::from_secs(20),
+        |g| g == hot,
+    );
+    eprintln!("link A restarted → activity after {t:?}");
+    let t0 = Instant::now();
+    until(
+        "5 s more from the restarted link",
+        &mut feed,
+        &mut b,
+        &[&link_a, &link_b, &bridge],
+        Duration::from_secs(10),
+        |_| t0.elapsed() >= Duration::from_secs(5),
+    );
+
+    // The link's own count of what it sent.
+    link_a.terminate(Duration::from_secs(10));
+    let log = link_a.stderr();
+    let line = log
+        .lines()
+        .find(|l| l.contains("exported cam01:"))
+        .unwrap_or_else(|| panic!("no export summary in A's log:\n{log}"));
+    eprintln!("MEASURED {line}");
+    drop(b);
+    drop(pair);
+}
+
+/// The demo camera (vtest.avi at `--speed 1`, looping, with its real floor points)
+/// and a coarse grid over the floor it sees.
+fn demo_camera_and_grid(bridge_domain: u16) -> String {
+    let demo = std::fs::read_to_string(repo_root().join("config/demo.toml")).unwrap();
+    let floor = &demo[demo.find("floor_points = [").unwrap()..];
+    let floor = &floor[..floor.find("\n]\n").unwrap() + 3];
+    format!(
+        r#"[[camera]]
+id = "cam01"
+source = "{}"
+speed = 1
+loop = true
+start = "2009-03-02T11:00:00Z"
+{floor}
+[costmap]
+origin_x_m = -22.0
+origin_y_m = -18.0
+resolution_m = 0.5
+width_cells = 64
+height_cells = 60
+frame_id = "test_map"
+topic = "/isochron_test/activity_costmap"
+publish_hz = 4
+full_every_s = 2
+ros_domain_id = {bridge_domain}
+dds_interfaces = ["127.0.0.1"]
+stale_s = {STALE_S}
+"#,
+        isochron_tests::vtest().display()
+    )
+}
+
+/// Box A runs the real capture → motion → cascade on the demo video at
+/// `--speed 1` (a 768×576 camera: 1 728 blocks, ≈ 55 kB per message, which DDS
+/// fragments); box B's grid gets known cells under its footprint, and loses
+/// them while the veth is down.
+#[test]
+fn the_real_pipeline_on_one_box_feeds_the_bridge_on_another() {
+    python();
+    let tag = format!("{}{}", std::process::id() % 100_000, dds_domain());
+    let Some(pair) = NetnsPair::new(&tag, 2) else {
+        return;
+    };
+    let (link_domain, bridge_domain) = (dds_domain(), dds_domain());
+    let camera_and_grid = demo_camera_and_grid(bridge_domain);
+    let camera = &camera_and_grid[..camera_and_grid.find("[costmap]").unwrap()];
+    let site_a = TestSite::new(
+        "link-pipe-a",
+        &format!(
+            "{camera}{}",
+            link_toml("box_a", "export", link_domain, &pair.addrs[0])
+        ),
+    );
+    let site_b = TestSite::new(
+        "link-pipe-b",
+        &format!(
+            "{camera_and_grid}{}",
+            link_toml("box_b", "import", link_domain, &pair.addrs[1])
+        ),
+    );
+    let link_bin = bin("isochron-link");
+    let config_a = site_a.config_path().display().to_string();
+    let config_b = site_b.config_path().display().to_string();
+    // Box A's pipeline: shared memory only, so it needs no network namespace.
+    let pipeline: Vec<Proc> = ["isochron-capture", "isochron-motion", "isochron-cascade"]
+        .into_iter()
+        .map(|b| site_a.spawn(b, &["--camera", "cam01"]))
+        .collect();
+    let link_a = pair.spawn(0, &link_bin, &["--config", &config_a]);
+    let link_b = pair.spawn(1, &link_bin, &["--config", &config_b]);
+    let bridge = pair.spawn(1, &bin("isochron-costmap"), &["--config", &config_b]);
+    let script = repo_root().join("tests/ros2/costmap_listener.py");
+    let peer = pair.spawn(
+        1,
+        &python(),
+        &[
+            script.display().to_string(),
+            "--domain".into(),
+            bridge_domain.to_string(),
+            "--topic".into(),
+            "/isochron_test/activity_costmap".into(),
+            "--updates".into(),
+            "--timeout".into(),
+            "120".into(),
+        ],
+    );
+    let ipc_b = site_b.ipc("probe");
+    let mut b = BoxB {
+        peer,
+        probe: ipc_b.subscriber::<Activity>("cam01").unwrap(),
+        latencies_ms: Vec::new(),
+        synthetic_start_ns: None,
+    };
+    let mut feed = || {};
+    let mut logs: Vec<&Proc> = pipeline.iter().collect();
+    logs.extend([&link_a, &link_b, &bridge]);
+    let known = |g: &[i64]| g.iter().filter(|&&c| c != -1).count();
+    let t = until(
+        "known cells under the demo camera on box B",
+        &mut feed,
+        &mut b,
+        &logs,
+        Duration::from_secs(60),
+        |g| known(g) > 100,
+    );
+    eprintln!("first known cells on B after {t:?}");
+    b.latencies_ms.clear();
+    let t0 = Instant::now();
+    let tx0 = pair.tx_bytes(0);
+    let steady = until(
+        "10 s of the real pipeline",
+        &mut feed,
+        &mut b,
+        &logs,
+        Duration::from_secs(20),
+        |_| t0.elapsed() >= Duration::from_secs(10),
+    );
+    let veth_bps = (pair.tx_bytes(0) - tx0) as f64 / steady.as_secs_f64();
+    let mut lat = b.latencies_ms.clone();
+    lat.sort_by(f64::total_cmp);
+    assert!(
+        lat.len() >= 8,
+        "only {} samples reached B in 10 s",
+        lat.len()
+    );
+    eprintln!(
+        "MEASURED real pipeline: veth A→B {veth_bps:.0} B/s; capture (origin) → B's activity service over {} samples: p50 {:.0} ms, p99 {:.0} ms",
+        lat.len(),
+        percentile(&lat, 0.5),
+        percentile(&lat, 0.99)
+    );
+    pair.set_link(0, false);
+    let t = until(
+        "unknown cells while the veth is down",
+        &mut feed,
+        &mut b,
+        &logs,
+        FOLLOW,
+        |g| known(g) == 0,
+    );
+    eprintln!("real pipeline: veth down → unknown after {t:?}");
+    pair.set_link(0, true);
+    let t = until(
+        "known cells once the veth is up",
+        &mut feed,
+        &mut b,
+        &logs,
+        FOLLOW,
+        |g| known(g) > 100,
+    );
+    eprintln!("real pipeline: veth up → known after {t:?}");
+    drop(b);
+    drop(pair);
+}
