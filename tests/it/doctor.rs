@@ -55,8 +55,10 @@ fn a_stale_node_is_only_reported_without_fix_and_removed_with_it() {
         &["--config", config.as_str(), "--camera", "cam01"],
         Some(&world),
     );
+    // Its first status report comes after its status service exists: a kill
+    // before would leave a service half created, which no doctor can open.
     assert!(
-        motion.wait_for_stderr("computing motion", Duration::from_secs(20)),
+        motion.wait_for_stderr("latency_ms=", Duration::from_secs(20)),
         "{}",
         motion.stderr()
     );
