@@ -112,6 +112,71 @@ fn until(
     }
 }
 
+/// Follows 10 s of steady state and prints the bytes per second on A's veth (all
+/// traffic) and the origin → B activity-service latency (p50, p99).
+fn steady_state(
+    label: &str,
+    feed: &mut dyn FnMut(),
+    b: &mut BoxB,
+    pair: &NetnsPair,
+    procs: &[&Proc],
+) {
+    b.latencies_ms.clear();
+    let tx0 = pair.tx_bytes(0);
+    let t0 = Instant::now();
+    let steady = until(
+        "10 s of steady state",
+        feed,
+        b,
+        procs,
+        Duration::from_secs(20),
+        |_| t0.elapsed() >= Duration::from_secs(10),
+    );
+    let veth_bps = (pair.tx_bytes(0) - tx0) as f64 / steady.as_secs_f64();
+    let mut lat = b.latencies_ms.clone();
+    lat.sort_by(f64::total_cmp);
+    assert!(
+        lat.len() >= 8,
+        "only {} samples reached B in 10 s",
+        lat.len()
+    );
+    eprintln!(
+        "MEASURED {label}: veth A→B {veth_bps:.0} B/s (all traffic, 1 camera); origin → B's activity service over {} samples: p50 {:.1} ms, p99 {:.1} ms",
+        lat.len(),
+        percentile(&lat, 0.5),
+        percentile(&lat, 0.99)
+    );
+}
+
+/// Sets the veth down until B's grid is `unknown`, then up until it is `back`.
+fn veth_down_and_up(
+    label: &str,
+    (feed, b, pair, procs): (&mut dyn FnMut(), &mut BoxB, &NetnsPair, &[&Proc]),
+    unknown: impl FnMut(&[i64]) -> bool,
+    back: impl FnMut(&[i64]) -> bool,
+) {
+    pair.set_link(0, false);
+    let t = until(
+        "unknown cells while the veth is down",
+        feed,
+        b,
+        procs,
+        FOLLOW,
+        unknown,
+    );
+    eprintln!("{label}: veth down → unknown after {t:?}");
+    pair.set_link(0, true);
+    let t = until(
+        "B's cells again once the veth is up",
+        feed,
+        b,
+        procs,
+        FOLLOW,
+        back,
+    );
+    eprintln!("{label}: veth up → back after {t:?}");
+}
+
 fn percentile(sorted: &[f64], p: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * p).round() as usize]
 }
@@ -190,53 +255,16 @@ fn activity_crosses_boxes_and_goes_unknown_while_the_link_is_down() {
     eprintln!("first grid with A's activity on B after {t:?}");
 
     // 2. Steady state: bytes on the veth and latency over 10 s.
-    b.latencies_ms.clear();
-    let tx0 = pair.tx_bytes(0);
-    let t0 = Instant::now();
-    let steady = until(
-        "10 s of steady state",
-        &mut feed,
-        &mut b,
-        &[&link_a, &link_b, &bridge],
-        Duration::from_secs(20),
-        |_| t0.elapsed() >= Duration::from_secs(10),
-    );
-    let veth_bps = (pair.tx_bytes(0) - tx0) as f64 / steady.as_secs_f64();
-    let mut lat = b.latencies_ms.clone();
-    lat.sort_by(f64::total_cmp);
-    assert!(
-        lat.len() >= 8,
-        "only {} samples reached B in 10 s",
-        lat.len()
-    );
-    eprintln!(
-        "MEASURED veth A→B {veth_bps:.0} B/s (all traffic, 1 camera); origin→B iceoryx2 latency over {} samples: p50 {:.1} ms, p99 {:.1} ms",
-        lat.len(),
-        percentile(&lat, 0.5),
-        percentile(&lat, 0.99)
-    );
+    let procs = [&link_a, &link_b, &bridge];
+    steady_state("synthetic activity", &mut feed, &mut b, &pair, &procs);
 
     // 3. The veth goes down: B's cells of cam01 turn unknown; up: they come back.
-    pair.set_link(0, false);
-    let t = until(
-        "unknown cells while the veth is down",
-        &mut feed,
-        &mut b,
-        &[&link_a, &link_b, &bridge],
-        FOLLOW,
+    veth_down_and_up(
+        "synthetic activity",
+        (&mut feed, &mut b, &pair, &procs),
         |g| footprint_unknown(g, &hot),
-    );
-    eprintln!("veth down → unknown after {t:?}");
-    pair.set_link(0, true);
-    let t = until(
-        "activity again once the veth is up",
-        &mut feed,
-        &mut b,
-        &[&link_a, &link_b, &bridge],
-        FOLLOW,
         |g| g == hot,
     );
-    eprintln!("veth up → activity after {t:?}");
 
     // 4. kill -9 A's link: unknown; restarted: back, without touching B.
     link_a.signal(libc::SIGKILL);
@@ -388,51 +416,13 @@ fn the_real_pipeline_on_one_box_feeds_the_bridge_on_another() {
         |g| known(g) > 100,
     );
     eprintln!("first known cells on B after {t:?}");
-    b.latencies_ms.clear();
-    let t0 = Instant::now();
-    let tx0 = pair.tx_bytes(0);
-    let steady = until(
-        "10 s of the real pipeline",
-        &mut feed,
-        &mut b,
-        &logs,
-        Duration::from_secs(20),
-        |_| t0.elapsed() >= Duration::from_secs(10),
-    );
-    let veth_bps = (pair.tx_bytes(0) - tx0) as f64 / steady.as_secs_f64();
-    let mut lat = b.latencies_ms.clone();
-    lat.sort_by(f64::total_cmp);
-    assert!(
-        lat.len() >= 8,
-        "only {} samples reached B in 10 s",
-        lat.len()
-    );
-    eprintln!(
-        "MEASURED real pipeline: veth A→B {veth_bps:.0} B/s; capture (origin) → B's activity service over {} samples: p50 {:.0} ms, p99 {:.0} ms",
-        lat.len(),
-        percentile(&lat, 0.5),
-        percentile(&lat, 0.99)
-    );
-    pair.set_link(0, false);
-    let t = until(
-        "unknown cells while the veth is down",
-        &mut feed,
-        &mut b,
-        &logs,
-        FOLLOW,
+    steady_state("real pipeline", &mut feed, &mut b, &pair, &logs);
+    veth_down_and_up(
+        "real pipeline",
+        (&mut feed, &mut b, &pair, &logs),
         |g| known(g) == 0,
-    );
-    eprintln!("real pipeline: veth down → unknown after {t:?}");
-    pair.set_link(0, true);
-    let t = until(
-        "known cells once the veth is up",
-        &mut feed,
-        &mut b,
-        &logs,
-        FOLLOW,
         |g| known(g) > 100,
     );
-    eprintln!("real pipeline: veth up → known after {t:?}");
     drop(b);
     drop(pair);
 }
