@@ -506,6 +506,26 @@ pub fn eventually<T>(timeout: Duration, mut f: impl FnMut() -> Option<T>) -> Opt
     }
 }
 
+/// The Python of the test venv (`target/ros2-venv`, made by `cargo xtask setup`),
+/// checked to import `modules` (a Python import list); fails saying what to do.
+pub fn venv_python(modules: &str) -> PathBuf {
+    let path = setup_file(
+        "ISOCHRON_ROS2_PYTHON",
+        "target/ros2-venv/bin/python3",
+        &format!("(it makes a Python venv with the test peers' packages: {modules})"),
+    );
+    let ok = Command::new(&path)
+        .args(["-c", &format!("import {modules}")])
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(
+        ok,
+        "{} cannot import {modules}: run `cargo xtask setup` again",
+        path.display()
+    );
+    path
+}
+
 /// The camera section for vtest.avi at `speed`, starting at `start`.
 pub fn vtest_camera(speed: &str, start: &str) -> String {
     format!(

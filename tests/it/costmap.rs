@@ -19,7 +19,7 @@ use isochron_shared::store::{Bin, MinuteCommit, Store, StoreMeta, store_path};
 use isochron_shared::wire::{
     ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader, Preamble, Stream,
 };
-use isochron_tests::{NetnsPair, Proc, TestSite, bin, repo_root, setup_file};
+use isochron_tests::{NetnsPair, Proc, TestSite, bin, repo_root, venv_python};
 use serde_json::Value;
 
 /// The frame: 320×240 in 16-px blocks (20×15).
@@ -60,21 +60,7 @@ pub(crate) fn dds_domain() -> u16 {
 
 /// The Python of the venv with `cyclonedds`; fails with what to do when missing.
 pub(crate) fn python() -> PathBuf {
-    let path = setup_file(
-        "ISOCHRON_ROS2_PYTHON",
-        "target/ros2-venv/bin/python3",
-        "(it makes a Python venv with the cyclonedds package for the ROS 2 interoperability test)",
-    );
-    let ok = std::process::Command::new(&path)
-        .args(["-c", "import cyclonedds.domain"])
-        .status()
-        .is_ok_and(|s| s.success());
-    assert!(
-        ok,
-        "{} cannot import cyclonedds: run `cargo xtask setup` again",
-        path.display()
-    );
-    path
+    venv_python("cyclonedds.domain")
 }
 
 /// The camera table, with floor points taken from [`floor_to_image`] at 5 floor

@@ -285,21 +285,7 @@ fn a_slow_detector_does_not_delay_events() {
 
 /// The Python of the test venv with the `onnx` package (`cargo xtask setup`).
 fn onnx_python() -> std::path::PathBuf {
-    let path = isochron_tests::setup_file(
-        "ISOCHRON_ROS2_PYTHON",
-        "target/ros2-venv/bin/python3",
-        "(it makes a Python venv with the onnx package)",
-    );
-    let ok = std::process::Command::new(&path)
-        .args(["-c", "import onnx"])
-        .status()
-        .is_ok_and(|s| s.success());
-    assert!(
-        ok,
-        "{} cannot import onnx: run `cargo xtask setup` again",
-        path.display()
-    );
-    path
+    isochron_tests::venv_python("onnx")
 }
 
 #[test]

@@ -14,7 +14,7 @@
 use std::time::{Duration, Instant};
 
 use isochron_shared::clock::{NS_PER_S, parse_rfc3339, wall_now_ns};
-use isochron_shared::ipc::Activity;
+use isochron_shared::ipc::{Activity, Ipc};
 use isochron_shared::wire::CameraId;
 use isochron_tests::{NetnsPair, Proc, TestSite, bin, repo_root};
 
@@ -51,6 +51,38 @@ struct BoxB {
 }
 
 impl BoxB {
+    /// Starts the Cyclone DDS peer in B's namespace (reading the bridge's grid on
+    /// `domain` for up to `timeout_s`) and the probe on B's cam01 activity.
+    fn start(
+        pair: &NetnsPair,
+        ipc_b: &Ipc,
+        domain: u16,
+        timeout_s: u32,
+        synthetic_start_ns: Option<i64>,
+    ) -> BoxB {
+        let script = repo_root().join("tests/ros2/costmap_listener.py");
+        let peer = pair.spawn(
+            1,
+            &python(),
+            &[
+                script.display().to_string(),
+                "--domain".into(),
+                domain.to_string(),
+                "--topic".into(),
+                "/isochron_test/activity_costmap".into(),
+                "--updates".into(),
+                "--timeout".into(),
+                timeout_s.to_string(),
+            ],
+        );
+        BoxB {
+            peer,
+            probe: ipc_b.subscriber::<Activity>("cam01").unwrap(),
+            latencies_ms: Vec::new(),
+            synthetic_start_ns,
+        }
+    }
+
     /// The grid the peer holds now.
     fn grid(&mut self) -> Option<Vec<i64>> {
         held_grid(&messages(&mut self.peer))
@@ -218,28 +250,14 @@ fn activity_crosses_boxes_and_goes_unknown_while_the_link_is_down() {
     source.wait_for_subscriber(&link_a);
     let link_b = pair.spawn(1, &link_bin, &["--config", &config_b]);
     let bridge = pair.spawn(1, &bin("isochron-costmap"), &["--config", &config_b]);
-    let script = repo_root().join("tests/ros2/costmap_listener.py");
-    let peer = pair.spawn(
-        1,
-        &python(),
-        &[
-            script.display().to_string(),
-            "--domain".into(),
-            bridge_domain.to_string(),
-            "--topic".into(),
-            "/isochron_test/activity_costmap".into(),
-            "--updates".into(),
-            "--timeout".into(),
-            "150".into(),
-        ],
-    );
     let ipc_b = site_b.ipc("probe");
-    let mut b = BoxB {
-        peer,
-        probe: ipc_b.subscriber::<Activity>("cam01").unwrap(),
-        latencies_ms: Vec::new(),
-        synthetic_start_ns: Some(parse_rfc3339(START).unwrap()),
-    };
+    let mut b = BoxB::start(
+        &pair,
+        &ipc_b,
+        bridge_domain,
+        150,
+        Some(parse_rfc3339(START).unwrap()),
+    );
     let hot = expected_cells(true);
     let mut feed = || source.send(&[(HOT_BLOCK, HOT_S1)], 660);
 
@@ -381,28 +399,8 @@ fn the_real_pipeline_on_one_box_feeds_the_bridge_on_another() {
     let link_a = pair.spawn(0, &link_bin, &["--config", &config_a]);
     let link_b = pair.spawn(1, &link_bin, &["--config", &config_b]);
     let bridge = pair.spawn(1, &bin("isochron-costmap"), &["--config", &config_b]);
-    let script = repo_root().join("tests/ros2/costmap_listener.py");
-    let peer = pair.spawn(
-        1,
-        &python(),
-        &[
-            script.display().to_string(),
-            "--domain".into(),
-            bridge_domain.to_string(),
-            "--topic".into(),
-            "/isochron_test/activity_costmap".into(),
-            "--updates".into(),
-            "--timeout".into(),
-            "120".into(),
-        ],
-    );
     let ipc_b = site_b.ipc("probe");
-    let mut b = BoxB {
-        peer,
-        probe: ipc_b.subscriber::<Activity>("cam01").unwrap(),
-        latencies_ms: Vec::new(),
-        synthetic_start_ns: None,
-    };
+    let mut b = BoxB::start(&pair, &ipc_b, bridge_domain, 120, None);
     let mut feed = || {};
     let mut logs: Vec<&Proc> = pipeline.iter().collect();
     logs.extend([&link_a, &link_b, &bridge]);

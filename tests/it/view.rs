@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use isochron_tests::{Proc, TestSite, bin, repo_root, setup_file, vtest};
+use isochron_tests::{Proc, TestSite, bin, repo_root, venv_python, vtest};
 use serde_json::Value;
 
 /// config/demo.toml without its `[site]` section (the test site has its own), the
@@ -210,21 +210,7 @@ fn bad_overlay_input_is_one_clear_line() {
 
 /// The venv's Python with `mcap` and `websockets`.
 fn python() -> PathBuf {
-    let path = setup_file(
-        "ISOCHRON_ROS2_PYTHON",
-        "target/ros2-venv/bin/python3",
-        "(it makes a Python venv with the mcap and websockets packages)",
-    );
-    let ok = std::process::Command::new(&path)
-        .args(["-c", "import mcap.reader, websockets"])
-        .status()
-        .is_ok_and(|s| s.success());
-    assert!(
-        ok,
-        "{} cannot import mcap and websockets: run `cargo xtask setup` again",
-        path.display()
-    );
-    path
+    venv_python("mcap.reader, websockets")
 }
 
 /// What `tests/view/mcap_summary.py` reads in `file`.
