@@ -30,6 +30,8 @@ const WARMUP: usize = 50;
 const QUICK_FRAMES: usize = 50;
 /// Time between frames: the receiver is idle-waiting for each, as in the pipeline.
 const INTERVAL: Duration = Duration::from_millis(3);
+/// A receiver that sees no frame for this long reports what it has.
+const RECEIVE_TIMEOUT: Duration = Duration::from_secs(5);
 
 #[derive(Clone, Copy)]
 struct Size {
@@ -140,21 +142,24 @@ fn main() {
         "IPC benchmark: {frames} frames per case, one every {INTERVAL:?}, receiver waits for a wake-up"
     );
     println!(
-        "{:<18} {:<9} {:>9} {:>9} {:>14}",
-        "frame", "transport", "p50 µs", "p99 µs", "CPU µs/frame"
+        "{:<18} {:<9} {:>9} {:>9} {:>14} {:>5}",
+        "frame", "transport", "p50 µs", "p99 µs", "CPU µs/frame", "lost"
     );
     let mut results = Vec::new();
+    let mut lost_total = 0;
     for (s, size) in SIZES.iter().enumerate() {
         for transport in ["iceoryx2", "uds"] {
-            let (mut lat, cpu) = run_case(transport, s, frames);
+            let (mut lat, cpu, lost) = run_case(transport, s, frames);
+            lost_total += lost;
             let (p50, p99) = (quantile(&mut lat, 0.5), quantile(&mut lat, 0.99));
             println!(
-                "{:<18} {:<9} {:>9.1} {:>9.1} {:>14.1}",
+                "{:<18} {:<9} {:>9.1} {:>9.1} {:>14.1} {:>5}",
                 size.label(),
                 transport,
                 p50,
                 p99,
-                cpu
+                cpu,
+                lost
             );
             results.push((size.name, transport, p50, p99, cpu));
         }
@@ -176,15 +181,16 @@ fn main() {
         uds_hd_cpu / hd_cpu
     );
     println!(
-        "{{\"bench\":\"ipc\",\"p50_us_vga\":{vga_p50:.1},\"p50_us_1080p\":{hd_p50:.1},\"p99_us_1080p\":{hd_p99:.1},\"cpu_us_per_frame_1080p\":{hd_cpu:.2},\"uds_cpu_over_iox2_1080p\":{:.1}{}}}",
+        "{{\"bench\":\"ipc\",\"p50_us_vga\":{vga_p50:.1},\"p50_us_1080p\":{hd_p50:.1},\"p99_us_1080p\":{hd_p99:.1},\"cpu_us_per_frame_1080p\":{hd_cpu:.2},\"uds_cpu_over_iox2_1080p\":{:.1},\"lost_frames\":{lost_total}{}}}",
         uds_hd_cpu / hd_cpu,
         if quick { ",\"quick\":true" } else { "" }
     );
 }
 
 /// Runs one case of `frames` measured frames: spawns the receiver, sends, collects.
-/// Returns latencies and CPU µs per frame of both processes together.
-fn run_case(transport: &str, size_index: usize, frames: usize) -> (Vec<f64>, f64) {
+/// Returns latencies, CPU µs per frame of both processes together, and the frames
+/// the receiver never got (dropped by a full queue under load).
+fn run_case(transport: &str, size_index: usize, frames: usize) -> (Vec<f64>, f64, usize) {
     let size = SIZES[size_index];
     let tag = format!("ipcbench-{}-{transport}-{}", std::process::id(), size.name);
     let mut child = Command::new(std::env::current_exe().unwrap())
@@ -270,18 +276,23 @@ fn run_case(transport: &str, size_index: usize, frames: usize) -> (Vec<f64>, f64
         .iter()
         .map(|v| v.as_f64().unwrap())
         .collect();
-    assert_eq!(latencies.len(), frames, "{transport}: frames lost");
+    let lost = frames - latencies.len();
     let receiver_cpu = received["cpu_us"].as_f64().unwrap();
     if std::env::var_os("IPC_BENCH_VERBOSE").is_some() {
         eprintln!(
             "{transport} {}: sender {:.1} µs/frame, receiver {:.1} µs/frame",
             size.label(),
             sender_cpu / frames as f64,
-            receiver_cpu / frames as f64
+            receiver_cpu / latencies.len() as f64
         );
     }
-    let cpu = (sender_cpu + receiver_cpu) / frames as f64;
-    (latencies, cpu)
+    assert!(
+        !latencies.is_empty(),
+        "{transport} {}: the receiver got none of the measured frames",
+        size.label()
+    );
+    let cpu = sender_cpu / frames as f64 + receiver_cpu / latencies.len() as f64;
+    (latencies, cpu, lost)
 }
 
 fn receiver(transport: &str, tag: &str, size_index: usize, measured: usize) {
@@ -298,27 +309,42 @@ fn receiver(transport: &str, tag: &str, size_index: usize, measured: usize) {
             println!("ready");
             std::io::stdout().flush().unwrap();
             let mut latencies_us = Vec::with_capacity(measured);
-            let (mut n, mut cpu0, mut checksum) = (0usize, 0.0, 0u64);
-            while n < WARMUP + measured {
+            let (mut cpu0, mut checksum) = (0.0, 0u64);
+            let last = (WARMUP + measured - 1) as u64;
+            // Ends at the sender's last frame, or when frames stop coming: a sample the
+            // subscriber's queue dropped under load is counted as lost, not waited for.
+            let mut done = false;
+            while !done {
+                let mut woken = false;
                 waitset
                     .wait_and_process_once_with_timeout(
-                        |_| CallbackProgression::Continue,
-                        Duration::from_secs(5),
+                        |_| {
+                            woken = true;
+                            CallbackProgression::Continue
+                        },
+                        RECEIVE_TIMEOUT,
                     )
                     .expect("wait");
                 frames.drain_wakeups();
+                let mut got = false;
                 while let Some(sample) = frames.receive().expect("receive") {
+                    got = true;
                     let now = monotonic_ns();
                     let h = sample.user_header();
                     let pixels = sample.payload();
                     checksum += pixels[0] as u64 + pixels[pixels.len() - 1] as u64;
-                    if n == WARMUP {
-                        cpu0 = cpu_us();
-                    }
-                    if n >= WARMUP {
+                    let index = h.source_index;
+                    if index >= WARMUP as u64 {
+                        if latencies_us.is_empty() {
+                            cpu0 = cpu_us();
+                        }
                         latencies_us.push((now - h.preamble.origin_wall_ns) as f64 / 1e3);
                     }
-                    n += 1;
+                    done |= index >= last;
+                }
+                if !woken && !got {
+                    eprintln!("ipc bench receiver: no frame for {RECEIVE_TIMEOUT:?}, stopping");
+                    break;
                 }
             }
             std::hint::black_box(checksum);
