@@ -74,7 +74,7 @@ fn main() -> anyhow::Result<()> {
                 if matches!(*target, "gate" | "group") {
                     run(cargo().args(["build", "--workspace", "--bins"]))?;
                 }
-                quick_bench(package, target, &rest)
+                quick_bench(cargo(), package, target, &rest)
             } else {
                 bench(package, target, extra)
             }
@@ -338,21 +338,15 @@ fn report(out: &Path) -> anyhow::Result<()> {
 
 fn test() -> anyhow::Result<()> {
     run(cargo().args(["fmt", "--all", "--", "--check"]))?;
-    run(cargo().args([
-        "clippy",
-        "--workspace",
-        "--all-targets",
-        "--",
-        "-D",
-        "warnings",
-    ]))?;
-    run(cargo().args(["build", "--workspace", "--bins"]))?;
-    run(cargo().args(["test", "--workspace"]))?;
+    // Lint and build every target in one pass (clippy --all-targets, but building).
+    run(linted_cargo()?.args(["test", "--workspace", "--all-targets", "--no-run"]))?;
+    run(linted_cargo()?.args(["build", "--workspace", "--bins"]))?;
+    run(linted_cargo()?.args(["test", "--workspace"]))?;
     // Every benchmark in quick mode, so that none can rot.
     let mut times = Vec::new();
     for (name, package, target) in BENCHES {
         let t0 = Instant::now();
-        quick_bench(package, target, &[])?;
+        quick_bench(linted_cargo()?, package, target, &[])?;
         times.push(format!("{name} {:.0} s", t0.elapsed().as_secs_f64()));
     }
     eprintln!(
@@ -362,12 +356,44 @@ fn test() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Runs benchmark `target` of `package` in quick mode in the dev profile (`cargo test
-/// --bench`: the `harness = false` binary, run with the arguments after `--`), its
+/// `cargo` with clippy's driver as the compiler of the workspace's own crates, all
+/// warnings denied: what `cargo clippy -- -D warnings` does, but building as well as
+/// linting, so that no crate is compiled twice (once checked for clippy, once built
+/// for the tests). Dependencies are built by plain rustc, as with `cargo clippy`.
+/// Incremental compilation is off where `CI` is set: a clean build is faster without.
+fn linted_cargo() -> anyhow::Result<Command> {
+    let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
+    let sysroot = Command::new(&rustc)
+        .args(["--print", "sysroot"])
+        .output()
+        .with_context(|| format!("running {rustc} --print sysroot"))?;
+    let driver = PathBuf::from(String::from_utf8_lossy(&sysroot.stdout).trim())
+        .join("bin/clippy-driver");
+    if !driver.exists() {
+        bail!(
+            "{} not found: install clippy (`rustup component add clippy`)",
+            driver.display()
+        );
+    }
+    let mut cmd = cargo();
+    cmd.env("RUSTC_WORKSPACE_WRAPPER", driver)
+        .env("CLIPPY_ARGS", "-D__CLIPPY_HACKERY__warnings__CLIPPY_HACKERY__");
+    if std::env::var_os("CI").is_some() {
+        cmd.env("CARGO_INCREMENTAL", "0");
+    }
+    Ok(cmd)
+}
+
+/// Runs benchmark `target` of `package` in quick mode in the dev profile (`cmd`, a
+/// `cargo` command, with `test --bench`: the `harness = false` binary, run with the arguments after `--`), its
 /// output shown as it comes, and fails unless the last line of its output that names
 /// `"bench"` is a JSON object of this benchmark.
-fn quick_bench(package: &str, target: &str, extra: &[String]) -> anyhow::Result<()> {
-    let mut cmd = cargo();
+fn quick_bench(
+    mut cmd: Command,
+    package: &str,
+    target: &str,
+    extra: &[String],
+) -> anyhow::Result<()> {
     cmd.args(["test", "-p", package, "--bench", target, "--", "--quick"])
         .args(extra)
         .stdout(Stdio::piped());
