@@ -18,9 +18,16 @@
 //!   late to keep its event open, but the person it finds is confirmed all the
 //!   same (a lossless replay waits for every report before the next second).
 //!
+//! * a confirmed person under whose box no block was active for
+//!   `confirm_still_max_s` is no longer confirmed, whatever the detector finds
+//!   (a poster or a mannequin it likes would otherwise stay for ever).
+//!
 //! So an event ends only when its activity has been quiet for `hold_s` **and**
 //! nobody is confirmed in its zone; its end is the later of its last second above
 //! the threshold and the last frame a person was confirmed in.
+//!
+//! With `detector.crop` a job searches only [`crop_region`]: around the zone's
+//! blocks that move or stay this second and its confirmed people.
 
 use std::collections::HashMap;
 
