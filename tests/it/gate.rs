@@ -236,7 +236,8 @@ fn a_slow_detector_does_not_delay_events() {
     let site = site(
         "gate-slow",
         false,
-        "hold_s = 0.0\n\n[gate.detector]\nhog_upscale = 2.0\nqueue = 1",
+        // The whole frame at OpenCV's fine scale step: a slow search.
+        "hold_s = 0.0\n\n[gate.detector]\nhog_upscale = 2.0\nhog_scale_step = 1.05\ncrop = false\nqueue = 1",
     );
     let mut fed = start_gate(&site, 1920, 1080);
 
@@ -305,7 +306,7 @@ fn an_onnx_model_runs_through_opencv_dnn_on_the_letterboxed_frame() {
             &format!("gate-onnx{channels}"),
             true,
             &format!(
-                "[gate.detector]\nmodel = \"{}\"\ninput_px = 64\ninput_channels = {channels}",
+                "[gate.detector]\nmodel = \"{}\"\ninput_px = 64\ninput_channels = {channels}\ncrop = false",
                 model.display()
             ),
         );

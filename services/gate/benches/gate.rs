@@ -22,6 +22,7 @@ use std::process::Command;
 use std::time::Instant;
 
 use isochron_gate::detector::Detector;
+use isochron_gate::worker::Region;
 use isochron_shared::config::Config;
 use opencv::core::Size;
 use opencv::prelude::*;
@@ -124,7 +125,7 @@ fn main() {
     let mut people = 0;
     let mut timed = 0;
     for f in frames.iter().step_by(step) {
-        people += detector.detect(f, w, h).unwrap().len();
+        people += detector.detect(f, w, h, Region::WHOLE).unwrap().len();
         timed += 1;
     }
     let detect_all_fps = timed as f64 / t0.elapsed().as_secs_f64();

@@ -1,19 +1,34 @@
 //! The gate's HOG detector scored on PETS 2009 S2.L1 (`data/vtest.avi` with
 //! `tests/data/pets09-s2l1-gt.txt`) at the analysis size (768×576): precision and
 //! recall at IoU ≥ 0.5 against the people to consider (MOT flag 1; a detection of
-//! a flag-0 person counts neither way), and the time per frame, for a grid of
-//! `hog_upscale` × `hog_hit_threshold` settings. Used to choose the defaults.
+//! a flag-0 person counts neither way), and the detector's time per frame, for a
+//! sweep of the `[gate.detector]` HOG settings. Used to choose the defaults.
 //!
-//! `cargo run -p isochron-gate --example hog_pets09 [-- STEP [upscale,threshold ...]]`
-//! (every STEP-th frame, default 10).
+//! A crop (`c=MARGIN`) searches, as the gate does, only around the blocks the
+//! motion stage (its own kernel, default `[motion]` settings) saw active in the
+//! second before the frame, `MARGIN` pixels more on each side
+//! (`isochron_gate::gate::crop_region`); people who stand still are outside it
+//! unless someone moves near them (the gate adds its confirmed people's boxes).
+//!
+//! `cargo run -p isochron-gate --example hog_pets09 [-- STEP [SETTINGS ...]]`
+//! (every STEP-th frame, default 40). SETTINGS: comma-separated `key=value` over
+//! the defaults, e.g. `u=1.5,t=0.3,s=8,k=1.05,g=2,c=64`: u upscale, t hit
+//! threshold, s window stride, k scale step, g grouping threshold (0: NMS at
+//! `nms_threshold` instead), c crop margin (no `c`: the whole frame). Without
+//! SETTINGS, a sweep that changes one setting at a time.
 
+use std::collections::BTreeSet;
 use std::path::PathBuf;
 use std::time::Instant;
 
 use isochron_gate::detector::Detector;
+use isochron_gate::gate::crop_region;
+use isochron_gate::worker::Region;
+use isochron_motion::detector::MotionDetector;
 use isochron_motion::eval::{GroundTruth, PersonBox};
-use isochron_shared::config::DetectorConfig;
-use isochron_shared::wire::Detection;
+use isochron_shared::config::{DetectorConfig, MotionConfig};
+use isochron_shared::geometry::BlockGrid;
+use isochron_shared::wire::{BlockMotion, Detection};
 use opencv::core::Mat;
 use opencv::prelude::*;
 use opencv::{imgproc, videoio};
@@ -30,61 +45,173 @@ fn iou(d: &Detection, b: &PersonBox) -> f64 {
     inter / ((ax1 - ax0) * (ay1 - ay0) + b.width * b.height - inter)
 }
 
+/// One setting of the sweep: the detector and the crop margin (None: whole frame).
+#[derive(Clone)]
+struct Setting {
+    config: DetectorConfig,
+    crop: Option<u32>,
+}
+
+impl Setting {
+    /// Parses `key=value,...` over the defaults.
+    fn parse(spec: &str) -> Option<Setting> {
+        let mut s = Setting::base();
+        for kv in spec.split(',') {
+            let (k, v) = kv.split_once('=')?;
+            let c = &mut s.config;
+            match k {
+                "u" => c.hog_upscale = v.parse().ok()?,
+                "t" => c.hog_hit_threshold = v.parse().ok()?,
+                "s" => c.hog_win_stride_px = v.parse().ok()?,
+                "k" => c.hog_scale_step = v.parse().ok()?,
+                "g" => c.hog_group_threshold = v.parse().ok()?,
+                "c" => s.crop = Some(v.parse().ok()?),
+                _ => return None,
+            }
+        }
+        Some(s)
+    }
+
+    /// The detector defaults, on the whole frame.
+    fn base() -> Setting {
+        Setting {
+            config: DetectorConfig::default(),
+            crop: None,
+        }
+    }
+
+    fn label(&self) -> String {
+        let c = &self.config;
+        format!(
+            "u={} t={} s={} k={} g={} {}",
+            c.hog_upscale,
+            c.hog_hit_threshold,
+            c.hog_win_stride_px,
+            c.hog_scale_step,
+            c.hog_group_threshold,
+            self.crop
+                .map_or("whole".to_string(), |m| format!("crop={m}"))
+        )
+    }
+}
+
+/// A sampled frame: its index, pixels, and the blocks active in the second before it.
+struct Sample {
+    n: u64,
+    pixels: Vec<u8>,
+    active: Vec<u32>,
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
     let gt = GroundTruth::parse_mot(&std::fs::read_to_string(
         root.join("tests/data/pets09-s2l1-gt.txt"),
     )?)?;
     let mut args = std::env::args().skip(1);
-    let step: usize = args.next().and_then(|s| s.parse().ok()).unwrap_or(10);
-    let mut grid: Vec<(f64, f64)> = args
-        .filter_map(|a| {
-            let (u, t) = a.split_once(',')?;
-            Some((u.parse().ok()?, t.parse().ok()?))
-        })
-        .collect();
-    if grid.is_empty() {
-        for upscale in [1.0, 1.25, 1.5, 1.75] {
-            for threshold in [0.0, 0.3] {
-                grid.push((upscale, threshold));
-            }
+    let step: u64 = args.next().and_then(|s| s.parse().ok()).unwrap_or(40);
+    let mut settings: Vec<Setting> = args.filter_map(|a| Setting::parse(&a)).collect();
+    if settings.is_empty() {
+        let one = |f: &dyn Fn(&mut Setting)| {
+            let mut s = Setting::base();
+            f(&mut s);
+            s
+        };
+        settings.push(Setting::base());
+        for u in [1.0, 1.25, 1.75, 2.0] {
+            settings.push(one(&|s| s.config.hog_upscale = u));
+        }
+        for t in [0.3, 0.6] {
+            settings.push(one(&|s| s.config.hog_hit_threshold = t));
+        }
+        settings.push(one(&|s| s.config.hog_win_stride_px = 16));
+        for k in [1.1, 1.2] {
+            settings.push(one(&|s| s.config.hog_scale_step = k));
+        }
+        for g in [0, 1, 3] {
+            settings.push(one(&|s| s.config.hog_group_threshold = g));
+        }
+        for c in [32, 64, 96] {
+            settings.push(one(&|s| s.crop = Some(c)));
         }
     }
+
+    // The sampled frames, with the blocks the motion stage saw active in the
+    // second before each.
     let mut cap = videoio::VideoCapture::from_file(
         root.join("data/vtest.avi").to_str().unwrap(),
         videoio::CAP_ANY,
     )?;
+    let fps = cap.get(videoio::CAP_PROP_FPS)?;
+    let per_second = if fps > 0.0 { fps.round() as u64 } else { 10 };
     let (mut bgr, mut gray) = (Mat::default(), Mat::default());
-    let mut frames = Vec::new();
+    let motion_config = MotionConfig::default();
+    let mut motion = None;
+    let mut blocks = Vec::new();
+    let mut previous: Vec<u8> = Vec::new();
+    let mut active = BTreeSet::new();
+    let mut samples = Vec::new();
     let mut n = 0u64;
     while cap.read(&mut bgr)? && !bgr.empty() {
-        if (n as usize).is_multiple_of(step) {
-            imgproc::cvt_color(&bgr, &mut gray, imgproc::COLOR_BGR2GRAY, 0)?;
-            frames.push((n, gray.data_bytes()?.to_vec()));
+        imgproc::cvt_color(&bgr, &mut gray, imgproc::COLOR_BGR2GRAY, 0)?;
+        let pixels = gray.data_bytes()?.to_vec();
+        let (w, h) = (gray.cols() as usize, gray.rows() as usize);
+        let det = match &mut motion {
+            Some(det) => det,
+            None => {
+                let det = MotionDetector::new(&motion_config, w, h, &[])?;
+                blocks = vec![BlockMotion::default(); det.geometry().blocks()];
+                motion.insert(det)
+            }
+        };
+        // Only the pairs of the second before a sampled frame.
+        let next_sample = n.div_ceil(step) * step;
+        if n > 0 && next_sample - n < per_second {
+            det.process(&previous, &pixels, &mut blocks)?;
+            for (i, b) in blocks.iter().enumerate() {
+                if b.density >= motion_config.density_threshold {
+                    active.insert(i as u32);
+                }
+            }
         }
+        if n.is_multiple_of(step) {
+            samples.push(Sample {
+                n,
+                pixels: pixels.clone(),
+                active: std::mem::take(&mut active).into_iter().collect(),
+            });
+        }
+        previous = pixels;
         n += 1;
     }
     let (w, h) = (gray.cols() as u32, gray.rows() as u32);
+    let grid = BlockGrid::new(w, h, motion_config.block_px);
     println!(
         "HOG on {} frames of vtest.avi ({w}x{h}), every {step}th; IoU >= 0.5",
-        frames.len()
+        samples.len()
     );
     println!(
-        "{:>8} {:>10} {:>10} {:>8} {:>10} {:>10}",
-        "upscale", "threshold", "precision", "recall", "found/all", "ms/frame"
+        "{:<36} {:>9} {:>6} {:>9} {:>8} {:>6}",
+        "setting", "precision", "recall", "found/all", "ms/frame", "area"
     );
-    for (upscale, threshold) in grid {
-        let config = DetectorConfig {
-            hog_upscale: upscale,
-            hog_hit_threshold: threshold,
-            ..DetectorConfig::default()
-        };
-        let mut detector = Detector::from_config(&config, &root)?;
+    for setting in settings {
+        let mut detector = Detector::from_config(&setting.config, &root)?;
         let (mut tp, mut fp, mut found, mut people) = (0, 0, 0, 0);
-        let t0 = Instant::now();
-        for (n, pixels) in &frames {
-            let dets = detector.detect(pixels, w, h)?;
-            let boxes = gt.boxes(*n);
+        let mut area = 0.0;
+        let mut elapsed = std::time::Duration::ZERO;
+        for s in &samples {
+            let region = match setting.crop {
+                Some(margin) => crop_region(&grid, &s.active, &[], margin),
+                None => Region::WHOLE,
+            };
+            area += if region.is_whole() {
+                1.0
+            } else {
+                (region.w * region.h) as f64 / (w * h) as f64
+            };
+            let t0 = Instant::now();
+            let dets = detector.detect(&s.pixels, w, h, region)?;
+            elapsed += t0.elapsed();
+            let boxes = gt.boxes(s.n);
             let mut used = vec![false; boxes.len()];
             // Greedy: strongest detections first take their best free box.
             let mut order: Vec<&Detection> = dets.iter().collect();
@@ -112,12 +239,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 .filter(|(b, u)| b.flag == 1 && **u)
                 .count();
         }
-        let ms = t0.elapsed().as_secs_f64() * 1e3 / frames.len() as f64;
+        let k = samples.len().max(1) as f64;
         println!(
-            "{upscale:>8.2} {threshold:>10.2} {:>10.3} {:>8.3} {:>10} {ms:>10.0}",
+            "{:<36} {:>9.3} {:>6.3} {:>9} {:>8.0} {:>6.2}",
+            setting.label(),
             tp as f64 / (tp + fp).max(1) as f64,
             found as f64 / people.max(1) as f64,
-            format!("{found}/{people}")
+            format!("{found}/{people}"),
+            elapsed.as_secs_f64() * 1e3 / k,
+            area / k
         );
     }
     Ok(())

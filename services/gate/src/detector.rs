@@ -21,12 +21,17 @@ use opencv::core::{Mat, Rect, Scalar, Size, Vector};
 use opencv::prelude::*;
 use opencv::{dnn, imgproc, objdetect};
 
+use crate::worker::Region;
+
 /// Fraction of a HOG window's width left and right of the person.
 const HOG_MARGIN_X: f32 = 0.1;
 /// Fraction of a HOG window's height above the person's head.
 const HOG_MARGIN_TOP: f32 = 0.07;
 /// Fraction of a HOG window's height below the person's feet.
 const HOG_MARGIN_BOTTOM: f32 = 0.13;
+/// HOG's detection window, pixels: a crop is never searched smaller than this
+/// (in frame pixels, after the upscale).
+const HOG_WINDOW: (i32, i32) = (64, 128);
 
 /// A ready detector.
 pub enum Detector {
@@ -38,6 +43,14 @@ pub enum Detector {
         upscale: f64,
         /// SVM hit threshold.
         hit_threshold: f64,
+        /// Window stride, upscaled pixels.
+        win_stride: i32,
+        /// Pyramid scale step.
+        scale_step: f64,
+        /// `groupRectangles` threshold; 0: non-maximum suppression instead.
+        group_threshold: u32,
+        /// NMS overlap threshold (with `group_threshold` 0).
+        nms_threshold: f32,
         /// Reused buffer for the upscaled frame.
         scaled: Mat,
     },
@@ -108,6 +121,10 @@ impl Detector {
                     hog,
                     upscale: config.hog_upscale,
                     hit_threshold: config.hog_hit_threshold,
+                    win_stride: config.hog_win_stride_px as i32,
+                    scale_step: config.hog_scale_step,
+                    group_threshold: config.hog_group_threshold,
+                    nms_threshold: config.nms_threshold,
                     scaled: Mat::default(),
                 })
             }
@@ -144,35 +161,55 @@ impl Detector {
         }
     }
 
-    /// Finds people in a GRAY8 frame; boxes in frame pixels.
+    /// Finds people in `region` of a GRAY8 frame (the whole frame for
+    /// [`Region::WHOLE`]; a region smaller than the detector's window is grown
+    /// around its centre); boxes in frame pixels.
     pub fn detect(
         &mut self,
         gray: &[u8],
         width: u32,
         height: u32,
+        region: Region,
     ) -> opencv::Result<Vec<Detection>> {
-        if gray.len() != width as usize * height as usize {
+        if gray.len() != width as usize * height as usize || width == 0 || height == 0 {
             return Err(opencv::Error::new(
                 opencv::core::StsBadSize,
                 format!("{} bytes is not a {width}x{height} GRAY8 frame", gray.len()),
             ));
         }
+        let min = match self {
+            Detector::Hog { upscale, .. } => (
+                (HOG_WINDOW.0 as f64 / *upscale).ceil() as u32,
+                (HOG_WINDOW.1 as f64 / *upscale).ceil() as u32,
+            ),
+            Detector::Onnx { .. } => (32, 32),
+        };
+        let r = search_rect(region, width, height, min);
         // SAFETY: `gray` holds width × height bytes (checked above) and outlives
-        // `frame`, which OpenCV only reads.
-        let frame = unsafe {
+        // `crop`, which OpenCV only reads: `r` lies inside the frame, so its rows
+        // (`width` bytes apart) start at `gray[(r.y + row) * width + r.x]` and
+        // end within `gray`.
+        let crop = unsafe {
             Mat::new_rows_cols_with_data_unsafe(
-                height as i32,
-                width as i32,
+                r.height,
+                r.width,
                 opencv::core::CV_8UC1,
-                gray.as_ptr() as *mut std::ffi::c_void,
+                gray.as_ptr()
+                    .add(r.y as usize * width as usize + r.x as usize)
+                    as *mut std::ffi::c_void,
                 width as usize,
             )?
         };
+        let (ox, oy) = (r.x as f32, r.y as f32);
         match self {
             Detector::Hog {
                 hog,
                 upscale,
                 hit_threshold,
+                win_stride,
+                scale_step,
+                group_threshold,
+                nms_threshold,
                 scaled,
             } => {
                 let mut rects = Vector::<Rect>::new();
@@ -183,38 +220,57 @@ impl Detector {
                         &mut rects,
                         &mut weights,
                         *hit_threshold,
+                        Size::new(*win_stride, *win_stride),
                         Size::new(8, 8),
-                        Size::new(8, 8),
-                        1.05,
-                        2.0,
+                        *scale_step,
+                        *group_threshold as f64,
                         false,
                     )
                 };
                 if (*upscale - 1.0).abs() > 1e-6 {
                     let size = Size::new(
-                        (width as f64 * *upscale).round() as i32,
-                        (height as f64 * *upscale).round() as i32,
+                        (r.width as f64 * *upscale).round() as i32,
+                        (r.height as f64 * *upscale).round() as i32,
                     );
-                    imgproc::resize(&frame, scaled, size, 0.0, 0.0, imgproc::INTER_LINEAR)?;
+                    imgproc::resize(&crop, scaled, size, 0.0, 0.0, imgproc::INTER_LINEAR)?;
                     run(scaled)?;
                 } else {
-                    run(&frame)?;
+                    run(&crop)?;
+                }
+                let mut boxes: Vec<(Rect, f32)> = rects
+                    .iter()
+                    .zip(weights.iter())
+                    .map(|(r, w)| (r, w as f32))
+                    .collect();
+                if *group_threshold == 0 && boxes.len() > 1 {
+                    let rects: Vector<Rect> = boxes.iter().map(|b| b.0).collect();
+                    let scores: Vector<f32> = boxes.iter().map(|b| b.1).collect();
+                    let mut keep = Vector::<i32>::new();
+                    dnn::nms_boxes(
+                        &rects,
+                        &scores,
+                        hit_threshold.max(0.0) as f32,
+                        *nms_threshold,
+                        &mut keep,
+                        1.0,
+                        0,
+                    )?;
+                    boxes = keep.iter().map(|i| boxes[i as usize]).collect();
                 }
                 let s = *upscale as f32;
                 // HOG's window has a margin around the person (64×128 for a
                 // person about 50×100): the box is shrunk to the person, so it
                 // overlaps an annotation as tightly and its bottom is at the feet.
-                Ok(rects
-                    .iter()
-                    .zip(weights.iter())
+                Ok(boxes
+                    .into_iter()
                     .map(|(r, w)| {
                         let (rw, rh) = (r.width as f32, r.height as f32);
                         Detection {
-                            x: (r.x as f32 + HOG_MARGIN_X * rw) / s,
-                            y: (r.y as f32 + HOG_MARGIN_TOP * rh) / s,
+                            x: ox + (r.x as f32 + HOG_MARGIN_X * rw) / s,
+                            y: oy + (r.y as f32 + HOG_MARGIN_TOP * rh) / s,
                             w: rw * (1.0 - 2.0 * HOG_MARGIN_X) / s,
                             h: rh * (1.0 - HOG_MARGIN_TOP - HOG_MARGIN_BOTTOM) / s,
-                            score: w as f32,
+                            score: w,
                             class: 0,
                         }
                     })
@@ -228,9 +284,9 @@ impl Detector {
                 nms_threshold,
                 buffers: [scaled, boxed, bgr],
             } => {
-                let fit = Letterbox::new(width, height, *input_px);
+                let fit = Letterbox::new(r.width as u32, r.height as u32, *input_px);
                 imgproc::resize(
-                    &frame,
+                    &crop,
                     scaled,
                     Size::new(fit.width, fit.height),
                     0.0,
@@ -266,15 +322,40 @@ impl Detector {
                 net.set_input(&blob, "", 1.0, Scalar::default())?;
                 let out = net.forward_single("")?;
                 let candidates = parse_yolo(&out, *score_threshold)?;
-                Ok(non_max_suppression(
-                    candidates,
-                    *score_threshold,
-                    *nms_threshold,
-                    &fit,
-                )?)
+                let mut found =
+                    non_max_suppression(candidates, *score_threshold, *nms_threshold, &fit)?;
+                for d in &mut found {
+                    d.x += ox;
+                    d.y += oy;
+                }
+                Ok(found)
             }
         }
     }
+}
+
+/// The rectangle of a `width × height` frame to search for `region`: the region
+/// clamped to the frame, grown around its centre to at least `min` (width,
+/// height) where the frame allows.
+pub fn search_rect(region: Region, width: u32, height: u32, min: (u32, u32)) -> Rect {
+    if region.is_whole() {
+        return Rect::new(0, 0, width as i32, height as i32);
+    }
+    // One axis: [a, b) clamped to [0, len), grown to `min` within it.
+    let axis = |a: u32, b: u32, len: u32, min: u32| {
+        let (mut a, mut b) = (a.min(len), b.min(len));
+        let want = min.min(len);
+        if b - a < want {
+            let grow = want - (b - a);
+            a = a.saturating_sub(grow / 2 + grow % 2);
+            b = (a + want).min(len);
+            a = b - want;
+        }
+        (a as i32, (b - a) as i32)
+    };
+    let (x, w) = axis(region.x, region.x.saturating_add(region.w), width, min.0);
+    let (y, h) = axis(region.y, region.y.saturating_add(region.h), height, min.1);
+    Rect::new(x, y, w, h)
 }
 
 /// How a frame sits in the square model input: scaled by `scale` to
@@ -497,6 +578,72 @@ mod tests {
         assert_eq!(kept.len(), 2);
         assert_eq!((kept[0].x, kept[0].w), (180.0, 40.0));
         assert_eq!((kept[0].y, kept[0].h), (240.0, 80.0), "(280 - 160) / 0.5");
+    }
+
+    #[test]
+    fn a_search_rect_is_the_region_in_the_frame_at_least_the_window() {
+        let r = |x, y, w, h| Region { x, y, w, h };
+        let rect = |region, min| {
+            let r = search_rect(region, 768, 576, min);
+            (r.x, r.y, r.width, r.height)
+        };
+        assert_eq!(rect(Region::WHOLE, (43, 86)), (0, 0, 768, 576));
+        assert_eq!(rect(r(100, 50, 200, 300), (43, 86)), (100, 50, 200, 300));
+        // Clamped to the frame.
+        assert_eq!(rect(r(700, 500, 200, 300), (43, 86)), (700, 490, 68, 86));
+        // Grown around the centre to the window.
+        assert_eq!(rect(r(100, 100, 10, 20), (43, 86)), (83, 67, 43, 86));
+        assert_eq!(rect(r(0, 0, 10, 20), (43, 86)), (0, 0, 43, 86));
+        // A region off the frame searches its nearest corner.
+        assert_eq!(rect(r(900, 900, 10, 10), (43, 86)), (725, 490, 43, 86));
+    }
+
+    /// Frame `n` of `data/vtest.avi`, GRAY8, with its size.
+    fn vtest_frame(n: usize) -> (Vec<u8>, u32, u32) {
+        use opencv::videoio;
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/vtest.avi");
+        let mut cap =
+            videoio::VideoCapture::from_file(path.to_str().unwrap(), videoio::CAP_ANY).unwrap();
+        let (mut bgr, mut gray) = (Mat::default(), Mat::default());
+        for _ in 0..=n {
+            assert!(cap.read(&mut bgr).unwrap(), "vtest.avi");
+        }
+        imgproc::cvt_color(&bgr, &mut gray, imgproc::COLOR_BGR2GRAY, 0).unwrap();
+        let (w, h) = (gray.cols() as u32, gray.rows() as u32);
+        (gray.data_bytes().unwrap().to_vec(), w, h)
+    }
+
+    #[test]
+    fn hog_on_a_crop_finds_the_people_of_the_whole_frame_in_frame_pixels() {
+        let (pixels, w, h) = vtest_frame(100);
+        let mut hog = Detector::from_config(&DetectorConfig::default(), Path::new(".")).unwrap();
+        let whole = hog.detect(&pixels, w, h, Region::WHOLE).unwrap();
+        let best = whole
+            .iter()
+            .max_by(|a, b| a.score.total_cmp(&b.score))
+            .expect("HOG finds someone on frame 100 of vtest.avi");
+        // A crop around them, 64 px more on each side, off the frame's origin.
+        let margin = 64.0;
+        let x0 = (best.x - margin).max(0.0) as u32;
+        let y0 = (best.y - margin).max(0.0) as u32;
+        let region = Region {
+            x: x0,
+            y: y0,
+            w: ((best.x + best.w + margin) as u32).min(w) - x0,
+            h: ((best.y + best.h + margin) as u32).min(h) - y0,
+        };
+        let cropped = hog.detect(&pixels, w, h, region).unwrap();
+        let iou = |a: &Detection, b: &Detection| {
+            let ix = (a.x + a.w).min(b.x + b.w) - a.x.max(b.x);
+            let iy = (a.y + a.h).min(b.y + b.h) - a.y.max(b.y);
+            let i = ix.max(0.0) * iy.max(0.0);
+            i / (a.w * a.h + b.w * b.h - i)
+        };
+        let same = cropped.iter().map(|d| iou(d, best)).fold(0.0, f32::max);
+        assert!(
+            same >= 0.7,
+            "best overlap {same:.2} with {best:?} in {region:?}: {cropped:?}"
+        );
     }
 
     #[test]

@@ -18,9 +18,16 @@
 //!   late to keep its event open, but the person it finds is confirmed all the
 //!   same (a lossless replay waits for every report before the next second).
 //!
+//! * a confirmed person under whose box no block was active for
+//!   `confirm_still_max_s` is no longer confirmed, whatever the detector finds
+//!   (a poster or a mannequin it likes would otherwise stay for ever).
+//!
 //! So an event ends only when its activity has been quiet for `hold_s` **and**
 //! nobody is confirmed in its zone; its end is the later of its last second above
 //! the threshold and the last frame a person was confirmed in.
+//!
+//! With `detector.crop` a job searches only [`crop_region`]: around the zone's
+//! blocks that move or stay this second and its confirmed people.
 
 use std::collections::HashMap;
 
@@ -62,6 +69,8 @@ pub struct Person {
     pub bbox: [f32; 4],
     /// Capture time of the last frame the detector found them in, UTC ns.
     pub seen_ns: i64,
+    /// End of the last second in which a block under their box was active, UTC ns.
+    pub active_ns: i64,
 }
 
 impl Person {
@@ -235,8 +244,31 @@ impl Gate {
         let warm = h.model_days >= self.settings.warm_days;
         let g = &self.settings.gate;
         let recheck_ns = (g.recheck_s * 1e9) as i64;
+        let still_max_ns = (g.confirm_still_max_s * 1e9) as i64;
+        let crop_margin = g.detector.crop.then_some(g.detector.crop_margin_px);
+        let grid = h.block_grid();
         let mut actions = Vec::new();
         for (zi, zone) in self.zones.iter_mut().enumerate() {
+            // A person nothing moved under for `confirm_still_max_s` is no longer
+            // confirmed, whatever the detector says (a poster, a mannequin).
+            zone.people.retain_mut(|p| {
+                if blocks_under(&grid, &p.bbox).any(|i| {
+                    blocks
+                        .get(i as usize)
+                        .is_some_and(|b| b.s1 >= BLOCK_ACTIVE || b.s2 >= BLOCK_ACTIVE)
+                }) {
+                    p.active_ns = second.end_ns;
+                }
+                let keep = second.end_ns - p.active_ns < still_max_ns;
+                if !keep {
+                    tracing::info!(
+                        zone = %zone.config.name,
+                        "a confirmed person has not moved for {} s: no longer confirmed",
+                        g.confirm_still_max_s
+                    );
+                }
+                keep
+            });
             let (mut s1, mut s2, mut mean, mut var) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
             for &i in &zone.blocks {
                 let b = &blocks[i as usize];
@@ -332,6 +364,18 @@ impl Gate {
                     second,
                     h.preamble.origin_wall_ns,
                 );
+                // The crop: where something moves now or stays (not the slow S1
+                // tails of earlier passers-by), and the people confirmed.
+                let region = crop_margin.map_or(Region::WHOLE, |margin| {
+                    self.scratch.clear();
+                    self.scratch
+                        .extend(zone.blocks.iter().copied().filter(|&i| {
+                            let b = &blocks[i as usize];
+                            b.s2 >= BLOCK_ACTIVE || b.s1 >= g.in_place_block_min.max(BLOCK_ACTIVE)
+                        }));
+                    crop_region(&grid, &self.scratch, &zone.people, margin)
+                });
+                let job = Job { region, ..job };
                 // Before the zone's event records: the job names the event.
                 actions.insert(zone_actions, Action::Detect(job));
             }
@@ -389,6 +433,7 @@ impl Gate {
                 zone.people.push(Person {
                     bbox: [d.x, d.y, d.w, d.h],
                     seen_ns: t,
+                    active_ns: t,
                 });
             }
         }
@@ -453,6 +498,61 @@ fn issue(
         region: Region::WHOLE,
         origin_wall_ns,
     }
+}
+
+/// The region to search around `active` blocks and confirmed `people`, `margin`
+/// pixels more on each side, clamped to the frame; the whole frame when there
+/// is nothing to search around or the crop would cover it all.
+pub fn crop_region(grid: &BlockGrid, active: &[u32], people: &[Person], margin: u32) -> Region {
+    let (w, px) = (grid.grid_w(), grid.block_px);
+    let blocks = active.iter().map(|&i| {
+        let (x, y) = ((i % w) * px, (i / w) * px);
+        [x, y, x + px, y + px]
+    });
+    let boxes = people.iter().map(|p| {
+        let [x, y, bw, bh] = p.bbox;
+        [
+            x.max(0.0) as u32,
+            y.max(0.0) as u32,
+            (x + bw).max(0.0).ceil() as u32,
+            (y + bh).max(0.0).ceil() as u32,
+        ]
+    });
+    let Some([x0, y0, x1, y1]) = blocks.chain(boxes).reduce(|a, b| {
+        [
+            a[0].min(b[0]),
+            a[1].min(b[1]),
+            a[2].max(b[2]),
+            a[3].max(b[3]),
+        ]
+    }) else {
+        return Region::WHOLE;
+    };
+    let (fw, fh) = (grid.frame_width, grid.frame_height);
+    let (x0, y0) = (x0.saturating_sub(margin), y0.saturating_sub(margin));
+    let (x1, y1) = (
+        x1.saturating_add(margin).min(fw),
+        y1.saturating_add(margin).min(fh),
+    );
+    if x0 >= x1 || y0 >= y1 || (x0 == 0 && y0 == 0 && x1 == fw && y1 == fh) {
+        return Region::WHOLE;
+    }
+    Region {
+        x: x0,
+        y: y0,
+        w: x1 - x0,
+        h: y1 - y0,
+    }
+}
+
+/// The blocks (row-major indices) a frame box `[x, y, w, h]` overlaps.
+fn blocks_under(grid: &BlockGrid, bbox: &[f32; 4]) -> impl Iterator<Item = u32> + use<> {
+    let (gw, gh, px) = (grid.grid_w(), grid.grid_h(), grid.block_px as f32);
+    let [x, y, w, h] = *bbox;
+    let col = move |v: f32, n: u32| ((v / px).floor().max(0.0) as u32).min(n);
+    let (c0, c1) = (col(x, gw), col((x + w - 0.01).max(x), gw - 1) + 1);
+    let (r0, r1) = (col(y, gh), col((y + h - 0.01).max(y), gh - 1) + 1);
+    (r0..r1).flat_map(move |r| (c0..c1).map(move |c| r * gw + c))
 }
 
 /// The block (row-major index) under the frame point `(x, y)`, if inside.
@@ -892,6 +992,103 @@ mod tests {
             g.on_activity(&header(12, 0), &blocks(0.0, 0.0, 0.0))
                 .is_empty()
         );
+    }
+
+    #[test]
+    fn a_person_nothing_moves_under_is_confirmed_only_for_confirm_still_max_s() {
+        // The detector finds the person for ever (a poster it likes); the last
+        // activity under their box is in second 14 (the walk's S1 tail).
+        let (g, actions) = stand_still(
+            GateConfig {
+                confirm_still_max_s: 20.0,
+                ..GateConfig::default()
+            },
+            i64::MAX,
+            60,
+        );
+        let ends: Vec<(i64, u64)> = actions
+            .iter()
+            .filter_map(|(s, a)| match a {
+                Action::Event {
+                    phase: EventPhase::End,
+                    event,
+                    ..
+                } => Some((*s, event.end_frame)),
+                _ => None,
+            })
+            .collect();
+        // Dropped in second 34 (20 s after the end of second 14); the event had
+        // been extended to the re-check of second 30 and ends now, its hold long
+        // past. The closing check finds the "person" again, on blocks that did
+        // not move: nobody is confirmed.
+        assert_eq!(ends, [(34, 309)], "{actions:?}");
+        assert_eq!((g.confirmed(), g.open_events()), (0, 0));
+        // By default (300 s) the same minute keeps them confirmed.
+        let (g, _) = stand_still(GateConfig::default(), i64::MAX, 60);
+        assert_eq!((g.confirmed(), g.open_events()), (1, 1));
+    }
+
+    #[test]
+    fn the_detector_searches_a_crop_around_activity_and_confirmed_people() {
+        let grid = BlockGrid::new(64, 32, 16);
+        // Block 1 is x 16..32, y 0..16; 8 px more on each side, clamped.
+        assert_eq!(
+            crop_region(&grid, &[1], &[], 8),
+            Region {
+                x: 8,
+                y: 0,
+                w: 32,
+                h: 24
+            }
+        );
+        let p = Person {
+            bbox: [40.5, 10.0, 10.0, 12.2],
+            seen_ns: 0,
+            active_ns: 0,
+        };
+        assert_eq!(
+            crop_region(&grid, &[1], &[p], 0),
+            Region {
+                x: 16,
+                y: 0,
+                w: 35,
+                h: 23
+            }
+        );
+        assert_eq!(crop_region(&grid, &[], &[], 8), Region::WHOLE, "nothing");
+        assert_eq!(crop_region(&grid, &[0, 7], &[], 0), Region::WHOLE, "all");
+        // The gate's jobs carry it: moving activity in block 1 only.
+        let mut g = gate(GateConfig {
+            detector: isochron_shared::config::DetectorConfig {
+                crop_margin_px: 8,
+                ..Default::default()
+            },
+            ..GateConfig::default()
+        });
+        let a = g.on_activity(&header(0, 0), &blocks(1.0, 0.0, 0.0));
+        let Some(Action::Detect(job)) = a.first() else {
+            panic!("{a:?}")
+        };
+        assert_eq!((job.region.x, job.region.w), (8, 32));
+        // Without the crop: the whole frame.
+        let mut g = gate(GateConfig {
+            detector: isochron_shared::config::DetectorConfig {
+                crop: false,
+                ..Default::default()
+            },
+            ..GateConfig::default()
+        });
+        let a = g.on_activity(&header(0, 0), &blocks(1.0, 0.0, 0.0));
+        assert!(matches!(a.first(), Some(Action::Detect(j)) if j.region.is_whole()));
+    }
+
+    #[test]
+    fn blocks_under_a_box() {
+        let grid = BlockGrid::new(64, 32, 16);
+        let under = |b: [f32; 4]| blocks_under(&grid, &b).collect::<Vec<u32>>();
+        assert_eq!(under([18.0, 2.0, 10.0, 28.0]), [1, 5]);
+        assert_eq!(under([-5.0, -5.0, 100.0, 100.0]), [0, 1, 2, 3, 4, 5, 6, 7]);
+        assert_eq!(under([16.0, 0.0, 16.0, 16.0]), [1], "edges are exclusive");
     }
 
     #[test]

@@ -254,7 +254,8 @@ impl Worker {
                         Report::FrameGone(job)
                     } else {
                         let t0 = Instant::now();
-                        match detector.detect(&frame.pixels, frame.width, frame.height) {
+                        match detector.detect(&frame.pixels, frame.width, frame.height, job.region)
+                        {
                             Ok(detections) => Report::Done(Outcome {
                                 job_id: job.id,
                                 region: job.region,
@@ -415,7 +416,12 @@ mod tests {
         ring.lock().push(0, 0, w, h, &pixels);
         let slots = Arc::new(test_slots("abandon", 1));
         let held = slots.acquire(false).expect("the only slot");
-        let config = isochron_shared::config::DetectorConfig::default();
+        // At upscale 1: a shorter test, and the point is the same.
+        let config = isochron_shared::config::DetectorConfig {
+            hog_upscale: 1.0,
+            ..Default::default()
+        };
+        let again = config.clone();
         let (mut worker, _) = Worker::start(
             move || Detector::from_config(&config, std::path::Path::new(".")),
             ring,
@@ -448,13 +454,9 @@ mod tests {
         });
         // The job that had the slot runs; the eight queued ones do not.
         let per_run = {
-            let mut d = Detector::from_config(
-                &isochron_shared::config::DetectorConfig::default(),
-                std::path::Path::new("."),
-            )
-            .unwrap();
+            let mut d = Detector::from_config(&again, std::path::Path::new(".")).unwrap();
             let t = Instant::now();
-            d.detect(&pixels, w, h).unwrap();
+            d.detect(&pixels, w, h, Region::WHOLE).unwrap();
             t.elapsed()
         };
         assert!(
