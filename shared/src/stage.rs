@@ -79,6 +79,13 @@ pub trait Stage {
         Ok(())
     }
 
+    /// True for a sink that must not lose what already arrived: when the process
+    /// is asked to stop, its inputs are woken once more (what is queued for it is
+    /// taken) before [`Stage::on_stop`]. Default false: the rest stop at once.
+    fn take_inputs_on_stop(&self) -> bool {
+        false
+    }
+
     /// A period at which [`Stage::on_tick`] must run (default [`IDLE_TICK`]; it
     /// also runs on every other pass, and at least every [`IDLE_TICK`]).
     fn timer(&self) -> Duration {
@@ -165,6 +172,10 @@ pub fn run<S: Stage>(
         more = inputs.take_batch_full();
         stage.on_tick(&mut cx)?;
         cx.health.tick(|| stage.detail());
+    }
+    if stage.take_inputs_on_stop() {
+        inputs.drain_wakeups();
+        stage.on_wake(inputs, &Woken::all(), &mut cx)?;
     }
     stage.on_stop(&mut cx)?;
     cx.health.report(stage.detail());

@@ -26,6 +26,10 @@ pub enum StageKind {
     /// started by its own unit, so it is not in [`StageKind::ALL`] (the stages
     /// `isochron up` starts).
     Link,
+    /// Publishes zone events and detections to an MQTT broker (`isochron-mqtt`;
+    /// site-wide, optional: started when `[mqtt]` is configured, so not in
+    /// [`StageKind::ALL`]).
+    Mqtt,
 }
 
 impl StageKind {
@@ -48,6 +52,7 @@ impl StageKind {
             StageKind::Costmap => "costmap",
             StageKind::Exporter => "exporter",
             StageKind::Link => "link",
+            StageKind::Mqtt => "mqtt",
         }
     }
 
@@ -55,7 +60,7 @@ impl StageKind {
     pub fn from_name(name: &str) -> Option<StageKind> {
         StageKind::ALL
             .into_iter()
-            .chain([StageKind::Link])
+            .chain([StageKind::Exporter, StageKind::Link, StageKind::Mqtt])
             .find(|s| s.name() == name)
     }
 
@@ -69,6 +74,7 @@ impl StageKind {
             StageKind::Costmap => "isochron-costmap",
             StageKind::Exporter => "isochron-exporter",
             StageKind::Link => "isochron-link",
+            StageKind::Mqtt => "isochron-mqtt",
         }
     }
 
@@ -82,6 +88,7 @@ impl StageKind {
             StageKind::Costmap => &[Stream::Activity, Stream::Detections],
             StageKind::Exporter => &[],
             StageKind::Link => &[Stream::Activity],
+            StageKind::Mqtt => &[Stream::Events, Stream::Detections],
         }
     }
 
@@ -92,7 +99,7 @@ impl StageKind {
             StageKind::Motion => &[Stream::Motion],
             StageKind::Cascade => &[Stream::Activity],
             StageKind::Gate => &[Stream::Events, Stream::Detections],
-            StageKind::Costmap | StageKind::Exporter => &[],
+            StageKind::Costmap | StageKind::Exporter | StageKind::Mqtt => &[],
             StageKind::Link => &[Stream::Activity],
         }
     }
@@ -103,12 +110,12 @@ impl StageKind {
         self.produces().first().copied()
     }
 
-    /// True for stages that run once per camera; false for the site-wide costmap
-    /// exporter and link.
+    /// True for stages that run once per camera; false for the site-wide costmap,
+    /// exporter, link and MQTT sink.
     pub fn per_camera(self) -> bool {
         !matches!(
             self,
-            StageKind::Costmap | StageKind::Exporter | StageKind::Link
+            StageKind::Costmap | StageKind::Exporter | StageKind::Link | StageKind::Mqtt
         )
     }
 }

@@ -18,6 +18,7 @@ mod gate;
 mod ipc;
 mod link;
 mod motion;
+mod mqtt;
 mod site;
 #[cfg(test)]
 mod tests;
@@ -42,6 +43,7 @@ pub use gate::{DetectorConfig, GateConfig};
 pub use ipc::IpcConfig;
 pub use link::{DEFAULT_LINK_NAMESPACE, LinkConfig, is_ros_token};
 pub use motion::{MotionBackend, MotionConfig};
+pub use mqtt::{DEFAULT_MQTT_PORT, MqttConfig, is_topic_level};
 pub use site::SiteConfig;
 pub use view::ViewConfig;
 
@@ -116,6 +118,10 @@ pub struct Config {
     pub view: ViewConfig,
     /// The link to the site's other base stations (`isochron-link`).
     pub link: LinkConfig,
+    /// The MQTT sink of zone events and detections; absent: nothing is published,
+    /// and `isochron up` and `replay` do not start it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mqtt: Option<MqttConfig>,
 }
 
 /// A loaded configuration and where it came from.
@@ -194,6 +200,32 @@ impl LoadedConfig {
                 message: w.message,
             })
             .collect()
+    }
+
+    /// `invalid`, located in the config file (the line of its key, or of its table
+    /// when the key is absent).
+    pub fn locate(&self, invalid: Invalid) -> ConfigError {
+        let text = std::fs::read_to_string(&self.path).unwrap_or_default();
+        let line = line_of_key(&text, &invalid.key)
+            .or_else(|| parent_key(&invalid.key).and_then(|p| line_of_key(&text, p)));
+        ConfigError {
+            file: self.path.clone(),
+            line,
+            key: Some(invalid.key),
+            message: invalid.message,
+        }
+    }
+
+    /// The checked `[mqtt]` section, `None` without one. Checked here, by the MQTT
+    /// sink, rather than at load: a bad broker URL stops the sink (exit 78) while
+    /// the rest of the group runs.
+    pub fn mqtt(&self) -> Result<Option<&MqttConfig>, ConfigError> {
+        let Some(mqtt) = &self.config.mqtt else {
+            return Ok(None);
+        };
+        mqtt.validate(&self.config.site.name)
+            .map_err(|e| self.locate(e))?;
+        Ok(Some(mqtt))
     }
 
     /// `site.state_dir`, resolved against the config file's directory.
@@ -285,6 +317,8 @@ impl Config {
         camera::validate_cameras(&self.cameras)?;
         self.costmap.validate(&self.cameras)?;
         self.view.validate()?;
+        // `[mqtt]` is checked by the sink alone (`LoadedConfig::mqtt`): a bad broker
+        // URL stops the sink, not the group.
         self.link.validate(&self.cameras)
     }
 }

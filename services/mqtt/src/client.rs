@@ -1,0 +1,344 @@
+//! The MQTT client: one thread that owns the connection to the broker (rumqttc's
+//! event loop on a current-thread tokio runtime), takes messages from the
+//! [`Outbox`] and publishes them with QoS 1.
+//!
+//! * A message leaves the outbox only while connected, at most [`WINDOW`] at a
+//!   time; it counts as sent when the broker's PUBACK for it arrives.
+//! * When the connection fails, every message not yet acknowledged goes back to
+//!   the front of the outbox (sent again after the reconnection: at least once)
+//!   and the client reconnects with a backoff doubling from 0.5 s to
+//!   `reconnect_max_s`. One warning per outage.
+//! * Each connection publishes "online" (retained) on the status topic; the last
+//!   will, which the broker publishes if the sink vanishes, is "offline"
+//!   (retained). A clean stop publishes "offline" itself, then disconnects.
+//! * At a stop it flushes for up to [`FLUSH`]; what is still queued then is
+//!   counted as dropped.
+//!
+//! Sessions are clean (`clean_session`): after a reconnection rumqttc forgets the
+//! unacknowledged publishes, and the outbox sends them again.
+
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use rumqttc::{
+    Disconnect, Event, EventLoop, Incoming, LastWill, MqttOptions, Outgoing, Publish, QoS, Request,
+};
+
+use crate::outbox::{Message, Outbox};
+
+/// Messages handed to the connection and not yet acknowledged, at most.
+pub const WINDOW: usize = 32;
+/// How long a stopping sink keeps publishing what is queued.
+pub const FLUSH: Duration = Duration::from_secs(3);
+/// First wait before reconnecting.
+const BACKOFF_MIN: Duration = Duration::from_millis(500);
+/// Longest wait for the TCP connection and the CONNACK, seconds.
+const CONNECT_TIMEOUT_S: u64 = 3;
+
+/// What the stage and the client share.
+#[derive(Debug)]
+pub struct Shared {
+    outbox: Mutex<Outbox>,
+    wake: tokio::sync::Notify,
+    stopping: AtomicBool,
+    connected: AtomicBool,
+    reconnects: AtomicU64,
+}
+
+impl Shared {
+    /// Shared state around an outbox of `capacity` messages.
+    pub fn new(capacity: usize) -> Arc<Self> {
+        Arc::new(Shared {
+            outbox: Mutex::new(Outbox::new(capacity)),
+            wake: tokio::sync::Notify::new(),
+            stopping: AtomicBool::new(false),
+            connected: AtomicBool::new(false),
+            reconnects: AtomicU64::new(0),
+        })
+    }
+
+    /// The outbox.
+    pub fn outbox(&self) -> MutexGuard<'_, Outbox> {
+        self.outbox.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Tells the client that messages are waiting.
+    pub fn wake(&self) {
+        self.wake.notify_one();
+    }
+
+    /// Asks the client to flush and stop.
+    pub fn stop(&self) {
+        self.stopping.store(true, Ordering::SeqCst);
+        self.wake.notify_one();
+    }
+
+    /// True while connected to the broker.
+    pub fn connected(&self) -> bool {
+        self.connected.load(Ordering::Relaxed)
+    }
+
+    /// Reconnections after the first connection.
+    pub fn reconnects(&self) -> u64 {
+        self.reconnects.load(Ordering::Relaxed)
+    }
+}
+
+/// Where and how to connect.
+#[derive(Debug, Clone)]
+pub struct Settings {
+    /// Broker host.
+    pub host: String,
+    /// Broker port.
+    pub port: u16,
+    /// The broker as configured, for messages.
+    pub url: String,
+    /// Client id.
+    pub client_id: String,
+    /// The availability topic.
+    pub status_topic: String,
+    /// Keep-alive.
+    pub keepalive: Duration,
+    /// Longest backoff.
+    pub reconnect_max: Duration,
+}
+
+/// Starts the client thread.
+pub fn spawn(
+    settings: Settings,
+    shared: Arc<Shared>,
+) -> std::io::Result<std::thread::JoinHandle<()>> {
+    std::thread::Builder::new()
+        .name("mqtt-client".into())
+        .spawn(move || {
+            let runtime = match tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+            {
+                Ok(r) => r,
+                Err(e) => {
+                    tracing::error!("cannot start the MQTT client's runtime: {e}");
+                    return;
+                }
+            };
+            runtime.block_on(Client::new(settings, shared).run());
+        })
+}
+
+/// A message handed to the connection: `None` is the status ("online" /
+/// "offline"), which is not counted.
+struct InFlight {
+    message: Option<Message>,
+    pkid: Option<u16>,
+}
+
+struct Client {
+    settings: Settings,
+    shared: Arc<Shared>,
+    eventloop: EventLoop,
+    inflight: VecDeque<InFlight>,
+    connected: bool,
+    ever_connected: bool,
+    warned: bool,
+}
+
+impl Client {
+    fn new(settings: Settings, shared: Arc<Shared>) -> Self {
+        let mut options = MqttOptions::new(&settings.client_id, &settings.host, settings.port);
+        options
+            .set_keep_alive(settings.keepalive)
+            .set_clean_session(true)
+            .set_inflight(WINDOW as u16 * 2)
+            .set_last_will(LastWill::new(
+                &settings.status_topic,
+                "offline",
+                QoS::AtLeastOnce,
+                true,
+            ));
+        let mut eventloop = EventLoop::new(options, 1);
+        let mut network = eventloop.network_options();
+        network.set_connection_timeout(CONNECT_TIMEOUT_S);
+        eventloop.set_network_options(network);
+        Client {
+            settings,
+            shared,
+            eventloop,
+            inflight: VecDeque::new(),
+            connected: false,
+            ever_connected: false,
+            warned: false,
+        }
+    }
+
+    fn stopping(&self) -> bool {
+        self.shared.stopping.load(Ordering::SeqCst)
+    }
+
+    /// Publishes `payload` on `topic` (QoS 1): `message` is the queued message it
+    /// carries, `None` for the status.
+    fn publish(&mut self, topic: &str, payload: &[u8], retain: bool, message: Option<Message>) {
+        let mut p = Publish::new(topic, QoS::AtLeastOnce, payload.to_vec());
+        p.retain = retain;
+        // Straight into the event loop's queue (this thread owns it): its
+        // requests go out in this order, which matches them to their packet ids.
+        self.eventloop.pending.push_back(Request::Publish(p));
+        self.inflight.push_back(InFlight {
+            message,
+            pkid: None,
+        });
+    }
+
+    /// Hands queued messages to the connection, up to the window.
+    fn hand_over(&mut self) {
+        while self.inflight.len() < WINDOW {
+            let Some(m) = self.shared.outbox().pop() else {
+                break;
+            };
+            let (topic, payload) = (m.topic.clone(), m.payload.clone());
+            self.publish(&topic, &payload, false, Some(m));
+        }
+    }
+
+    fn messages_in_flight(&self) -> usize {
+        self.inflight.iter().filter(|f| f.message.is_some()).count()
+    }
+
+    /// The connection is gone: unacknowledged messages go back to the outbox.
+    fn lost(&mut self) {
+        self.connected = false;
+        self.shared.connected.store(false, Ordering::Relaxed);
+        let unacked: Vec<Message> = self.inflight.drain(..).filter_map(|f| f.message).collect();
+        self.shared.outbox().requeue(unacked.into_iter());
+        self.eventloop.pending.clear();
+    }
+
+    async fn run(mut self) {
+        let mut backoff = BACKOFF_MIN;
+        let mut deadline: Option<Instant> = None;
+        let mut offline_sent = false;
+        let mut disconnect_sent = false;
+        loop {
+            if self.stopping() && deadline.is_none() {
+                deadline = Some(Instant::now() + FLUSH);
+            }
+            if let Some(d) = deadline {
+                if !self.connected || Instant::now() >= d {
+                    break;
+                }
+                let drained = self.shared.outbox().is_empty() && self.messages_in_flight() == 0;
+                if drained && !offline_sent {
+                    let topic = self.settings.status_topic.clone();
+                    self.publish(&topic, b"offline", true, None);
+                    offline_sent = true;
+                }
+                if offline_sent && self.inflight.is_empty() && !disconnect_sent {
+                    self.eventloop
+                        .pending
+                        .push_back(Request::Disconnect(Disconnect));
+                    disconnect_sent = true;
+                }
+            }
+            if self.connected && !offline_sent {
+                self.hand_over();
+            }
+            let event = if self.connected {
+                // Woken by new messages or a stop; the event loop's future is
+                // safe to drop while connected (reads and acks are buffered).
+                let tick = tokio::time::sleep(Duration::from_millis(100));
+                tokio::select! {
+                    event = self.eventloop.poll() => Some(event),
+                    _ = self.shared.wake.notified() => None,
+                    _ = tick => None,
+                }
+            } else {
+                // Connecting runs to its end (success, refusal or timeout).
+                Some(self.eventloop.poll().await)
+            };
+            match event {
+                None => {}
+                Some(Ok(Event::Incoming(Incoming::ConnAck(_)))) => {
+                    self.connected = true;
+                    self.shared.connected.store(true, Ordering::Relaxed);
+                    backoff = BACKOFF_MIN;
+                    if self.ever_connected {
+                        self.shared.reconnects.fetch_add(1, Ordering::Relaxed);
+                    }
+                    let queued = self.shared.outbox().len();
+                    tracing::info!(
+                        "connected to the MQTT broker {} ({queued} messages queued)",
+                        self.settings.url
+                    );
+                    self.ever_connected = true;
+                    self.warned = false;
+                    let topic = self.settings.status_topic.clone();
+                    self.publish(&topic, b"online", true, None);
+                }
+                Some(Ok(Event::Outgoing(Outgoing::Publish(pkid)))) => {
+                    if let Some(f) = self.inflight.iter_mut().find(|f| f.pkid.is_none()) {
+                        f.pkid = Some(pkid);
+                    }
+                }
+                Some(Ok(Event::Incoming(Incoming::PubAck(ack)))) => {
+                    let at = self.inflight.iter().position(|f| f.pkid == Some(ack.pkid));
+                    if let Some(f) = at.and_then(|i| self.inflight.remove(i))
+                        && let Some(m) = f.message
+                    {
+                        self.shared.outbox().acked(m);
+                    }
+                }
+                Some(Ok(Event::Outgoing(Outgoing::Disconnect))) => break,
+                Some(Ok(_)) => {}
+                Some(Err(e)) => {
+                    let was_connected = self.connected;
+                    self.lost();
+                    if deadline.is_some() || self.stopping() {
+                        break;
+                    }
+                    let capacity_note = "; holding new messages meanwhile (the oldest dropped when the queue is full)";
+                    if !self.warned {
+                        if was_connected {
+                            tracing::warn!(
+                                "lost the MQTT broker {}: {e}; reconnecting{capacity_note}",
+                                self.settings.url
+                            );
+                        } else {
+                            tracing::warn!(
+                                "cannot reach the MQTT broker {}: {e}; retrying every {:.0} s at most{capacity_note}",
+                                self.settings.url,
+                                self.settings.reconnect_max.as_secs_f64()
+                            );
+                        }
+                        self.warned = true;
+                    } else {
+                        tracing::debug!("MQTT broker {}: {e}", self.settings.url);
+                    }
+                    self.sleep(backoff).await;
+                    backoff = (backoff * 2).min(self.settings.reconnect_max);
+                }
+            }
+        }
+        self.lost();
+        self.shared.connected.store(false, Ordering::Relaxed);
+        let lost = self.shared.outbox().drop_all();
+        if lost > 0 {
+            tracing::warn!(
+                "{lost} messages were not delivered to {} before the stop: counted as dropped",
+                self.settings.url
+            );
+        }
+    }
+
+    /// Waits `d`, or less if the sink is asked to stop.
+    async fn sleep(&self, d: Duration) {
+        let end = Instant::now() + d;
+        while !self.stopping() {
+            let left = end.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                break;
+            }
+            tokio::time::sleep(left.min(Duration::from_millis(50))).await;
+        }
+    }
+}

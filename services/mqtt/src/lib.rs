@@ -1,0 +1,13 @@
+//! isochron-mqtt: the site's zone events and detections, as JSON, to an MQTT
+//! broker (QoS 1), with a retained availability topic and a last will.
+//!
+//! [`message`] makes the topics and the JSON (the README's schema); [`outbox`] is
+//! the bounded queue between the stage and the client, which drops the oldest
+//! and counts it; [`client`] owns the broker connection on its own thread
+//! (reconnecting with backoff); [`stage`] is the service: a site-wide stage on
+//! the shared runtime that reads every camera's streams into the outbox.
+
+pub mod client;
+pub mod message;
+pub mod outbox;
+pub mod stage;

@@ -1,0 +1,17 @@
+//! isochron-mqtt: config → node → every camera's events and detections in, JSON
+//! to the MQTT broker out → the stage runtime. Runs once per site, when `[mqtt]`
+//! is configured.
+
+use std::process::ExitCode;
+
+use isochron_mqtt::stage;
+use isochron_shared::service::main_site_wide;
+use isochron_shared::topology::StageKind;
+
+fn main() -> ExitCode {
+    main_site_wide(
+        StageKind::Mqtt,
+        "Publishes zone events and detections as JSON to an MQTT broker",
+        stage::run,
+    )
+}

@@ -1,0 +1,237 @@
+//! The sink's stage: every camera's `events` and `detections` in (lossy
+//! subscribers: a slow broker never holds the gate back), JSON messages into the
+//! [`Outbox`](crate::outbox::Outbox), which the [client](crate::client) thread
+//! publishes. On every tick it reports what the broker acknowledged (as `sent`,
+//! with the time from the gate's sample to the broker's PUBACK as the stage
+//! latency) and what the full queue dropped.
+
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use isochron_shared::config::LoadedConfig;
+use isochron_shared::exit::{self, Fatal};
+use isochron_shared::ipc::{Detections, Events, Ipc};
+use isochron_shared::service::ServiceContext;
+use isochron_shared::stage::{self, Context, Input, Stage, Woken};
+use isochron_shared::topology::StageKind;
+
+use crate::client::{self, Settings, Shared};
+use crate::message::{Topics, detections_json, event_json};
+use crate::outbox::Message;
+
+/// Runs the sink on `ctx`'s site until it is asked to stop. Without `[mqtt]` it
+/// says so and exits (nothing leaves the box unless configured).
+pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
+    let Some((mut sink, inputs)) = MqttStage::open(&ctx.ipc, &ctx.config)? else {
+        tracing::info!(
+            "no [mqtt] section in {}: nothing to publish",
+            ctx.config.path.display()
+        );
+        return Ok(());
+    };
+    stage::run(&ctx.ipc, "", &mut sink, &inputs)
+}
+
+/// The sink's inputs: every camera's events, then every camera's detections.
+pub type MqttInputs = (Vec<Input<Events>>, Vec<Input<Detections>>);
+
+/// Recent PUBACK latencies kept for the status's quantiles.
+const LATENCY_WINDOW: usize = 512;
+
+/// The MQTT sink of one site.
+pub struct MqttStage {
+    shared: Arc<Shared>,
+    client: Option<JoinHandle<()>>,
+    cameras: Vec<String>,
+    topics: Topics,
+    broker: String,
+    messages: u64,
+    dropped_reported: u64,
+    ack_ms: Vec<f32>,
+    next_latency: usize,
+}
+
+impl MqttStage {
+    /// The sink of `loaded`'s site and its inputs, or `None` without `[mqtt]`. A
+    /// bad `[mqtt]` key is a configuration error (one line: file, line, key,
+    /// expected).
+    pub fn open(ipc: &Ipc, loaded: &LoadedConfig) -> Result<Option<(Self, MqttInputs)>, Fatal> {
+        let Some(config) = loaded.mqtt()? else {
+            return Ok(None);
+        };
+        let (host, port) = config
+            .broker_addr()
+            .map_err(|e| Fatal::from(loaded.locate(e)))?;
+        let site_name = &loaded.config.site.name;
+        let topics = Topics::new(&config.topic_prefix, config.site_level(site_name));
+        let cameras: Vec<String> = loaded.config.cameras.iter().map(|c| c.id.clone()).collect();
+        let mut events = Vec::new();
+        let mut detections = Vec::new();
+        for camera in &cameras {
+            events.push(Input::open(ipc, camera)?);
+            detections.push(Input::open(ipc, camera)?);
+        }
+        let shared = Shared::new(config.queue_len);
+        let settings = Settings {
+            host,
+            port,
+            url: config.broker.clone(),
+            client_id: config.client_id(site_name),
+            status_topic: topics.status(),
+            keepalive: Duration::from_secs(config.keepalive_s),
+            reconnect_max: Duration::from_secs_f64(config.reconnect_max_s),
+        };
+        let client = client::spawn(settings, shared.clone()).map_err(|e| {
+            Fatal::new(
+                exit::UNAVAILABLE,
+                format!("starting the MQTT client thread: {e}"),
+            )
+        })?;
+        tracing::info!(
+            "publishing the zone events and detections of {} cameras to {} under {}/",
+            cameras.len(),
+            config.broker,
+            topics
+                .events("<camera>")
+                .trim_end_matches("/<camera>/events")
+        );
+        let sink = MqttStage {
+            shared,
+            client: Some(client),
+            cameras,
+            topics,
+            broker: config.broker.clone(),
+            messages: 0,
+            dropped_reported: 0,
+            ack_ms: Vec::with_capacity(LATENCY_WINDOW),
+            next_latency: 0,
+        };
+        Ok(Some((sink, (events, detections))))
+    }
+
+    fn queue(&mut self, topic: String, json: serde_json::Value, arrived: Instant, origin: i64) {
+        self.messages += 1;
+        self.shared.outbox().push(Message {
+            topic,
+            payload: json.to_string().into_bytes(),
+            arrived,
+            origin_wall_ns: origin,
+        });
+    }
+
+    /// Counts what the broker acknowledged and the queue dropped since the last
+    /// call.
+    fn account(&mut self, cx: &mut Context) {
+        let (acked, dropped) = {
+            let mut outbox = self.shared.outbox();
+            (outbox.take_acked(), outbox.dropped())
+        };
+        for m in acked {
+            let ms = m.arrived.elapsed().as_secs_f32() * 1e3;
+            if self.ack_ms.len() < LATENCY_WINDOW {
+                self.ack_ms.push(ms);
+            } else {
+                self.ack_ms[self.next_latency] = ms;
+                self.next_latency = (self.next_latency + 1) % LATENCY_WINDOW;
+            }
+            cx.health.sent(Some(m.arrived), m.origin_wall_ns);
+        }
+        if dropped > self.dropped_reported {
+            cx.health.dropped(dropped - self.dropped_reported);
+            self.dropped_reported = dropped;
+        }
+    }
+
+    fn ack_quantile(&self, q: f64) -> f32 {
+        if self.ack_ms.is_empty() {
+            return 0.0;
+        }
+        let mut v = self.ack_ms.clone();
+        v.sort_by(f32::total_cmp);
+        v[((v.len() - 1) as f64 * q).round() as usize]
+    }
+}
+
+impl Stage for MqttStage {
+    type Inputs = MqttInputs;
+    const KIND: StageKind = StageKind::Mqtt;
+
+    fn on_wake(
+        &mut self,
+        (events, detections): &MqttInputs,
+        _: &Woken,
+        cx: &mut Context,
+    ) -> Result<(), Fatal> {
+        let before = self.messages;
+        for (k, input) in events.iter().enumerate() {
+            while let Some(sample) = input.next(cx) {
+                if sample.is_end_of_stream() {
+                    continue;
+                }
+                let h = sample.header();
+                let json = event_json(&self.cameras[k], h, sample.payload());
+                let topic = self.topics.events(&self.cameras[k]);
+                self.queue(topic, json, Instant::now(), h.preamble.origin_wall_ns);
+            }
+        }
+        for (k, input) in detections.iter().enumerate() {
+            while let Some(sample) = input.next(cx) {
+                // Only frames where the detector found someone.
+                if sample.is_end_of_stream() || sample.payload().is_empty() {
+                    continue;
+                }
+                let h = sample.header();
+                let json = detections_json(&self.cameras[k], h, sample.payload());
+                let topic = self.topics.detections(&self.cameras[k]);
+                self.queue(topic, json, Instant::now(), h.preamble.origin_wall_ns);
+            }
+        }
+        if self.messages > before {
+            self.shared.wake();
+        }
+        Ok(())
+    }
+
+    fn on_tick(&mut self, cx: &mut Context) -> Result<(), Fatal> {
+        self.account(cx);
+        Ok(())
+    }
+
+    fn timer(&self) -> Duration {
+        Duration::from_millis(100)
+    }
+
+    fn take_inputs_on_stop(&self) -> bool {
+        true
+    }
+
+    fn on_stop(&mut self, cx: &mut Context) -> Result<(), Fatal> {
+        self.shared.stop();
+        if let Some(client) = self.client.take() {
+            // The client flushes for at most client::FLUSH (plus a connection
+            // attempt under way), then counts what is left as dropped.
+            if client.join().is_err() {
+                tracing::error!("the MQTT client thread panicked");
+            }
+        }
+        self.account(cx);
+        Ok(())
+    }
+
+    fn detail(&self) -> String {
+        let (queued, dropped) = {
+            let outbox = self.shared.outbox();
+            (outbox.len(), outbox.dropped())
+        };
+        format!(
+            "broker={} connected={} messages={} queued={queued} queue_dropped={dropped} reconnects={} ack_ms={:.1}/{:.1}",
+            self.broker.trim_start_matches("mqtt://"),
+            u8::from(self.shared.connected()),
+            self.messages,
+            self.shared.reconnects(),
+            self.ack_quantile(0.5),
+            self.ack_quantile(0.99)
+        )
+    }
+}
