@@ -69,6 +69,14 @@ pub fn vtest() -> PathBuf {
     setup_file("ISOCHRON_VTEST", "data/vtest.avi", "to fetch it")
 }
 
+/// A loopback TCP port nobody listens on now.
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("a free port")
+        .port()
+}
+
 /// Frames in vtest.avi.
 pub const VTEST_FRAMES: u64 = 795;
 

@@ -53,15 +53,18 @@ pub struct ServiceSpec {
 }
 
 /// The optional services of `config` whose binaries are installed: the exporter
-/// when the config has an `[exporter]` section.
+/// when the config has an `[exporter]` section, the MQTT sink when it has `[mqtt]`.
 pub fn optional_services(config: &LoadedConfig) -> Vec<(StageKind, PathBuf)> {
     let dir = bin_dir();
-    [(StageKind::Exporter, config.config.exporter.is_some())]
-        .into_iter()
-        .filter(|(_, wanted)| *wanted)
-        .map(|(stage, _)| (stage, dir.join(stage.binary())))
-        .filter(|(_, path)| path.is_file())
-        .collect()
+    [
+        (StageKind::Exporter, config.config.exporter.is_some()),
+        (StageKind::Mqtt, config.config.mqtt.is_some()),
+    ]
+    .into_iter()
+    .filter(|(_, wanted)| *wanted)
+    .map(|(stage, _)| (stage, dir.join(stage.binary())))
+    .filter(|(_, path)| path.is_file())
+    .collect()
 }
 
 /// The services of every stage for every camera of `config` — one process per

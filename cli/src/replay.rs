@@ -116,7 +116,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     for spec in rest {
         supervisor.add(spec)?;
     }
-    wait_for_consumers(&ipc, &camera, &stages, &mut supervisor)?;
+    // Optional consumers (the MQTT sink) get every sample too.
+    let consumers: Vec<_> = stages
+        .iter()
+        .cloned()
+        .chain(crate::launch::optional_services(&loaded))
+        .collect();
+    wait_for_consumers(&ipc, &camera, &consumers, &mut supervisor)?;
     // Capture's last status says how much of the file it read (it publishes it
     // before the end of stream); subscribed before capture starts.
     let capture_status = ipc.status_subscriber(&camera, StageKind::Capture)?;
@@ -265,29 +271,37 @@ source = """#,
     Ok((loaded, id))
 }
 
-/// True for the service `name` of an optional stage (the exporter): its failure
-/// is logged (in `DIR/logs`) but does not stop the replay.
+/// True for the service `name` of an optional stage (the exporter, the MQTT
+/// sink): its failure is logged (in `DIR/logs`) but does not stop the replay.
 fn is_optional(name: &str) -> bool {
-    name == StageKind::Exporter.name()
+    name == StageKind::Exporter.name() || name == StageKind::Mqtt.name()
 }
 
 /// Waits until every installed consumer has subscribed to its inputs (each stream
-/// also has the replay's own subscriber).
+/// also has the replay's own subscriber); an optional one that stopped (a bad
+/// `[mqtt]` broker URL) is not waited for.
 fn wait_for_consumers(
     ipc: &Ipc,
     camera: &str,
     stages: &[(StageKind, PathBuf)],
     supervisor: &mut Supervisor,
 ) -> anyhow::Result<()> {
-    let mut expected: BTreeMap<Stream, usize> = BTreeMap::new();
-    for (stage, _) in stages {
-        for input in stage.consumes() {
-            *expected.entry(*input).or_insert(1) += 1;
-        }
-    }
     let deadline = Instant::now() + Duration::from_secs(60);
     loop {
         supervisor.poll();
+        let states = supervisor.states();
+        let stopped = |stage: StageKind| {
+            is_optional(stage.name())
+                && states.iter().any(|(name, s)| {
+                    name == stage.name() && matches!(s, State::Failed { .. } | State::Finished)
+                })
+        };
+        let mut expected: BTreeMap<Stream, usize> = BTreeMap::new();
+        for (stage, _) in stages.iter().filter(|(s, _)| !stopped(*s)) {
+            for input in stage.consumes() {
+                *expected.entry(*input).or_insert(1) += 1;
+            }
+        }
         let missing: Vec<String> = expected
             .iter()
             .filter_map(|(stream, n)| {

@@ -12,7 +12,7 @@ use isochron_shared::wire::{StageStatus, fixed_str};
 use serde_json::json;
 
 use crate::common::load_config;
-use crate::launch::installed_stages;
+use crate::launch::{installed_stages, optional_services};
 
 /// Show the status of every service of the site. Exits with 0 when every
 /// service runs, 3 when some does not.
@@ -59,10 +59,16 @@ impl Row {
 /// How long `collect` waits for the stages' reports.
 const STATUS_WAIT: Duration = Duration::from_millis(1000);
 
-/// Reads the last status of every installed stage of every camera.
-pub fn collect(ipc: &Ipc, cameras: &[String]) -> anyhow::Result<Vec<Row>> {
+/// Reads the last status of every installed stage of every camera, and of the
+/// site-wide `optional` services (the exporter, the MQTT sink) the config asks for.
+pub fn collect(
+    ipc: &Ipc,
+    cameras: &[String],
+    optional: &[(StageKind, PathBuf)],
+) -> anyhow::Result<Vec<Row>> {
     let mut readers = Vec::new();
-    for (stage, _) in installed_stages() {
+    for (stage, _) in installed_stages().iter().chain(optional) {
+        let stage = *stage;
         let targets: Vec<String> = if stage.per_camera() {
             cameras.to_vec()
         } else {
@@ -103,7 +109,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let loaded = load_config(args.config)?;
     let ipc = Ipc::of_site("isochron-status", &loaded.config)?;
     let cameras: Vec<String> = loaded.config.cameras.iter().map(|c| c.id.clone()).collect();
-    let rows = collect(&ipc, &cameras)?;
+    let rows = collect(&ipc, &cameras, &optional_services(&loaded))?;
     if args.json {
         for row in &rows {
             let mut o =

@@ -5,20 +5,12 @@
 //! dashboard asks only for metrics the exporter serves.
 
 use std::io::{Read, Write};
-use std::net::{TcpListener, TcpStream};
+use std::net::TcpStream;
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use isochron_tests::{Proc, TestSite, bin, eventually, repo_root, vtest};
-
-/// A port nobody listens on now.
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .expect("a free port")
-        .port()
-}
+use isochron_tests::{Proc, TestSite, bin, eventually, free_port, repo_root, vtest};
 
 /// `GET path` on 127.0.0.1:`port` with `accept`: the response's head and body.
 fn get(port: u16, path: &str, accept: &str) -> Option<(String, String)> {

@@ -16,6 +16,7 @@ mod inputs;
 mod launcher;
 mod link;
 mod motion;
+mod mqtt;
 mod operations;
 mod pipeline;
 mod presence;

@@ -9,7 +9,7 @@ use std::process::Command;
 
 use isochron_tests::{bin_dir, repo_root};
 
-const SERVICES: [&str; 7] = [
+const SERVICES: [&str; 8] = [
     "isochron-capture@cam01.service",
     "isochron-motion@cam01.service",
     "isochron-cascade@cam01.service",
@@ -17,6 +17,7 @@ const SERVICES: [&str; 7] = [
     "isochron-costmap.service",
     "isochron-exporter.service",
     "isochron-link.service",
+    "isochron-mqtt.service",
 ];
 
 /// Copies `systemd/` into `dir` with binaries pointing at the build.
@@ -147,6 +148,18 @@ fn each_service_gets_the_access_it_needs_and_no_more() {
     // analyser marks as open), and needs no device.
     expect(
         "isochron-exporter.service",
+        &[
+            ("PrivateDevices=", true),
+            ("PrivateUsers=", true),
+            ("IPAddressDeny=", false),
+            ("RestrictAddressFamilies=~AF_(INET|INET6)", false),
+            ("NoNewPrivileges=", true),
+        ],
+    );
+    // The MQTT sink connects to its broker (this machine only unless a drop-in
+    // allows more), and needs no device.
+    expect(
+        "isochron-mqtt.service",
         &[
             ("PrivateDevices=", true),
             ("PrivateUsers=", true),

@@ -27,13 +27,15 @@ use anyhow::{Context, bail};
 
 /// System packages: OpenCV and the bindings' clang; iproute2 (`ip`, `ss`) for the
 /// network-namespace and DDS socket tests; `prometheus` for promtool, which checks
-/// the exporter's output and the alert rules.
-const PACKAGES: [&str; 5] = [
+/// the exporter's output and the alert rules; `mosquitto`, the broker the MQTT
+/// sink's test publishes to.
+const PACKAGES: [&str; 6] = [
     "libopencv-dev",
     "clang",
     "libclang-dev",
     "iproute2",
     "prometheus",
+    "mosquitto",
 ];
 
 /// Benchmarks: name → (package, bench target).
@@ -436,7 +438,7 @@ fn bench(package: &str, target: &str, extra: &[String]) -> anyhow::Result<()> {
 }
 
 /// The binaries a site runs.
-const BINARIES: [&str; 8] = [
+const BINARIES: [&str; 9] = [
     "isochron",
     "isochron-capture",
     "isochron-motion",
@@ -445,6 +447,7 @@ const BINARIES: [&str; 8] = [
     "isochron-costmap",
     "isochron-exporter",
     "isochron-link",
+    "isochron-mqtt",
 ];
 
 /// Writes the man pages and completions of `isochron` into `out` (see the
@@ -582,6 +585,9 @@ fn install(root: &Path, args: &[String]) -> anyhow::Result<()> {
     );
     println!(
         "  systemctl enable --now isochron-exporter         # optional: metrics at 127.0.0.1:9464"
+    );
+    println!(
+        "  systemctl enable --now isochron-mqtt             # optional: events to [mqtt] broker"
     );
     println!(
         "  sudo -u isochron {}/isochron doctor               # checks it all",

@@ -282,6 +282,63 @@ pub const DETAIL_METRICS: &[DetailMetric] = &[
             Kind::Gauge,
         )
     },
+    detail(
+        StageKind::Mqtt,
+        "connected",
+        "isochron_mqtt_connected",
+        "1 while the MQTT sink is connected to its broker.",
+        Kind::Gauge,
+    ),
+    detail(
+        StageKind::Mqtt,
+        "messages",
+        "isochron_mqtt_messages",
+        "Messages (zone events, detections) the MQTT sink queued for the broker.",
+        Kind::Counter,
+    ),
+    detail(
+        StageKind::Mqtt,
+        "queued",
+        "isochron_mqtt_queued",
+        "Messages waiting for the broker.",
+        Kind::Gauge,
+    ),
+    detail(
+        StageKind::Mqtt,
+        "queue_dropped",
+        "isochron_mqtt_queue_dropped",
+        "Messages dropped because the queue to the broker was full.",
+        Kind::Counter,
+    ),
+    detail(
+        StageKind::Mqtt,
+        "reconnects",
+        "isochron_mqtt_reconnects",
+        "Times the MQTT sink connected to its broker again.",
+        Kind::Counter,
+    ),
+    DetailMetric {
+        part: Part::First,
+        scale: 1e-3,
+        ..detail(
+            StageKind::Mqtt,
+            "ack_ms",
+            "isochron_mqtt_ack_latency_p50_seconds",
+            "Median time from a gate's sample to the broker's acknowledgement (recent messages).",
+            Kind::Gauge,
+        )
+    },
+    DetailMetric {
+        part: Part::Second,
+        scale: 1e-3,
+        ..detail(
+            StageKind::Mqtt,
+            "ack_ms",
+            "isochron_mqtt_ack_latency_p99_seconds",
+            "99th percentile time from a gate's sample to the broker's acknowledgement (recent messages).",
+            Kind::Gauge,
+        )
+    },
 ];
 
 impl DetailMetric {
@@ -527,6 +584,14 @@ mod tests {
         assert_eq!(by_name("isochron_store_failures").value(d), Some(0.0));
         assert_eq!(by_name("isochron_gate_events").value(d), None);
         assert_eq!(by_name("isochron_store_commits").value("commits=x"), None);
+        let mqtt = "broker=127.0.0.1:1883 connected=1 messages=9 queued=0 queue_dropped=2 reconnects=1 ack_ms=1.5/4.0";
+        assert_eq!(
+            by_name("isochron_mqtt_queue_dropped").value(mqtt),
+            Some(2.0)
+        );
+        assert_eq!(by_name("isochron_mqtt_connected").value(mqtt), Some(1.0));
+        let p99 = by_name("isochron_mqtt_ack_latency_p99_seconds").value(mqtt);
+        assert!((p99.unwrap() - 0.004).abs() < 1e-12);
     }
 
     #[test]

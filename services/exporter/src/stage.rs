@@ -50,10 +50,12 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
 }
 
 /// The services of `loaded`'s site the exporter watches: every pipeline stage of
-/// every camera, and the site-wide ones once.
+/// every camera, the site-wide ones once, and the MQTT sink when `[mqtt]` is
+/// configured.
 pub fn watched(loaded: &LoadedConfig) -> Vec<Service> {
     let mut services = Vec::new();
-    for stage in StageKind::ALL {
+    let optional = loaded.config.mqtt.is_some().then_some(StageKind::Mqtt);
+    for stage in StageKind::ALL.into_iter().chain(optional) {
         let cameras: Vec<String> = if stage.per_camera() {
             loaded.config.cameras.iter().map(|c| c.id.clone()).collect()
         } else {
