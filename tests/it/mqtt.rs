@@ -251,7 +251,7 @@ fn the_demo_video_reaches_the_broker_in_order_through_a_restart() {
         "mqtt: {emitted} messages ({events} events × 2 records, {with_people} detections); \
          first event {:.1} s after start, broker restarted at {:.1} s, replay done at {replay_s:.1} s; \
          broker acked {sent}, queue dropped {dropped}, subscriber got {} distinct; \
-         reconnects {}; gate sample → PUBACK ms p50/p99 {}",
+         reconnects {}; sample received → PUBACK ms p50/p99 {}",
         first_event.as_secs_f64(),
         restarted.as_secs_f64(),
         seen.len(),

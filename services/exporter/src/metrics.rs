@@ -324,7 +324,7 @@ pub const DETAIL_METRICS: &[DetailMetric] = &[
             StageKind::Mqtt,
             "ack_ms",
             "isochron_mqtt_ack_latency_p50_seconds",
-            "Median time from a gate's sample to the broker's acknowledgement (recent messages).",
+            "Median time from the sink receiving a gate's sample to the broker's acknowledgement (recent messages).",
             Kind::Gauge,
         )
     },
@@ -335,7 +335,7 @@ pub const DETAIL_METRICS: &[DetailMetric] = &[
             StageKind::Mqtt,
             "ack_ms",
             "isochron_mqtt_ack_latency_p99_seconds",
-            "99th percentile time from a gate's sample to the broker's acknowledgement (recent messages).",
+            "99th percentile time from the sink receiving a gate's sample to the broker's acknowledgement (recent messages).",
             Kind::Gauge,
         )
     },

@@ -2,7 +2,7 @@
 //! subscribers: a slow broker never holds the gate back), JSON messages into the
 //! [`Outbox`](crate::outbox::Outbox), which the [client](crate::client) thread
 //! publishes. On every tick it reports what the broker acknowledged (as `sent`,
-//! with the time from the gate's sample to the broker's PUBACK as the stage
+//! with the time from receiving the gate's sample to the broker's PUBACK as the stage
 //! latency) and what the full queue dropped.
 
 use std::sync::Arc;
