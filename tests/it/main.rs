@@ -17,6 +17,7 @@ mod launcher;
 mod link;
 mod motion;
 mod operations;
+mod package;
 mod pipeline;
 mod presence;
 mod reliability;
