@@ -1,7 +1,7 @@
-//! Developer tasks: `cargo xtask <setup|demo|test|bench NAME>`.
+//! Developer tasks: `cargo xtask <setup|demo|test|bench NAME|docs|install|deb>`.
 //!
-//! * `setup`: installs the system packages isochron builds against (Debian/Ubuntu:
-//!   libopencv-dev, clang, libclang-dev, iproute2) if they are missing, and fetches the sample
+//! * `setup`: installs the system packages isochron builds and tests with
+//!   (Debian/Ubuntu, [`PACKAGES`]) if they are missing, and fetches the sample
 //!   video (PETS 2009 `vtest.avi`, from Debian's opencv-doc package) into `data/`;
 //! * `demo`: setup, release build, `isochron replay` on the sample video with
 //!   `config/demo.toml`, and a report of what every stage did;
@@ -32,13 +32,15 @@ use anyhow::{Context, bail};
 
 /// System packages: OpenCV and the bindings' clang; iproute2 (`ip`, `ss`) for the
 /// network-namespace and DDS socket tests; `prometheus` for promtool, which checks
-/// the exporter's output and the alert rules.
-const PACKAGES: [&str; 5] = [
+/// the exporter's output and the alert rules; `dpkg-dev` for `dpkg-shlibdeps`,
+/// which gives the package's `Depends` (`cargo xtask deb`).
+const PACKAGES: [&str; 6] = [
     "libopencv-dev",
     "clang",
     "libclang-dev",
     "iproute2",
     "prometheus",
+    "dpkg-dev",
 ];
 
 /// Benchmarks: name → (package, bench target).
@@ -750,14 +752,20 @@ fn deb(root: &Path, args: &[String]) -> anyhow::Result<()> {
     }
     let target = root.join("target").join(dir);
     let docs_dir = target.join("docs");
-    // Without a build, the docs example `cargo test` built is used if it is there
-    // (no cargo run, which could rebuild with other features).
-    let _ = std::fs::remove_dir_all(&docs_dir);
+    // Without a build, the docs example is the one `cargo test` built: no cargo
+    // run, which would wait for the lock a running `cargo test` holds.
     let example = target.join("examples/isochron-docs");
-    if !build && example.is_file() {
+    if build {
+        docs(&docs_dir, release)?;
+    } else if example.is_file() {
         run(Command::new(&example).arg(&docs_dir))?;
     } else {
-        docs(&docs_dir, release)?;
+        bail!(
+            "deb --no-build: {} is not built (cargo test --workspace builds it; or \
+             cargo build -p isochron-cli --example isochron-docs{})",
+            example.display(),
+            if release { " --release" } else { "" }
+        );
     }
     // dpkg-shlibdeps wants `debian/control` and the package under `debian/<name>`.
     let work = target.join("deb-work");
@@ -885,7 +893,7 @@ fn depends(work: &Path) -> anyhow::Result<String> {
     if !has_shlibdeps {
         eprintln!("xtask: dpkg-shlibdeps missing (package dpkg-dev): naming OpenCV's libraries");
         return Ok(format!(
-            "libopencv-core-dev | libopencv-core406t64 | libopencv-core406, \
+            "libopencv-core406t64 | libopencv-core406, \
              libopencv-imgproc406t64 | libopencv-imgproc406, \
              libopencv-videoio406t64 | libopencv-videoio406, \
              libopencv-video406t64 | libopencv-video406, \
