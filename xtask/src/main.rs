@@ -375,8 +375,8 @@ fn linted_cargo() -> anyhow::Result<Command> {
         .args(["--print", "sysroot"])
         .output()
         .with_context(|| format!("running {rustc} --print sysroot"))?;
-    let driver = PathBuf::from(String::from_utf8_lossy(&sysroot.stdout).trim())
-        .join("bin/clippy-driver");
+    let driver =
+        PathBuf::from(String::from_utf8_lossy(&sysroot.stdout).trim()).join("bin/clippy-driver");
     if !driver.exists() {
         bail!(
             "{} not found: install clippy (`rustup component add clippy`)",
@@ -384,8 +384,10 @@ fn linted_cargo() -> anyhow::Result<Command> {
         );
     }
     let mut cmd = cargo();
-    cmd.env("RUSTC_WORKSPACE_WRAPPER", driver)
-        .env("CLIPPY_ARGS", "-D__CLIPPY_HACKERY__warnings__CLIPPY_HACKERY__");
+    cmd.env("RUSTC_WORKSPACE_WRAPPER", driver).env(
+        "CLIPPY_ARGS",
+        "-D__CLIPPY_HACKERY__warnings__CLIPPY_HACKERY__",
+    );
     if std::env::var_os("CI").is_some() {
         cmd.env("CARGO_INCREMENTAL", "0");
     }
