@@ -231,8 +231,7 @@ fn check_stale(fix: bool, report: &mut Report) -> bool {
 fn check_services(loaded: &LoadedConfig, report: &mut Report) -> anyhow::Result<()> {
     let c = &loaded.config;
     let ipc = Ipc::of_site("isochron-doctor", c)?;
-    let cameras: Vec<String> = c.cameras.iter().map(|c| c.id.clone()).collect();
-    let rows = status::collect(&ipc, &cameras, &[])?;
+    let rows = status::collect(&ipc, loaded)?;
     let running = rows.iter().filter(|r| r.state() == "running").count();
     let missing: Vec<String> = rows
         .iter()

@@ -6,13 +6,14 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use isochron_shared::clock::wall_now_ns;
+use isochron_shared::config::LoadedConfig;
 use isochron_shared::ipc::Ipc;
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{StageStatus, fixed_str};
 use serde_json::json;
 
 use crate::common::load_config;
-use crate::launch::{installed_stages, optional_services};
+use crate::launch::{bin_dir, installed_stages, optional_services};
 
 /// Show the status of every service of the site. Exits with 0 when every
 /// service runs, 3 when some does not.
@@ -59,18 +60,29 @@ impl Row {
 /// How long `collect` waits for the stages' reports.
 const STATUS_WAIT: Duration = Duration::from_millis(1000);
 
-/// Reads the last status of every installed stage of every camera, and of the
-/// site-wide `optional` services (the exporter, the MQTT sink) the config asks for.
-pub fn collect(
-    ipc: &Ipc,
-    cameras: &[String],
-    optional: &[(StageKind, PathBuf)],
-) -> anyhow::Result<Vec<Row>> {
+/// The stages whose status the site should publish: every installed pipeline
+/// stage, the exporter when the config has an `[exporter]` section, and the link
+/// when `[link]` exports or imports a camera (each if its binary is installed).
+pub fn expected_stages(config: &LoadedConfig) -> Vec<StageKind> {
+    let link = (config.config.link.is_enabled()
+        && bin_dir().join(StageKind::Link.binary()).is_file())
+    .then_some(StageKind::Link);
+    installed_stages()
+        .into_iter()
+        .chain(optional_services(config))
+        .map(|(stage, _)| stage)
+        .chain(link)
+        .collect()
+}
+
+/// Reads the last status of every expected stage ([`expected_stages`]) of every
+/// camera of `config`.
+pub fn collect(ipc: &Ipc, config: &LoadedConfig) -> anyhow::Result<Vec<Row>> {
+    let cameras: Vec<String> = config.config.cameras.iter().map(|c| c.id.clone()).collect();
     let mut readers = Vec::new();
-    for (stage, _) in installed_stages().iter().chain(optional) {
-        let stage = *stage;
+    for stage in expected_stages(config) {
         let targets: Vec<String> = if stage.per_camera() {
-            cameras.to_vec()
+            cameras.clone()
         } else {
             vec![String::new()]
         };
@@ -108,8 +120,7 @@ pub fn collect(
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let loaded = load_config(args.config)?;
     let ipc = Ipc::of_site("isochron-status", &loaded.config)?;
-    let cameras: Vec<String> = loaded.config.cameras.iter().map(|c| c.id.clone()).collect();
-    let rows = collect(&ipc, &cameras, &optional_services(&loaded))?;
+    let rows = collect(&ipc, &loaded)?;
     if args.json {
         for row in &rows {
             let mut o =

@@ -107,32 +107,39 @@ struct SiteWideCommandLine {
     config: PathBuf,
 }
 
-/// Parses the process's command line as `stage`'s binary, described by `about`
-/// (what `--help` shows; `--version` prints the binary's name and version).
-fn parse_command_line<P: clap::Parser>(stage: StageKind, about: &'static str) -> P {
-    let command = || {
-        P::command()
-            .name(stage.binary())
-            .about(about)
-            .version(env!("CARGO_PKG_VERSION"))
+/// The command line of `stage`'s binary: `--config`, and `--camera` for per-camera
+/// stages; `--help` says what it does ([`StageKind::about`]), `--version` prints
+/// the binary's name and version. `cargo xtask docs` makes its man page from it.
+pub fn command(stage: StageKind) -> clap::Command {
+    use clap::CommandFactory;
+    let command = if stage.per_camera() {
+        PerCameraCommandLine::command()
+    } else {
+        SiteWideCommandLine::command()
     };
-    let mut matches = command().get_matches();
-    P::from_arg_matches_mut(&mut matches).unwrap_or_else(|e| e.format(&mut command()).exit())
+    command
+        .name(stage.binary())
+        .about(stage.about())
+        .version(env!("CARGO_PKG_VERSION"))
+}
+
+/// Parses the process's command line as `stage`'s binary (see [`command`]).
+fn parse_command_line<P: clap::Parser>(stage: StageKind) -> P {
+    let mut matches = command(stage).get_matches();
+    P::from_arg_matches_mut(&mut matches).unwrap_or_else(|e| e.format(&mut command(stage)).exit())
 }
 
 /// The whole `main` of a per-camera service: parses `--config` and `--camera`
-/// (`about` is what `--help` says the service does) and runs `run` for each camera
-/// (see [`run_cameras`]).
-pub fn main_per_camera(stage: StageKind, about: &'static str, run: Serve) -> ExitCode {
-    let args: PerCameraCommandLine = parse_command_line(stage, about);
+/// (see [`command`]) and runs `run` for each camera (see [`run_cameras`]).
+pub fn main_per_camera(stage: StageKind, run: Serve) -> ExitCode {
+    let args: PerCameraCommandLine = parse_command_line(stage);
     run_cameras(stage, &args.service, run)
 }
 
-/// The whole `main` of a site-wide service: parses `--config` (`about` is what
-/// `--help` says the service does), starts (see [`start`]), runs `run` and
-/// returns the exit code.
-pub fn main_site_wide(stage: StageKind, about: &'static str, run: Serve) -> ExitCode {
-    let args: SiteWideCommandLine = parse_command_line(stage, about);
+/// The whole `main` of a site-wide service: parses `--config` (see [`command`]),
+/// starts (see [`start`]), runs `run` and returns the exit code.
+pub fn main_site_wide(stage: StageKind, run: Serve) -> ExitCode {
+    let args: SiteWideCommandLine = parse_command_line(stage);
     finish(stage, start(stage, &args.config).and_then(run))
 }
 

@@ -42,6 +42,19 @@ impl StageKind {
         StageKind::Costmap,
     ];
 
+    /// Every stage with a binary of its own: [`StageKind::ALL`], then the optional
+    /// site-wide exporter, link and MQTT sink.
+    pub const EVERY: [StageKind; 8] = [
+        StageKind::Capture,
+        StageKind::Motion,
+        StageKind::Cascade,
+        StageKind::Gate,
+        StageKind::Costmap,
+        StageKind::Exporter,
+        StageKind::Link,
+        StageKind::Mqtt,
+    ];
+
     /// The stage's name, as in node names, status services and logs.
     pub fn name(self) -> &'static str {
         match self {
@@ -58,10 +71,7 @@ impl StageKind {
 
     /// The stage named `name`, if any.
     pub fn from_name(name: &str) -> Option<StageKind> {
-        StageKind::ALL
-            .into_iter()
-            .chain([StageKind::Exporter, StageKind::Link, StageKind::Mqtt])
-            .find(|s| s.name() == name)
+        StageKind::EVERY.into_iter().find(|s| s.name() == name)
     }
 
     /// The binary that runs the stage.
@@ -75,6 +85,37 @@ impl StageKind {
             StageKind::Exporter => "isochron-exporter",
             StageKind::Link => "isochron-link",
             StageKind::Mqtt => "isochron-mqtt",
+        }
+    }
+
+    /// What the stage's binary does, as its `--help` and man page say.
+    pub fn about(self) -> &'static str {
+        match self {
+            StageKind::Capture => {
+                "Reads one camera or video file and publishes its frames on `<prefix>/<camera>/frames`"
+            }
+            StageKind::Motion => {
+                "Reads a camera's `frames` and publishes per-block motion on `<prefix>/<camera>/motion`"
+            }
+            StageKind::Cascade => {
+                "Filters one camera's motion stream into 1-Hz activity and the long-term store"
+            }
+            StageKind::Gate => {
+                "Raises events from a camera's activity and runs the detector on gated frames"
+            }
+            StageKind::Costmap => {
+                "Publishes block activity on the robots' map as a ROS 2 OccupancyGrid, writes \
+                 snapshots, and answers planning requests"
+            }
+            StageKind::Exporter => {
+                "Serves every isochron service's status as Prometheus metrics at /metrics"
+            }
+            StageKind::Link => {
+                "Carries the activity of this box's exported cameras to the site's other base \
+                 stations over ROS 2 DDS, and writes the imported cameras' activity into this \
+                 box's services as if local"
+            }
+            StageKind::Mqtt => "Publishes zone events and detections as JSON to an MQTT broker",
         }
     }
 
@@ -146,7 +187,7 @@ mod tests {
 
     #[test]
     fn names_round_trip() {
-        for stage in StageKind::ALL {
+        for stage in StageKind::EVERY {
             assert_eq!(StageKind::from_name(stage.name()), Some(stage));
             assert_eq!(stage.binary(), format!("isochron-{stage}"));
         }

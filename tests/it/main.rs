@@ -18,6 +18,7 @@ mod link;
 mod motion;
 mod mqtt;
 mod operations;
+mod package;
 mod pipeline;
 mod presence;
 mod reliability;

@@ -1,7 +1,7 @@
-//! Developer tasks: `cargo xtask <setup|demo|test|bench NAME>`.
+//! Developer tasks: `cargo xtask <setup|demo|test|bench NAME|docs|install|deb>`.
 //!
-//! * `setup`: installs the system packages isochron builds against (Debian/Ubuntu:
-//!   libopencv-dev, clang, libclang-dev, iproute2) if they are missing, and fetches the sample
+//! * `setup`: installs the system packages isochron builds and tests with
+//!   (Debian/Ubuntu, [`PACKAGES`]) if they are missing, and fetches the sample
 //!   video (PETS 2009 `vtest.avi`, from Debian's opencv-doc package) into `data/`;
 //! * `demo`: setup, release build, `isochron replay` on the sample video with
 //!   `config/demo.toml`, and a report of what every stage did;
@@ -10,13 +10,18 @@
 //! * `bench NAME`: setup and one benchmark (motion, cascade, gate, ipc, group);
 //!   `bench NAME --quick`: the same code with few iterations, in the dev profile (no
 //!   release build), checked for its closing JSON line as `test` does;
-//! * `docs [OUT]`: the man pages (`OUT/man/*.1`) and bash, zsh and fish
-//!   completions (`OUT/completions/`) of `isochron`, made from its clap definition
-//!   with clap_mangen and clap_complete (default `OUT` = `target/docs`);
+//! * `docs [OUT]`: the man pages of `isochron` (`OUT/man/*.1`) and of the service
+//!   binaries (`OUT/man/*.8`), and bash, zsh and fish completions (`OUT/completions/`) of
+//!   `isochron`, made from their clap definitions with clap_mangen and
+//!   clap_complete (default `OUT` = `target/docs`);
 //! * `install [--prefix P] [--destdir D]`: release build, then binaries, systemd
 //!   units, sysusers/tmpfiles entries, an example config, the README, the man
 //!   pages and completions installed under `D/P` (default `P` = `/usr/local`), and
-//!   what to do next.
+//!   what to do next;
+//! * `deb [--profile dev|release] [--no-build] [--out DIR]`: the same files under
+//!   `/usr` as a Debian package, `DIR/isochron_<version>_<arch>.deb` (default
+//!   `target/deb`, release profile), made with `dpkg-deb --build`, with maintainer
+//!   scripts that create the `isochron` user and enable nothing.
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -28,14 +33,16 @@ use anyhow::{Context, bail};
 /// System packages: OpenCV and the bindings' clang; iproute2 (`ip`, `ss`) for the
 /// network-namespace and DDS socket tests; `prometheus` for promtool, which checks
 /// the exporter's output and the alert rules; `mosquitto`, the broker the MQTT
-/// sink's test publishes to.
-const PACKAGES: [&str; 6] = [
+/// sink's test publishes to; `dpkg-dev` for `dpkg-shlibdeps`, which gives the
+/// package's `Depends` (`cargo xtask deb`).
+const PACKAGES: [&str; 7] = [
     "libopencv-dev",
     "clang",
     "libclang-dev",
     "iproute2",
     "prometheus",
     "mosquitto",
+    "dpkg-dev",
 ];
 
 /// Benchmarks: name → (package, bench target).
@@ -88,8 +95,9 @@ fn main() -> anyhow::Result<()> {
             docs(&out, false)
         }
         Some("install") => install(&root, &args[1..]),
+        Some("deb") => deb(&root, &args[1..]),
         _ => bail!(
-            "usage: cargo xtask <setup|demo|test|bench NAME|docs [OUT]|install [--prefix P] [--destdir D]>"
+            "usage: cargo xtask <setup|demo|test|bench NAME|docs [OUT]|install [--prefix P] [--destdir D]|deb [--profile dev|release] [--no-build] [--out DIR]>"
         ),
     }
 }
@@ -452,8 +460,8 @@ const BINARIES: [&str; 9] = [
     "isochron-mqtt",
 ];
 
-/// Writes the man pages and completions of `isochron` into `out` (see the
-/// `isochron-docs` example of the cli crate).
+/// Writes the man pages (`isochron` and the services) and completions of
+/// `isochron` into `out` (see the `isochron-docs` example of the cli crate).
 fn docs(out: &Path, release: bool) -> anyhow::Result<()> {
     let mut cmd = cargo();
     cmd.args([
@@ -470,37 +478,55 @@ fn docs(out: &Path, release: bool) -> anyhow::Result<()> {
     run(cmd.arg("--").arg(out))
 }
 
-fn install(root: &Path, args: &[String]) -> anyhow::Result<()> {
-    let mut prefix = PathBuf::from("/usr/local");
-    let mut destdir = PathBuf::from("/");
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        match a.as_str() {
-            "--prefix" => prefix = it.next().context("--prefix needs a path")?.into(),
-            "--destdir" => destdir = it.next().context("--destdir needs a path")?.into(),
-            other => bail!("install: unknown argument '{other}'"),
-        }
-    }
-    anyhow::ensure!(prefix.is_absolute(), "--prefix must be an absolute path");
-    run(cargo().args(["build", "--release", "--workspace", "--bins"]))?;
-    let under = |p: &Path| destdir.join(p.strip_prefix("/").unwrap_or(p));
+/// Where [`lay_out`] puts a site's files, and from where.
+struct Layout<'a> {
+    /// The repository.
+    root: &'a Path,
+    /// The built binaries (`target/<profile>`).
+    bins: &'a Path,
+    /// What [`docs`] wrote (`man/`, `completions/`).
+    docs: &'a Path,
+    /// The installation prefix: `/usr/local`, or `/usr` for the package.
+    prefix: &'a Path,
+    /// Everything goes under this directory (DESTDIR; the package's root).
+    destdir: &'a Path,
+    /// The package's way: man pages gzipped (Debian policy), binaries stripped of
+    /// their debug sections (symbol names stay, for backtraces).
+    packaged: bool,
+}
+
+/// Installs the binaries, systemd units, sysusers/tmpfiles entries, README,
+/// example config, Grafana dashboard, alert rules, man pages and completions
+/// under `destdir/prefix` (`cargo xtask install` and `cargo xtask deb`).
+fn lay_out(l: &Layout) -> anyhow::Result<()> {
+    let under = |p: &Path| l.destdir.join(p.strip_prefix("/").unwrap_or(p));
+    let prefix = l.prefix;
     let bin = prefix.join("bin");
     let units = prefix.join("lib/systemd/system");
+    let doc = prefix.join("share/doc/isochron");
     for dir in [
         &bin,
         &units,
         &prefix.join("lib/sysusers.d"),
         &prefix.join("lib/tmpfiles.d"),
-        &prefix.join("share/doc/isochron"),
+        &doc.join("examples"),
     ] {
         std::fs::create_dir_all(under(dir))?;
     }
+    let mut binaries = Vec::new();
     for name in BINARIES {
-        let from = root.join("target/release").join(name);
-        if from.is_file() {
-            std::fs::copy(&from, under(&bin.join(name)))
-                .with_context(|| format!("installing {name}"))?;
-        }
+        let from = l.bins.join(name);
+        let to = under(&bin.join(name));
+        std::fs::copy(&from, &to).with_context(|| {
+            format!(
+                "installing {} (is it built? cargo build --workspace --bins)",
+                from.display()
+            )
+        })?;
+        binaries.push(to);
+    }
+    if l.packaged {
+        run(Command::new("strip").arg("--strip-debug").args(&binaries))?;
     }
     // Units name /usr/bin; point them at this prefix.
     let bin_text = format!("{}/", bin.display());
@@ -508,7 +534,7 @@ fn install(root: &Path, args: &[String]) -> anyhow::Result<()> {
         let text = std::fs::read_to_string(from)?.replace("/usr/bin/", &bin_text);
         std::fs::write(to, text).with_context(|| format!("writing {}", to.display()))
     };
-    for entry in std::fs::read_dir(root.join("systemd"))? {
+    for entry in std::fs::read_dir(l.root.join("systemd"))? {
         let path = entry?.path();
         let name = path.file_name().context("unit name")?.to_owned();
         if path.is_dir() {
@@ -528,47 +554,98 @@ fn install(root: &Path, args: &[String]) -> anyhow::Result<()> {
             copy_unit(&path, &under(&units.join(&name)))?;
         }
     }
-    std::fs::copy(
-        root.join("systemd/isochron.sysusers"),
-        under(&prefix.join("lib/sysusers.d/isochron.conf")),
-    )?;
-    std::fs::copy(
-        root.join("systemd/isochron.tmpfiles"),
-        under(&prefix.join("lib/tmpfiles.d/isochron.conf")),
-    )?;
-    std::fs::copy(
-        root.join("README.md"),
-        under(&prefix.join("share/doc/isochron/README.md")),
-    )?;
-    let docs_dir = root.join("target/release/docs");
-    docs(&docs_dir, true)?;
-    let copy_all = |from: &Path, to: &Path| -> anyhow::Result<()> {
-        std::fs::create_dir_all(to)?;
-        for entry in std::fs::read_dir(from)? {
-            let path = entry?.path();
-            std::fs::copy(&path, to.join(path.file_name().context("file name")?))?;
-        }
-        Ok(())
-    };
-    copy_all(
-        &docs_dir.join("man"),
-        &under(&prefix.join("share/man/man1")),
-    )?;
-    let completions = docs_dir.join("completions");
-    for (file, dir) in [
-        ("isochron.bash", "share/bash-completion/completions"),
-        ("_isochron", "share/zsh/vendor-completions"),
-        ("isochron.fish", "share/fish/vendor_completions.d"),
+    let copies = [
+        (
+            "systemd/isochron.sysusers",
+            prefix.join("lib/sysusers.d/isochron.conf"),
+        ),
+        (
+            "systemd/isochron.tmpfiles",
+            prefix.join("lib/tmpfiles.d/isochron.conf"),
+        ),
+        ("README.md", doc.join("README.md")),
+        (
+            "config/site.example.toml",
+            doc.join("examples/isochron.toml"),
+        ),
+        (
+            "deploy/grafana/isochron-dashboard.json",
+            doc.join("examples/isochron-dashboard.json"),
+        ),
+        (
+            "deploy/prometheus/isochron-alerts.yml",
+            doc.join("examples/isochron-alerts.yml"),
+        ),
+    ];
+    for (from, to) in copies {
+        std::fs::copy(l.root.join(from), under(&to))
+            .with_context(|| format!("installing {from}"))?;
+    }
+    // `isochron*.1` (the command) and `isochron-*.8` (the services).
+    let mut pages = Vec::new();
+    for entry in std::fs::read_dir(l.docs.join("man"))? {
+        let path = entry?.path();
+        let section = path.extension().context("a man page's section")?;
+        let dir = under(
+            &prefix
+                .join("share/man")
+                .join(format!("man{}", section.to_string_lossy())),
+        );
+        std::fs::create_dir_all(&dir)?;
+        let to = dir.join(path.file_name().context("file name")?);
+        std::fs::copy(&path, &to)?;
+        pages.push(to);
+    }
+    if l.packaged {
+        // -n: no name or time stamp in the header, so the package is reproducible.
+        run(Command::new("gzip").arg("-9nf").args(&pages))?;
+    }
+    let completions = l.docs.join("completions");
+    for (file, dir, name) in [
+        (
+            "isochron.bash",
+            "share/bash-completion/completions",
+            "isochron",
+        ),
+        ("_isochron", "share/zsh/vendor-completions", "_isochron"),
+        (
+            "isochron.fish",
+            "share/fish/vendor_completions.d",
+            "isochron.fish",
+        ),
     ] {
         let to = under(&prefix.join(dir));
         std::fs::create_dir_all(&to)?;
-        let name = if file == "isochron.bash" {
-            "isochron"
-        } else {
-            file
-        };
         std::fs::copy(completions.join(file), to.join(name))?;
     }
+    Ok(())
+}
+
+fn install(root: &Path, args: &[String]) -> anyhow::Result<()> {
+    let mut prefix = PathBuf::from("/usr/local");
+    let mut destdir = PathBuf::from("/");
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--prefix" => prefix = it.next().context("--prefix needs a path")?.into(),
+            "--destdir" => destdir = it.next().context("--destdir needs a path")?.into(),
+            other => bail!("install: unknown argument '{other}'"),
+        }
+    }
+    anyhow::ensure!(prefix.is_absolute(), "--prefix must be an absolute path");
+    run(cargo().args(["build", "--release", "--workspace", "--bins"]))?;
+    let docs_dir = root.join("target/release/docs");
+    let _ = std::fs::remove_dir_all(&docs_dir);
+    docs(&docs_dir, true)?;
+    lay_out(&Layout {
+        root,
+        bins: &root.join("target/release"),
+        docs: &docs_dir,
+        prefix: &prefix,
+        destdir: &destdir,
+        packaged: false,
+    })?;
+    let under = |p: &Path| destdir.join(p.strip_prefix("/").unwrap_or(p));
     let config = under(Path::new("/etc/isochron/isochron.toml"));
     if !config.exists() {
         std::fs::create_dir_all(config.parent().expect("config dir"))?;
@@ -577,10 +654,16 @@ fn install(root: &Path, args: &[String]) -> anyhow::Result<()> {
     println!("installed under {}", under(&prefix).display());
     println!("next, as root:");
     println!(
-        "  systemd-sysusers && systemd-tmpfiles --create    # the isochron user, /tmp/iceoryx2"
+        "  systemd-sysusers && systemd-tmpfiles --create    # the isochron user, its state dir, /tmp/iceoryx2"
     );
     println!("  $EDITOR /etc/isochron/isochron.toml              # cameras, zones, floor points");
     println!("  systemctl daemon-reload");
+    print_enable_steps(&prefix.join("bin"));
+    Ok(())
+}
+
+/// What to enable after installing (nothing is enabled by the install itself).
+fn print_enable_steps(bin: &Path) {
     println!("  systemctl enable --now isochron.target isochron-costmap.service");
     println!(
         "  for c in cam01; do systemctl enable --now isochron-{{capture,motion,cascade,gate}}@$c; done"
@@ -595,5 +678,286 @@ fn install(root: &Path, args: &[String]) -> anyhow::Result<()> {
         "  sudo -u isochron {}/isochron doctor               # checks it all",
         bin.display()
     );
+}
+
+/// The package's name.
+const PACKAGE: &str = "isochron";
+
+/// `postinst`: the user and directories from our own sysusers/tmpfiles entries,
+/// and a daemon-reload when systemd runs. It enables and starts nothing.
+const POSTINST: &str = r#"#!/bin/sh
+# isochron postinst: the isochron user and its directories; enables nothing.
+set -e
+if [ "$1" = configure ]; then
+    systemd-sysusers /usr/lib/sysusers.d/isochron.conf
+    systemd-tmpfiles --create /usr/lib/tmpfiles.d/isochron.conf || true
+    if [ -d /run/systemd/system ]; then
+        systemctl --system daemon-reload >/dev/null || true
+    fi
+    echo "isochron: nothing is enabled; see /usr/share/doc/isochron/README.md (Running it on a base station)"
+fi
+exit 0
+"#;
+
+/// `prerm`: stops the running isochron units before their files go.
+const PRERM: &str = r#"#!/bin/sh
+# isochron prerm: stop the services before their binaries go.
+set -e
+if [ "$1" = remove ] && [ -d /run/systemd/system ]; then
+    systemctl stop isochron.target 'isochron-*.service' >/dev/null 2>&1 || true
+fi
+exit 0
+"#;
+
+/// `postrm`: a daemon-reload after removal; on purge, the enablement links the
+/// administrator made. The user and `/var/lib/isochron` (the learned activity)
+/// are kept, as Debian keeps system users and data it cannot recreate.
+const POSTRM: &str = r#"#!/bin/sh
+# isochron postrm: forget the units; on purge, their enablement links too.
+set -e
+if [ "$1" = purge ]; then
+    find /etc/systemd/system -path '*.wants/isochron*' -type l -delete 2>/dev/null || true
+    echo "isochron: kept the isochron user and /var/lib/isochron (the learned activity)"
+fi
+if [ "$1" = remove ] || [ "$1" = purge ]; then
+    if [ -d /run/systemd/system ]; then
+        systemctl --system daemon-reload >/dev/null || true
+    fi
+fi
+exit 0
+"#;
+
+/// `cargo xtask deb [--profile dev|release] [--no-build] [--out DIR]`: builds the
+/// binaries (unless `--no-build`), lays the site out under `/usr` in a staging
+/// tree ([`lay_out`]) and makes `DIR/isochron_<version>_<arch>.deb` with
+/// `dpkg-deb --build` (default `DIR` = `target/deb`). Prints the package's path
+/// as its last line.
+fn deb(root: &Path, args: &[String]) -> anyhow::Result<()> {
+    let mut profile = "release".to_string();
+    let mut build = true;
+    let mut out = root.join("target/deb");
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--profile" => profile = it.next().context("--profile needs dev or release")?.clone(),
+            "--no-build" => build = false,
+            "--out" => out = it.next().context("--out needs a directory")?.into(),
+            other => bail!("deb: unknown argument '{other}'"),
+        }
+    }
+    let (dir, release) = match profile.as_str() {
+        "release" => ("release", true),
+        "dev" => ("debug", false),
+        other => bail!("deb: --profile is dev or release, not '{other}'"),
+    };
+    if build {
+        let mut cmd = cargo();
+        cmd.args(["build", "--workspace", "--bins"]);
+        if release {
+            cmd.arg("--release");
+        }
+        run(&mut cmd)?;
+    }
+    let target = root.join("target").join(dir);
+    let docs_dir = target.join("docs");
+    // Without a build, the docs example is the one `cargo test` built: no cargo
+    // run, which would wait for the lock a running `cargo test` holds.
+    let example = target.join("examples/isochron-docs");
+    if build {
+        docs(&docs_dir, release)?;
+    } else if example.is_file() {
+        run(Command::new(&example).arg(&docs_dir))?;
+    } else {
+        bail!(
+            "deb --no-build: {} is not built (cargo test --workspace builds it; or \
+             cargo build -p isochron-cli --example isochron-docs{})",
+            example.display(),
+            if release { " --release" } else { "" }
+        );
+    }
+    // dpkg-shlibdeps wants `debian/control` and the package under `debian/<name>`.
+    let work = target.join("deb-work");
+    let _ = std::fs::remove_dir_all(&work);
+    let pkg = work.join("debian").join(PACKAGE);
+    lay_out(&Layout {
+        root,
+        bins: &target,
+        docs: &docs_dir,
+        prefix: Path::new("/usr"),
+        destdir: &pkg,
+        packaged: true,
+    })?;
+    std::fs::create_dir_all(pkg.join("etc/isochron"))?;
+    std::fs::write(
+        pkg.join("usr/share/doc/isochron/copyright"),
+        format!(
+            "isochron {}\nLicense: {}\nSee the README for the project and its dependencies.\n",
+            version(root)?,
+            "MIT OR Apache-2.0"
+        ),
+    )?;
+    let depends = depends(&work)?;
+    let control = pkg.join("DEBIAN");
+    std::fs::create_dir_all(&control)?;
+    let version = version(root)?;
+    let arch = output(Command::new("dpkg").arg("--print-architecture"))?;
+    let maintainer = match (std::env::var("DEBFULLNAME"), std::env::var("DEBEMAIL")) {
+        (Ok(name), Ok(email)) => format!("{name} <{email}>"),
+        _ => "isochron developers <isochron@localhost>".to_string(),
+    };
+    normalize_modes(&pkg)?;
+    let installed_kib = output(
+        Command::new("du")
+            .args(["-sk", "--apparent-size"])
+            .arg(&pkg),
+    )?
+    .split_whitespace()
+    .next()
+    .unwrap_or("0")
+    .to_string();
+    std::fs::write(
+        control.join("control"),
+        format!(
+            "Package: {PACKAGE}\n\
+             Version: {version}\n\
+             Architecture: {arch}\n\
+             Maintainer: {maintainer}\n\
+             Installed-Size: {installed_kib}\n\
+             Depends: {depends}\n\
+             Section: misc\n\
+             Priority: optional\n\
+             Description: people activity from fixed cameras, for robot planning\n \
+             isochron learns where and when people are active from fixed cameras and\n \
+             feeds robots a cost map (ROS 2). The package installs the isochron command,\n \
+             the services and their systemd units, and creates the isochron user;\n \
+             it enables nothing by itself.\n"
+        ),
+    )?;
+    for (name, text) in [("postinst", POSTINST), ("prerm", PRERM), ("postrm", POSTRM)] {
+        let path = control.join(name);
+        std::fs::write(&path, text)?;
+        set_mode(&path, 0o755)?;
+    }
+    std::fs::create_dir_all(&out)?;
+    let file = out.join(format!("{PACKAGE}_{version}_{arch}.deb"));
+    // xz (dpkg's default) for releases; a dev package (the tests') is large and
+    // only needs to be quick to make.
+    let compression: &[&str] = if release {
+        &["-Zxz"]
+    } else {
+        &["-Zgzip", "-z1"]
+    };
+    run(Command::new("dpkg-deb")
+        .arg("--root-owner-group")
+        .args(compression)
+        .arg("--build")
+        .arg(&pkg)
+        .arg(&file))?;
+    let size = std::fs::metadata(&file)?.len();
+    eprintln!(
+        "xtask: {} ({:.1} MiB); install: apt install {}",
+        file.display(),
+        size as f64 / (1 << 20) as f64,
+        file.display()
+    );
+    println!("next, as root:");
+    println!(
+        "  $EDITOR /etc/isochron/isochron.toml   # from /usr/share/doc/isochron/examples/isochron.toml"
+    );
+    print_enable_steps(Path::new("/usr/bin"));
+    println!("{}", file.display());
+    Ok(())
+}
+
+/// The workspace version (`[workspace.package] version` of the root Cargo.toml).
+fn version(root: &Path) -> anyhow::Result<String> {
+    let text = std::fs::read_to_string(root.join("Cargo.toml"))?;
+    let mut in_package = false;
+    for line in text.lines() {
+        let line = line.trim();
+        if line.starts_with('[') {
+            in_package = line == "[workspace.package]";
+        } else if in_package && let Some(v) = line.strip_prefix("version") {
+            let v = v
+                .trim_start()
+                .trim_start_matches('=')
+                .trim()
+                .trim_matches('"');
+            return Ok(v.to_string());
+        }
+    }
+    bail!("Cargo.toml: no version in [workspace.package]")
+}
+
+/// The runtime libraries the binaries link, as Debian dependencies: from
+/// `dpkg-shlibdeps` (package dpkg-dev) when it is installed, else OpenCV's
+/// runtime packages by name, and what the postinst runs (systemd-sysusers).
+fn depends(work: &Path) -> anyhow::Result<String> {
+    let sysusers = "systemd | systemd-standalone-sysusers";
+    let has_shlibdeps = Command::new("dpkg-shlibdeps")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !has_shlibdeps {
+        eprintln!("xtask: dpkg-shlibdeps missing (package dpkg-dev): naming OpenCV's libraries");
+        return Ok(format!(
+            "libopencv-core406t64 | libopencv-core406, \
+             libopencv-imgproc406t64 | libopencv-imgproc406, \
+             libopencv-videoio406t64 | libopencv-videoio406, \
+             libopencv-video406t64 | libopencv-video406, \
+             libopencv-objdetect406t64 | libopencv-objdetect406, \
+             libopencv-dnn406t64 | libopencv-dnn406, libc6, libgcc-s1, libstdc++6, {sysusers}"
+        ));
+    }
+    std::fs::write(
+        work.join("debian/control"),
+        format!("Source: {PACKAGE}\n\nPackage: {PACKAGE}\nArchitecture: any\n"),
+    )?;
+    let mut cmd = Command::new("dpkg-shlibdeps");
+    cmd.arg("-O").current_dir(work);
+    for name in BINARIES {
+        cmd.arg(format!("-edebian/{PACKAGE}/usr/bin/{name}"));
+    }
+    let line = output(&mut cmd)?;
+    let shlibs = line
+        .lines()
+        .find_map(|l| l.strip_prefix("shlibs:Depends="))
+        .with_context(|| format!("dpkg-shlibdeps printed no shlibs:Depends: {line}"))?;
+    Ok(format!("{shlibs}, {sysusers}"))
+}
+
+/// The trimmed standard output of a command that must succeed.
+fn output(cmd: &mut Command) -> anyhow::Result<String> {
+    let shown = format!("{cmd:?}");
+    let out = cmd.output().with_context(|| format!("starting {shown}"))?;
+    if !out.status.success() {
+        bail!(
+            "{shown} failed ({}): {}",
+            out.status,
+            String::from_utf8_lossy(&out.stderr).trim()
+        );
+    }
+    Ok(String::from_utf8_lossy(&out.stdout).trim().to_string())
+}
+
+fn set_mode(path: &Path, mode: u32) -> anyhow::Result<()> {
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode))
+        .with_context(|| format!("chmod {mode:o} {}", path.display()))
+}
+
+/// Directories 0755, files 0644, the binaries 0755: whatever the umask and the
+/// checkout's modes were.
+fn normalize_modes(dir: &Path) -> anyhow::Result<()> {
+    set_mode(dir, 0o755)?;
+    for entry in std::fs::read_dir(dir)? {
+        let path = entry?.path();
+        if path.is_dir() {
+            normalize_modes(&path)?;
+        } else {
+            let executable = path.parent().is_some_and(|p| p.ends_with("usr/bin"));
+            set_mode(&path, if executable { 0o755 } else { 0o644 })?;
+        }
+    }
     Ok(())
 }

@@ -7,9 +7,5 @@ use isochron_shared::service::main_per_camera;
 use isochron_shared::topology::StageKind;
 
 fn main() -> ExitCode {
-    main_per_camera(
-        StageKind::Capture,
-        "Reads one camera or video file and publishes its frames on `<prefix>/<camera>/frames`",
-        stage::run,
-    )
+    main_per_camera(StageKind::Capture, stage::run)
 }

@@ -8,9 +8,5 @@ use isochron_shared::service::main_per_camera;
 use isochron_shared::topology::StageKind;
 
 fn main() -> ExitCode {
-    main_per_camera(
-        StageKind::Cascade,
-        "Filters one camera's motion stream into 1-Hz activity and the long-term store",
-        stage::run,
-    )
+    main_per_camera(StageKind::Cascade, stage::run)
 }

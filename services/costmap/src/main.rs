@@ -10,13 +10,8 @@ use isochron_shared::stage;
 use isochron_shared::topology::StageKind;
 
 fn main() -> ExitCode {
-    main_site_wide(
-        StageKind::Costmap,
-        "Publishes block activity on the robots' map as a ROS 2 OccupancyGrid, writes \
-         snapshots, and answers planning requests",
-        |ctx| {
-            let (mut costmap, inputs) = CostmapStage::open(&ctx.ipc, &ctx.config)?;
-            stage::run(&ctx.ipc, "", &mut costmap, &inputs)
-        },
-    )
+    main_site_wide(StageKind::Costmap, |ctx| {
+        let (mut costmap, inputs) = CostmapStage::open(&ctx.ipc, &ctx.config)?;
+        stage::run(&ctx.ipc, "", &mut costmap, &inputs)
+    })
 }

@@ -8,9 +8,5 @@ use isochron_shared::service::main_site_wide;
 use isochron_shared::topology::StageKind;
 
 fn main() -> ExitCode {
-    main_site_wide(
-        StageKind::Exporter,
-        "Serves every isochron service's status as Prometheus metrics at /metrics",
-        stage::run,
-    )
+    main_site_wide(StageKind::Exporter, stage::run)
 }

@@ -9,9 +9,5 @@ use isochron_shared::service::main_per_camera;
 use isochron_shared::topology::StageKind;
 
 fn main() -> ExitCode {
-    main_per_camera(
-        StageKind::Gate,
-        "Raises events from a camera's activity and runs the detector on gated frames",
-        stage::run,
-    )
+    main_per_camera(StageKind::Gate, stage::run)
 }

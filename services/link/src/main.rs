@@ -10,14 +10,8 @@ use isochron_shared::stage;
 use isochron_shared::topology::StageKind;
 
 fn main() -> ExitCode {
-    main_site_wide(
-        StageKind::Link,
-        "Carries the activity of this box's exported cameras to the site's other base \
-         stations over ROS 2 DDS, and writes the imported cameras' activity into this \
-         box's services as if local",
-        |ctx| {
-            let (mut link, inputs) = LinkStage::open(&ctx.ipc, &ctx.config)?;
-            stage::run(&ctx.ipc, "", &mut link, &inputs)
-        },
-    )
+    main_site_wide(StageKind::Link, |ctx| {
+        let (mut link, inputs) = LinkStage::open(&ctx.ipc, &ctx.config)?;
+        stage::run(&ctx.ipc, "", &mut link, &inputs)
+    })
 }

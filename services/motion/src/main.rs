@@ -8,9 +8,5 @@ use isochron_shared::service::main_per_camera;
 use isochron_shared::topology::StageKind;
 
 fn main() -> ExitCode {
-    main_per_camera(
-        StageKind::Motion,
-        "Reads a camera's `frames` and publishes per-block motion on `<prefix>/<camera>/motion`",
-        stage::run,
-    )
+    main_per_camera(StageKind::Motion, stage::run)
 }

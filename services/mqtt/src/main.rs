@@ -9,9 +9,5 @@ use isochron_shared::service::main_site_wide;
 use isochron_shared::topology::StageKind;
 
 fn main() -> ExitCode {
-    main_site_wide(
-        StageKind::Mqtt,
-        "Publishes zone events and detections as JSON to an MQTT broker",
-        stage::run,
-    )
+    main_site_wide(StageKind::Mqtt, stage::run)
 }
