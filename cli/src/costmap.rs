@@ -4,6 +4,12 @@
 //!   write a snapshot of the current cost map (`map_server` PGM + YAML in raw mode,
 //!   and a PNG picture) into its snapshot directory (`costmap.snapshot_dir`, by
 //!   default `<state_dir>/costmap`), prints the files, and copies them to `DIR`.
+//! * `isochron costmap snapshot --at HH:MM [--day mon..sun] --out FILE.png
+//!   [--json]`: the cost map the long-term model expects at that time of day (and
+//!   weekday, on a weekly store), drawn from the long-term stores by
+//!   `Planner::expected_costmap` — the bridge's forecast — with the bridge's
+//!   snapshot writer (`isochron_planning::snapshot`): FILE.png, and FILE.pgm +
+//!   FILE.yaml beside it. Needs no running service.
 //! * `isochron costmap check [--camera ID] [--overlay OUT.png [--frame FILE]]
 //!   [--json]`: each camera's floor mapping — the fit's error at each of its own
 //!   points in metres and pixels, the leave-one-out error (at a point, of the fit
@@ -15,21 +21,28 @@
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use isochron_planning::calibration::Calibration;
 use isochron_planning::grid::MapGrid;
 use isochron_planning::plan_service::PlanClient;
+use isochron_planning::planner::Planner;
 use isochron_planning::query::{PlanKind, PlanRequest, PlanStatus};
 use isochron_planning::raster::Footprint;
+use isochron_planning::snapshot::{self, Snapshot};
+use isochron_shared::clock::{
+    Cycle, MINUTES_PER_DAY, SiteClock, format_t_star, parse_hhmm, wall_now_ns,
+};
 use isochron_shared::config::{CameraConfig, LoadedConfig, SourceKind};
+use isochron_shared::exit::UsageError;
 use isochron_shared::geometry::BlockGrid;
 use isochron_shared::ipc::Ipc;
 use isochron_shared::store::{Store, store_path};
 
 use crate::common::{Subcommands, load_config};
 use crate::overlay::{self, FloorPolygon, Frame, Scene};
+use crate::plan::parse_day;
 
 /// Snapshots and checks of the site's cost map.
 pub type Args = Subcommands<Command>;
@@ -47,9 +60,23 @@ pub(crate) struct SnapshotArgs {
     /// Site configuration (default: $ISOCHRON_CONFIG or /etc/isochron/isochron.toml).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Also copy the files here.
+    /// Without --at: also copy the running bridge's files into this directory.
+    /// With --at: the picture to write, FILE.png (FILE.pgm and FILE.yaml, the
+    /// `map_server` pair, beside it).
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Draw the cost map the long-term model expects at this time of day, HH:MM in
+    /// the site's time zone, from the long-term stores (no running service needed).
+    #[arg(long, value_name = "HH:MM")]
+    at: Option<String>,
+    /// With --at, for a weekly store (cascade.cycle = "weekly"): the day, mon .. sun
+    /// (default today). A daily store has one model for every day: the day is
+    /// noted on stderr and that model drawn.
+    #[arg(long, requires = "at")]
+    day: Option<String>,
+    /// With --at: print the grid and its cells as one JSON object.
+    #[arg(long, requires = "at")]
+    json: bool,
     /// How long to wait for isochron-costmap, seconds.
     #[arg(long, default_value_t = 10.0)]
     timeout: f64,
@@ -85,6 +112,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 }
 
 fn snapshot(args: SnapshotArgs) -> anyhow::Result<ExitCode> {
+    if let Some(at) = args.at.clone() {
+        return expected_snapshot(args, &at);
+    }
     let loaded = load_config(args.config)?;
     let ipc = Ipc::of_site(
         &format!("isochron-snapshot-{}", std::process::id()),
@@ -121,6 +151,180 @@ fn snapshot(args: SnapshotArgs) -> anyhow::Result<ExitCode> {
             })?;
             println!("copied to {}", to.display());
         }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Day names, Monday first (as the weekly cycle counts).
+const DAYS: [&str; 7] = ["mon", "tue", "wed", "thu", "fri", "sat", "sun"];
+
+/// `costmap snapshot --at`: the cost map the long-term model expects.
+fn expected_snapshot(args: SnapshotArgs, at: &str) -> anyhow::Result<ExitCode> {
+    let minute = parse_hhmm(at.trim()).ok_or_else(|| {
+        UsageError(format!(
+            "--at: expected a time of day HH:MM from 00:00 to 23:59, found '{at}'"
+        ))
+    })?;
+    let out = args
+        .out
+        .clone()
+        .ok_or_else(|| UsageError("--at needs --out FILE.png".into()))?;
+    let stem = out
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .filter(|_| out.extension().is_some_and(|e| e == "png"))
+        .ok_or_else(|| {
+            UsageError(format!(
+                "--out: expected a .png file name, found '{}'",
+                out.display()
+            ))
+        })?
+        .to_string();
+    let day = match &args.day {
+        Some(d) => Some(
+            parse_day(d)
+                .ok_or_else(|| UsageError(format!("--day: expected mon .. sun, found '{d}'")))?,
+        ),
+        None => None,
+    };
+    let loaded = load_config(args.config)?;
+    let started = Instant::now();
+    let (day, note) = match (loaded.config.cascade.cycle, day) {
+        (Cycle::Daily, None) => (None, None),
+        (Cycle::Daily, Some(d)) => (
+            None,
+            Some(format!(
+                "--day {}: this site learns one daily cycle (cascade.cycle = \"daily\"), the same model for every day; drawing it (a map per weekday needs cascade.cycle = \"weekly\" and weeks of data)",
+                DAYS[d as usize]
+            )),
+        ),
+        (Cycle::Weekly, Some(d)) => (Some(d), None),
+        (Cycle::Weekly, None) => {
+            let clock = SiteClock::new(&loaded.config.site.time_zone, Cycle::Weekly)?;
+            (Some(clock.t_star(wall_now_ns()) / MINUTES_PER_DAY), None)
+        }
+    };
+    if let Some(note) = &note {
+        eprintln!("isochron: {note}");
+    }
+    let t_star = day.unwrap_or(0) * MINUTES_PER_DAY + minute;
+    let grid = MapGrid::from_config(&loaded)?.context(
+        "no [costmap] grid is configured (map_yaml, or width_cells and height_cells): nothing to draw",
+    )?;
+    let mut planner = Planner::new(&loaded)?;
+    let mut footprints = Vec::new();
+    let cells = planner.expected_costmap(&grid, t_star, &mut footprints)?;
+    let learned: Vec<bool> = planner
+        .long_term_at(t_star)?
+        .iter()
+        .map(Option::is_some)
+        .collect();
+    let cameras: Vec<(String, bool, bool)> = planner
+        .cameras()
+        .map(|(id, store, floor)| (id.to_string(), store, floor))
+        .collect();
+    if !cameras.iter().any(|c| c.1) {
+        return Err(planner.missing_stores().into());
+    }
+    let coverage: Vec<&[u32]> = footprints
+        .iter()
+        .flatten()
+        .map(|f| f.cell_block.as_slice())
+        .collect();
+    let camera_ids: Vec<&str> = footprints
+        .iter()
+        .zip(&cameras)
+        .filter(|(f, _)| f.is_some())
+        .map(|(_, c)| c.0.as_str())
+        .collect();
+    let segments: Vec<&[[f64; 2]]> = loaded
+        .config
+        .costmap
+        .segments
+        .iter()
+        .filter_map(|s| s.polygon_m.as_deref())
+        .collect();
+    let when = match day {
+        Some(d) => format!("{} {}", DAYS[d as usize], format_t_star(minute)),
+        None => format_t_star(minute),
+    };
+    let caption = format!(
+        "{}: expected cost at {when} ({} days learned)",
+        loaded.config.site.name,
+        planner.days()
+    );
+    let floor_plan = snapshot::floor_plan_of(&loaded, Some(&grid));
+    let dir = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let files = snapshot::write(
+        &dir,
+        &stem,
+        &Snapshot {
+            grid: &grid,
+            cells: &cells,
+            floor_plan: floor_plan.as_ref(),
+            coverage: &coverage,
+            camera_ids: &camera_ids,
+            segments: &segments,
+            zones: &snapshot::floor_zones(&loaded.config.cameras),
+            caption: &caption,
+            stamp: &format!("{when} (t* {t_star}), expected by the long-term model"),
+        },
+    )
+    .with_context(|| format!("--out {}", out.display()))?;
+    let render_ms = started.elapsed().as_secs_f64() * 1e3;
+    let seen = cells.iter().filter(|&&c| c >= 0).count();
+    let busy = cells.iter().filter(|&&c| c > 0).count();
+    let highest = cells.iter().copied().max().unwrap_or(-1);
+    if args.json {
+        let w = grid.width as usize;
+        let rows: Vec<&[i8]> = cells.chunks(w.max(1)).collect();
+        let json = serde_json::json!({
+            "at": format_t_star(minute),
+            "day": day.map(|d| DAYS[d as usize]),
+            "t_star": t_star,
+            "cycle": match loaded.config.cascade.cycle { Cycle::Daily => "daily", Cycle::Weekly => "weekly" },
+            "note": note,
+            "grid": {
+                "width_cells": grid.width,
+                "height_cells": grid.height,
+                "resolution_m": grid.resolution,
+                "origin_m": [grid.origin_x, grid.origin_y],
+                "yaw_rad": grid.yaw,
+            },
+            "cameras": cameras.iter().zip(&learned).map(|((id, store, floor), learned)| serde_json::json!({
+                "id": id, "store": store, "floor_points": floor, "learned_at_t_star": learned,
+            })).collect::<Vec<_>>(),
+            "cells_seen": seen,
+            "cells_above_zero": busy,
+            "highest_cost": highest,
+            "cells": rows,
+            "files": { "png": files.png, "pgm": files.pgm, "yaml": files.yaml },
+            "render_ms": (render_ms * 10.0).round() / 10.0,
+        });
+        println!("{json}");
+    } else {
+        println!(
+            "snapshot: expected cost at {when}: {seen} of {} cells seen, {busy} above 0, highest {highest} (rows from the origin, -1 = no camera with a learned model sees)",
+            cells.len()
+        );
+        for ((id, store, floor), learned) in cameras.iter().zip(&learned) {
+            let state = match (store, floor, learned) {
+                (false, _, _) => "no long-term store",
+                (_, false, _) => "no floor_points, not on the map",
+                (_, _, false) => "nothing learned at this time",
+                _ => "drawn",
+            };
+            println!("  {id}: {state}");
+        }
+        println!(
+            "wrote {}, {}, {} in {render_ms:.0} ms",
+            files.png.display(),
+            files.pgm.display(),
+            files.yaml.display()
+        );
     }
     Ok(ExitCode::SUCCESS)
 }

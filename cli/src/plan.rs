@@ -105,7 +105,8 @@ fn parse_time(s: &str) -> Option<u32> {
     parse_hhmm(s.trim())
 }
 
-fn parse_day(s: &str) -> Option<u32> {
+/// Parses a weekday, `mon` .. `sun` (or longer: `monday`), Monday = 0.
+pub(crate) fn parse_day(s: &str) -> Option<u32> {
     let s = s.trim().to_ascii_lowercase();
     ["mon", "tue", "wed", "thu", "fri", "sat", "sun"]
         .iter()

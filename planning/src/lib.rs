@@ -18,12 +18,15 @@
 //! * [`plan`], [`planner`]: `cost1`, `cost2`, segments, routes and the long-term
 //!   store;
 //! * [`query`]: the fixed-size plan request and response types;
-//! * [`plan_service`]: both ends of the plan query over iceoryx2 request-response.
+//! * [`plan_service`]: both ends of the plan query over iceoryx2 request-response;
+//! * [`snapshot`]: a cost map as `map_server` PGM + YAML and a PNG picture for
+//!   people (the bridge's snapshots and `isochron costmap snapshot --at`).
 
 #![warn(missing_docs)]
 
 pub mod calibration;
 pub mod cost;
+mod font;
 pub mod grid;
 pub mod homography;
 pub mod plan;
@@ -32,3 +35,4 @@ pub mod planner;
 pub mod profile;
 pub mod query;
 pub mod raster;
+pub mod snapshot;

@@ -13,13 +13,15 @@ use isochron_shared::geometry::BlockGrid;
 use isochron_shared::store::{Model, Store, StoreError, store_path};
 use isochron_shared::wire::BlockActivity;
 
-use crate::cost::CostParams;
+use crate::cost::{CostParams, Layer, compose};
+use crate::grid::MapGrid;
 use crate::homography::Homography;
 use crate::plan::{
     CameraGeometry, DayRange, OfflinePlan, PlanError, RouteNow, SegmentBlocks, SegmentProfile,
     plan_now, plan_offline, resolve_segment, route_profiles, segment_now, store_block_grid,
 };
 use crate::profile::{ProfilePoint, daily_profile};
+use crate::raster::Footprint;
 
 /// A camera's latest live activity.
 #[derive(Debug, Clone, Copy)]
@@ -312,6 +314,74 @@ impl Planner {
                 Some((store_block_grid(model), bin.mean.clone()))
             })
             .collect())
+    }
+
+    /// The cost map the long-term model expects at isochronal time `t_star`: per
+    /// camera the mean activity per block of its store's bin, costed as planning
+    /// costs a segment (`Cost(M) = min(cap, 100 · M / cost_scale)`, the mean alone),
+    /// the highest cost over cameras per cell, -1 where no camera with a learned
+    /// bin sees. What the bridge publishes as its forecast and
+    /// `isochron costmap snapshot --at` draws. `footprints` caches each camera's
+    /// footprint on its store's block grid between calls.
+    pub fn expected_costmap(
+        &mut self,
+        grid: &MapGrid,
+        t_star: u32,
+        footprints: &mut Vec<Option<Footprint>>,
+    ) -> Result<Vec<i8>, PlanError> {
+        let long_term = self.long_term_at(t_star)?;
+        footprints.resize(self.cameras.len(), None);
+        let mut blocks: Vec<(usize, Vec<BlockActivity>)> = Vec::new();
+        for (k, cam) in self.cameras.iter().enumerate() {
+            let (Some(h), Some(Some((block_grid, mean)))) = (&cam.homography, long_term.get(k))
+            else {
+                continue;
+            };
+            let slot = &mut footprints[k];
+            if slot.as_ref().is_none_or(|f| f.blocks != *block_grid) {
+                *slot = Some(Footprint::build(grid, h, *block_grid, &cam.config.mask));
+            }
+            let b = mean
+                .iter()
+                .map(|&s1| BlockActivity {
+                    s1,
+                    ..Default::default()
+                })
+                .collect();
+            blocks.push((k, b));
+        }
+        let layers: Vec<Layer<'_>> = blocks
+            .iter()
+            .filter_map(|(k, b)| {
+                let footprint = footprints[*k].as_ref()?;
+                (b.len() == footprint.blocks.len()).then_some(Layer {
+                    footprint,
+                    blocks: b,
+                })
+            })
+            .collect();
+        // The mean alone, weighted 1, as planning's Cost(M_p).
+        let params = CostParams {
+            weight_in_place: 1.0,
+            weight_moving: 0.0,
+            weight_long_term: 0.0,
+            ..self.params
+        };
+        Ok(compose(grid, &params, &layers, &[]))
+    }
+
+    /// Per camera (config order): its id, whether its long-term store exists, and
+    /// whether its floor points give a mapping.
+    pub fn cameras(&self) -> impl Iterator<Item = (&str, bool, bool)> {
+        self.cameras
+            .iter()
+            .zip(&self.models)
+            .map(|(c, m)| (c.config.id.as_str(), m.is_some(), c.homography.is_some()))
+    }
+
+    /// Where the long-term stores are looked for, and what is missing, as an error.
+    pub fn missing_stores(&self) -> PlanError {
+        self.no_store()
     }
 
     /// How many days taught the segment's cameras' bins at most (for titles).

@@ -79,6 +79,12 @@ impl<E: Classify> From<E> for Fatal {
     }
 }
 
+/// A bad command line found after parsing (a value out of range): exit code
+/// [`USAGE`]. The message says which argument and what was expected.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct UsageError(pub String);
+
 /// `Classify` for errors that always end with the same code.
 macro_rules! always {
     ($($code:ident: $($error:ty),+;)+) => {$($(
@@ -91,6 +97,7 @@ macro_rules! always {
 }
 
 always! {
+    USAGE: UsageError;
     UNAVAILABLE: crate::ipc::IpcError;
     DATA: crate::wire::WireError;
     CONFIG: crate::config::ConfigError, crate::config::UnknownCamera;
@@ -107,6 +114,8 @@ pub fn code_of_chain<'a>(
         .find_map(|e| {
             use crate::config::{ConfigError, UnknownCamera};
             if let Some(e) = e.downcast_ref::<ConfigError>() {
+                Some(e.exit_code())
+            } else if let Some(e) = e.downcast_ref::<UsageError>() {
                 Some(e.exit_code())
             } else if let Some(e) = e.downcast_ref::<UnknownCamera>() {
                 Some(e.exit_code())
@@ -164,6 +173,9 @@ mod tests {
         assert_eq!(code_of_chain(chain), CONFIG);
         let chain: Vec<&(dyn std::error::Error + 'static)> = vec![&io];
         assert_eq!(code_of_chain(chain), FAILURE);
+        let usage = UsageError("--at: expected HH:MM".into());
+        let chain: Vec<&(dyn std::error::Error + 'static)> = vec![&usage];
+        assert_eq!(code_of_chain(chain), USAGE);
     }
 
     #[test]

@@ -601,3 +601,124 @@ fn assert_clear_failure(status: &std::process::ExitStatus, expect: &str, stderr:
     let code = if config_error { 78 } else { 1 };
     assert_eq!(status.code(), Some(code), "{expect}: {stderr}");
 }
+
+/// The floor camera of planning's tests (320×240 looking straight down at a
+/// 4 m × 3 m floor), a 5 cm grid with a margin no camera sees, one segment.
+const SNAPSHOT_SITE: &str = r#"[[camera]]
+id = "cam01"
+source = "video.avi"
+floor_points = [
+  { image_px = [0, 0], floor_m = [0, 3] },
+  { image_px = [320, 0], floor_m = [4, 3] },
+  { image_px = [320, 240], floor_m = [4, 0] },
+  { image_px = [0, 240], floor_m = [0, 0] },
+]
+
+[costmap]
+resolution_m = 0.05
+width_cells = 100
+height_cells = 80
+origin_x_m = -0.5
+origin_y_m = -0.5
+cost_scale = 0.02
+
+[[costmap.segment]]
+name = "west"
+polygon_m = [[0.2, 0.2], [1.8, 0.2], [1.8, 2.8], [0.2, 2.8]]
+"#;
+
+#[test]
+fn a_snapshot_at_a_time_of_day_draws_what_the_long_term_model_expects() {
+    let site = TestSite::new("snapshot-at", SNAPSHOT_SITE);
+    // One simulated day through the real cascade: people only from 08:00 to 18:00.
+    std::fs::write(
+        site.path("busy.csv"),
+        "0,0\n479,0\n480,1\n1079,1\n1080,0\n1439,0\n",
+    )
+    .unwrap();
+    let (profile, state) = (site.path("busy.csv"), site.path("state"));
+    let done = site.isochron(
+        &[
+            "synth",
+            "--camera",
+            "cam01",
+            "--profile",
+            profile.to_str().unwrap(),
+            "--days",
+            "1",
+            "--out",
+            state.to_str().unwrap(),
+            "--fps",
+            "1",
+            "--grid",
+            "20x15",
+        ],
+        Duration::from_secs(120),
+    );
+    assert!(done.status.success(), "{}", done.stderr);
+    let config = site.config_path().display().to_string();
+    let snapshot = |at: &str, out: &str| {
+        site.isochron(
+            &[
+                "costmap", "snapshot", "--config", &config, "--at", at, "--out", out, "--json",
+            ],
+            Duration::from_secs(60),
+        )
+    };
+    let cells_of = |at: &str| -> (Value, Vec<Vec<i64>>) {
+        let out = site.path(&format!("at-{}.png", at.replace(':', "")));
+        let done = snapshot(at, out.to_str().unwrap());
+        assert!(done.status.success(), "{}", done.stderr);
+        let json: Value = serde_json::from_str(&done.stdout).unwrap();
+        let rows = json["cells"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| {
+                r.as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|v| v.as_i64().unwrap())
+                    .collect()
+            })
+            .collect();
+        // The picture and the map_server pair beside it.
+        assert!(png_size(&out).0 >= 800, "{}", out.display());
+        assert!(out.with_extension("pgm").is_file() && out.with_extension("yaml").is_file());
+        (json, rows)
+    };
+    // Cell (i, j) is at x = -0.5 + 0.05 (i + 0.5) m: the camera sees 0..4 × 0..3 m.
+    let in_view = |i: usize, j: usize| (11..89).contains(&i) && (11..69).contains(&j);
+    let (busy, rows) = cells_of("10:00");
+    assert_eq!(busy["grid"]["width_cells"], 100, "{busy}");
+    assert_eq!((rows.len(), rows[0].len()), (80, 100));
+    let mut lit = 0;
+    for (j, row) in rows.iter().enumerate() {
+        for (i, &c) in row.iter().enumerate() {
+            if in_view(i, j) {
+                assert!((0..=99).contains(&c), "({i}, {j}) = {c}");
+                lit += (c > 0) as usize;
+            } else if !(10..=89).contains(&i) || !(10..=69).contains(&j) {
+                assert_eq!(c, -1, "({i}, {j}) is outside the camera's view");
+            }
+        }
+    }
+    assert!(lit > 2000, "{lit} cells with cost at 10:00");
+    let above_zero = rows.iter().flatten().filter(|&&c| c > 0).count();
+    assert_eq!(busy["cells_above_zero"], above_zero, "{busy}");
+    let (quiet, rows) = cells_of("03:00");
+    assert_eq!(quiet["cells_above_zero"], 0, "nobody at 03:00");
+    assert!(rows.iter().flatten().all(|&c| c <= 0));
+    assert_eq!(quiet["cells_seen"], busy["cells_seen"]);
+
+    // Bad --at: one line, the usage exit code (shared/src/exit.rs).
+    let out = site.path("bad.png");
+    let done = snapshot("25:00", out.to_str().unwrap());
+    assert_eq!(done.status.code(), Some(64), "{}", done.stderr);
+    assert_eq!(done.stderr.lines().count(), 1, "{}", done.stderr);
+    assert!(
+        done.stderr.contains("--at: expected a time of day HH:MM"),
+        "{}",
+        done.stderr
+    );
+}

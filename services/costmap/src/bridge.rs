@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use isochron_planning::cost::{CostParams, Layer, compose};
 use isochron_planning::grid::MapGrid;
 use isochron_planning::homography::{Homography, HomographyError};
-use isochron_planning::planner::{LiveCamera, LongTermBin};
+use isochron_planning::planner::LiveCamera;
 use isochron_planning::raster::Footprint;
 use isochron_shared::clock::NS_PER_S;
 use isochron_shared::config::{LoadedConfig, Polygon};
@@ -268,62 +268,6 @@ impl Bridge {
             );
         }
         Some(compose(grid, &self.params, &layers, &confirmed))
-    }
-
-    /// The cost map the long-term model expects: per camera the mean activity per
-    /// block of its store's bin (`long_term[k]`: block grid and means, `None`: no
-    /// model), costed as planning costs a segment, `Cost(M) = min(cap, 100 ·
-    /// M / cost_scale)`; -1 where no camera with a model sees. `footprints` caches
-    /// each camera's footprint on the store's block grid.
-    pub fn compose_expected(
-        &self,
-        long_term: &[Option<LongTermBin>],
-        footprints: &mut Vec<Option<Footprint>>,
-    ) -> Option<Vec<i8>> {
-        let grid = self.grid.as_ref()?;
-        footprints.resize(self.cameras.len(), None);
-        let blocks: Vec<Option<Vec<BlockActivity>>> = long_term
-            .iter()
-            .map(|m| {
-                m.as_ref().map(|(_, mean)| {
-                    mean.iter()
-                        .map(|&s1| BlockActivity {
-                            s1,
-                            ..Default::default()
-                        })
-                        .collect()
-                })
-            })
-            .collect();
-        let mut layers = Vec::new();
-        for (k, cam) in self.cameras.iter().enumerate() {
-            let (Some(h), Some(Some((block_grid, _)))) = (&cam.homography, long_term.get(k)) else {
-                continue;
-            };
-            let slot = &mut footprints[k];
-            if slot.as_ref().is_none_or(|f| f.blocks != *block_grid) {
-                *slot = Some(Footprint::build(grid, h, *block_grid, &cam.masks));
-            }
-        }
-        for (k, footprint) in footprints.iter().enumerate() {
-            if let (Some(footprint), Some(Some(b))) = (footprint, blocks.get(k))
-                && long_term.get(k).is_some_and(Option::is_some)
-                && b.len() == footprint.blocks.len()
-            {
-                layers.push(Layer {
-                    footprint,
-                    blocks: b,
-                });
-            }
-        }
-        // The mean alone, weighted 1, as planning's Cost(M_p).
-        let params = CostParams {
-            weight_in_place: 1.0,
-            weight_moving: 0.0,
-            weight_long_term: 0.0,
-            ..self.params
-        };
-        Some(compose(grid, &params, &layers, &[]))
     }
 
     /// The live cameras' latest activity, for real-time planning.

@@ -11,7 +11,8 @@
 //! * [`msgs`], [`ros`]: `nav_msgs/OccupancyGrid`, `map_msgs/OccupancyGridUpdate`,
 //!   people as `geometry_msgs/PoseArray` and site markers over DDS in pure Rust;
 //! * [`markers`]: camera footprints, zones, segments and routes for rviz2;
-//! * [`snapshot`]: `map_server` PGM + YAML and a PNG picture;
+//! * snapshots (`map_server` PGM + YAML and a PNG picture) are written with
+//!   `isochron_planning::snapshot`, the writer the CLI shares;
 //! * [`stage`]: the service's stage for the runtime (every camera's `activity` and
 //!   `detections` in, the cost map out, planning requests answered).
 //!
@@ -23,5 +24,4 @@ pub mod delta;
 pub mod markers;
 pub mod msgs;
 pub mod ros;
-pub mod snapshot;
 pub mod stage;

@@ -27,7 +27,7 @@ use crate::msgs::{
     PoseArray, Quaternion, Time,
 };
 use crate::ros::{RosOutput, RosSettings, domain_id, interfaces, limit_dds_logging};
-use crate::snapshot::{self, FloorPlan, Snapshot, SnapshotError};
+use isochron_planning::snapshot::{self, FloorPlan, Snapshot, SnapshotError};
 
 /// How long a read long-term model is trusted before the store is checked again.
 const STORE_REFRESH: Duration = Duration::from_secs(60);
@@ -115,7 +115,7 @@ impl CostmapStage {
                 }
             }
         }
-        let floor_plan = load_floor_plan(loaded, bridge.grid.as_ref());
+        let floor_plan = snapshot::floor_plan_of(loaded, bridge.grid.as_ref());
         let snapshot_dir = c
             .snapshot_dir
             .as_ref()
@@ -351,12 +351,12 @@ impl Stage for CostmapStage {
                 .newest(now)
                 .map_or_else(|| self.planning.clock.t_star(now_ns), |(_, t)| t);
             let ahead = (t_star + c.forecast_ahead_min) % self.planning.planner.cycle().bins();
-            let expected = self.planning.planner.long_term_at(ahead).map(|models| {
-                self.bridge
-                    .compose_expected(&models, &mut ros.forecast_footprints)
-            });
+            let expected =
+                self.planning
+                    .planner
+                    .expected_costmap(grid, ahead, &mut ros.forecast_footprints);
             match expected {
-                Ok(Some(cells)) => {
+                Ok(cells) => {
                     let at_ns = now_ns + c.forecast_ahead_min as i64 * 60 * NS_PER_S;
                     let message = occupancy_grid(grid, &ros.frame_id, at_ns, cells);
                     match ros.output.publish_forecast(message) {
@@ -367,7 +367,6 @@ impl Stage for CostmapStage {
                         }
                     }
                 }
-                Ok(None) => {}
                 Err(e) => cx.warnings.warn("forecast", || {
                     format!("no forecast: the long-term store cannot be read: {e}")
                 }),
@@ -578,35 +577,6 @@ fn publish(
     true
 }
 
-/// The map_yaml image as the snapshot's floor plan, if any.
-fn load_floor_plan(loaded: &LoadedConfig, grid: Option<&MapGrid>) -> Option<FloorPlan> {
-    let yaml = loaded.config.costmap.map_yaml.as_ref()?;
-    let yaml = if yaml.is_absolute() {
-        yaml.clone()
-    } else {
-        loaded.base_dir().join(yaml)
-    };
-    let text = std::fs::read_to_string(&yaml).ok()?;
-    let image = text
-        .lines()
-        .find_map(|l| l.trim().strip_prefix("image:"))
-        .map(|s| s.trim().trim_matches(['"', '\'']).to_string())?;
-    let image = yaml
-        .parent()
-        .unwrap_or(std::path::Path::new("."))
-        .join(image);
-    match FloorPlan::load(&image) {
-        Ok(plan) if grid.is_some_and(|g| g.width == plan.width && g.height == plan.height) => {
-            Some(plan)
-        }
-        Ok(_) => None,
-        Err(e) => {
-            tracing::warn!("the floor plan is left out of pictures: {e}");
-            None
-        }
-    }
-}
-
 /// Why no snapshot was written.
 #[derive(Debug, thiserror::Error)]
 enum SnapshotFailure {
@@ -654,6 +624,13 @@ impl Planning {
             .filter_map(|s| s.polygon_m.as_deref())
             .collect();
         let stamp = format_rfc3339(stamp_ns);
+        // As many as `coverage`: the cameras with a footprint.
+        let camera_ids: Vec<&str> = bridge
+            .cameras
+            .iter()
+            .filter(|c| c.footprint.is_some())
+            .map(|c| c.id.as_str())
+            .collect();
         let files = snapshot::write(
             dir,
             &stem,
@@ -662,7 +639,10 @@ impl Planning {
                 cells: &cells,
                 floor_plan,
                 coverage: &coverage,
+                camera_ids: &camera_ids,
                 segments: &polygons,
+                zones: &snapshot::floor_zones(&loaded.config.cameras),
+                caption: &format!("ACTIVITY COST {stamp}"),
                 stamp: &stamp,
             },
         )?;

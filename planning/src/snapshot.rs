@@ -8,7 +8,13 @@
 //! * `<stem>.png`: the same for people: the floor plan (the `map_yaml` image, if
 //!   any) or plain floor, hatched where no camera sees, each camera's coverage
 //!   outlined in its own colour, the cost as a yellow-to-red overlay, the path
-//!   segments outlined in blue, and a cost scale (0 to 100) along the bottom.
+//!   segments outlined in blue, the cameras' zones dashed in olive, a caption
+//!   above, and a labelled cost scale (0 to 100) and legend below (text in a 5×7
+//!   bitmap font shipped in the binary, [`crate::font`]).
+//!
+//! The cost map bridge writes snapshots of the cost map now; `isochron costmap
+//! snapshot --at HH:MM` writes the one the long-term model expects
+//! (`Planner::expected_costmap`), with this same writer.
 //!
 //! Files are written under a temporary name and renamed, so a reader never sees
 //! half a snapshot.
@@ -16,8 +22,12 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use isochron_planning::grid::{MapGrid, pgm_header};
-use isochron_planning::raster::NOT_SEEN;
+use isochron_shared::config::{CameraConfig, LoadedConfig};
+
+use crate::font;
+use crate::grid::{MapGrid, pgm_header};
+use crate::homography::Homography;
+use crate::raster::NOT_SEEN;
 
 /// Why a floor plan could not be loaded or a snapshot written. Every message names
 /// the file or directory.
@@ -158,6 +168,36 @@ impl FloorPlan {
     }
 }
 
+/// The `costmap.map_yaml` image as the snapshot's floor plan, if one is configured
+/// and has the grid's size (one that cannot be read is warned about and left out).
+pub fn floor_plan_of(loaded: &LoadedConfig, grid: Option<&MapGrid>) -> Option<FloorPlan> {
+    let yaml = loaded.config.costmap.map_yaml.as_ref()?;
+    let yaml = if yaml.is_absolute() {
+        yaml.clone()
+    } else {
+        loaded.base_dir().join(yaml)
+    };
+    let text = std::fs::read_to_string(&yaml).ok()?;
+    let image = text
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("image:"))
+        .map(|s| s.trim().trim_matches(['"', '\'']).to_string())?;
+    let image = yaml
+        .parent()
+        .unwrap_or(std::path::Path::new("."))
+        .join(image);
+    match FloorPlan::load(&image) {
+        Ok(plan) if grid.is_some_and(|g| g.width == plan.width && g.height == plan.height) => {
+            Some(plan)
+        }
+        Ok(_) => None,
+        Err(e) => {
+            tracing::warn!("the floor plan is left out of pictures: {e}");
+            None
+        }
+    }
+}
+
 /// What a snapshot shows.
 #[derive(Debug, Clone, Copy)]
 pub struct Snapshot<'a> {
@@ -169,8 +209,14 @@ pub struct Snapshot<'a> {
     pub floor_plan: Option<&'a FloorPlan>,
     /// Per camera, the block covering each cell (or `NOT_SEEN`).
     pub coverage: &'a [&'a [u32]],
+    /// Each camera's id, for the legend (as many as `coverage`).
+    pub camera_ids: &'a [&'a str],
     /// Path segment outlines on the floor (map frame).
     pub segments: &'a [&'a [[f64; 2]]],
+    /// Camera zones on the floor (map frame; see [`floor_zones`]).
+    pub zones: &'a [Vec<[f64; 2]>],
+    /// A title above the picture (empty: none).
+    pub caption: &'a str,
     /// Time of the data, for the YAML's comment.
     pub stamp: &'a str,
 }
@@ -290,25 +336,111 @@ const CAMERA_COLOURS: [[u8; 3]; 8] = [
     [139, 195, 74],
 ];
 
+/// Each camera's zones mapped onto the floor through its floor points (cameras
+/// without floor points, and zone corners beyond the horizon, are left out).
+pub fn floor_zones(cameras: &[CameraConfig]) -> Vec<Vec<[f64; 2]>> {
+    let mut out = Vec::new();
+    for cam in cameras {
+        let Ok(Some((h, _))) = Homography::of_camera(cam) else {
+            continue;
+        };
+        for zone in &cam.zones {
+            let floor: Vec<[f64; 2]> = zone.polygon.iter().filter_map(|&p| h.apply(p)).collect();
+            if floor.len() >= 3 {
+                out.push(floor);
+            }
+        }
+    }
+    out
+}
+
+/// Colour of path segment outlines.
+const SEGMENT_COLOUR: [u8; 3] = [30, 80, 220];
+/// Colour of zone outlines (dashed).
+const ZONE_COLOUR: [u8; 3] = [128, 128, 0];
+/// Colour of text.
+const INK: [u8; 3] = [20, 20, 20];
+
+/// An RGB picture being drawn.
+struct Canvas {
+    w: usize,
+    h: usize,
+    rgb: Vec<u8>,
+}
+
+impl Canvas {
+    fn put(&mut self, x: usize, y: usize, c: [u8; 3]) {
+        if x < self.w && y < self.h {
+            let k = (y * self.w + x) * 3;
+            self.rgb[k..k + 3].copy_from_slice(&c);
+        }
+    }
+
+    fn fill(&mut self, x: usize, y: usize, w: usize, h: usize, c: [u8; 3]) {
+        for yy in y..y + h {
+            for xx in x..x + w {
+                self.put(xx, yy, c);
+            }
+        }
+    }
+
+    fn text(&mut self, x: usize, y: usize, text: &str, scale: usize) {
+        font::draw(&mut self.rgb, self.w, x, y, text, scale, INK);
+    }
+
+    /// A closed outline, 2 px wide; `dash` draws every other 6 px only.
+    fn outline(
+        &mut self,
+        points: &[(f64, f64)],
+        top: usize,
+        bottom: usize,
+        c: [u8; 3],
+        dash: bool,
+    ) {
+        for k in 0..points.len() {
+            let (a, b) = (points[k], points[(k + 1) % points.len()]);
+            let steps =
+                ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).clamp(1, 100_000);
+            for t in 0..=steps {
+                if dash && (t / 6) % 2 == 1 {
+                    continue;
+                }
+                let f = t as f64 / steps as f64;
+                let (x, y) = (a.0 + (b.0 - a.0) * f, a.1 + (b.1 - a.1) * f);
+                if x >= 0.0 && y >= top as f64 && (y as usize) < bottom {
+                    for d in 0..2 {
+                        self.put(x as usize + d, y as usize, c);
+                        self.put(x as usize, y as usize + d, c);
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// The picture for people, as PNG bytes.
 pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
     let (w, h) = (s.grid.width as usize, s.grid.height as usize);
     let scale = (900 / w.max(h).max(1)).clamp(1, 8);
-    let bar = 24usize;
-    let (iw, ih) = (w * scale, h * scale + bar);
-    let mut img = vec![255u8; iw * ih * 3];
-    let put = |img: &mut Vec<u8>, x: usize, y: usize, c: [u8; 3]| {
-        if x < iw && y < ih {
-            let k = (y * iw + x) * 3;
-            img[k..k + 3].copy_from_slice(&c);
-        }
+    let iw = (w * scale).max(240);
+    // Text at twice the font's size on wide pictures.
+    let ts = if iw >= 480 { 2 } else { 1 };
+    let line = (font::HEIGHT + 3) * ts;
+    let top = if s.caption.is_empty() { 0 } else { line + 6 };
+    let map_bottom = top + h * scale;
+    // Below the map: the colour bar, its labels, the legend.
+    let ih = map_bottom + 6 + 12 + 4 + line + 4 + line + 4;
+    let mut img = Canvas {
+        w: iw,
+        h: ih,
+        rgb: vec![255u8; iw * ih * 3],
     };
     let plan = s
         .floor_plan
         .filter(|p| p.width as usize == w && p.height as usize == h);
     for gy in 0..h {
         // Image row 0 is the grid's last row.
-        let py0 = (h - 1 - gy) * scale;
+        let py0 = top + (h - 1 - gy) * scale;
         for gx in 0..w {
             let k = gy * w + gx;
             let base = match plan {
@@ -324,16 +456,11 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
             for dy in 0..scale {
                 for dx in 0..scale {
                     let c = if cost < 0 {
-                        // Hatched: no camera sees here.
-                        if (gx * scale + dx + gy * scale + dy) % 6 < 2 {
-                            [150, 150, 150]
-                        } else {
-                            blend(base, [200, 200, 200], 0.5)
-                        }
+                        hatch(gx * scale + dx + gy * scale + dy, base)
                     } else {
                         cost_colour(base, cost as u8)
                     };
-                    put(&mut img, gx * scale + dx, py0 + dy, c);
+                    img.put(gx * scale + dx, py0 + dy, c);
                 }
             }
         }
@@ -359,44 +486,96 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
                         && seen(gx, gy - 1)
                         && seen(gx, gy + 1))
                 {
-                    let py0 = (h - 1 - gy as usize) * scale;
-                    for dy in 0..scale {
-                        for dx in 0..scale {
-                            put(&mut img, gx as usize * scale + dx, py0 + dy, colour);
-                        }
-                    }
+                    let py0 = top + (h - 1 - gy as usize) * scale;
+                    img.fill(gx as usize * scale, py0, scale, scale, colour);
                 }
             }
         }
     }
-    // Segment outlines.
-    let to_px = |p: [f64; 2]| {
-        let g = s.grid.to_grid(p);
-        (g[0] * scale as f64, (h as f64 - g[1]) * scale as f64)
+    // Zone and segment outlines, in picture pixels.
+    let to_px = |p: &[f64; 2]| {
+        let g = s.grid.to_grid(*p);
+        (
+            g[0] * scale as f64,
+            top as f64 + (h as f64 - g[1]) * scale as f64,
+        )
     };
+    for zone in s.zones {
+        let points: Vec<(f64, f64)> = zone.iter().map(to_px).collect();
+        img.outline(&points, top, map_bottom, ZONE_COLOUR, true);
+    }
     for poly in s.segments {
-        for k in 0..poly.len() {
-            let (a, b) = (to_px(poly[k]), to_px(poly[(k + 1) % poly.len()]));
-            let steps =
-                ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).clamp(1, 100_000);
-            for t in 0..=steps {
-                let f = t as f64 / steps as f64;
-                let (x, y) = (a.0 + (b.0 - a.0) * f, a.1 + (b.1 - a.1) * f);
-                if x >= 0.0 && y >= 0.0 && (y as usize) < h * scale {
-                    for d in 0..2 {
-                        put(&mut img, x as usize + d, y as usize, [30, 80, 220]);
-                        put(&mut img, x as usize, y as usize + d, [30, 80, 220]);
+        let points: Vec<(f64, f64)> = poly.iter().map(to_px).collect();
+        img.outline(&points, top, map_bottom, SEGMENT_COLOUR, false);
+    }
+    if !s.caption.is_empty() {
+        img.text(4, 4, s.caption, ts);
+    }
+    // Cost scale: 0 (left) to 100 (right), labelled every 25.
+    let bar_y = map_bottom + 6;
+    let (x0, bar_w) = (8, iw - 16);
+    for x in 0..bar_w {
+        let cost = (x * 100 / bar_w.max(1)) as u8;
+        img.fill(
+            x0 + x,
+            bar_y,
+            1,
+            12,
+            cost_colour([250, 250, 250], cost.max(1)),
+        );
+    }
+    let label_y = bar_y + 12 + 4;
+    for v in [0usize, 25, 50, 75, 100] {
+        let label = if v == 0 {
+            "COST 0".to_string()
+        } else {
+            v.to_string()
+        };
+        let x = x0 + v * (bar_w - 1) / 100;
+        img.fill(x, bar_y + 12, 1, 3, INK);
+        let lw = font::width(&label, ts);
+        let lx = if v == 0 {
+            x0
+        } else {
+            (x + 1)
+                .saturating_sub(lw)
+                .max(x.saturating_sub(lw / 2))
+                .min(iw - lw)
+        };
+        img.text(lx, label_y, &label, ts);
+    }
+    // Legend: what the outlines and the hatching mean.
+    let mut x = x0;
+    let legend_y = label_y + line + 4;
+    let swatch = font::HEIGHT * ts;
+    let entry = |img: &mut Canvas, x: &mut usize, colour: Option<[u8; 3]>, label: &str| {
+        match colour {
+            Some(c) => img.fill(*x, legend_y, swatch, swatch, c),
+            None => {
+                for dy in 0..swatch {
+                    for dx in 0..swatch {
+                        img.put(*x + dx, legend_y + dy, hatch(dx + dy, [250, 250, 250]));
                     }
                 }
             }
         }
+        img.text(*x + swatch + 3, legend_y, label, ts);
+        *x += swatch + 3 + font::width(label, ts) + 4 * ts;
+    };
+    entry(&mut img, &mut x, None, "UNSEEN");
+    if !s.segments.is_empty() {
+        entry(&mut img, &mut x, Some(SEGMENT_COLOUR), "SEGMENT");
     }
-    // Cost scale along the bottom: 0 (left) to 100 (right).
-    for x in 0..iw {
-        let cost = (x * 100 / iw.max(1)) as u8;
-        for y in h * scale + 4..ih - 4 {
-            put(&mut img, x, y, cost_colour([250, 250, 250], cost.max(1)));
-        }
+    if !s.zones.is_empty() {
+        entry(&mut img, &mut x, Some(ZONE_COLOUR), "ZONE");
+    }
+    for (n, id) in s.camera_ids.iter().enumerate() {
+        entry(
+            &mut img,
+            &mut x,
+            Some(CAMERA_COLOURS[n % CAMERA_COLOURS.len()]),
+            id,
+        );
     }
     let mut out = Vec::new();
     {
@@ -404,9 +583,18 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
         encoder.set_color(png::ColorType::Rgb);
         encoder.set_depth(png::BitDepth::Eight);
         let mut writer = encoder.write_header()?;
-        writer.write_image_data(&img)?;
+        writer.write_image_data(&img.rgb)?;
     }
     Ok(out)
+}
+
+/// The hatching of cells no camera sees, at diagonal position `d`.
+fn hatch(d: usize, base: [u8; 3]) -> [u8; 3] {
+    if d % 6 < 2 {
+        [150, 150, 150]
+    } else {
+        blend(base, [200, 200, 200], 0.5)
+    }
 }
 
 /// A cell's colour: the base for cost 0, then yellow to red as the cost rises.
@@ -476,7 +664,10 @@ mod tests {
             cells: &cells,
             floor_plan: None,
             coverage: &[&cover],
+            camera_ids: &["cam01"],
             segments: &[seg],
+            zones: &[vec![[-1.0, 2.0], [0.0, 2.0], [0.0, 3.0]]],
+            caption: "expected cost at 08:30",
             stamp: "2026-03-02T07:00:00Z",
         };
         for stem in ["activity-1", "activity-2", "activity-3"] {
