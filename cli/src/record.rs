@@ -28,7 +28,8 @@ pub struct Args {
     #[arg(long)]
     out: PathBuf,
     /// Streams to record, comma-separated: activity (with the cost map and the
-    /// floor scene), events, detections, frames (only with `view.frames = true`).
+    /// floor scene), motion (at most 2 per second), events, detections, status
+    /// (every service's reports), frames (only with `view.frames = true`).
     /// Default: all the config allows.
     #[arg(long)]
     streams: Option<String>,

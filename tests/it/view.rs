@@ -272,8 +272,12 @@ fn a_recording_of_the_demo_video_opens_in_an_independent_mcap_reader() {
         ("/costmap", "foxglove.Grid"),
         ("/scene", "foxglove.SceneUpdate"),
         ("/cam01/activity", "foxglove.Grid"),
+        ("/cam01/motion", "foxglove.Grid"),
         ("/cam01/events", "foxglove.Log"),
         ("/cam01/detections", "foxglove.ImageAnnotations"),
+        ("/cam01/status/motion", "foxglove.Log"),
+        ("/cam01/status/cascade", "foxglove.Log"),
+        ("/status/costmap", "foxglove.Log"),
     ] {
         let ch = channel(&summary, topic).unwrap_or_else(|| panic!("no {topic}: {summary}"));
         assert_eq!(ch["schema"], schema, "{ch}");
@@ -290,6 +294,22 @@ fn a_recording_of_the_demo_video_opens_in_an_independent_mcap_reader() {
         .unwrap();
     assert!((70..=90).contains(&activity), "{activity} activity samples");
     assert_eq!(channel(&summary, "/costmap").unwrap()["count"], activity);
+    // Motion at most 2 per second of capture time (10 fps in the file), latest
+    // only: how many depends on how often the recorder looks at a fast replay.
+    let motion = channel(&summary, "/cam01/motion").unwrap()["count"]
+        .as_u64()
+        .unwrap();
+    assert!(
+        (10..=2 * activity + 2).contains(&motion),
+        "{motion} motion grids for {activity} seconds"
+    );
+    // One float32 density, dx, dy per block: 48 × 36 blocks of 16 px.
+    assert!(
+        channel(&summary, "/cam01/motion").unwrap()["first_message_bytes"]
+            .as_u64()
+            .unwrap()
+            > 48 * 36 * 12
+    );
     // The 320 × 300 cell grid of the demo, one int8 per cell (+ the message around it).
     assert!(
         channel(&summary, "/costmap").unwrap()["first_message_bytes"]
@@ -414,8 +434,10 @@ fn the_live_view_serves_foxglove_clients_during_a_replay() {
         ("/costmap", "foxglove.Grid"),
         ("/scene", "foxglove.SceneUpdate"),
         ("/cam01/activity", "foxglove.Grid"),
+        ("/cam01/motion", "foxglove.Grid"),
         ("/cam01/events", "foxglove.Log"),
         ("/cam01/detections", "foxglove.ImageAnnotations"),
+        ("/cam01/status/gate", "foxglove.Log"),
     ] {
         assert_eq!(channels[topic]["schema"], schema, "{got}");
     }

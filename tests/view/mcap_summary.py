@@ -1,7 +1,8 @@
 """An independent MCAP reader for tests/it/view.rs: opens a recording with the
 `mcap` package (the reference Python implementation, not the writer isochron
 uses), reads every message and prints one JSON object: the channels with their
-schema name and encoding, message encoding and message count, and whether the file
+schema name and encoding, message encoding, message count and bytes (message
+data, uncompressed), and whether the file
 has a summary section (written only when the recorder closed the file cleanly).
 
 usage: python3 mcap_summary.py FILE.mcap
@@ -20,8 +21,10 @@ def main() -> int:
         summary = reader.get_summary()
         counts = {}
         first_bytes = {}
+        data_bytes = {}
         for schema, channel, message in reader.iter_messages():
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
+            data_bytes[channel.topic] = data_bytes.get(channel.topic, 0) + len(message.data)
             first_bytes.setdefault(channel.topic, len(message.data))
         channels = []
         if summary is not None:
@@ -35,6 +38,7 @@ def main() -> int:
                         "message_encoding": ch.message_encoding,
                         "count": counts.get(ch.topic, 0),
                         "first_message_bytes": first_bytes.get(ch.topic),
+                        "bytes": data_bytes.get(ch.topic, 0),
                     }
                 )
         stats = summary.statistics if summary is not None else None

@@ -11,8 +11,12 @@
 //! | `/<camera>/events` | `foxglove.Log` | `events` |
 //! | `/<camera>/detections` | `foxglove.ImageAnnotations` (boxes and scores, in the published image's pixels) | `detections` |
 //! | `/<camera>/image` | `foxglove.CompressedImage` (JPEG) | `frames`, only with `view.frames = true`, at most `view.frame_rate_hz` |
+//! | `/<camera>/motion` | `foxglove.Grid` (`density`, `dx`, `dy`, float32) in frame `<camera>`, cell = one block in pixels | `motion`, the newest sample at most every 0.5 s of capture time ([`MOTION_EVERY_NS`]) |
+//! | `/<camera>/status/<stage>`, `/status/costmap` | `foxglove.Log` (warning when the service dropped or rejected samples since its last report) | each service's status report (every 5 s) |
 //!
-//! Message time (the MCAP log time) is the samples' capture time.
+//! Message time (the MCAP log time) is the samples' capture time; a status report,
+//! which has none, takes the newest capture time published so far (its wall time
+//! before any), so it lands on the recording's timeline.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -29,9 +33,10 @@ use isochron_planning::homography::Homography;
 use isochron_planning::raster::Footprint;
 use isochron_shared::config::{LoadedConfig, ViewConfig};
 use isochron_shared::geometry::BlockGrid;
+use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{
-    ActivityHeader, ActivityKind, BlockActivity, Detection, DetectionHeader, EventHeader,
-    EventPhase, FrameHeader, PixelFormat,
+    ActivityHeader, ActivityKind, BlockActivity, BlockMotion, Detection, DetectionHeader,
+    EventHeader, EventPhase, FrameHeader, MotionHeader, PixelFormat, StageStatus, fixed_str,
 };
 
 use crate::jpeg;
@@ -42,6 +47,18 @@ pub const COSTMAP_TOPIC: &str = "/costmap";
 pub const SCENE_TOPIC: &str = "/scene";
 /// Scene updates are re-sent this often (capture time), for late joiners.
 const SCENE_EVERY_NS: i64 = 5_000_000_000;
+/// Motion grids are published at most this often per camera (capture time): 2 Hz.
+pub const MOTION_EVERY_NS: i64 = 500_000_000;
+
+/// The topic of a service's status: `/<camera>/status/<stage>`, or
+/// `/status/<stage>` for a site-wide one.
+pub fn status_topic(camera: &str, stage: StageKind) -> String {
+    if camera.is_empty() {
+        format!("/status/{stage}")
+    } else {
+        format!("/{camera}/status/{stage}")
+    }
+}
 
 /// The topic of one camera's stream: `/<camera>/<what>`.
 pub fn camera_topic(camera: &str, what: &str) -> String {
@@ -77,6 +94,8 @@ struct CameraChannels {
     detections: Channel<ImageAnnotations>,
     image: Option<Channel<CompressedImage>>,
     last_image_ns: Option<i64>,
+    motion: Channel<Grid>,
+    last_motion_ns: Option<i64>,
     /// Frame size, once known (for the published image's scale).
     frame_px: Option<(u32, u32)>,
 }
@@ -95,6 +114,11 @@ pub struct SiteChannels {
     scene: Channel<SceneUpdate>,
     last_scene_ns: Option<i64>,
     segments: Vec<(String, Vec<[f64; 2]>)>,
+    /// Per service (`(camera, stage)`): its channel and last report.
+    status: HashMap<(String, StageKind), (Channel<Log>, Option<StageStatus>)>,
+    ctx: Arc<Context>,
+    /// The newest capture time published.
+    newest_ns: Option<i64>,
     counts: Counts,
 }
 
@@ -132,6 +156,8 @@ impl SiteChannels {
                     .frames
                     .then(|| ctx.channel_builder(camera_topic(&cam.id, "image")).build()),
                 last_image_ns: None,
+                motion: ctx.channel_builder(camera_topic(&cam.id, "motion")).build(),
+                last_motion_ns: None,
                 frame_px: cam.width.zip(cam.height),
             });
         }
@@ -152,6 +178,9 @@ impl SiteChannels {
                 .iter()
                 .filter_map(|s| Some((s.name.clone(), s.polygon_m.clone()?)))
                 .collect(),
+            status: HashMap::new(),
+            ctx: ctx.clone(),
+            newest_ns: None,
             counts: Counts::new(),
         })
     }
@@ -168,6 +197,115 @@ impl SiteChannels {
 
     fn count(&mut self, topic: &str) {
         *self.counts.entry(topic.to_string()).or_default() += 1;
+    }
+
+    fn seen(&mut self, t: i64) {
+        self.newest_ns = Some(self.newest_ns.map_or(t, |n| n.max(t)));
+    }
+
+    /// True if camera `k` publishes a motion grid for a sample captured at `t`
+    /// (the last one at least [`MOTION_EVERY_NS`] ago).
+    pub fn wants_motion(&self, k: usize, t: i64) -> bool {
+        self.cameras.get(k).is_some_and(|c| {
+            c.last_motion_ns
+                .is_none_or(|last| t - last >= MOTION_EVERY_NS || t < last)
+        })
+    }
+
+    /// A `motion` sample of camera `k` (call when [`Self::wants_motion`]): density
+    /// and flow per block.
+    pub fn on_motion(&mut self, k: usize, h: &MotionHeader, blocks: &[BlockMotion]) {
+        let t = h.preamble.capture_time_ns;
+        let Some(cam) = self.cameras.get_mut(k) else {
+            return;
+        };
+        cam.last_motion_ns = Some(t);
+        let mut data = Vec::with_capacity(blocks.len() * 12);
+        for b in blocks {
+            for v in [b.density, b.dx, b.dy] {
+                data.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        let bp = h.block_px as f64;
+        cam.motion.log_with_time(
+            &Grid {
+                timestamp: Some(timestamp(t)),
+                frame_id: cam.id.clone(),
+                pose: Some(identity()),
+                column_count: h.grid_w,
+                cell_size: Some(Vector2 { x: bp, y: bp }),
+                row_stride: h.grid_w * 12,
+                cell_stride: 12,
+                fields: vec![
+                    float_field("density", 0),
+                    float_field("dx", 4),
+                    float_field("dy", 8),
+                ],
+                data: data.into(),
+            },
+            nanos(t),
+        );
+        let topic = camera_topic(&cam.id, "motion");
+        self.count(&topic);
+        self.seen(t);
+    }
+
+    /// The latest status report of `stage` for `camera` ("" for a site-wide
+    /// stage): published as a log line when it is a new report.
+    pub fn on_status(&mut self, camera: &str, stage: StageKind, s: &StageStatus) {
+        let topic = status_topic(camera, stage);
+        let (channel, last) = self
+            .status
+            .entry((camera.to_string(), stage))
+            .or_insert_with(|| (self.ctx.channel_builder(topic.as_str()).build(), None));
+        if last.is_some_and(|l| l.report_wall_ns == s.report_wall_ns && l.pid == s.pid) {
+            return;
+        }
+        // Losses since the last report of the same process are a warning.
+        let (dropped, rejected) = match last {
+            Some(l) if l.pid == s.pid => (
+                s.dropped.saturating_sub(l.dropped),
+                s.rejected.saturating_sub(l.rejected),
+            ),
+            _ => (s.dropped, s.rejected),
+        };
+        let level = if dropped > 0 || rejected > 0 {
+            foxglove::messages::log::Level::Warning
+        } else {
+            foxglove::messages::log::Level::Info
+        };
+        let t = self.newest_ns.unwrap_or(s.report_wall_ns);
+        let service = if camera.is_empty() {
+            format!("isochron-{stage}")
+        } else {
+            format!("isochron-{stage}/{camera}")
+        };
+        channel.log_with_time(
+            &Log {
+                timestamp: Some(timestamp(t)),
+                level: level as i32,
+                message: format!(
+                    "pid {}: in {:.1}/s, out {:.1}/s, received {}, sent {}, dropped {} (+{dropped}), rejected {} (+{rejected}), stage latency {:.2} ms, e2e p50/p99 {:.1}/{:.1} ms; {}",
+                    s.pid,
+                    s.rate_in,
+                    s.rate_out,
+                    s.received,
+                    s.sent,
+                    s.dropped,
+                    s.rejected,
+                    s.stage_latency_ms,
+                    s.e2e_latency_p50_ms,
+                    s.e2e_latency_p99_ms,
+                    fixed_str(&s.detail)
+                ),
+                name: service,
+                file: String::new(),
+                line: 0,
+            },
+            nanos(t),
+        );
+        *last = Some(*s);
+        self.count(&topic);
     }
 
     /// An `activity` sample of camera `k`: its grid, and the cost map anew.
@@ -219,6 +357,7 @@ impl SiteChannels {
             ));
         }
         self.count(&topic);
+        self.seen(t);
         self.publish_costmap(t);
         self.publish_scene(t);
     }
@@ -462,6 +601,14 @@ impl SiteChannels {
         );
         let topic = camera_topic(&cam.id, "image");
         self.count(&topic);
+    }
+}
+
+fn float_field(name: &str, offset: u32) -> PackedElementField {
+    PackedElementField {
+        name: name.into(),
+        offset,
+        r#type: foxglove::messages::packed_element_field::NumericType::Float32 as i32,
     }
 }
 

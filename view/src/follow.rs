@@ -3,17 +3,23 @@
 //! cannot slow a producer (on a live site delivery is lossy: a reader that falls
 //! behind loses its own oldest samples). Images are taken latest-first and at most
 //! `view.frame_rate_hz`; frames are not subscribed to at all unless
-//! `view.frames = true`.
+//! `view.frames = true`. Motion is taken latest-first too, at most 2 per second
+//! ([`crate::channels::MOTION_EVERY_NS`]); each service's status is read as
+//! `isochron status` reads it (the newest report, history 1).
 
 use std::time::Duration;
 
 use isochron_shared::config::LoadedConfig;
-use isochron_shared::ipc::{Activity, Detections, Events, Frames, Ipc, IpcError, StreamSubscriber};
+use isochron_shared::ipc::{
+    Activity, Detections, Events, Frames, Ipc, IpcError, Motion, StatusSubscriber, StreamSubscriber,
+};
+use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{CameraId, Stream};
 
 use crate::channels::SiteChannels;
 
-/// Which streams to follow (the cost map and scene come with `activity`).
+/// Which streams to follow (the cost map and scene come with `activity`; `status`
+/// is not a stream but every service's status service).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Streams {
     /// `activity`: the cameras' activity grids, the cost map, the scene.
@@ -24,6 +30,10 @@ pub struct Streams {
     pub detections: bool,
     /// `frames`: images (only with `view.frames = true`).
     pub frames: bool,
+    /// `motion`: the motion blocks, at most 2 Hz.
+    pub motion: bool,
+    /// `status`: every service's status reports.
+    pub status: bool,
 }
 
 impl Streams {
@@ -34,6 +44,8 @@ impl Streams {
             events: true,
             detections: true,
             frames: loaded.config.view.frames,
+            motion: true,
+            status: true,
         }
     }
 
@@ -44,9 +56,16 @@ impl Streams {
             events: false,
             detections: false,
             frames: false,
+            motion: false,
+            status: false,
         };
         for name in list.split(',').map(str::trim).filter(|n| !n.is_empty()) {
+            if name == "status" {
+                s.status = true;
+                continue;
+            }
             match Stream::from_name(name) {
+                Some(Stream::Motion) => s.motion = true,
                 Some(Stream::Activity) => s.activity = true,
                 Some(Stream::Events) => s.events = true,
                 Some(Stream::Detections) => s.detections = true,
@@ -59,7 +78,7 @@ impl Streams {
                 }
                 _ => {
                     return Err(format!(
-                        "--streams: unknown stream '{name}': expected activity, events, detections or frames"
+                        "--streams: unknown stream '{name}': expected activity, motion, events, detections, status or frames"
                     ));
                 }
             }
@@ -75,12 +94,15 @@ struct CameraSubscribers {
     events: Option<StreamSubscriber<Events>>,
     detections: Option<StreamSubscriber<Detections>>,
     frames: Option<StreamSubscriber<Frames>>,
+    motion: Option<StreamSubscriber<Motion>>,
     ended: bool,
 }
 
 /// The subscribers of every camera.
 pub struct Follower {
     cameras: Vec<CameraSubscribers>,
+    /// Every service's status reader: camera ("" site-wide), stage.
+    status: Vec<(String, StageKind, StatusSubscriber)>,
     /// Samples taken and published.
     pub samples: u64,
     /// Samples whose header did not check out (skipped).
@@ -119,11 +141,32 @@ impl Follower {
                 frames: (streams.frames && loaded.config.view.frames)
                     .then(|| ipc.subscriber(&cam.id))
                     .transpose()?,
+                motion: streams
+                    .motion
+                    .then(|| ipc.subscriber(&cam.id))
+                    .transpose()?,
                 ended: false,
             });
         }
+        let mut status = Vec::new();
+        if streams.status {
+            for stage in StageKind::ALL {
+                if stage.per_camera() {
+                    for cam in &loaded.config.cameras {
+                        status.push((
+                            cam.id.clone(),
+                            stage,
+                            ipc.status_subscriber(&cam.id, stage)?,
+                        ));
+                    }
+                } else {
+                    status.push((String::new(), stage, ipc.status_subscriber("", stage)?));
+                }
+            }
+        }
         Ok(Follower {
             cameras,
+            status,
             samples: 0,
             rejected: 0,
         })
@@ -147,6 +190,24 @@ impl Follower {
                         self.samples += 1;
                         if channels.wants_frame(c.k, h.preamble.capture_time_ns) {
                             channels.on_frame(c.k, h, s.payload());
+                        }
+                    }
+                }
+            }
+            if let Some(sub) = &c.motion {
+                // Latest first, as frames: only the newest is published, at most 2 Hz.
+                let mut newest = None;
+                while let Some(sample) = sub.receive()? {
+                    newest = Some(sample);
+                }
+                if let Some(s) = newest {
+                    let h = s.user_header();
+                    if h.validate(&c.camera, s.payload().len()).is_err() {
+                        self.rejected += 1;
+                    } else if !h.preamble.is_end_of_stream() {
+                        self.samples += 1;
+                        if channels.wants_motion(c.k, h.preamble.capture_time_ns) {
+                            channels.on_motion(c.k, h, s.payload());
                         }
                     }
                 }
@@ -184,6 +245,15 @@ impl Follower {
                         self.samples += 1;
                         channels.on_detections(c.k, h, s.payload());
                     }
+                }
+            }
+        }
+        for (camera, stage, reader) in &self.status {
+            if let Some(report) = reader.latest() {
+                if report.validate().is_ok() {
+                    channels.on_status(camera, *stage, &report);
+                } else {
+                    self.rejected += 1;
                 }
             }
         }
