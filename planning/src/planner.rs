@@ -591,6 +591,51 @@ segments = ["door", "west"]
     }
 
     #[test]
+    fn the_expected_cost_map_is_the_costed_mean_of_the_bin() {
+        // West busy (0.05 → 100 · 0.05 / 0.1 = 50) and east a little (0.01 → 10) from 08:00;
+        // nothing learned before.
+        let (_dir, loaded) = site(|t| {
+            (t >= 480).then(|| {
+                (0..300)
+                    .map(|b| if west(b) { 0.05 } else { 0.01 })
+                    .collect()
+            })
+        });
+        let mut planner = Planner::new(&loaded).unwrap();
+        // Half-metre cells over the camera's 4 m × 3 m, one column more (unseen).
+        let grid = MapGrid {
+            origin_x: 0.0,
+            origin_y: 0.0,
+            yaw: 0.0,
+            resolution: 0.5,
+            width: 9,
+            height: 6,
+        };
+        let mut footprints = Vec::new();
+        let cells = planner
+            .expected_costmap(&grid, 600, &mut footprints)
+            .unwrap();
+        for (k, &c) in cells.iter().enumerate() {
+            let want = match k % 9 {
+                0..4 => 50,
+                4..8 => 10,
+                _ => -1,
+            };
+            assert_eq!(c, want, "cell {k}");
+        }
+        assert!(footprints[0].is_some());
+        // A bin never learned: no camera with a model sees anything.
+        let cells = planner
+            .expected_costmap(&grid, 300, &mut footprints)
+            .unwrap();
+        assert!(cells.iter().all(|&c| c == -1));
+        assert_eq!(
+            planner.cameras().collect::<Vec<_>>(),
+            [("cam01", true, true)]
+        );
+    }
+
+    #[test]
     fn a_missing_store_says_where_it_was_looked_for() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("site.toml");
