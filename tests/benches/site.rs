@@ -228,6 +228,7 @@ fn simulated_box(b: usize, cameras: usize, domain: u16, stop: Arc<AtomicBool>) -
 struct Run {
     cameras: usize,
     boxes: usize,
+    link_start_s: f64,
     link_cpu: f64,
     bridge_cpu: f64,
     boxes_cpu: f64,
@@ -240,10 +241,11 @@ struct Run {
     reason: String,
 }
 
-/// The newest status report of site-wide `stage` made after `after_ns`.
-fn status_after(ipc: &Ipc, stage: StageKind, after_ns: i64) -> Option<StageStatus> {
+/// The newest status report of site-wide `stage` made after `after_ns` (waits
+/// up to `wait` for one).
+fn status_after(ipc: &Ipc, stage: StageKind, after_ns: i64, wait: Duration) -> Option<StageStatus> {
     let reader = ipc.status_subscriber("", stage).ok()?;
-    let end = Instant::now() + Duration::from_secs(7);
+    let end = Instant::now() + wait;
     while Instant::now() < end {
         if let Some(s) = reader.latest().filter(|s| s.report_wall_ns > after_ns) {
             return Some(s);
@@ -268,6 +270,13 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
     let sources: Vec<_> = (0..boxes)
         .map(|b| simulated_box(b, per_box(b), domains.0, stop.clone()))
         .collect();
+    // The link creates four DDS readers per camera before its first report.
+    let spawned = (Instant::now(), wall_now_ns());
+    let up = status_after(&ipc, StageKind::Link, spawned.1, Duration::from_secs(90));
+    let link_start_s = spawned.0.elapsed().as_secs_f64();
+    if up.is_none() {
+        eprintln!("site: the link did not report within 90 s");
+    }
     std::thread::sleep(opts.warmup);
     let ticks = || {
         [
@@ -284,8 +293,9 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
         (Some(a), Some(b)) => 100.0 * (b - a) as f64 / clock_ticks_per_s() / secs,
         _ => f64::NAN,
     };
-    let bridge_status = status_after(&ipc, StageKind::Costmap, window_ns);
-    let link_status = status_after(&ipc, StageKind::Link, window_ns);
+    let wait = Duration::from_secs(7);
+    let bridge_status = status_after(&ipc, StageKind::Costmap, window_ns, wait);
+    let link_status = status_after(&ipc, StageKind::Link, window_ns, wait);
     stop.store(true, Ordering::Relaxed);
     for s in sources {
         let _ = s.join();
@@ -293,6 +303,7 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
     let mut r = Run {
         cameras: n,
         boxes,
+        link_start_s,
         link_cpu: pct(0),
         bridge_cpu: pct(1),
         boxes_cpu: pct(2),
@@ -331,6 +342,14 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
     }
     link.terminate(Duration::from_secs(10));
     bridge.terminate(Duration::from_secs(10));
+    if !r.held {
+        for (name, p) in [("link", &link), ("bridge", &bridge)] {
+            let log = p.stderr();
+            let tail: Vec<&str> = log.lines().rev().take(6).collect();
+            eprintln!("site: {n} cameras, {name}'s last log lines (newest first):");
+            tail.iter().for_each(|l| eprintln!("  {l}"));
+        }
+    }
     r
 }
 
@@ -356,9 +375,10 @@ fn main() {
     for &n in &opts.cameras {
         let r = run(n, &opts, (domain, domain + 1));
         println!(
-            "{:>7} {:>5} {:>8.0}% {:>8.0}% {:>8.0}% {:>9.1} {:>7.0}/{:<4.0} ms {:>7.0}/{:<4.0} ms  {}",
+            "{:>7} {:>5} {:>7.1}s {:>8.0}% {:>8.0}% {:>8.0}% {:>9.1} {:>7.0}/{:<4.0} ms {:>7.0}/{:<4.0} ms  {}",
             r.cameras,
             r.boxes,
+            r.link_start_s,
             r.link_cpu,
             r.bridge_cpu,
             r.boxes_cpu,
@@ -386,7 +406,7 @@ fn main() {
                 }
             };
             serde_json::json!({
-                "cameras": r.cameras, "boxes": r.boxes,
+                "cameras": r.cameras, "boxes": r.boxes, "link_start_s": num(r.link_start_s),
                 "link_cpu_pct": num(r.link_cpu), "bridge_cpu_pct": num(r.bridge_cpu),
                 "boxes_cpu_pct": num(r.boxes_cpu), "bridge_in_per_s": num(r.bridge_rate_in),
                 "grid_p50_ms": num(r.grid_p50_ms), "grid_p99_ms": num(r.grid_p99_ms),

@@ -11,6 +11,8 @@ use std::net::IpAddr;
 use ros2_client::dds::{Context, Node, Publisher, Subscription};
 use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions};
 use rustdds::{DomainParticipantBuilder, QosPolicies, QosPolicyBuilder, TopicKind, policy};
+use serde::Serialize;
+use serde::de::DeserializeOwned;
 
 use isochron_shared::topology::StageKind;
 
@@ -171,6 +173,28 @@ impl LinkDds {
             .map_err(|e| dds(format!("creating topic {name}: {e:?}")))
     }
 
+    fn writer<M: Serialize>(
+        &mut self,
+        camera: &str,
+        (suffix, msg): (&str, &str),
+        qos: QosPolicies,
+    ) -> Result<Publisher<M>, DdsError> {
+        let topic = self.topic(camera, suffix, msg, &qos)?;
+        patiently(|| self.node.create_publisher(&topic, None))
+            .map_err(|e| self.error(format!("creating the {suffix} writer of {camera}: {e:?}")))
+    }
+
+    fn reader<M: DeserializeOwned + 'static>(
+        &mut self,
+        camera: &str,
+        (suffix, msg): (&str, &str),
+        qos: QosPolicies,
+    ) -> Result<Subscription<M>, DdsError> {
+        let topic = self.topic(camera, suffix, msg, &qos)?;
+        patiently(|| self.node.create_subscription(&topic, None))
+            .map_err(|e| self.error(format!("creating the {suffix} reader of {camera}: {e:?}")))
+    }
+
     /// A writer of stream `S` of `camera`; `queue` is the depth of a queued
     /// stream's DDS history.
     pub fn publisher<S: LinkStream>(
@@ -178,13 +202,7 @@ impl LinkDds {
         camera: &str,
         queue: usize,
     ) -> Result<Publisher<Message<S>>, DdsError> {
-        let topic = self.topic(camera, S::SUFFIX, S::MSG, &qos(S::DELIVERY, queue))?;
-        self.node.create_publisher(&topic, None).map_err(|e| {
-            self.error(format!(
-                "creating the {} publisher of {camera}: {e:?}",
-                S::SUFFIX
-            ))
-        })
+        self.writer(camera, (S::SUFFIX, S::MSG), qos(S::DELIVERY, queue))
     }
 
     /// A reader of stream `S` of `camera`.
@@ -193,31 +211,17 @@ impl LinkDds {
         camera: &str,
         queue: usize,
     ) -> Result<Subscription<Message<S>>, DdsError> {
-        let topic = self.topic(camera, S::SUFFIX, S::MSG, &qos(S::DELIVERY, queue))?;
-        self.node.create_subscription(&topic, None).map_err(|e| {
-            self.error(format!(
-                "creating the {} subscription of {camera}: {e:?}",
-                S::SUFFIX
-            ))
-        })
+        self.reader(camera, (S::SUFFIX, S::MSG), qos(S::DELIVERY, queue))
     }
 
     /// The writer of `camera`'s stages' status.
     pub fn status_publisher(&mut self, camera: &str) -> Result<Publisher<Status>, DdsError> {
-        let topic = self.topic(camera, STATUS_SUFFIX, "Status", &status_qos())?;
-        self.node
-            .create_publisher(&topic, None)
-            .map_err(|e| self.error(format!("creating the status publisher of {camera}: {e:?}")))
+        self.writer(camera, STATUS, status_qos())
     }
 
     /// The reader of `camera`'s stages' status.
     pub fn status_subscription(&mut self, camera: &str) -> Result<Subscription<Status>, DdsError> {
-        let topic = self.topic(camera, STATUS_SUFFIX, "Status", &status_qos())?;
-        self.node.create_subscription(&topic, None).map_err(|e| {
-            self.error(format!(
-                "creating the status subscription of {camera}: {e:?}"
-            ))
-        })
+        self.reader(camera, STATUS, status_qos())
     }
 
     fn error(&self, detail: String) -> DdsError {
@@ -228,8 +232,26 @@ impl LinkDds {
     }
 }
 
-/// Topic suffix of the status of a camera's stages.
-pub const STATUS_SUFFIX: &str = "status";
+/// Creates a DDS entity, waiting while RustDDS's event loop catches up: it takes
+/// new readers and writers through bounded channels (100 readers, 10 writers),
+/// which a link of a few hundred cameras fills at start ("sending on a full
+/// channel"). Gives up after 5 s.
+fn patiently<T, E: std::fmt::Debug>(mut create: impl FnMut() -> Result<T, E>) -> Result<T, E> {
+    let end = std::time::Instant::now() + std::time::Duration::from_secs(5);
+    loop {
+        match create() {
+            Err(e)
+                if format!("{e:?}").contains("full channel") && std::time::Instant::now() < end =>
+            {
+                std::thread::sleep(std::time::Duration::from_millis(10));
+            }
+            result => return result,
+        }
+    }
+}
+
+/// Topic suffix and message type of the status of a camera's stages.
+const STATUS: (&str, &str) = ("status", "Status");
 
 /// The QoS of a stream: latest-only is best effort, keep last 1; queued is
 /// reliable, keep last `queue`, at most `queue` unacknowledged samples, and a
@@ -262,19 +284,7 @@ fn qos(delivery: Delivery, queue: usize) -> QosPolicies {
 /// reports of a camera's stages, sent together every few seconds, all arrive
 /// (latest-only per stage).
 fn status_qos() -> QosPolicies {
-    let depth = StageKind::ALL.len() as i32;
-    QosPolicyBuilder::new()
-        .reliability(policy::Reliability::Reliable {
-            max_blocking_time: rustdds::Duration::ZERO,
-        })
-        .durability(policy::Durability::Volatile)
-        .history(policy::History::KeepLast { depth })
-        .resource_limits(policy::ResourceLimits {
-            max_samples: depth,
-            max_instances: 1,
-            max_samples_per_instance: depth,
-        })
-        .build()
+    qos(Delivery::Queued, StageKind::ALL.len())
 }
 
 #[cfg(test)]
