@@ -236,6 +236,7 @@ struct Run {
     bridge_cpu: f64,
     boxes_cpu: f64,
     bridge_rate_in: f64,
+    link_rate_out: f64,
     grid_p50_ms: f64,
     grid_p99_ms: f64,
     link_p50_ms: f64,
@@ -256,6 +257,20 @@ fn status_after(ipc: &Ipc, stage: StageKind, after_ns: i64, wait: Duration) -> O
         std::thread::sleep(Duration::from_millis(100));
     }
     None
+}
+
+/// Counter `count` per second between two reports.
+fn per_s(
+    a: Option<StageStatus>,
+    b: Option<StageStatus>,
+    count: impl Fn(&StageStatus) -> u64,
+) -> f64 {
+    match (a, b) {
+        (Some(a), Some(b)) if b.report_wall_ns > a.report_wall_ns => {
+            (count(&b) - count(&a)) as f64 * 1e9 / (b.report_wall_ns - a.report_wall_ns) as f64
+        }
+        _ => 0.0,
+    }
 }
 
 fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
@@ -289,6 +304,7 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
     // The bridge's counters at the window's start (its latest report).
     let wait = Duration::from_secs(7);
     let first = status_after(&ipc, StageKind::Costmap, 0, wait);
+    let first_link = status_after(&ipc, StageKind::Link, 0, wait);
     let ticks = || {
         [
             cpu_ticks(link.pid()),
@@ -387,7 +403,7 @@ fn main() {
         FRAME.0, FRAME.1, msg_bytes, opts.warmup, opts.seconds
     );
     println!(
-        "{:>7} {:>5} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>15} {:>15}  RESULT",
+        "{:>7} {:>5} {:>8} {:>9} {:>9} {:>9} {:>9} {:>10} {:>9} {:>15} {:>15}  RESULT",
         "CAMERAS",
         "BOXES",
         "LINK UP",
@@ -395,6 +411,7 @@ fn main() {
         "LINK CPU",
         "BRIDGE",
         "BOXES",
+        "LINK OUT/s",
         "IN/s",
         "GRID p50/p99",
         "LINK p50/p99"
@@ -403,7 +420,7 @@ fn main() {
     for &n in &opts.cameras {
         let r = run(n, &opts, (domain, domain + 1));
         println!(
-            "{:>7} {:>5} {:>7.1}s {:>8.1}s {:>8.0}% {:>8.0}% {:>8.0}% {:>9.1} {:>7.0}/{:<4.0} ms {:>7.0}/{:<4.0} ms  {}",
+            "{:>7} {:>5} {:>7.1}s {:>8.1}s {:>8.0}% {:>8.0}% {:>8.0}% {:>10.1} {:>9.1} {:>7.0}/{:<4.0} ms {:>7.0}/{:<4.0} ms  {}",
             r.cameras,
             r.boxes,
             r.link_start_s,
@@ -411,6 +428,7 @@ fn main() {
             r.link_cpu,
             r.bridge_cpu,
             r.boxes_cpu,
+            r.link_rate_out,
             r.bridge_rate_in,
             r.grid_p50_ms,
             r.grid_p99_ms,
@@ -437,7 +455,7 @@ fn main() {
             serde_json::json!({
                 "cameras": r.cameras, "boxes": r.boxes, "link_start_s": num(r.link_start_s), "bridge_start_s": num(r.bridge_start_s),
                 "link_cpu_pct": num(r.link_cpu), "bridge_cpu_pct": num(r.bridge_cpu),
-                "boxes_cpu_pct": num(r.boxes_cpu), "bridge_in_per_s": num(r.bridge_rate_in),
+                "boxes_cpu_pct": num(r.boxes_cpu), "bridge_in_per_s": num(r.bridge_rate_in), "link_out_per_s": num(r.link_rate_out),
                 "grid_p50_ms": num(r.grid_p50_ms), "grid_p99_ms": num(r.grid_p99_ms),
                 "link_p50_ms": num(r.link_p50_ms), "link_p99_ms": num(r.link_p99_ms),
                 "held": r.held, "reason": r.reason,
