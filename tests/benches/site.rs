@@ -336,13 +336,8 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
         boxes_cpu: pct(2),
         // Samples per second between the report before the window and the
         // first one after it.
-        bridge_rate_in: match (first, bridge_status) {
-            (Some(a), Some(b)) if b.report_wall_ns > a.report_wall_ns => {
-                (b.received - a.received) as f64 * 1e9
-                    / (b.report_wall_ns - a.report_wall_ns) as f64
-            }
-            _ => 0.0,
-        },
+        bridge_rate_in: per_s(first, bridge_status, |s| s.received),
+        link_rate_out: per_s(first_link, link_status, |s| s.sent),
         grid_p50_ms: bridge_status.map_or(f64::NAN, |s| s.e2e_latency_p50_ms as f64),
         grid_p99_ms: bridge_status.map_or(f64::NAN, |s| s.e2e_latency_p99_ms as f64),
         link_p50_ms: link_status.map_or(f64::NAN, |s| s.e2e_latency_p50_ms as f64),
