@@ -128,7 +128,7 @@ impl StageKind {
             StageKind::Gate => &[Stream::Frames, Stream::Activity],
             StageKind::Costmap => &[Stream::Activity, Stream::Detections],
             StageKind::Exporter => &[],
-            StageKind::Link => &[Stream::Activity],
+            StageKind::Link => &[Stream::Activity, Stream::Events, Stream::Detections],
             StageKind::Mqtt => &[Stream::Events, Stream::Detections],
         }
     }
@@ -141,7 +141,7 @@ impl StageKind {
             StageKind::Cascade => &[Stream::Activity],
             StageKind::Gate => &[Stream::Events, Stream::Detections],
             StageKind::Costmap | StageKind::Exporter | StageKind::Mqtt => &[],
-            StageKind::Link => &[Stream::Activity],
+            StageKind::Link => &[Stream::Activity, Stream::Events, Stream::Detections],
         }
     }
 

@@ -9,8 +9,14 @@
 //!
 //! All types are `#[repr(C)]`, `Copy`, and pinned by `#[type_name]` so that every
 //! process (and any foreign tool) agrees on them through iceoryx2's type check.
+//!
+//! The headers and elements that cross between base stations (`isochron-link`)
+//! also derive serde: serialised in field order they are the CDR of the ROS 2
+//! messages of the same names in `ros/isochron_msgs/msg`, which mirror this file
+//! field for field (a test in `isochron-link` pins the sizes).
 
 use iceoryx2::prelude::ZeroCopySend;
+use serde::{Deserialize, Serialize};
 
 use crate::geometry::BlockGrid;
 
@@ -99,7 +105,7 @@ impl std::fmt::Display for Stream {
 }
 
 /// A camera id as it travels in headers: ASCII, zero-padded.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, Serialize, Deserialize)]
 #[type_name("isochron::CameraId")]
 #[repr(C)]
 pub struct CameraId(pub [u8; CAMERA_ID_LEN]);
@@ -132,7 +138,7 @@ pub fn is_valid_camera_id(id: &str) -> bool {
 }
 
 /// The fields every header starts with.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, Serialize, Deserialize)]
 #[type_name("isochron::Preamble")]
 #[repr(C)]
 pub struct Preamble {
@@ -523,7 +529,7 @@ impl MotionHeader {
 }
 
 /// Activity of one block over the last second, and the long-term model at t*.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize)]
 #[type_name("isochron::BlockActivity")]
 #[repr(C)]
 pub struct BlockActivity {
@@ -546,7 +552,7 @@ pub struct BlockActivity {
 }
 
 /// Header of an `activity` sample (1 Hz); payload `grid_w * grid_h` [`BlockActivity`].
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, Serialize, Deserialize)]
 #[type_name("isochron::ActivityHeader")]
 #[repr(C)]
 pub struct ActivityHeader {
@@ -640,7 +646,7 @@ pub const ZONE_NAME_LEN: usize = 32;
 
 /// Header of an `events` sample; the payload lists the indices (row-major) of the
 /// blocks involved, as `u32`.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, Serialize, Deserialize)]
 #[type_name("isochron::EventHeader")]
 #[repr(C)]
 pub struct EventHeader {
@@ -705,7 +711,7 @@ pub fn fixed_str(bytes: &[u8]) -> String {
 }
 
 /// One detected object (a person) in frame pixel coordinates.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize)]
 #[type_name("isochron::Detection")]
 #[repr(C)]
 pub struct Detection {
@@ -724,7 +730,7 @@ pub struct Detection {
 }
 
 /// Header of a `detections` sample; payload is the [`Detection`]s of one frame.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, Serialize, Deserialize)]
 #[type_name("isochron::DetectionHeader")]
 #[repr(C)]
 pub struct DetectionHeader {
@@ -816,7 +822,7 @@ pub const STATUS_DETAIL_LEN: usize = 160;
 /// Periodic health of one stage of one camera, published on
 /// `<prefix>/<camera>/status/<stage>` (history 1, so `isochron status` sees the
 /// latest at once).
-#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, ZeroCopySend, Serialize, Deserialize)]
 #[type_name("isochron::StageStatus")]
 #[repr(C)]
 pub struct StageStatus {
@@ -855,7 +861,49 @@ pub struct StageStatus {
     /// 99th percentile of the end-to-end latency, ms.
     pub e2e_latency_p99_ms: f32,
     /// Stage-specific counters as text (`detected=3 detector_ms=410`).
+    #[serde(with = "fixed_bytes")]
     pub detail: [u8; STATUS_DETAIL_LEN],
+}
+
+/// Serde for byte arrays longer than serde's own (32): a tuple of `N` bytes,
+/// which CDR writes as a fixed array (`uint8[N]`) with no length.
+mod fixed_bytes {
+    use serde::de::{Error, SeqAccess, Visitor};
+    use serde::ser::SerializeTuple;
+    use serde::{Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer, const N: usize>(
+        bytes: &[u8; N],
+        serializer: S,
+    ) -> Result<S::Ok, S::Error> {
+        let mut tuple = serializer.serialize_tuple(N)?;
+        for b in bytes {
+            tuple.serialize_element(b)?;
+        }
+        tuple.end()
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>, const N: usize>(
+        deserializer: D,
+    ) -> Result<[u8; N], D::Error> {
+        struct Bytes<const N: usize>;
+        impl<'de, const N: usize> Visitor<'de> for Bytes<N> {
+            type Value = [u8; N];
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                write!(f, "{N} bytes")
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<[u8; N], A::Error> {
+                let mut out = [0u8; N];
+                for (k, b) in out.iter_mut().enumerate() {
+                    *b = seq
+                        .next_element()?
+                        .ok_or_else(|| A::Error::invalid_length(k, &self))?;
+                }
+                Ok(out)
+            }
+        }
+        deserializer.deserialize_tuple(N, Bytes::<N>)
+    }
 }
 
 impl StageStatus {

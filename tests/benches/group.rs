@@ -73,7 +73,7 @@ use isochron_shared::health::quantile;
 use isochron_shared::ipc::{Activity, Detections, Events, Ipc, StatusSubscriber, StreamSubscriber};
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{EventPhase, StageStatus};
-use isochron_tests::{Proc, TestSite, bin, repo_root, vtest};
+use isochron_tests::{Proc, TestSite, bin, clock_ticks_per_s, cpu_ticks, repo_root, vtest};
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 use opencv::videoio;
@@ -594,25 +594,6 @@ impl Group {
             );
         }
     }
-}
-
-/// utime + stime of process `pid`, in clock ticks.
-fn cpu_ticks(pid: u32) -> Option<u64> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    // The command (field 2) may hold spaces: count fields after its ')'.
-    let rest = &stat[stat.rfind(')')? + 1..];
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    // Fields from 3 (state) on: utime is field 14, stime 15.
-    let utime: u64 = fields.get(11)?.parse().ok()?;
-    let stime: u64 = fields.get(12)?.parse().ok()?;
-    Some(utime + stime)
-}
-
-/// Clock ticks per second.
-fn clock_ticks_per_s() -> f64 {
-    // SAFETY: sysconf has no preconditions.
-    let ticks = unsafe { libc::sysconf(libc::_SC_CLK_TCK) };
-    if ticks > 0 { ticks as f64 } else { 100.0 }
 }
 
 /// Private_Clean + Private_Dirty of every mapping of `pid` except `/dev/shm` files

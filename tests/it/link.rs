@@ -8,15 +8,22 @@
 //! that has cam01's floor points, and the independent Cyclone DDS peer reading the
 //! grid. Checked: the grid under cam01's footprint on B is what A's activity
 //! gives; headers cross unchanged; veth down → unknown, up → back; kill -9 of A's
-//! link → unknown, restarted → back. Measured (printed): bytes per second on the
-//! link and origin-to-B latency.
+//! link → unknown, restarted → back; events and detections cross with their
+//! sequence numbers, and a burst larger than the link's queue is counted as
+//! dropped (A) and as a gap (B), never lost silently; on the real pipeline, A's
+//! gate events reach B and B's `isochron status` lists A's stages. Measured
+//! (printed): bytes per second on the link and origin-to-B latency.
 
 use std::time::{Duration, Instant};
 
 use isochron_shared::clock::{NS_PER_S, parse_rfc3339, wall_now_ns};
-use isochron_shared::ipc::{Activity, Ipc};
-use isochron_shared::wire::CameraId;
-use isochron_tests::{NetnsPair, Proc, TestSite, bin, repo_root};
+use isochron_shared::health::detail_value;
+use isochron_shared::ipc::{Activity, Detections, Events, Ipc, StreamSubscriber};
+use isochron_shared::topology::StageKind;
+use isochron_shared::wire::{
+    CameraId, Detection, DetectionHeader, EventHeader, Preamble, Stream, fixed_str, to_fixed,
+};
+use isochron_tests::{NetnsPair, Proc, TestSite, bin, eventually, repo_root};
 
 use crate::costmap::{
     HOT_BLOCK, HOT_S1, Source, camera_toml, costmap_toml, dds_domain, expected_cells, held_grid,
@@ -34,6 +41,57 @@ fn link_toml(box_id: &str, key: &str, domain: u16, addr: &str) -> String {
     format!(
         "\n[link]\nbox_id = \"{box_id}\"\n{key} = [\"cam01\"]\nros_domain_id = {domain}\ndds_interfaces = [\"{addr}\"]\n"
     )
+}
+
+/// `link.queue_messages` of box A in the synthetic test: a burst of [`BURST`]
+/// records cannot fit.
+const QUEUE: usize = 8;
+/// Events A publishes at once.
+const BURST: u64 = 200;
+
+/// The `[link]` status detail `key` of the link of `ipc`'s site, from a report
+/// made after `after_ns` (waits for one).
+fn link_counter(ipc: &Ipc, key: &str, after_ns: i64) -> u64 {
+    let reader = ipc.status_subscriber("", StageKind::Link).unwrap();
+    let status = eventually(Duration::from_secs(8), || {
+        reader.latest().filter(|s| s.report_wall_ns > after_ns)
+    })
+    .expect("a link status report");
+    let detail = fixed_str(&status.detail);
+    detail_value(&detail, key)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no {key} in the link's status detail: {detail}"))
+}
+
+/// An event record of cam01 as the gate writes it.
+fn event(sequence: u64, event_id: u64) -> EventHeader {
+    let mut preamble =
+        Preamble::new::<u32>(Stream::Events, CameraId::new("cam01").unwrap(), sequence, 1);
+    preamble.capture_time_ns = 1_000 + sequence as i64;
+    preamble.origin_wall_ns = wall_now_ns();
+    EventHeader {
+        preamble,
+        event_id,
+        zone: to_fixed("all"),
+        kind: 1,
+        phase: 1,
+        start_ns: 1_000,
+        peak: 2.0,
+        threshold: 1.0,
+        ..Default::default()
+    }
+}
+
+/// The (sequence, event id, capture time) of each event `sub` holds.
+fn events_of(sub: &StreamSubscriber<Events>) -> Vec<(u64, u64, i64)> {
+    let cam = CameraId::new("cam01").unwrap();
+    let mut out = Vec::new();
+    while let Some(sample) = sub.receive().unwrap() {
+        let h = sample.user_header();
+        h.validate(&cam, sample.payload().len()).unwrap();
+        out.push((h.preamble.sequence, h.event_id, h.preamble.capture_time_ns));
+    }
+    out
 }
 
 /// Every cell of cam01's footprint is unknown (-1) in `grid`.
@@ -180,6 +238,111 @@ fn steady_state(
     );
 }
 
+/// A's event and detection reach B unchanged; then a burst of [`BURST`] events:
+/// A's link drops what does not fit its queue of [`QUEUE`] and counts it
+/// (`ev_drop`); B counts every missing sequence number (`ev_gap`); what B got
+/// and what it counts as missing are the whole burst.
+fn records_cross_and_a_burst_is_counted(
+    ipc_a: &Ipc,
+    ipc_b: &Ipc,
+    feed: &mut dyn FnMut(),
+    b: &mut BoxB,
+    procs: &[&Proc],
+) {
+    let events_a = ipc_a.publisher::<Events>("cam01", 1).unwrap();
+    let detections_a = ipc_a.publisher::<Detections>("cam01", 1).unwrap();
+    let events_b = ipc_b.subscriber::<Events>("cam01").unwrap();
+    let detections_b = ipc_b.subscriber::<Detections>("cam01").unwrap();
+    let first = event(0, 7);
+    events_a.send_copy(first, &[3]).unwrap();
+    let mut det = DetectionHeader {
+        preamble: Preamble::new::<Detection>(
+            Stream::Detections,
+            CameraId::new("cam01").unwrap(),
+            0,
+            1,
+        ),
+        event_id: 7,
+        source_index: 42,
+        ..Default::default()
+    };
+    det.preamble.capture_time_ns = 1_234;
+    let person = Detection {
+        x: 10.0,
+        y: 20.0,
+        w: 30.0,
+        h: 60.0,
+        score: 0.9,
+        class: 0,
+    };
+    detections_a.send_copy(det, &[person]).unwrap();
+    let (mut got, mut got_det) = (Vec::new(), None);
+    until(
+        "A's event and detection on B",
+        feed,
+        b,
+        procs,
+        Duration::from_secs(20),
+        |_| {
+            got.extend(events_of(&events_b));
+            if let Some(s) = detections_b.receive().unwrap() {
+                got_det = Some((*s.user_header(), s.payload().to_vec()));
+            }
+            !got.is_empty() && got_det.is_some()
+        },
+    );
+    assert_eq!(got, [(0, 7, first.preamble.capture_time_ns)]);
+    let (h, people) = got_det.unwrap();
+    assert_eq!(
+        (
+            h.preamble.sequence,
+            h.event_id,
+            h.source_index,
+            h.preamble.capture_time_ns
+        ),
+        (0, 7, 42, 1_234)
+    );
+    assert_eq!(people, [person]);
+
+    // The burst: sequences 1..=BURST, sent as fast as iceoryx2 takes them.
+    for seq in 1..=BURST {
+        events_a.send_copy(event(seq, 100 + seq), &[3]).unwrap();
+    }
+    let mut burst = Vec::new();
+    let t = until(
+        "the burst's last event on B",
+        feed,
+        b,
+        procs,
+        Duration::from_secs(20),
+        |_| {
+            burst.extend(events_of(&events_b));
+            burst.last().is_some_and(|e| e.0 == BURST)
+        },
+    );
+    let done_ns = wall_now_ns();
+    for (seq, id, capture) in &burst {
+        assert_eq!((*id, *capture), (100 + seq, 1_000 + *seq as i64));
+    }
+    assert!(burst.windows(2).all(|w| w[0].0 < w[1].0), "in order, once");
+    let dropped_a = link_counter(ipc_a, "ev_drop", done_ns);
+    let gaps_b = link_counter(ipc_b, "ev_gap", done_ns);
+    eprintln!(
+        "MEASURED burst of {BURST} events (queue {QUEUE}): {} reached B in {t:?}; A's link dropped {dropped_a}, B counts {gaps_b} missing",
+        burst.len()
+    );
+    assert!(
+        dropped_a > 0,
+        "the burst did not fit the queue: drops are counted"
+    );
+    assert_eq!(
+        burst.len() as u64 + gaps_b,
+        BURST,
+        "every event reached B or is counted as missing"
+    );
+    assert!(dropped_a <= gaps_b, "what A dropped B counts as missing");
+}
+
 /// Sets the veth down until B's grid is `unknown`, then up until it is `back`.
 fn veth_down_and_up(
     label: &str,
@@ -224,17 +387,18 @@ fn activity_crosses_boxes_and_goes_unknown_while_the_link_is_down() {
     let site_a = TestSite::new(
         "link-a",
         &format!(
-            "{}{}",
+            "{}{}queue_messages = {QUEUE}\n",
             camera_toml(),
             link_toml("box_a", "export", link_domain, &pair.addrs[0])
         ),
     );
     let costmap =
         costmap_toml(bridge_domain, "").replace("stale_s = 120", &format!("stale_s = {STALE_S}"));
+    // B's services buffer a whole burst, so the test's reader loses nothing.
     let site_b = TestSite::new(
         "link-b",
         &format!(
-            "{}{costmap}{}",
+            "[ipc]\nstream_buffer = 256\n\n{}{costmap}{}",
             camera_toml(),
             link_toml("box_b", "import", link_domain, &pair.addrs[1])
         ),
@@ -276,7 +440,11 @@ fn activity_crosses_boxes_and_goes_unknown_while_the_link_is_down() {
     let procs = [&link_a, &link_b, &bridge];
     steady_state("synthetic activity", &mut feed, &mut b, &pair, &procs);
 
-    // 3. The veth goes down: B's cells of cam01 turn unknown; up: they come back.
+    // 3. Events and detections cross with their headers; a burst larger than
+    //    A's queue is counted, never lost silently.
+    records_cross_and_a_burst_is_counted(&ipc_a, &ipc_b, &mut feed, &mut b, &procs);
+
+    // 4. The veth goes down: B's cells of cam01 turn unknown; up: they come back.
     veth_down_and_up(
         "synthetic activity",
         (&mut feed, &mut b, &pair, &procs),
@@ -284,7 +452,7 @@ fn activity_crosses_boxes_and_goes_unknown_while_the_link_is_down() {
         |g| g == hot,
     );
 
-    // 4. kill -9 A's link: unknown; restarted: back, without touching B.
+    // 5. kill -9 A's link: unknown; restarted: back, without touching B.
     link_a.signal(libc::SIGKILL);
     link_a.wait(Duration::from_secs(5));
     let t = until(
@@ -321,7 +489,7 @@ fn activity_crosses_boxes_and_goes_unknown_while_the_link_is_down() {
     let log = link_a.stderr();
     let line = log
         .lines()
-        .find(|l| l.contains("exported cam01:"))
+        .find(|l| l.contains("exported cam01 activity:"))
         .unwrap_or_else(|| panic!("no export summary in A's log:\n{log}"));
     eprintln!("MEASURED {line}");
     drop(b);
@@ -392,14 +560,18 @@ fn the_real_pipeline_on_one_box_feeds_the_bridge_on_another() {
     let config_a = site_a.config_path().display().to_string();
     let config_b = site_b.config_path().display().to_string();
     // Box A's pipeline: shared memory only, so it needs no network namespace.
-    let pipeline: Vec<Proc> = ["isochron-capture", "isochron-motion", "isochron-cascade"]
-        .into_iter()
-        .map(|b| site_a.spawn(b, &["--camera", "cam01"]))
+    let ipc_a = site_a.ipc("probe");
+    let ipc_b = site_b.ipc("probe");
+    let events_a = ipc_a.subscriber::<Events>("cam01").unwrap();
+    let events_b = ipc_b.subscriber::<Events>("cam01").unwrap();
+    let stages = ["capture", "motion", "cascade", "gate"];
+    let pipeline: Vec<Proc> = stages
+        .iter()
+        .map(|s| site_a.spawn(&format!("isochron-{s}"), &["--camera", "cam01"]))
         .collect();
-    let link_a = pair.spawn(0, &link_bin, &["--config", &config_a]);
+    let mut link_a = pair.spawn(0, &link_bin, &["--config", &config_a]);
     let link_b = pair.spawn(1, &link_bin, &["--config", &config_b]);
     let bridge = pair.spawn(1, &bin("isochron-costmap"), &["--config", &config_b]);
-    let ipc_b = site_b.ipc("probe");
     let mut b = BoxB::start(&pair, &ipc_b, bridge_domain, 120, None);
     let mut feed = || {};
     let mut logs: Vec<&Proc> = pipeline.iter().collect();
@@ -414,13 +586,58 @@ fn the_real_pipeline_on_one_box_feeds_the_bridge_on_another() {
         |g| known(g) > 100,
     );
     eprintln!("first known cells on B after {t:?}");
+    let (mut on_a, mut on_b) = (Vec::new(), Vec::new());
     steady_state("real pipeline", &mut feed, &mut b, &pair, &logs);
+
+    // A's gate events reach B with their sequence numbers and times.
+    let t = until(
+        "A's gate events on B",
+        &mut feed,
+        &mut b,
+        &logs,
+        Duration::from_secs(30),
+        |_| {
+            on_a.extend(events_of(&events_a));
+            on_b.extend(events_of(&events_b));
+            !on_b.is_empty() && on_b.iter().all(|e| on_a.contains(e))
+        },
+    );
+    eprintln!(
+        "{} gate events on A, {} on B after {t:?}: {on_b:?}",
+        on_a.len(),
+        on_b.len()
+    );
+
+    // B's `isochron status` lists A's stages of cam01, with A's process ids.
+    let status = site_b.isochron(
+        &["status", "--json", "--config", &config_b],
+        Duration::from_secs(20),
+    );
+    for (stage, proc) in stages.iter().zip(&pipeline) {
+        let row = status
+            .stdout
+            .lines()
+            .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+            .find(|o| o["stage"] == *stage && o["camera"] == "cam01")
+            .unwrap_or_else(|| panic!("no {stage} row in B's status:\n{}", status.stdout));
+        assert_eq!(row["state"], "running", "{row}");
+        assert_eq!(row["pid"], proc.pid(), "{row}");
+    }
+
     veth_down_and_up(
         "real pipeline",
         (&mut feed, &mut b, &pair, &logs),
         |g| known(g) == 0,
         |g| known(g) > 100,
     );
+    link_a.terminate(Duration::from_secs(10));
+    for line in link_a
+        .stderr()
+        .lines()
+        .filter(|l| l.contains("exported cam01"))
+    {
+        eprintln!("MEASURED real pipeline: {line}");
+    }
     drop(b);
     drop(pair);
 }

@@ -46,12 +46,13 @@ const PACKAGES: [&str; 7] = [
 ];
 
 /// Benchmarks: name → (package, bench target).
-const BENCHES: [(&str, &str, &str); 5] = [
+const BENCHES: [(&str, &str, &str); 6] = [
     ("ipc", "isochron-shared", "ipc"),
     ("motion", "isochron-motion", "motion"),
     ("cascade", "isochron-cascade", "cascade"),
     ("gate", "isochron-gate", "gate"),
     ("group", "isochron-tests", "group"),
+    ("site", "isochron-tests", "site"),
 ];
 
 fn main() -> anyhow::Result<()> {
@@ -80,7 +81,7 @@ fn main() -> anyhow::Result<()> {
             let extra = &args[2..];
             if extra.iter().any(|a| a == "--quick") {
                 let rest: Vec<String> = extra.iter().filter(|a| *a != "--quick").cloned().collect();
-                if matches!(*target, "gate" | "group") {
+                if matches!(*target, "gate" | "group" | "site") {
                     run(cargo().args(["build", "--workspace", "--bins"]))?;
                 }
                 quick_bench(cargo(), package, target, &rest)
@@ -438,8 +439,8 @@ fn quick_bench(
 }
 
 fn bench(package: &str, target: &str, extra: &[String]) -> anyhow::Result<()> {
-    if matches!(target, "gate" | "group") {
-        // These run the whole process group.
+    if matches!(target, "gate" | "group" | "site") {
+        // These run the whole process group (site: the link and the bridge).
         run(cargo().args(["build", "--release", "--workspace", "--bins"]))?;
     }
     run(cargo()

@@ -1,17 +1,22 @@
 //! The link's DDS side (`ros2-client` on RustDDS, as the costmap bridge): one
 //! participant on `link.ros_domain_id` using the interfaces of
 //! `link.dds_interfaces`, the node `/isochron/link_<box_id>`, and per camera the
-//! topic `<link.namespace>/<camera>/activity` of `isochron_msgs/msg/Activity`:
-//! best effort, volatile, keep last 1 — only the newest second of a camera is
-//! worth sending, and a lost one is replaced a second later (latest-only, bounded).
+//! topics `<link.namespace>/<camera>/<stream>`: `activity` best effort, keep last
+//! 1 (only the newest second is worth sending; a lost one is replaced a second
+//! later); `events` and `detections` reliable, keep last `link.queue_messages`;
+//! `status` reliable, one report per stage. All volatile and bounded.
 
 use std::net::IpAddr;
 
 use ros2_client::dds::{Context, Node, Publisher, Subscription};
 use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions};
-use rustdds::{DomainParticipantBuilder, QosPolicyBuilder, TopicKind, policy};
+use rustdds::{DomainParticipantBuilder, QosPolicies, QosPolicyBuilder, TopicKind, policy};
+use serde::Serialize;
+use serde::de::DeserializeOwned;
 
-use crate::msgs::Activity;
+use isochron_shared::topology::StageKind;
+
+use crate::msgs::{Delivery, LinkStream, Message, Status};
 
 /// Highest DDS domain id whose RTPS ports fit in 16 bits.
 pub const MAX_DOMAIN_ID: u16 = 232;
@@ -134,60 +139,152 @@ impl LinkDds {
         })
     }
 
-    /// `<namespace>/<camera>/activity`.
-    pub fn activity_topic_name(&self, camera: &str) -> String {
-        format!("{}/{camera}/activity", self.namespace)
+    /// `<namespace>/<camera>/<suffix>`.
+    pub fn topic_name(&self, camera: &str, suffix: &str) -> String {
+        format!("{}/{camera}/{suffix}", self.namespace)
     }
 
-    fn activity_topic(&self, camera: &str) -> Result<rustdds::Topic, DdsError> {
-        let name = self.activity_topic_name(camera);
+    /// The node, for the publishers' matched-subscription counts.
+    pub fn node(&self) -> &Node {
+        &self.node
+    }
+
+    fn topic(
+        &self,
+        camera: &str,
+        suffix: &str,
+        msg: &str,
+        qos: &QosPolicies,
+    ) -> Result<rustdds::Topic, DdsError> {
+        let name = self.topic_name(camera, suffix);
         let dds = |detail: String| DdsError {
             domain: self.domain,
             detail,
         };
         let parsed = Name::parse(&name).map_err(|e| dds(format!("topic {name}: {e:?}")))?;
-        let qos = QosPolicyBuilder::new()
-            .reliability(policy::Reliability::BestEffort)
-            .durability(policy::Durability::Volatile)
-            .history(policy::History::KeepLast { depth: 1 })
-            .resource_limits(policy::ResourceLimits {
-                max_samples: 1,
-                max_instances: 1,
-                max_samples_per_instance: 1,
-            })
-            .build();
         self.context
             .domain_participant()
             .create_topic(
                 parsed.to_dds_name("rt", &self.node_name, ""),
-                MessageTypeName::new("isochron_msgs", "Activity").dds_msg_type(),
-                &qos,
+                MessageTypeName::new("isochron_msgs", msg).dds_msg_type(),
+                qos,
                 TopicKind::NoKey,
             )
             .map_err(|e| dds(format!("creating topic {name}: {e:?}")))
     }
 
-    /// A writer of `camera`'s activity.
-    pub fn publisher(&mut self, camera: &str) -> Result<Publisher<Activity>, DdsError> {
-        let topic = self.activity_topic(camera)?;
-        self.node
-            .create_publisher(&topic, None)
-            .map_err(|e| DdsError {
-                domain: self.domain,
-                detail: format!("creating the publisher of {camera}: {e:?}"),
-            })
+    fn writer<M: Serialize>(
+        &mut self,
+        camera: &str,
+        (suffix, msg): (&str, &str),
+        qos: QosPolicies,
+    ) -> Result<Publisher<M>, DdsError> {
+        let topic = self.topic(camera, suffix, msg, &qos)?;
+        patiently(|| self.node.create_publisher(&topic, None))
+            .map_err(|e| self.error(format!("creating the {suffix} writer of {camera}: {e:?}")))
     }
 
-    /// A reader of `camera`'s activity.
-    pub fn subscription(&mut self, camera: &str) -> Result<Subscription<Activity>, DdsError> {
-        let topic = self.activity_topic(camera)?;
-        self.node
-            .create_subscription(&topic, None)
-            .map_err(|e| DdsError {
-                domain: self.domain,
-                detail: format!("creating the subscription of {camera}: {e:?}"),
-            })
+    fn reader<M: DeserializeOwned + 'static>(
+        &mut self,
+        camera: &str,
+        (suffix, msg): (&str, &str),
+        qos: QosPolicies,
+    ) -> Result<Subscription<M>, DdsError> {
+        let topic = self.topic(camera, suffix, msg, &qos)?;
+        patiently(|| self.node.create_subscription(&topic, None))
+            .map_err(|e| self.error(format!("creating the {suffix} reader of {camera}: {e:?}")))
     }
+
+    /// A writer of stream `S` of `camera`; `queue` is the depth of a queued
+    /// stream's DDS history.
+    pub fn publisher<S: LinkStream>(
+        &mut self,
+        camera: &str,
+        queue: usize,
+    ) -> Result<Publisher<Message<S>>, DdsError> {
+        self.writer(camera, (S::SUFFIX, S::MSG), qos(S::DELIVERY, queue))
+    }
+
+    /// A reader of stream `S` of `camera`.
+    pub fn subscription<S: LinkStream>(
+        &mut self,
+        camera: &str,
+        queue: usize,
+    ) -> Result<Subscription<Message<S>>, DdsError> {
+        self.reader(camera, (S::SUFFIX, S::MSG), qos(S::DELIVERY, queue))
+    }
+
+    /// The writer of `camera`'s stages' status.
+    pub fn status_publisher(&mut self, camera: &str) -> Result<Publisher<Status>, DdsError> {
+        self.writer(camera, STATUS, status_qos())
+    }
+
+    /// The reader of `camera`'s stages' status.
+    pub fn status_subscription(&mut self, camera: &str) -> Result<Subscription<Status>, DdsError> {
+        self.reader(camera, STATUS, status_qos())
+    }
+
+    fn error(&self, detail: String) -> DdsError {
+        DdsError {
+            domain: self.domain,
+            detail,
+        }
+    }
+}
+
+/// Creates a DDS entity, waiting while RustDDS's event loop catches up: it takes
+/// new readers and writers through bounded channels (100 readers, 10 writers),
+/// which a link of a few hundred cameras fills at start ("sending on a full
+/// channel"). Gives up after 5 s.
+fn patiently<T, E: std::fmt::Debug>(mut create: impl FnMut() -> Result<T, E>) -> Result<T, E> {
+    let end = std::time::Instant::now() + std::time::Duration::from_secs(5);
+    loop {
+        match create() {
+            Err(e)
+                if format!("{e:?}").contains("full channel") && std::time::Instant::now() < end =>
+            {
+                std::thread::sleep(std::time::Duration::from_millis(10));
+            }
+            result => return result,
+        }
+    }
+}
+
+/// Topic suffix and message type of the status of a camera's stages.
+const STATUS: (&str, &str) = ("status", "Status");
+
+/// The QoS of a stream: latest-only is best effort, keep last 1; queued is
+/// reliable, keep last `queue`, at most `queue` unacknowledged samples, and a
+/// write into a full window fails at once (the link's own queue keeps the
+/// sample: a write never blocks the link).
+fn qos(delivery: Delivery, queue: usize) -> QosPolicies {
+    let depth = match delivery {
+        Delivery::Latest => 1,
+        Delivery::Queued => queue.max(1) as i32,
+    };
+    let reliability = match delivery {
+        Delivery::Latest => policy::Reliability::BestEffort,
+        Delivery::Queued => policy::Reliability::Reliable {
+            max_blocking_time: rustdds::Duration::ZERO,
+        },
+    };
+    QosPolicyBuilder::new()
+        .reliability(reliability)
+        .durability(policy::Durability::Volatile)
+        .history(policy::History::KeepLast { depth })
+        .resource_limits(policy::ResourceLimits {
+            max_samples: depth,
+            max_instances: 1,
+            max_samples_per_instance: depth,
+        })
+        .build()
+}
+
+/// Status: reliable and keep last one report per stage of a camera, so the
+/// reports of a camera's stages, sent together every few seconds, all arrive
+/// (latest-only per stage).
+fn status_qos() -> QosPolicies {
+    qos(Delivery::Queued, StageKind::ALL.len())
 }
 
 #[cfg(test)]

@@ -1,177 +1,141 @@
-//! `isochron_msgs/msg/Activity` and `BlockActivity` (ros/isochron_msgs/msg), as
-//! serde structs in the `.msg` field order, so that RustDDS writes the CDR every
-//! ROS 2 middleware reads (`ros2 topic echo` with the package built), and the
-//! conversion from and to the iceoryx2 wire types, which loses nothing.
+//! The messages between base stations: `isochron_msgs/msg/Activity`, `Event`,
+//! `Detections` and `Status` (ros/isochron_msgs/msg). Each is the box that sent
+//! it, the iceoryx2 header exactly as `shared/src/wire.rs` lays it out, and the
+//! payload: the wire types themselves derive serde, so this file adds no layout
+//! of its own and the crossing loses nothing (sequence, capture and origin times
+//! included). Serialised in field order they are the CDR every ROS 2 middleware
+//! reads (`ros2 topic echo` with the package built).
 
+use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
-use isochron_shared::wire::{
-    ActivityHeader, BlockActivity as WireBlock, CameraId, Preamble, Stream, WireError,
-};
+use isochron_shared::ipc::{Activity, Detections, Events, StreamType};
+use isochron_shared::wire::{CameraId, StageStatus, StreamHeader, WireError};
 
-/// `isochron_msgs/msg/BlockActivity`.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
-pub struct BlockActivity {
-    /// Short-term in-place activity.
-    pub s1: f32,
-    /// Short-term moving activity.
-    pub s2: f32,
-    /// In-place flow, x.
-    pub s1_dx: f32,
-    /// In-place flow, y.
-    pub s1_dy: f32,
-    /// Moving flow, x.
-    pub s2_dx: f32,
-    /// Moving flow, y.
-    pub s2_dy: f32,
-    /// Long-term mean at t*.
-    pub lt_mean: f32,
-    /// Long-term standard deviation at t*.
-    pub lt_sigma: f32,
+/// How a stream crosses: what DDS keeps and what the link's own queues keep.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Delivery {
+    /// Best effort, keep last 1: only the newest sample is worth sending, a lost
+    /// one is replaced by the next (activity, 1 Hz; status).
+    Latest,
+    /// Reliable, keep last `link.queue_messages`, with a bounded queue on each
+    /// side that drops the oldest and counts it (events, detections: each
+    /// record matters, but never at the cost of blocking a producer).
+    Queued,
 }
 
-/// `isochron_msgs/msg/Activity`: an `activity` sample's header and blocks.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct Activity {
+/// A stream that crosses between boxes: its topic suffix, ROS 2 message type
+/// and delivery.
+pub trait LinkStream:
+    StreamType<
+        Header: Serialize + DeserializeOwned,
+        Element: Serialize + DeserializeOwned + PartialEq,
+    > + 'static
+{
+    /// Topic `<namespace>/<camera>/<SUFFIX>`; also the stream's short name in
+    /// the link's status detail.
+    const SUFFIX: &'static str;
+    /// `isochron_msgs/msg/<MSG>`.
+    const MSG: &'static str;
+    /// How it crosses.
+    const DELIVERY: Delivery;
+}
+
+impl LinkStream for Activity {
+    const SUFFIX: &'static str = "activity";
+    const MSG: &'static str = "Activity";
+    const DELIVERY: Delivery = Delivery::Latest;
+}
+
+impl LinkStream for Events {
+    const SUFFIX: &'static str = "events";
+    const MSG: &'static str = "Event";
+    const DELIVERY: Delivery = Delivery::Queued;
+}
+
+impl LinkStream for Detections {
+    const SUFFIX: &'static str = "detections";
+    const MSG: &'static str = "Detections";
+    const DELIVERY: Delivery = Delivery::Queued;
+}
+
+/// One sample of stream `S` as it crosses: `Activity`, `Event` or `Detections`.
+#[derive(Serialize, Deserialize)]
+#[serde(bound = "")]
+pub struct Message<S: LinkStream> {
     /// The base station that sent it.
     pub box_id: String,
-    /// The camera.
-    pub camera: String,
-    /// The camera's activity sequence number.
-    pub sequence: u64,
-    /// Capture time (end of the second), UTC ns.
-    pub capture_time_ns: i64,
-    /// When capture published the originating frame, UTC ns.
-    pub origin_wall_ns: i64,
-    /// `FLAG_*` bits.
-    pub flags: u32,
-    /// Blocks per row.
-    pub grid_w: u32,
-    /// Block rows.
-    pub grid_h: u32,
-    /// Block edge, pixels.
-    pub block_px: u32,
-    /// Frame width, pixels.
-    pub frame_width: u32,
-    /// Frame height, pixels.
-    pub frame_height: u32,
-    /// Isochronal minute.
-    pub t_star: u32,
-    /// Days of long-term data at t*.
-    pub model_days: u32,
-    /// Frames in this second.
-    pub frames: u32,
-    /// Source index of the first frame.
-    pub first_source_index: u64,
-    /// Source index of the last frame.
-    pub last_source_index: u64,
-    /// Measured frame rate.
-    pub frame_rate: f32,
-    /// The blocks, row-major.
-    pub blocks: Vec<BlockActivity>,
+    /// The iceoryx2 header, as the exporting box's stage wrote it.
+    pub header: S::Header,
+    /// The payload: blocks, block indices or detections.
+    pub payload: Vec<S::Element>,
 }
 
-impl Activity {
-    /// The message of a (valid) activity sample sent by box `box_id`.
-    pub fn from_sample(box_id: &str, h: &ActivityHeader, blocks: &[WireBlock]) -> Activity {
-        let p = &h.preamble;
-        Activity {
+impl<S: LinkStream> Clone for Message<S> {
+    fn clone(&self) -> Self {
+        Message {
+            box_id: self.box_id.clone(),
+            header: self.header,
+            payload: self.payload.clone(),
+        }
+    }
+}
+
+impl<S: LinkStream> Message<S> {
+    /// The message of a (valid) sample sent by box `box_id`.
+    pub fn from_sample(box_id: &str, header: &S::Header, payload: &[S::Element]) -> Self {
+        Message {
             box_id: box_id.to_string(),
-            camera: p.camera.as_str().into_owned(),
-            sequence: p.sequence,
-            capture_time_ns: p.capture_time_ns,
-            origin_wall_ns: p.origin_wall_ns,
-            flags: p.flags,
-            grid_w: h.grid_w,
-            grid_h: h.grid_h,
-            block_px: h.block_px,
-            frame_width: h.frame_width,
-            frame_height: h.frame_height,
-            t_star: h.t_star,
-            model_days: h.model_days,
-            frames: h.frames,
-            first_source_index: h.first_source_index,
-            last_source_index: h.last_source_index,
-            frame_rate: h.frame_rate,
-            blocks: blocks
-                .iter()
-                .map(|b| BlockActivity {
-                    s1: b.s1,
-                    s2: b.s2,
-                    s1_dx: b.s1_dx,
-                    s1_dy: b.s1_dy,
-                    s2_dx: b.s2_dx,
-                    s2_dy: b.s2_dy,
-                    lt_mean: b.lt_mean,
-                    lt_sigma: b.lt_sigma,
-                })
-                .collect(),
+            header: *header,
+            payload: payload.to_vec(),
         }
     }
 
-    /// The iceoryx2 sample of this message for `camera`: the header as the
-    /// exporting box's cascade wrote it, validated like any received sample (a
-    /// message of another camera, or whose sizes disagree, is an error).
-    pub fn to_sample(
-        &self,
-        camera: &CameraId,
-    ) -> Result<(ActivityHeader, Vec<WireBlock>), WireError> {
-        let mut preamble = Preamble::new::<WireBlock>(
-            Stream::Activity,
-            CameraId::new(&self.camera).unwrap_or_default(),
-            self.sequence,
-            self.blocks.len(),
-        );
-        preamble.capture_time_ns = self.capture_time_ns;
-        preamble.origin_wall_ns = self.origin_wall_ns;
-        preamble.flags = self.flags;
-        let header = ActivityHeader {
-            preamble,
-            grid_w: self.grid_w,
-            grid_h: self.grid_h,
-            block_px: self.block_px,
-            frame_width: self.frame_width,
-            frame_height: self.frame_height,
-            t_star: self.t_star,
-            model_days: self.model_days,
-            frames: self.frames,
-            first_source_index: self.first_source_index,
-            last_source_index: self.last_source_index,
-            frame_rate: self.frame_rate,
-            reserved: 0,
-        };
-        header.validate(camera, self.blocks.len())?;
-        let blocks = self
-            .blocks
-            .iter()
-            .map(|b| WireBlock {
-                s1: b.s1,
-                s2: b.s2,
-                s1_dx: b.s1_dx,
-                s1_dy: b.s1_dy,
-                s2_dx: b.s2_dx,
-                s2_dy: b.s2_dy,
-                lt_mean: b.lt_mean,
-                lt_sigma: b.lt_sigma,
-            })
-            .collect();
-        Ok((header, blocks))
+    /// Checks the message as any received sample is checked: a message of
+    /// another camera, or whose sizes disagree, is an error.
+    pub fn validate(&self, camera: &CameraId) -> Result<(), WireError> {
+        self.header.validate(camera, self.payload.len())
     }
+}
 
-    /// Bytes of the message's serialised payload (little-endian CDR, without the
-    /// 4-byte encapsulation header and RTPS framing).
-    pub fn cdr_len(&self) -> usize {
-        cdr_encoding::to_vec::<_, byteorder::LittleEndian>(self).map_or(0, |v| v.len())
-    }
+/// `isochron_msgs/msg/Status`: one stage's latest [`StageStatus`] of an
+/// exported camera.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Status {
+    /// The base station that sent it.
+    pub box_id: String,
+    /// The stage's status as it published it on the exporting box.
+    pub status: StageStatus,
+}
+
+/// Bytes of a message's serialised payload (little-endian CDR, without the
+/// 4-byte encapsulation header and RTPS framing).
+pub fn cdr_len<M: Serialize>(msg: &M) -> usize {
+    cdr_encoding::to_vec::<_, byteorder::LittleEndian>(msg).map_or(0, |v| v.len())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use isochron_shared::wire::{
+        ActivityHeader, BlockActivity, Detection, DetectionHeader, EventHeader, Preamble, Stream,
+        to_fixed,
+    };
 
-    fn sample() -> (ActivityHeader, Vec<WireBlock>) {
-        let cam = CameraId::new("cam01").unwrap();
-        let mut p = Preamble::new::<WireBlock>(Stream::Activity, cam, 41, 6);
+    fn cam() -> CameraId {
+        CameraId::new("cam01").unwrap()
+    }
+
+    fn round_trip<M: Serialize + DeserializeOwned>(msg: &M) -> M {
+        let bytes = cdr_encoding::to_vec::<_, byteorder::LittleEndian>(msg).unwrap();
+        assert_eq!(cdr_len(msg), bytes.len());
+        cdr_encoding::from_bytes::<M, byteorder::LittleEndian>(&bytes)
+            .unwrap()
+            .0
+    }
+
+    fn activity() -> Message<Activity> {
+        let mut p = Preamble::new::<BlockActivity>(Stream::Activity, cam(), 41, 6);
         p.capture_time_ns = 1_700_000_000_123_456_789;
         p.origin_wall_ns = 1_700_000_000_200_000_000;
         let h = ActivityHeader {
@@ -189,41 +153,118 @@ mod tests {
             frame_rate: 10.0,
             reserved: 0,
         };
-        let blocks = (0..6)
-            .map(|k| WireBlock {
+        let blocks: Vec<BlockActivity> = (0..6)
+            .map(|k| BlockActivity {
                 s1: k as f32,
                 s2: 0.5,
                 lt_sigma: 0.25,
                 ..Default::default()
             })
             .collect();
-        (h, blocks)
+        Message::from_sample("box_a", &h, &blocks)
     }
 
     #[test]
-    fn a_sample_crosses_unchanged() {
-        let (h, blocks) = sample();
-        let msg = Activity::from_sample("box_a", &h, &blocks);
-        let bytes = cdr_encoding::to_vec::<_, byteorder::LittleEndian>(&msg).unwrap();
-        let (back, _): (Activity, usize) =
-            cdr_encoding::from_bytes::<Activity, byteorder::LittleEndian>(&bytes).unwrap();
-        assert_eq!(back, msg);
-        let (h2, b2) = back.to_sample(&CameraId::new("cam01").unwrap()).unwrap();
-        assert_eq!(b2, blocks);
-        assert_eq!(h2.preamble.sequence, 41);
-        assert_eq!(h2.preamble.capture_time_ns, h.preamble.capture_time_ns);
-        assert_eq!(h2.preamble.origin_wall_ns, h.preamble.origin_wall_ns);
-        assert_eq!((h2.t_star, h2.last_source_index), (660, 109));
-        assert_eq!(msg.cdr_len(), bytes.len());
+    fn activity_crosses_unchanged() {
+        let msg = activity();
+        let back = round_trip(&msg);
+        back.validate(&cam()).unwrap();
+        assert_eq!(back.payload, msg.payload);
+        let (p, q) = (&back.header.preamble, &msg.header.preamble);
+        assert_eq!(p.sequence, 41);
+        assert_eq!(p.capture_time_ns, q.capture_time_ns);
+        assert_eq!(p.origin_wall_ns, q.origin_wall_ns);
+        assert_eq!(
+            (back.header.t_star, back.header.last_source_index),
+            (660, 109)
+        );
+        // The CDR of the `.msg` files: "box_a" (4 + 6 B, padded to 12), the
+        // preamble (76 B: a 24-byte camera, aligned 64-bit fields), the activity
+        // fields (56 B), the blocks' count and 6 blocks of 32 B.
+        assert_eq!(cdr_len(&msg), 12 + 76 + 56 + 4 + 6 * 32);
+    }
+
+    #[test]
+    fn events_detections_and_status_cross_unchanged() {
+        let mut p = Preamble::new::<u32>(Stream::Events, cam(), 7, 2);
+        p.capture_time_ns = 5;
+        let ev = EventHeader {
+            preamble: p,
+            event_id: 3,
+            zone: to_fixed("door"),
+            kind: 1,
+            phase: 2,
+            start_ns: 1,
+            end_ns: 5,
+            start_frame: 10,
+            end_frame: 50,
+            peak: 2.5,
+            threshold: 1.0,
+        };
+        let msg = Message::<Events>::from_sample("box_a", &ev, &[4, 9]);
+        let back = round_trip(&msg);
+        back.validate(&cam()).unwrap();
+        assert_eq!(back.header.zone_name(), "door");
+        assert_eq!(
+            (back.header.preamble.sequence, back.payload),
+            (7, vec![4, 9])
+        );
+
+        let p = Preamble::new::<Detection>(Stream::Detections, cam(), 9, 1);
+        let det = DetectionHeader {
+            preamble: p,
+            event_id: 3,
+            roi_w: 20,
+            ..Default::default()
+        };
+        let person = Detection {
+            x: 1.0,
+            w: 4.0,
+            score: 0.9,
+            ..Default::default()
+        };
+        let msg = Message::<Detections>::from_sample("box_a", &det, &[person]);
+        let back = round_trip(&msg);
+        back.validate(&cam()).unwrap();
+        assert_eq!((back.header.roi_w, back.payload), (20, vec![person]));
+
+        let mut status = StageStatus {
+            magic: isochron_shared::wire::MAGIC,
+            layout_version: isochron_shared::wire::LAYOUT_VERSION,
+            reserved: 0,
+            camera: cam(),
+            stage: to_fixed("gate"),
+            pid: 12,
+            rate_in: 1.0,
+            started_wall_ns: 1,
+            report_wall_ns: 2,
+            received: 3,
+            sent: 4,
+            dropped: 5,
+            rejected: 6,
+            rate_out: 7.0,
+            stage_latency_ms: 8.0,
+            e2e_latency_p50_ms: 9.0,
+            e2e_latency_p99_ms: 10.0,
+            detail: [0; isochron_shared::wire::STATUS_DETAIL_LEN],
+        };
+        status.detail[..5].copy_from_slice(b"a=1 b");
+        let back = round_trip(&Status {
+            box_id: "box_a".into(),
+            status,
+        })
+        .status;
+        back.validate().unwrap();
+        assert_eq!(back.detail, status.detail);
+        assert_eq!((back.dropped, back.e2e_latency_p99_ms), (5, 10.0));
     }
 
     #[test]
     fn a_message_of_another_camera_or_size_is_refused() {
-        let (h, blocks) = sample();
-        let msg = Activity::from_sample("box_a", &h, &blocks);
-        assert!(msg.to_sample(&CameraId::new("cam02").unwrap()).is_err());
+        let msg = activity();
+        assert!(msg.validate(&CameraId::new("cam02").unwrap()).is_err());
         let mut short = msg.clone();
-        short.blocks.pop();
-        assert!(short.to_sample(&CameraId::new("cam01").unwrap()).is_err());
+        short.payload.pop();
+        assert!(short.validate(&cam()).is_err());
     }
 }

@@ -1,71 +1,311 @@
-//! The link's stage: exported cameras' `activity` → DDS, DDS → imported cameras'
-//! `activity` in this box's iceoryx2 services.
+//! The link's stage: exported cameras' small streams → DDS, DDS → imported
+//! cameras' streams in this box's iceoryx2 services.
 //!
-//! * Export: every wake takes the newest sample of each woken camera (latest-only:
-//!   an older one still waiting is counted as dropped) and publishes it.
-//! * Import: every tick ([`POLL`]) takes what DDS received for each imported camera
-//!   and publishes it with the remote header unchanged — sequence, capture and
-//!   origin times — so the bridge, `tap` and `status` see a local camera and
-//!   measure gaps and latency end to end. A link that stops receiving writes
-//!   nothing: the bridge's `costmap.stale_s` then turns the camera's cells unknown.
+//! * Export: every wake takes what each exported camera's `activity`, `events`
+//!   and `detections` inputs hold. Activity is latest-only (an older sample still
+//!   waiting is counted as dropped); events and detections go into a bounded
+//!   queue per camera and stream (`link.queue_messages`) that drops its oldest
+//!   message when full and counts it. A queue is sent while a reader is matched
+//!   and DDS's reliable window has room; what does not fit waits for the next
+//!   pass, so a write never blocks the link. Every tick also sends each stage's
+//!   status when it reported anew.
+//! * Import: every tick ([`POLL`]) takes what DDS received for each imported
+//!   camera (DDS's keep-last history is the importing side's bounded queue) and
+//!   publishes it with the remote header unchanged — sequence, capture and
+//!   origin times — so the bridge, `tap`, `status` and the exporter see a local
+//!   camera and measure gaps and latency end to end. A sequence gap (a record
+//!   dropped on either side or lost on the way) is counted. A link that stops
+//!   receiving writes nothing: the bridge's `costmap.stale_s` then turns the
+//!   camera's cells unknown.
+//!
+//! The status detail counts per stream across cameras (`act`, `ev`, `det`,
+//! `st`): `<s>_out` sent, `<s>_in` received; for events and detections also
+//! `<s>_drop`, dropped on this box before sending (a full queue, or lost in
+//! its iceoryx2 buffer), and `<s>_gap`, missing in the received sequences (dropped
+//! on the exporting box, or lost in this box's DDS history).
 
+use std::collections::{HashMap, VecDeque};
 use std::net::IpAddr;
 use std::time::{Duration, Instant};
 
-use ros2_client::dds::{Publisher, Subscription};
+use ros2_client::WriteError;
+use ros2_client::dds::{Node, Publisher, Subscription};
 
 use isochron_shared::config::LoadedConfig;
-use isochron_shared::ipc::{Activity as ActivityStream, Ipc};
+use isochron_shared::ipc::{Activity, Detections, Events, Ipc, StatusPublisher, StatusSubscriber};
 use isochron_shared::service::Fatal;
 use isochron_shared::stage::{Context, Input, Output, Stage, Woken};
 use isochron_shared::topology::StageKind;
-use isochron_shared::wire::CameraId;
+use isochron_shared::wire::{CameraId, StreamHeader, fixed_str};
 
 use crate::dds::{LinkDds, domain_id};
-use crate::msgs::Activity;
+use crate::msgs::{Delivery, LinkStream, Message, Status, cdr_len};
 
-/// How often the DDS readers are polled: a second's activity waits at most this
-/// long on the importing box.
+/// How often the DDS readers are polled: a message waits at most this long on
+/// the importing box.
 pub const POLL: Duration = Duration::from_millis(20);
 
-/// Messages one reader yields per tick (more wait for the next tick).
-const TAKE_PER_TICK: usize = 16;
+/// The stages whose status crosses with a camera.
+fn camera_stages() -> impl Iterator<Item = StageKind> {
+    StageKind::ALL.into_iter().filter(|s| s.per_camera())
+}
 
-/// One exported camera: what was sent.
+/// What one stream of one camera did.
+#[derive(Debug, Default, Clone, Copy)]
+struct Counts {
+    /// Messages sent (export) or written into iceoryx2 (import).
+    messages: u64,
+    /// Bytes of CDR sent.
+    bytes: u64,
+    /// Dropped before sending: a full queue, a newer activity, a gap upstream.
+    dropped: u64,
+    /// Missing in the received sequence.
+    gaps: u64,
+    /// Failed writes.
+    errors: u64,
+}
+
+impl std::ops::AddAssign for Counts {
+    fn add_assign(&mut self, o: Counts) {
+        self.messages += o.messages;
+        self.bytes += o.bytes;
+        self.dropped += o.dropped;
+        self.gaps += o.gaps;
+        self.errors += o.errors;
+    }
+}
+
+/// Counts gaps in a received sequence; a sequence going backwards is a
+/// restarted publisher, not a loss.
+fn gap(last: &mut Option<u64>, sequence: u64) -> u64 {
+    let missing = match *last {
+        Some(l) if sequence > l + 1 => sequence - l - 1,
+        _ => 0,
+    };
+    *last = Some(sequence);
+    missing
+}
+
+/// One exported stream of one camera.
+struct ExportLane<S: LinkStream> {
+    writer: Publisher<Message<S>>,
+    queue: VecDeque<Message<S>>,
+    last_sequence: Option<u64>,
+    counts: Counts,
+}
+
+impl<S: LinkStream> ExportLane<S> {
+    fn new(dds: &mut LinkDds, camera: &str, queue: usize) -> Result<Self, Fatal> {
+        Ok(ExportLane {
+            writer: dds.publisher::<S>(camera, queue)?,
+            queue: VecDeque::new(),
+            last_sequence: None,
+            counts: Counts::default(),
+        })
+    }
+
+    /// Moves what `input` holds into the queue (latest-only: one; queued: up to
+    /// `cap`), counting what is dropped.
+    fn take(&mut self, box_id: &str, input: &Input<S>, cap: usize, cx: &mut Context) {
+        let cap = match S::DELIVERY {
+            Delivery::Latest => 1,
+            Delivery::Queued => cap,
+        };
+        while let Some(sample) = input.next(cx) {
+            if sample.is_end_of_stream() {
+                continue;
+            }
+            // Lost upstream (a full iceoryx2 buffer): counted by the input as
+            // dropped in the health, and here per stream.
+            let header = sample.header();
+            self.counts.dropped += gap(&mut self.last_sequence, header.preamble().sequence);
+            if self.queue.len() >= cap {
+                self.queue.pop_front();
+                self.counts.dropped += 1;
+                cx.health.dropped(1);
+            }
+            self.queue
+                .push_back(Message::from_sample(box_id, header, sample.payload()));
+        }
+    }
+
+    /// Sends the queue: all of it while DDS takes it; a queued stream only while
+    /// a reader is matched (else it waits, bounded).
+    fn send(&mut self, node: &Node, camera: &str, cx: &mut Context) {
+        if self.queue.is_empty()
+            || (S::DELIVERY == Delivery::Queued && self.writer.get_subscription_count(node) == 0)
+        {
+            return;
+        }
+        while let Some(msg) = self.queue.pop_front() {
+            let (bytes, origin) = (cdr_len(&msg) as u64, msg.header.preamble().origin_wall_ns);
+            match self.writer.publish(msg) {
+                Ok(()) => {
+                    self.counts.messages += 1;
+                    self.counts.bytes += bytes;
+                    cx.health.sent(None, origin);
+                }
+                Err(WriteError::WouldBlock { data }) => {
+                    // The reliable window is full: the rest waits for acks.
+                    self.queue.push_front(data);
+                    break;
+                }
+                Err(e) => {
+                    self.counts.errors += 1;
+                    let e = e.to_string();
+                    cx.warnings.warn("publish", || {
+                        format!("publishing {camera}'s {}: {e}", S::SUFFIX)
+                    });
+                }
+            }
+        }
+    }
+}
+
+/// One exported camera: its streams and its stages' status.
 struct Export {
     camera: String,
-    writer: Publisher<Activity>,
-    messages: u64,
-    bytes: u64,
-    errors: u64,
+    activity: ExportLane<Activity>,
+    events: ExportLane<Events>,
+    detections: ExportLane<Detections>,
+    status_in: Vec<(StatusSubscriber, i64)>,
+    status_out: Publisher<Status>,
+    status: Counts,
+}
+
+/// One imported stream of one camera.
+struct ImportLane<'ipc, S: LinkStream> {
+    reader: Subscription<Message<S>>,
+    output: Output<'ipc, S>,
+    last_sequence: Option<u64>,
+    counts: Counts,
+}
+
+impl<'ipc, S: LinkStream> ImportLane<'ipc, S> {
+    fn new(dds: &mut LinkDds, ipc: &'ipc Ipc, camera: &str, queue: usize) -> Result<Self, Fatal> {
+        Ok(ImportLane {
+            reader: dds.subscription::<S>(camera, queue)?,
+            output: Output::new(ipc, camera),
+            last_sequence: None,
+            counts: Counts::default(),
+        })
+    }
+
+    /// Publishes what DDS received (at most `limit` messages this tick).
+    fn receive(
+        &mut self,
+        camera: &str,
+        id: &CameraId,
+        limit: usize,
+        cx: &mut Context,
+    ) -> Result<bool, Fatal> {
+        let mut any = false;
+        for _ in 0..limit {
+            let msg = match self.reader.take() {
+                Ok(Some((msg, _info))) => msg,
+                Ok(None) => break,
+                Err(e) => {
+                    cx.health.rejected();
+                    cx.warnings.warn("read", || {
+                        format!("an unreadable {} message of {camera}: {e:?}", S::SUFFIX)
+                    });
+                    continue;
+                }
+            };
+            let arrived = Instant::now();
+            if let Err(e) = msg.validate(id) {
+                cx.health.rejected();
+                cx.warnings.warn("header", || {
+                    format!(
+                        "rejected {} of {camera} from box '{}': {e}",
+                        S::SUFFIX,
+                        msg.box_id
+                    )
+                });
+                continue;
+            }
+            cx.health.read_one();
+            let missing = gap(&mut self.last_sequence, msg.header.preamble().sequence);
+            self.counts.gaps += missing;
+            cx.health.dropped(missing);
+            let origin = msg.header.preamble().origin_wall_ns;
+            self.output.send_copy(msg.header, &msg.payload)?;
+            self.counts.messages += 1;
+            any = true;
+            cx.health.sent(Some(arrived), origin);
+        }
+        Ok(any)
+    }
 }
 
 /// One imported camera.
 struct Import<'ipc> {
     camera: String,
     id: CameraId,
-    reader: Subscription<Activity>,
-    output: Output<'ipc, ActivityStream>,
-    messages: u64,
+    activity: ImportLane<'ipc, Activity>,
+    events: ImportLane<'ipc, Events>,
+    detections: ImportLane<'ipc, Detections>,
+    status_in: Subscription<Status>,
+    status_out: HashMap<StageKind, StatusPublisher>,
+    status: Counts,
     last: Option<Instant>,
 }
 
+impl Import<'_> {
+    /// Writes the remote stages' status into this box's status services.
+    fn receive_status(&mut self, ipc: &Ipc, cx: &mut Context) {
+        while let Ok(Some((msg, _))) = self.status_in.take() {
+            let s = msg.status;
+            let stage = StageKind::from_name(&fixed_str(&s.stage)).filter(|k| k.per_camera());
+            let Some(stage) = stage.filter(|_| s.validate().is_ok() && s.camera == self.id) else {
+                cx.health.rejected();
+                continue;
+            };
+            self.status.messages += 1;
+            if !self.status_out.contains_key(&stage) {
+                match ipc.status_publisher(&self.camera, stage) {
+                    Ok(p) => {
+                        self.status_out.insert(stage, p);
+                    }
+                    Err(e) => {
+                        cx.warnings.warn("status", || e.to_string());
+                        continue;
+                    }
+                }
+            }
+            if let Err(e) = self.status_out[&stage].publish(s) {
+                cx.warnings.warn("status", || e.to_string());
+            }
+        }
+        // A reader (`isochron status`) that came since gets the latest at once.
+        self.status_out
+            .values()
+            .for_each(StatusPublisher::update_connections);
+    }
+}
+
+/// The inputs of the exported cameras, in `link.export` order.
+pub type LinkInputs = (
+    Vec<Input<Activity>>,
+    Vec<Input<Events>>,
+    Vec<Input<Detections>>,
+);
+
 /// The link of one box.
 pub struct LinkStage<'ipc> {
+    ipc: &'ipc Ipc,
     box_id: String,
+    queue: usize,
     exports: Vec<Export>,
     imports: Vec<Import<'ipc>>,
     started: Instant,
-    _dds: LinkDds,
+    dds: LinkDds,
 }
 
 impl<'ipc> LinkStage<'ipc> {
-    /// Joins DDS as `[link]` says and opens the exported cameras' activity inputs
-    /// (in `link.export` order).
-    pub fn open(
-        ipc: &'ipc Ipc,
-        loaded: &LoadedConfig,
-    ) -> Result<(Self, Vec<Input<ActivityStream>>), Fatal> {
+    /// Joins DDS as `[link]` says and opens the exported cameras' inputs (in
+    /// `link.export` order).
+    pub fn open(ipc: &'ipc Ipc, loaded: &LoadedConfig) -> Result<(Self, LinkInputs), Fatal> {
         let link = &loaded.config.link;
         if !link.is_enabled() {
             tracing::warn!(
@@ -78,33 +318,46 @@ impl<'ipc> LinkStage<'ipc> {
             .iter()
             .filter_map(|a| a.parse().ok())
             .collect();
+        let queue = link.queue_messages();
         let mut dds = LinkDds::start(domain, &interfaces, &link.box_id, link.namespace())?;
         let mut exports = Vec::new();
-        let mut inputs = Vec::new();
+        let mut inputs: LinkInputs = Default::default();
         for camera in &link.export {
+            let mut status_in = Vec::new();
+            for stage in camera_stages() {
+                status_in.push((ipc.status_subscriber(camera, stage)?, 0));
+            }
             exports.push(Export {
                 camera: camera.clone(),
-                writer: dds.publisher(camera)?,
-                messages: 0,
-                bytes: 0,
-                errors: 0,
+                activity: ExportLane::new(&mut dds, camera, queue)?,
+                events: ExportLane::new(&mut dds, camera, queue)?,
+                detections: ExportLane::new(&mut dds, camera, queue)?,
+                status_in,
+                status_out: dds.status_publisher(camera)?,
+                status: Counts::default(),
             });
-            inputs.push(Input::open(ipc, camera)?);
+            inputs.0.push(Input::open(ipc, camera)?);
+            inputs.1.push(Input::open(ipc, camera)?);
+            inputs.2.push(Input::open(ipc, camera)?);
         }
         let mut imports = Vec::new();
         for camera in &link.import {
             imports.push(Import {
                 camera: camera.clone(),
                 id: CameraId::new(camera).unwrap_or_default(),
-                reader: dds.subscription(camera)?,
-                output: Output::new(ipc, camera),
-                messages: 0,
+                activity: ImportLane::new(&mut dds, ipc, camera, queue)?,
+                events: ImportLane::new(&mut dds, ipc, camera, queue)?,
+                detections: ImportLane::new(&mut dds, ipc, camera, queue)?,
+                status_in: dds.status_subscription(camera)?,
+                status_out: HashMap::new(),
+                status: Counts::default(),
                 last: None,
             });
         }
         tracing::info!(
             box_id = %link.box_id,
             domain,
+            queue_messages = queue,
             "link up: exports [{}] imports [{}] under {}",
             link.export.join(", "),
             link.import.join(", "),
@@ -112,99 +365,116 @@ impl<'ipc> LinkStage<'ipc> {
         );
         Ok((
             LinkStage {
+                ipc,
                 box_id: link.box_id.clone(),
+                queue,
                 exports,
                 imports,
                 started: Instant::now(),
-                _dds: dds,
+                dds,
             },
             inputs,
         ))
     }
+
+    fn send_queues(&mut self, cx: &mut Context) {
+        let node = self.dds.node();
+        for e in &mut self.exports {
+            e.activity.send(node, &e.camera, cx);
+            e.events.send(node, &e.camera, cx);
+            e.detections.send(node, &e.camera, cx);
+        }
+    }
+
+    /// Sends each exported stage's status that is newer than the last sent.
+    fn send_status(&mut self, cx: &mut Context) {
+        for e in &mut self.exports {
+            for (reader, last_ns) in &mut e.status_in {
+                let Some(status) = reader.latest().filter(|s| s.report_wall_ns > *last_ns) else {
+                    continue;
+                };
+                *last_ns = status.report_wall_ns;
+                let msg = Status {
+                    box_id: self.box_id.clone(),
+                    status,
+                };
+                let bytes = cdr_len(&msg) as u64;
+                match e.status_out.publish(msg) {
+                    Ok(()) => {
+                        e.status.messages += 1;
+                        e.status.bytes += bytes;
+                    }
+                    Err(err) => {
+                        e.status.errors += 1;
+                        cx.warnings.warn("publish", || {
+                            format!("publishing {}'s status: {err:?}", e.camera)
+                        });
+                    }
+                }
+            }
+        }
+    }
+
+    /// Totals per stream over the exports and the imports.
+    fn totals(&self) -> ([Counts; 4], [Counts; 4]) {
+        let (mut out, mut inc) = ([Counts::default(); 4], [Counts::default(); 4]);
+        for e in &self.exports {
+            out[0] += e.activity.counts;
+            out[1] += e.events.counts;
+            out[2] += e.detections.counts;
+            out[3] += e.status;
+        }
+        for i in &self.imports {
+            inc[0] += i.activity.counts;
+            inc[1] += i.events.counts;
+            inc[2] += i.detections.counts;
+            inc[3] += i.status;
+        }
+        (out, inc)
+    }
 }
 
+/// Short names of the streams in the status detail.
+const SHORT: [&str; 4] = ["act", "ev", "det", "st"];
+/// The queued streams among them (whose drops and gaps the detail shows).
+const QUEUED: [usize; 2] = [1, 2];
+
 impl Stage for LinkStage<'_> {
-    type Inputs = Vec<Input<ActivityStream>>;
+    type Inputs = LinkInputs;
     const KIND: StageKind = StageKind::Link;
 
     fn on_wake(
         &mut self,
         inputs: &Self::Inputs,
-        woken: &Woken,
+        _woken: &Woken,
         cx: &mut Context,
     ) -> Result<(), Fatal> {
-        for (k, (input, export)) in inputs.iter().zip(&mut self.exports).enumerate() {
-            if !woken.contains(k) {
-                continue;
-            }
-            let mut newest = None;
-            while let Some(sample) = input.next(cx) {
-                if sample.is_end_of_stream() {
-                    continue;
-                }
-                if newest.is_some() {
-                    cx.health.dropped(1);
-                }
-                newest = Some(Activity::from_sample(
-                    &self.box_id,
-                    sample.header(),
-                    sample.payload(),
-                ));
-            }
-            let Some(msg) = newest else { continue };
-            let (bytes, origin) = (msg.cdr_len() as u64, msg.origin_wall_ns);
-            match export.writer.publish(msg) {
-                Ok(()) => {
-                    export.messages += 1;
-                    export.bytes += bytes;
-                    cx.health.sent(None, origin);
-                }
-                Err(e) => {
-                    export.errors += 1;
-                    cx.warnings.warn("publish", || {
-                        format!("publishing {}'s activity: {e:?}", export.camera)
-                    });
-                }
-            }
+        let (activity, events, detections) = inputs;
+        for (k, e) in self.exports.iter_mut().enumerate() {
+            e.activity.take(&self.box_id, &activity[k], self.queue, cx);
+            e.events.take(&self.box_id, &events[k], self.queue, cx);
+            e.detections
+                .take(&self.box_id, &detections[k], self.queue, cx);
         }
+        self.send_queues(cx);
         Ok(())
     }
 
     fn on_tick(&mut self, cx: &mut Context) -> Result<(), Fatal> {
+        // Queues that waited for a reader or for acknowledgements.
+        self.send_queues(cx);
+        self.send_status(cx);
+        // A tick takes at most what DDS keeps: a full history's worth.
+        let limit = self.queue.max(16);
         for import in &mut self.imports {
-            for _ in 0..TAKE_PER_TICK {
-                let msg = match import.reader.take() {
-                    Ok(Some((msg, _info))) => msg,
-                    Ok(None) => break,
-                    Err(e) => {
-                        cx.health.rejected();
-                        cx.warnings.warn("read", || {
-                            format!("an unreadable message of {}: {e:?}", import.camera)
-                        });
-                        continue;
-                    }
-                };
-                let arrived = Instant::now();
-                cx.health.received(msg.sequence);
-                let (header, blocks) = match msg.to_sample(&import.id) {
-                    Ok(s) => s,
-                    Err(e) => {
-                        cx.health.rejected();
-                        cx.warnings.warn("header", || {
-                            format!(
-                                "rejected activity of {} from box '{}': {e}",
-                                import.camera, msg.box_id
-                            )
-                        });
-                        continue;
-                    }
-                };
-                import.output.send_copy(header, &blocks)?;
-                import.messages += 1;
-                import.last = Some(arrived);
-                cx.health
-                    .sent(Some(arrived), header.preamble.origin_wall_ns);
+            let (camera, id) = (&import.camera, &import.id);
+            let mut any = import.activity.receive(camera, id, limit, cx)?;
+            any |= import.events.receive(camera, id, limit, cx)?;
+            any |= import.detections.receive(camera, id, limit, cx)?;
+            if any {
+                import.last = Some(Instant::now());
             }
+            import.receive_status(self.ipc, cx);
         }
         Ok(())
     }
@@ -212,20 +482,29 @@ impl Stage for LinkStage<'_> {
     fn on_stop(&mut self, _cx: &mut Context) -> Result<(), Fatal> {
         let secs = self.started.elapsed().as_secs_f64().max(1e-3);
         for e in &self.exports {
-            tracing::info!(
-                "exported {}: {} messages, {} bytes of CDR ({} B/message), {:.0} B/s over {secs:.1} s",
-                e.camera,
-                e.messages,
-                e.bytes,
-                e.bytes / e.messages.max(1),
-                e.bytes as f64 / secs
-            );
+            let lanes = [
+                ("activity", e.activity.counts),
+                ("events", e.events.counts),
+                ("detections", e.detections.counts),
+                ("status", e.status),
+            ];
+            for (stream, c) in lanes {
+                tracing::info!(
+                    "exported {} {stream}: {} messages, {} bytes of CDR ({} B/message), {:.0} B/s over {secs:.1} s, {} dropped",
+                    e.camera,
+                    c.messages,
+                    c.bytes,
+                    c.bytes / c.messages.max(1),
+                    c.bytes as f64 / secs,
+                    c.dropped
+                );
+            }
         }
         Ok(())
     }
 
     fn timer(&self) -> Duration {
-        if self.imports.is_empty() {
+        if self.imports.is_empty() && self.exports.is_empty() {
             isochron_shared::stage::IDLE_TICK
         } else {
             POLL
@@ -233,32 +512,29 @@ impl Stage for LinkStage<'_> {
     }
 
     fn detail(&self) -> String {
-        let now = Instant::now();
-        let exported: Vec<String> = self
-            .exports
-            .iter()
-            .map(|e| {
-                format!(
-                    "{}:msgs={},bytes={},errors={}",
-                    e.camera, e.messages, e.bytes, e.errors
-                )
-            })
-            .collect();
-        let imported: Vec<String> = self
-            .imports
-            .iter()
-            .map(|i| {
-                let age = i.last.map_or("never".to_string(), |t| {
-                    format!("{:.1}s", now.duration_since(t).as_secs_f64())
-                });
-                format!("{}:msgs={},last={age}", i.camera, i.messages)
-            })
-            .collect();
-        format!(
-            "box={} export=[{}] import=[{}]",
-            self.box_id,
-            exported.join(" "),
-            imported.join(" ")
-        )
+        // Kept short: a status detail holds 160 bytes.
+        let (out, inc) = self.totals();
+        let mut d = format!("box={}", self.box_id);
+        if !self.exports.is_empty() {
+            for (k, (name, c)) in SHORT.iter().zip(out).enumerate() {
+                d += &format!(" {name}_out={}", c.messages);
+                if QUEUED.contains(&k) {
+                    d += &format!(" {name}_drop={}", c.dropped);
+                }
+            }
+        }
+        if !self.imports.is_empty() {
+            for (k, (name, c)) in SHORT.iter().zip(inc).enumerate() {
+                d += &format!(" {name}_in={}", c.messages);
+                if QUEUED.contains(&k) {
+                    d += &format!(" {name}_gap={}", c.gaps);
+                }
+            }
+        }
+        let errors: u64 = out.iter().map(|c| c.errors).sum();
+        if errors > 0 {
+            d += &format!(" err={errors}");
+        }
+        d
     }
 }

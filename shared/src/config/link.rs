@@ -28,7 +28,16 @@ pub struct LinkConfig {
     /// ROS 2 namespace of the link's topics: `<namespace>/<camera>/activity`.
     /// Default `/isochron/link`.
     pub namespace: Option<String>,
+    /// Events and detections (records, not latest-only): messages each side of
+    /// the link holds per camera and stream when the other side or the network
+    /// is slow or away (the DDS history depth and each side's queue). When a
+    /// queue is full its oldest message is dropped and counted in the link's
+    /// status. Default 64.
+    pub queue_messages: Option<usize>,
 }
+
+/// The default `link.queue_messages`.
+pub const DEFAULT_QUEUE_MESSAGES: usize = 64;
 
 /// The default topic namespace.
 pub const DEFAULT_LINK_NAMESPACE: &str = "/isochron/link";
@@ -44,6 +53,11 @@ impl LinkConfig {
     /// The namespace of the link's topics.
     pub fn namespace(&self) -> &str {
         self.namespace.as_deref().unwrap_or(DEFAULT_LINK_NAMESPACE)
+    }
+
+    /// Messages of each queued stream a side holds (`link.queue_messages`).
+    pub fn queue_messages(&self) -> usize {
+        self.queue_messages.unwrap_or(DEFAULT_QUEUE_MESSAGES)
     }
 
     /// True if the link has anything to do.
@@ -100,6 +114,9 @@ impl LinkConfig {
                     format!("camera \"{id}\" is both exported and imported: expected one"),
                 ));
             }
+        }
+        if let Some(q) = self.queue_messages {
+            check_range("link.queue_messages", q as f64, 1.0, 10_000.0)?;
         }
         if let Some(d) = self.ros_domain_id {
             check_range("link.ros_domain_id", d as f64, 0.0, 232.0)?;

@@ -315,4 +315,8 @@ fn link_sections_are_checked_with_line_and_key() {
 
     let err = link("namespace = \"isochron/link\"").unwrap_err();
     assert_eq!(err.key.as_deref(), Some("link.namespace"));
+
+    assert_eq!(parse(GOOD).unwrap().link.queue_messages(), 64);
+    let err = link("queue_messages = 0").unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("link.queue_messages"));
 }
