@@ -17,12 +17,13 @@ use isochron_shared::ipc::{Ipc, StreamSubscriber, StreamType};
 use isochron_shared::names::ServiceNames;
 use isochron_shared::wire::{CameraId, StreamHeader};
 
-/// The directory holding the built binaries (`target/<profile>`).
+/// The directory holding the built binaries: `$ISOCHRON_BIN_DIR`, else
+/// `target/<profile>` of the test or bench that calls it.
 pub fn bin_dir() -> PathBuf {
     if let Some(dir) = std::env::var_os("ISOCHRON_BIN_DIR") {
         return PathBuf::from(dir);
     }
-    // target/<profile>/deps/<test-binary>
+    // target/<profile>/deps/<test or bench binary>
     let exe = std::env::current_exe().expect("test binary path");
     exe.parent()
         .and_then(Path::parent)
