@@ -17,12 +17,13 @@ use isochron_shared::ipc::{Ipc, StreamSubscriber, StreamType};
 use isochron_shared::names::ServiceNames;
 use isochron_shared::wire::{CameraId, StreamHeader};
 
-/// The directory holding the built binaries (`target/<profile>`).
+/// The directory holding the built binaries: `$ISOCHRON_BIN_DIR`, else
+/// `target/<profile>` of the test or bench that calls it.
 pub fn bin_dir() -> PathBuf {
     if let Some(dir) = std::env::var_os("ISOCHRON_BIN_DIR") {
         return PathBuf::from(dir);
     }
-    // target/<profile>/deps/<test-binary>
+    // target/<profile>/deps/<test or bench binary>
     let exe = std::env::current_exe().expect("test binary path");
     exe.parent()
         .and_then(Path::parent)
@@ -138,13 +139,20 @@ impl TestSite {
         )
     }
 
-    /// A site replaying vtest.avi as cam01 at full speed from `start`, losslessly:
-    /// a subscriber made before the producer starts gets every sample.
-    pub fn lossless_vtest(name: &str, start: &str) -> TestSite {
-        TestSite::new(
+    /// A site replaying vtest.avi as cam01 at full speed from `start`, losslessly,
+    /// with a subscriber of cam01's stream `S` made before any producer starts, so
+    /// that it gets every sample (and the `Ipc` it came from, to keep).
+    pub fn lossless_vtest<S: StreamType>(
+        name: &str,
+        start: &str,
+    ) -> (TestSite, Ipc, StreamSubscriber<S>) {
+        let site = TestSite::new(
             name,
             &format!("[ipc]\nlossless = true\n\n{}", vtest_camera("max", start)),
-        )
+        );
+        let ipc = site.ipc("subscriber");
+        let subscriber = ipc.subscriber::<S>("cam01").unwrap();
+        (site, ipc, subscriber)
     }
 
     /// Rewrites `site.toml` with `body`.
@@ -237,6 +245,20 @@ impl TestSite {
             ],
             Duration::from_secs(600),
         )
+    }
+
+    /// [`TestSite::replay`], which must succeed (else the test fails with its
+    /// output and where the logs are).
+    pub fn replay_ok(&self, video: &Path, out: &Path, start: &str) -> Finished {
+        let run = self.replay(video, out, start);
+        assert!(
+            run.status.success(),
+            "replay failed\nstdout:\n{}\nstderr:\n{}\nlogs: {}",
+            run.stdout,
+            run.stderr,
+            out.join("logs").display()
+        );
+        run
     }
 
     /// Runs `isochron <args>` to completion (with a timeout) and returns it.
@@ -512,6 +534,50 @@ pub fn eventually<T>(timeout: Duration, mut f: impl FnMut() -> Option<T>) -> Opt
         }
         std::thread::sleep(Duration::from_millis(20));
     }
+}
+
+/// An OpenCV writer of a colour MJPG video at `path`.
+pub fn mjpg_writer(
+    path: &Path,
+    fps: f64,
+    size: opencv::core::Size,
+) -> opencv::videoio::VideoWriter {
+    use opencv::prelude::*;
+    use opencv::videoio::VideoWriter;
+    let writer = VideoWriter::new(
+        path.to_str().unwrap(),
+        VideoWriter::fourcc('M', 'J', 'P', 'G').unwrap(),
+        fps,
+        size,
+        true,
+    )
+    .unwrap();
+    assert!(writer.is_opened().unwrap(), "OpenCV cannot write MJPG");
+    writer
+}
+
+/// The JSON lines of the file at `path` (none if it is missing).
+pub fn read_jsonl(path: &Path) -> Vec<serde_json::Value> {
+    std::fs::read_to_string(path)
+        .unwrap_or_default()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+/// The items of the JSON array `v`, each read by `item` (which must succeed: the
+/// test expects that shape).
+pub fn json_list<T>(
+    v: &serde_json::Value,
+    item: impl Fn(&serde_json::Value) -> Option<T>,
+) -> Vec<T> {
+    let items = v
+        .as_array()
+        .unwrap_or_else(|| panic!("expected a JSON array: {v}"));
+    items
+        .iter()
+        .map(|x| item(x).unwrap_or_else(|| panic!("unexpected item {x} in {v}")))
+        .collect()
 }
 
 /// The Python of the test venv (`target/ros2-venv`, made by `cargo xtask setup`),

@@ -289,15 +289,14 @@ mod tests {
 
     fn model() -> Model {
         let meta = StoreMeta::new("c", BlockGrid::new(32, 32, 16), Cycle::Daily, 0);
-        let mut bins = vec![None; 1440];
-        bins[5] = Some(Bin {
+        let bin = Bin {
             t_star: 5,
             count: 3,
             last_minute: 0,
             mean: vec![1.0, 2.0, 3.0, 6.0],
             var: vec![1.0, 1.0, 4.0, 4.0],
-        });
-        Model { meta, bins }
+        };
+        Model::with_bins(meta, [bin])
     }
 
     #[test]

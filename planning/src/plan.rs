@@ -620,15 +620,14 @@ mod tests {
     #[test]
     fn profiles_average_the_segment_blocks_of_learned_bins() {
         let meta = StoreMeta::new("cam01", BlockGrid::new(32, 16, 16), Cycle::Daily, 0);
-        let mut bins = vec![None; 1440];
-        bins[100] = Some(Bin {
+        let bin = Bin {
             t_star: 100,
             count: 3,
             last_minute: 0,
             mean: vec![0.2, 0.4],
             var: vec![0.0, 0.0],
-        });
-        let model = Model { meta, bins };
+        };
+        let model = Model::with_bins(meta, [bin]);
         let seg = SegmentBlocks {
             name: "s".into(),
             blocks: vec![(0, vec![0, 1])],

@@ -404,7 +404,7 @@ fn listed<'a>(names: impl Iterator<Item = &'a str>) -> String {
 mod tests {
     use super::*;
     use isochron_shared::config::Config;
-    use isochron_shared::store::{Bin, MinuteCommit, StoreMeta};
+    use isochron_shared::store::StoreMeta;
 
     /// A site with one camera looking straight down at a 4 m × 3 m floor
     /// (80 px per metre), a 320×240 frame in 16 px blocks (20×15), and a
@@ -412,36 +412,9 @@ mod tests {
     const SITE: &str = concat!(
         "\n[site]\nstate_dir = \"state\"\n\n",
         include_str!("../tests/fixtures/floor_camera.toml"),
-        r#"[[camera.zone]]
-name = "door"
-polygon = [[0, 0], [64, 0], [64, 64], [0, 64]]
-
-[costmap]
-cost_scale = 0.1
-w1 = 1.0
-w2 = 1.0
-
-[[costmap.segment]]
-name = "west"
-polygon_m = [[0, 0], [2, 0], [2, 3], [0, 3]]
-
-[[costmap.segment]]
-name = "east"
-polygon_m = [[2, 0], [4, 0], [4, 3], [2, 3]]
-
-[[costmap.segment]]
-name = "door"
-camera = "cam01"
-zone = "door"
-
-[[costmap.route]]
-name = "through"
-segments = ["west", "east"]
-
-[[costmap.route]]
-name = "via-door"
-segments = ["door", "west"]
-"#
+        include_str!("../tests/fixtures/door_zone.toml"),
+        "\n",
+        include_str!("../tests/fixtures/planner_costmap.toml"),
     );
 
     fn site(bins: impl Fn(u32) -> Option<Vec<f32>>) -> (tempfile::TempDir, LoadedConfig) {
@@ -454,20 +427,7 @@ segments = ["door", "west"]
             Store::open_or_create(&store_path(&loaded.state_dir(), "cam01"), &meta).unwrap();
         for t in 0..1440 {
             if let Some(mean) = bins(t) {
-                let bin = Bin {
-                    t_star: t,
-                    count: 10,
-                    last_minute: t as i64,
-                    var: vec![0.0; mean.len()],
-                    mean,
-                };
-                store
-                    .commit_minute(&MinuteCommit {
-                        minute: t as i64,
-                        bin: Some(&bin),
-                        baseline: None,
-                    })
-                    .unwrap();
+                store.teach(t, 10, mean).unwrap();
             }
         }
         (dir, loaded)

@@ -74,15 +74,14 @@ mod tests {
 
     fn model(cycle: Cycle, t: u32, count: u32, mean: Vec<f32>, var: Vec<f32>) -> Model {
         let meta = StoreMeta::new("c", BlockGrid::new(32, 32, 16), cycle, 0);
-        let mut bins = vec![None; cycle.bins() as usize];
-        bins[t as usize] = Some(Bin {
+        let bin = Bin {
             t_star: t,
             count,
             last_minute: 0,
             mean,
             var,
-        });
-        Model { meta, bins }
+        };
+        Model::with_bins(meta, [bin])
     }
 
     #[test]

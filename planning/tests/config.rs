@@ -11,10 +11,7 @@ use isochron_shared::config::{Config, ConfigError};
 const CAMERA: &str = concat!(
     "\n",
     include_str!("fixtures/floor_camera.toml"),
-    r#"[[camera.zone]]
-name = "door"
-polygon = [[0, 0], [64, 0], [64, 64], [0, 64]]
-"#
+    include_str!("fixtures/door_zone.toml"),
 );
 
 fn parse(text: &str) -> Result<Config, ConfigError> {
@@ -42,25 +39,37 @@ fn defaults_need_no_costmap_section() {
 
 #[test]
 fn errors_name_the_key_and_the_line() {
-    let e = error("[costmap]\nwidth_cells = 10\n");
-    assert_eq!(e.key.as_deref(), Some("costmap.height_cells"), "{e}");
-    let e = error("[costmap]\nwidth_cells = 2000\nheight_cells = 2000\n");
-    assert_eq!(e.key.as_deref(), Some("costmap.width_cells"));
-    assert!(e.message.contains("1 MB"), "{e}");
-    let e = error("[costmap]\nmap_yaml = \"m.yaml\"\nresolution_m = 0.1\n");
-    assert_eq!(e.key.as_deref(), Some("costmap.resolution_m"));
-    assert!(e.message.contains("not both"), "{e}");
-    let e = error("[costmap]\ncap = 0\n");
-    assert_eq!(e.key.as_deref(), Some("costmap.cap"));
-    let e = error("[costmap]\ntopic = \"/bad topic\"\n");
-    assert_eq!(e.key.as_deref(), Some("costmap.topic"));
-    let e = error("[costmap]\ndds_interfaces = [\"eth0\"]\n");
-    assert_eq!(e.key.as_deref(), Some("costmap.dds_interfaces[0]"));
-    assert!(e.message.contains("IP address"), "{e}");
-    let e = error("[costmap]\nros_domain_id = 240\n");
-    assert_eq!(e.key.as_deref(), Some("costmap.ros_domain_id"));
-    let e = error("[costmap]\ncost_scale = 0\n");
-    assert_eq!(e.key.as_deref(), Some("costmap.cost_scale"));
+    // Extra config, the key its error names, words the message holds ("": any).
+    for (extra, key, says) in [
+        ("[costmap]\nwidth_cells = 10\n", "costmap.height_cells", ""),
+        (
+            "[costmap]\nwidth_cells = 2000\nheight_cells = 2000\n",
+            "costmap.width_cells",
+            "1 MB",
+        ),
+        (
+            "[costmap]\nmap_yaml = \"m.yaml\"\nresolution_m = 0.1\n",
+            "costmap.resolution_m",
+            "not both",
+        ),
+        ("[costmap]\ncap = 0\n", "costmap.cap", ""),
+        ("[costmap]\ntopic = \"/bad topic\"\n", "costmap.topic", ""),
+        (
+            "[costmap]\ndds_interfaces = [\"eth0\"]\n",
+            "costmap.dds_interfaces[0]",
+            "IP address",
+        ),
+        (
+            "[costmap]\nros_domain_id = 240\n",
+            "costmap.ros_domain_id",
+            "",
+        ),
+        ("[costmap]\ncost_scale = 0\n", "costmap.cost_scale", ""),
+    ] {
+        let e = error(extra);
+        assert_eq!(e.key.as_deref(), Some(key), "{e}");
+        assert!(e.message.contains(says), "{e}");
+    }
     // The line of the offending key.
     let e = error("[costmap]\npublish_hz = 0\n");
     let line = format!("{CAMERA}[costmap]\n").lines().count() + 1;

@@ -378,6 +378,17 @@ pub struct Model {
 }
 
 impl Model {
+    /// The model of `meta` that has learned `bins` (each at its `t_star`, which must
+    /// be inside the cycle) and nothing else: a known model without a store.
+    pub fn with_bins(meta: StoreMeta, bins: impl IntoIterator<Item = Bin>) -> Model {
+        let mut all = vec![None; meta.bins() as usize];
+        for bin in bins {
+            let t = bin.t_star as usize;
+            all[t] = Some(bin);
+        }
+        Model { meta, bins: all }
+    }
+
     /// The bin at `t_star`, if it has learned anything.
     pub fn bin(&self, t_star: u32) -> Option<&Bin> {
         self.bins.get(t_star as usize).and_then(Option::as_ref)
@@ -700,6 +711,24 @@ impl Store {
             bins: model.learned().count(),
             baseline: baseline.is_some(),
             progress: self.progress()?,
+        })
+    }
+
+    /// Commits a hand-made minute: absolute minute `t_star` teaches bin `t_star` the
+    /// per-block `mean` with variance 0 after `count` minutes, without a baseline
+    /// (how tests and tools write a known long-term model).
+    pub fn teach(&mut self, t_star: u32, count: u32, mean: Vec<f32>) -> Result<(), StoreError> {
+        let bin = Bin {
+            t_star,
+            count,
+            last_minute: t_star as i64,
+            var: vec![0.0; mean.len()],
+            mean,
+        };
+        self.commit_minute(&MinuteCommit {
+            minute: t_star as i64,
+            bin: Some(&bin),
+            baseline: None,
         })
     }
 

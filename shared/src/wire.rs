@@ -226,6 +226,22 @@ impl Preamble {
         }
         Ok(())
     }
+
+    /// [`Preamble::validate`], then, unless the sample is an end-of-stream marker
+    /// (whose other header fields mean nothing), the stream's own checks `data`.
+    pub fn validate_then<T>(
+        &self,
+        stream: Stream,
+        camera: &CameraId,
+        actual_len: usize,
+        data: impl FnOnce() -> Result<(), WireError>,
+    ) -> Result<(), WireError> {
+        self.validate::<T>(stream, camera, actual_len)?;
+        if self.is_end_of_stream() {
+            return Ok(());
+        }
+        data()
+    }
 }
 
 /// Why a received sample was rejected.
@@ -367,33 +383,31 @@ impl FrameHeader {
     /// Validates the header against the sample's real payload length (bytes).
     pub fn validate(&self, camera: &CameraId, payload_bytes: usize) -> Result<(), WireError> {
         self.preamble
-            .validate::<u8>(Stream::Frames, camera, payload_bytes)?;
-        if self.preamble.is_end_of_stream() {
-            return Ok(());
-        }
-        let format = PixelFormat::from_field(self.pixel_format, "pixel_format")?;
-        let expected = self.width as usize * format.channels();
-        if self.stride as usize != expected {
-            return Err(WireError::Size {
-                what: "row stride",
-                expected: expected.to_string(),
-                found: self.stride.to_string(),
-            });
-        }
-        let bytes = self.stride as usize * self.height as usize;
-        if bytes != payload_bytes {
-            return Err(WireError::Size {
-                what: "frame",
-                expected: format!(
-                    "{}x{}x{} = {bytes} bytes",
-                    self.width,
-                    self.height,
-                    format.channels()
-                ),
-                found: format!("{payload_bytes} bytes"),
-            });
-        }
-        Ok(())
+            .validate_then::<u8>(Stream::Frames, camera, payload_bytes, || {
+                let format = PixelFormat::from_field(self.pixel_format, "pixel_format")?;
+                let expected = self.width as usize * format.channels();
+                if self.stride as usize != expected {
+                    return Err(WireError::Size {
+                        what: "row stride",
+                        expected: expected.to_string(),
+                        found: self.stride.to_string(),
+                    });
+                }
+                let bytes = self.stride as usize * self.height as usize;
+                if bytes != payload_bytes {
+                    return Err(WireError::Size {
+                        what: "frame",
+                        expected: format!(
+                            "{}x{}x{} = {bytes} bytes",
+                            self.width,
+                            self.height,
+                            format.channels()
+                        ),
+                        found: format!("{payload_bytes} bytes"),
+                    });
+                }
+                Ok(())
+            })
     }
 
     /// The pixel format (valid after [`FrameHeader::validate`]).
@@ -501,33 +515,6 @@ fn validate_blocks<E>(
     Ok(())
 }
 
-impl MotionHeader {
-    /// The block grid the header describes (its frame size and block edge; a
-    /// [valid](MotionHeader::validate) header's `grid_w`/`grid_h` are derived from
-    /// them).
-    pub fn block_grid(&self) -> BlockGrid {
-        BlockGrid::new(self.frame_width, self.frame_height, self.block_px)
-    }
-
-    /// Validates the header against the sample's real payload length (blocks).
-    pub fn validate(&self, camera: &CameraId, blocks: usize) -> Result<(), WireError> {
-        validate_blocks::<BlockMotion>(
-            &self.preamble,
-            Stream::Motion,
-            "motion payload",
-            camera,
-            blocks,
-            [
-                self.frame_width,
-                self.frame_height,
-                self.block_px,
-                self.grid_w,
-                self.grid_h,
-            ],
-        )
-    }
-}
-
 /// Activity of one block over the last second, and the long-term model at t*.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize)]
 #[type_name("isochron::BlockActivity")]
@@ -584,32 +571,46 @@ pub struct ActivityHeader {
     pub reserved: u32,
 }
 
-impl ActivityHeader {
-    /// The block grid the header describes (its frame size and block edge; a
-    /// [valid](ActivityHeader::validate) header's `grid_w`/`grid_h` are derived from
-    /// them).
-    pub fn block_grid(&self) -> BlockGrid {
-        BlockGrid::new(self.frame_width, self.frame_height, self.block_px)
-    }
+/// The grid accessor and checks of a header of one `$element` per block (motion and
+/// activity): its frame size, block edge and grid size, checked by [`validate_blocks`].
+macro_rules! block_header {
+    ($header:ident, $element:ty, $stream:expr, $what:literal) => {
+        impl $header {
+            /// The block grid the header describes (its frame size and block edge; a
+            /// [valid](Self::validate) header's `grid_w`/`grid_h` are derived from
+            /// them).
+            pub fn block_grid(&self) -> BlockGrid {
+                BlockGrid::new(self.frame_width, self.frame_height, self.block_px)
+            }
 
-    /// Validates the header against the sample's real payload length (blocks).
-    pub fn validate(&self, camera: &CameraId, blocks: usize) -> Result<(), WireError> {
-        validate_blocks::<BlockActivity>(
-            &self.preamble,
-            Stream::Activity,
-            "activity payload",
-            camera,
-            blocks,
-            [
-                self.frame_width,
-                self.frame_height,
-                self.block_px,
-                self.grid_w,
-                self.grid_h,
-            ],
-        )
-    }
+            /// Validates the header against the sample's real payload length (blocks).
+            pub fn validate(&self, camera: &CameraId, blocks: usize) -> Result<(), WireError> {
+                validate_blocks::<$element>(
+                    &self.preamble,
+                    $stream,
+                    $what,
+                    camera,
+                    blocks,
+                    [
+                        self.frame_width,
+                        self.frame_height,
+                        self.block_px,
+                        self.grid_w,
+                        self.grid_h,
+                    ],
+                )
+            }
+        }
+    };
 }
+
+block_header!(MotionHeader, BlockMotion, Stream::Motion, "motion payload");
+block_header!(
+    ActivityHeader,
+    BlockActivity,
+    Stream::Activity,
+    "activity payload"
+);
 
 u32_enum! {
     /// Kind of activity an event was raised on.
@@ -678,13 +679,11 @@ impl EventHeader {
     /// Validates the header against the sample's real payload length.
     pub fn validate(&self, camera: &CameraId, blocks: usize) -> Result<(), WireError> {
         self.preamble
-            .validate::<u32>(Stream::Events, camera, blocks)?;
-        if self.preamble.is_end_of_stream() {
-            return Ok(());
-        }
-        ActivityKind::from_field(self.kind, "kind")?;
-        EventPhase::from_field(self.phase, "phase")?;
-        Ok(())
+            .validate_then::<u32>(Stream::Events, camera, blocks, || {
+                ActivityKind::from_field(self.kind, "kind")?;
+                EventPhase::from_field(self.phase, "phase")?;
+                Ok(())
+            })
     }
 
     /// The zone name as text.

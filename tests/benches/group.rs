@@ -70,9 +70,11 @@ use std::time::{Duration, Instant};
 
 use isochron_shared::clock::wall_now_ns;
 use isochron_shared::health::quantile;
-use isochron_shared::ipc::{Activity, Detections, Events, Ipc, StatusSubscriber, StreamSubscriber};
+use isochron_shared::ipc::{
+    Activity, Detections, Events, Ipc, StatusSubscriber, StreamSubscriber, StreamType,
+};
 use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{EventPhase, StageStatus};
+use isochron_shared::wire::{EventPhase, StageStatus, StreamHeader};
 use isochron_tests::{Proc, TestSite, bin, clock_ticks_per_s, cpu_ticks, repo_root, vtest};
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
@@ -1097,36 +1099,42 @@ impl Probe {
                 }
             }
         }
-        for (camera, subscriber) in self.events.iter().enumerate() {
-            subscriber.drain_wakeups();
-            while let Ok(Some(sample)) = subscriber.receive() {
-                let h = sample.user_header();
-                if !record || h.preamble.is_end_of_stream() {
-                    continue;
-                }
-                match EventPhase::from_u32(h.phase) {
-                    Some(EventPhase::Start) => self.started[camera] += 1,
-                    Some(EventPhase::End) => {
-                        self.ended[camera] += 1;
-                        if h.preamble.origin_wall_ns > 0 {
-                            self.end_lags_ms.push(ms_since(h.preamble.origin_wall_ns));
-                        }
+        drain(
+            &self.events,
+            record,
+            |camera, h| match EventPhase::from_u32(h.phase) {
+                Some(EventPhase::Start) => self.started[camera] += 1,
+                Some(EventPhase::End) => {
+                    self.ended[camera] += 1;
+                    if h.preamble.origin_wall_ns > 0 {
+                        self.end_lags_ms.push(ms_since(h.preamble.origin_wall_ns));
                     }
-                    None => {}
                 }
+                None => {}
+            },
+        );
+        drain(&self.detections, record, |camera, h| {
+            self.detected[camera] += 1;
+            if h.preamble.origin_wall_ns > 0 {
+                self.detection_ms.push(ms_since(h.preamble.origin_wall_ns));
             }
-        }
-        for (camera, subscriber) in self.detections.iter().enumerate() {
-            subscriber.drain_wakeups();
-            while let Ok(Some(sample)) = subscriber.receive() {
-                let h = sample.user_header();
-                if !record || h.preamble.is_end_of_stream() {
-                    continue;
-                }
-                self.detected[camera] += 1;
-                if h.preamble.origin_wall_ns > 0 {
-                    self.detection_ms.push(ms_since(h.preamble.origin_wall_ns));
-                }
+        });
+    }
+}
+
+/// Takes every waiting sample of the cameras' `subscribers`; if `record`, passes
+/// the header of each data sample (not end-of-stream) with its camera to `f`.
+fn drain<S: StreamType>(
+    subscribers: &[StreamSubscriber<S>],
+    record: bool,
+    mut f: impl FnMut(usize, &S::Header),
+) {
+    for (camera, subscriber) in subscribers.iter().enumerate() {
+        subscriber.drain_wakeups();
+        while let Ok(Some(sample)) = subscriber.receive() {
+            let h = sample.user_header();
+            if record && !h.preamble().is_end_of_stream() {
+                f(camera, h);
             }
         }
     }

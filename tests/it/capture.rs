@@ -26,10 +26,8 @@ fn opencv_reference_checksums() -> Vec<u32> {
 
 #[test]
 fn publishes_every_frame_with_file_clock_and_opencv_pixels() {
-    let site = TestSite::lossless_vtest("capture-all", START);
-    let ipc = site.ipc("subscriber");
-    // Subscribe before the producer starts: lossless delivery counts from here.
-    let frames = ipc.subscriber::<Frames>("cam01").unwrap();
+    // Subscribed before the producers start: lossless delivery counts from here.
+    let (site, _ipc, frames) = TestSite::lossless_vtest::<Frames>("capture-all", START);
     let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
 
     let start_ns = parse_rfc3339(START).unwrap();

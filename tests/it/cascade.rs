@@ -794,19 +794,7 @@ impl<'a> MinuteDamage<'a> {
     fn apply(&self) {
         let mut s = Store::open_writer(self.path, "cam01", Cycle::Daily).unwrap();
         for t in 0..300u32 {
-            let bin = isochron_shared::store::Bin {
-                t_star: t,
-                count: 1,
-                last_minute: t as i64,
-                mean: vec![0.1; 8],
-                var: vec![0.0; 8],
-            };
-            s.commit_minute(&isochron_shared::store::MinuteCommit {
-                minute: t as i64,
-                bin: Some(&bin),
-                baseline: None,
-            })
-            .unwrap();
+            s.teach(t, 1, vec![0.1; 8]).unwrap();
         }
         drop(s);
         let mut bytes = std::fs::read(self.path).unwrap();

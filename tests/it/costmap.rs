@@ -15,11 +15,11 @@ use std::time::{Duration, Instant};
 use isochron_shared::clock::{Cycle, NS_PER_S, parse_rfc3339, wall_now_ns};
 use isochron_shared::geometry::BlockGrid;
 use isochron_shared::ipc::{Activity, Detections, Ipc, StreamPublisher};
-use isochron_shared::store::{Bin, MinuteCommit, Store, StoreMeta, store_path};
+use isochron_shared::store::{Store, StoreMeta, store_path};
 use isochron_shared::wire::{
     ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader, Preamble, Stream,
 };
-use isochron_tests::{NetnsPair, Proc, TestSite, bin, repo_root, venv_python};
+use isochron_tests::{NetnsPair, Proc, TestSite, bin, json_list, repo_root, venv_python};
 use serde_json::Value;
 
 /// The frame: 320×240 in 16-px blocks (20×15).
@@ -61,6 +61,15 @@ pub(crate) fn dds_domain() -> u16 {
 /// The Python of the venv with `cyclonedds`; fails with what to do when missing.
 pub(crate) fn python() -> PathBuf {
     venv_python("cyclonedds.domain")
+}
+
+/// A pair of network namespaces for a test with the Python peer (checked first),
+/// named after this process and a fresh DDS domain (`subnet` keeps concurrent
+/// tests apart); `None` where they cannot be made (the test is then skipped).
+pub(crate) fn netns_pair(subnet: u8) -> Option<NetnsPair> {
+    python();
+    let tag = format!("{}{}", std::process::id() % 100_000, dds_domain());
+    NetnsPair::new(&tag, subnet)
 }
 
 /// The camera table, with floor points taken from [`floor_to_image`] at 5 floor
@@ -105,6 +114,24 @@ stale_s = 120
 {extra}
 "#
     )
+}
+
+/// A site with the test camera and `[costmap]` (`extra` added) on DDS domain `domain`.
+fn costmap_site(name: &str, domain: u16, extra: &str) -> TestSite {
+    TestSite::new(
+        name,
+        &format!("{}{}", camera_toml(), costmap_toml(domain, extra)),
+    )
+}
+
+/// Starts the bridge of `site` with a [`Source`] of cam01's activity from `start`,
+/// once the bridge reads it; the source's `Ipc` comes along to be kept open.
+fn start_bridge(site: &TestSite, start: &str) -> (Ipc, Source, Proc) {
+    let ipc = site.ipc("source");
+    let source = Source::new(&ipc, start);
+    let costmap = site.spawn("isochron-costmap", &[]);
+    source.wait_for_subscriber(&costmap);
+    (ipc, source, costmap)
 }
 
 /// The grid the bridge should publish while [`HOT_BLOCK`] is active (or not):
@@ -199,12 +226,7 @@ pub(crate) fn messages(listener: &mut Proc) -> Vec<Value> {
 }
 
 pub(crate) fn data(v: &Value) -> Vec<i64> {
-    v["data"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|c| c.as_i64().unwrap())
-        .collect()
+    json_list(&v["data"], Value::as_i64)
 }
 
 /// The grid a subscriber holds after the messages so far: the last full grid with
@@ -279,6 +301,12 @@ fn ros_plan(domain: u16, service: &str, args: &[&str]) -> Value {
     reply
 }
 
+/// Asserts a ROS 2 plan reply has `status` and a message holding `says`.
+fn assert_plan_status(reply: &Value, status: u8, says: &str) {
+    assert_eq!(reply["status"], status, "{reply}");
+    assert!(reply["message"].as_str().unwrap().contains(says), "{reply}");
+}
+
 /// Costs of the CLI's JSON and the ROS 2 reply agree (f32 on the way, 3 decimals
 /// in the CLI's JSON).
 fn same_cost(cli: &Value, ros: &Value) -> bool {
@@ -286,6 +314,27 @@ fn same_cost(cli: &Value, ros: &Value) -> bool {
         (Some(a), Some(b)) => (a - b).abs() < 0.01,
         _ => cli == ros,
     }
+}
+
+/// Feeds [`HOT_BLOCK`] at `t_star` until the listener has a full grid with the hot
+/// cells.
+fn wait_for_hot_grid(
+    what: &str,
+    listener: &mut Proc,
+    costmap: &Proc,
+    source: &mut Source,
+    t_star: u32,
+    timeout: Duration,
+) {
+    let hot = expected_cells(true);
+    wait_until(
+        what,
+        listener,
+        costmap,
+        || source.send(&[(HOT_BLOCK, HOT_S1)], t_star),
+        timeout,
+        |msgs| msgs.iter().any(|m| m["kind"] == "grid" && data(m) == hot),
+    );
 }
 
 /// Waits until `f` holds for the listener's messages, feeding the source meanwhile.
@@ -323,14 +372,8 @@ fn wait_until(
 fn a_ros2_subscriber_gets_the_grid_its_updates_and_late_joiners_the_last_grid() {
     python(); // fails early, saying what to do, without the venv
     let domain = dds_domain();
-    let site = TestSite::new(
-        "costmap-ros2",
-        &format!("{}{}", camera_toml(), costmap_toml(domain, "")),
-    );
-    let ipc = site.ipc("source");
-    let mut source = Source::new(&ipc, "2026-03-02T11:00:00Z");
-    let costmap = site.spawn("isochron-costmap", &[]);
-    source.wait_for_subscriber(&costmap);
+    let site = costmap_site("costmap-ros2", domain, "");
+    let (_ipc, mut source, costmap) = start_bridge(&site, "2026-03-02T11:00:00Z");
 
     // An early subscriber, reading grids and updates.
     let mut early = listener(domain, true, 0, 90);
@@ -362,12 +405,7 @@ fn a_ros2_subscriber_gets_the_grid_its_updates_and_late_joiners_the_last_grid() 
     assert_eq!(grid["width"], 60);
     assert_eq!(grid["height"], 60);
     assert!((grid["resolution"].as_f64().unwrap() - 0.1).abs() < 1e-6);
-    let origin: Vec<f64> = grid["origin"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|v| v.as_f64().unwrap())
-        .collect();
+    let origin = json_list(&grid["origin"], Value::as_f64);
     assert_eq!(origin, vec![-1.0, 1.5, 0.0, 0.0, 0.0, 0.0, 1.0]);
     // The stamp is the activity's capture time, not the wall clock.
     let start_s = parse_rfc3339("2026-03-02T11:00:00Z").unwrap() / NS_PER_S;
@@ -387,13 +425,13 @@ fn a_ros2_subscriber_gets_the_grid_its_updates_and_late_joiners_the_last_grid() 
                 && held_grid(msgs).is_some_and(|g| g == hot)
         },
     );
-    wait_until(
+    wait_for_hot_grid(
         "a full grid with the hot cells",
         &mut early,
         &costmap,
-        || source.send(&[(HOT_BLOCK, HOT_S1)], 750),
+        &mut source,
+        750,
         Duration::from_secs(30),
-        |msgs| msgs.iter().any(|m| m["kind"] == "grid" && data(m) == hot),
     );
     let update = messages(&mut early)
         .into_iter()
@@ -445,36 +483,27 @@ fn write_store(site: &TestSite) {
                 }
             })
             .collect();
-        let bin = Bin {
-            t_star: t,
-            count: 14,
-            last_minute: t as i64,
-            var: vec![0.0; BLOCKS],
-            mean,
-        };
-        store
-            .commit_minute(&MinuteCommit {
-                minute: t as i64,
-                bin: Some(&bin),
-                baseline: None,
-            })
-            .unwrap();
+        store.teach(t, 14, mean).unwrap();
     }
 }
 
-#[test]
-fn plans_and_snapshots_are_served_by_the_running_bridge() {
-    let domain = dds_domain();
-    // West and east halves of the camera's view on the floor, a corridor nobody uses.
-    let extra = r#"
-[[costmap.segment]]
+/// The west and east halves of the camera's view on the floor, as cost map segments.
+const HALVES: &str = r#"[[costmap.segment]]
 name = "west"
 polygon_m = [[-1, 1.5], [1.6, 1.5], [1.6, 7.5], [-1, 7.5]]
 
 [[costmap.segment]]
 name = "east"
 polygon_m = [[1.6, 1.5], [5, 1.5], [5, 7.5], [1.6, 7.5]]
+"#;
 
+#[test]
+fn plans_and_snapshots_are_served_by_the_running_bridge() {
+    let domain = dds_domain();
+    // West and east halves of the camera's view on the floor, a corridor nobody uses.
+    let extra = format!(
+        r#"
+{HALVES}
 [[costmap.segment]]
 name = "corridor"
 polygon_m = [[10, 10], [11, 10], [11, 11], [10, 11]]
@@ -486,11 +515,9 @@ segments = ["west"]
 [[costmap.route]]
 name = "via-east"
 segments = ["east"]
-"#;
-    let site = TestSite::new(
-        "costmap-plan",
-        &format!("{}{}", camera_toml(), costmap_toml(domain, extra)),
+"#
     );
+    let site = costmap_site("costmap-plan", domain, &extra);
     write_store(&site);
     let config = site.config_path().display().to_string();
 
@@ -584,7 +611,7 @@ segments = ["east"]
         "/isochron/plan_now",
         &["now", "via-west", "via-east"],
     );
-    assert_eq!(ros["status"], 0, "{ros}");
+    assert_plan_status(&ros, 0, "");
     assert_eq!(ros["t_star"], ranked["t_star"]);
     let ros_routes = ros["routes"].as_array().unwrap();
     assert_eq!(ros_routes.len(), routes.len());
@@ -603,7 +630,7 @@ segments = ["east"]
         "/isochron/plan_offline",
         &["offline", "via-west", "660", "840", "5"],
     );
-    assert_eq!(ros["status"], 0, "{ros}");
+    assert_plan_status(&ros, 0, "");
     assert_eq!(ros["infinite"], plan["infinite"]);
     let (cw, rw) = (
         plan["windows"].as_array().unwrap(),
@@ -626,33 +653,22 @@ segments = ["east"]
     }
     // Errors come back as a status with the reason, at once.
     let unknown = ros_plan(domain, "/isochron/plan_now", &["now", "nowhere"]);
-    assert_eq!(unknown["status"], 2, "{unknown}");
-    assert!(
-        unknown["message"].as_str().unwrap().contains("via-west"),
-        "{unknown}"
-    );
+    assert_plan_status(&unknown, 2, "via-west");
     let unknown = ros_plan(
         domain,
         "/isochron/plan_offline",
         &["offline", "nowhere", "0", "1440", "5"],
     );
-    assert_eq!(unknown["status"], 2, "{unknown}");
+    assert_plan_status(&unknown, 2, "");
     let late = ros_plan(
         domain,
         "/isochron/plan_offline",
         &["offline", "via-west", "1500", "1440", "5"],
     );
-    assert_eq!(late["status"], 1, "{late}");
-    assert!(
-        late["message"]
-            .as_str()
-            .unwrap()
-            .contains("outside the day"),
-        "{late}"
-    );
+    assert_plan_status(&late, 1, "outside the day");
     let long = "x".repeat(40);
     let bad = ros_plan(domain, "/isochron/plan_now", &["now", &long]);
-    assert_eq!(bad["status"], 1, "{bad}");
+    assert_plan_status(&bad, 1, "");
 
     // An unknown route is refused by the CLI with the configured names.
     let bad = site.isochron(
@@ -764,14 +780,8 @@ fn toml_with_route(site: &TestSite, segment: &str) -> String {
 fn the_bridge_logs_no_error_and_counts_its_subscribers() {
     python();
     let domain = dds_domain();
-    let site = TestSite::new(
-        "costmap-quiet",
-        &format!("{}{}", camera_toml(), costmap_toml(domain, "")),
-    );
-    let ipc = site.ipc("source");
-    let mut source = Source::new(&ipc, "2026-03-02T11:00:00Z");
-    let costmap = site.spawn("isochron-costmap", &[]);
-    source.wait_for_subscriber(&costmap);
+    let site = costmap_site("costmap-quiet", domain, "");
+    let (_ipc, mut source, costmap) = start_bridge(&site, "2026-03-02T11:00:00Z");
     assert!(
         costmap.wait_for_stderr("publishing a 60x60 grid", Duration::from_secs(20)),
         "{}",
@@ -823,14 +833,8 @@ fn the_bridge_binds_the_documented_dds_sockets() {
     };
     assert!(probe.status.success());
     let domain = dds_domain();
-    let site = TestSite::new(
-        "costmap-sockets",
-        &format!("{}{}", camera_toml(), costmap_toml(domain, "")),
-    );
-    let ipc = site.ipc("source");
-    let source = Source::new(&ipc, "2026-03-02T11:00:00Z");
-    let costmap = site.spawn("isochron-costmap", &[]);
-    source.wait_for_subscriber(&costmap);
+    let site = costmap_site("costmap-sockets", domain, "");
+    let (_ipc, _source, costmap) = start_bridge(&site, "2026-03-02T11:00:00Z");
     assert!(
         costmap.wait_for_stderr("publishing a 60x60 grid", Duration::from_secs(20)),
         "{}",
@@ -921,24 +925,16 @@ fn last<'a>(msgs: &'a [Value], kind: &str) -> Option<&'a Value> {
 fn a_ros2_peer_gets_people_markers_and_speed_zones() {
     python();
     let domain = dds_domain();
-    let extra = r#"confirm_hold_s = 3600
+    let extra = format!(
+        r#"confirm_hold_s = 3600
 
-[[costmap.segment]]
-name = "west"
-polygon_m = [[-1, 1.5], [1.6, 1.5], [1.6, 7.5], [-1, 7.5]]
-
-[[costmap.segment]]
-name = "east"
-polygon_m = [[1.6, 1.5], [5, 1.5], [5, 7.5], [1.6, 7.5]]
-
+{HALVES}
 [[costmap.route]]
 name = "west-east"
 segments = ["west", "east"]
-"#;
-    let site = TestSite::new(
-        "costmap-peer",
-        &format!("{}{}", camera_toml(), costmap_toml(domain, extra)),
+"#
     );
+    let site = costmap_site("costmap-peer", domain, &extra);
     let ipc = site.ipc("source");
     let mut source = Source::new(&ipc, "2026-03-02T11:00:00Z");
     let mut people = ipc.publisher::<Detections>("cam01", 8).unwrap();
@@ -1030,12 +1026,7 @@ segments = ["west", "east"]
     assert_eq!(of("routes").len(), 1);
     assert_eq!(of("routes")[0]["points"].as_array().unwrap().len(), 2);
     // The camera sees floor x from about -0.25 (u = 0 at y = 1.5) to 4 m.
-    let xs: Vec<f64> = of("cameras")[0]["points"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|p| p[0].as_f64().unwrap())
-        .collect();
+    let xs = json_list(&of("cameras")[0]["points"], |p| p[0].as_f64());
     let max_x = xs.iter().cloned().fold(f64::MIN, f64::max);
     assert!(max_x > 3.0 && max_x < 6.0, "{xs:?}");
     let texts: Vec<&str> = markers
@@ -1055,14 +1046,7 @@ segments = ["west", "east"]
         "/isochron/plan_offline",
         &["offline", "west-east", "0", "1440", "15"],
     );
-    assert_eq!(no_store["status"], 3, "{no_store}");
-    assert!(
-        no_store["message"]
-            .as_str()
-            .unwrap()
-            .contains("no long-term store"),
-        "{no_store}"
-    );
+    assert_plan_status(&no_store, 3, "no long-term store");
 
     // A late joiner gets the latched markers, info and mask at once.
     let mut late = listener_with(domain, 30, &extra_topics());
@@ -1087,20 +1071,10 @@ segments = ["west", "east"]
 fn a_ros2_peer_gets_the_forecast_of_the_long_term_model() {
     python();
     let domain = dds_domain();
-    let site = TestSite::new(
-        "costmap-forecast",
-        &format!(
-            "{}{}",
-            camera_toml(),
-            costmap_toml(domain, "forecast_every_s = 1")
-        ),
-    );
+    let site = costmap_site("costmap-forecast", domain, "forecast_every_s = 1");
     write_store(&site);
-    let ipc = site.ipc("source");
     let start = "2026-03-02T11:40:00Z";
-    let mut source = Source::new(&ipc, start);
-    let costmap = site.spawn("isochron-costmap", &[]);
-    source.wait_for_subscriber(&costmap);
+    let (_ipc, mut source, costmap) = start_bridge(&site, start);
     let mut peer = listener_with(
         domain,
         60,
@@ -1158,9 +1132,7 @@ fn a_ros2_peer_gets_the_forecast_of_the_long_term_model() {
 /// never in CI.
 #[test]
 fn a_peer_in_another_network_namespace_discovers_the_bridge_by_multicast() {
-    python();
-    let tag = format!("{}{}", std::process::id() % 100_000, dds_domain());
-    let Some(pair) = NetnsPair::new(&tag, 0) else {
+    let Some(pair) = netns_pair(0) else {
         return;
     };
     let [bridge_ns, peer_ns] = pair.names.clone();
@@ -1205,14 +1177,13 @@ fn a_peer_in_another_network_namespace_discovers_the_bridge_by_multicast() {
             "60",
         ],
     );
-    let hot = expected_cells(true);
-    wait_until(
+    wait_for_hot_grid(
         "the grid across the veth pair",
         &mut peer,
         &costmap,
-        || source.send(&[(HOT_BLOCK, HOT_S1)], 660),
+        &mut source,
+        660,
         Duration::from_secs(45),
-        |msgs| msgs.iter().any(|m| m["kind"] == "grid" && data(m) == hot),
     );
     drop(peer);
     drop(costmap);

@@ -70,15 +70,18 @@ fn exporter_section(port: u16) -> String {
     format!("[exporter]\nlisten = \"127.0.0.1:{port}\"\nstale_after_s = 8\n\n")
 }
 
+/// A free port and a site whose exporter listens there, with the config `rest`.
+fn exporter_site(name: &str, rest: &str) -> (u16, TestSite) {
+    let port = free_port();
+    let site = TestSite::new(name, &format!("{}{rest}", exporter_section(port)));
+    (port, site)
+}
+
 #[test]
 fn a_replay_scraped_twice_passes_promtool_and_its_counters_move() {
-    let port = free_port();
-    let site = TestSite::new(
+    let (port, site) = exporter_site(
         "exporter-replay",
-        &format!(
-            "{}[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\nstart = \"2009-03-02T11:00:00Z\"\n",
-            exporter_section(port)
-        ),
+        "[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\nstart = \"2009-03-02T11:00:00Z\"\n",
     );
     let out = site.path("out");
     // Four times real time: about 20 s of video, several 5 s status reports.
@@ -163,12 +166,10 @@ fn a_replay_scraped_twice_passes_promtool_and_its_counters_move() {
 
 #[test]
 fn a_killed_service_goes_down_and_a_taken_port_is_one_line() {
-    let port = free_port();
-    let site = TestSite::new(
+    let (port, site) = exporter_site(
         "exporter-up",
         &format!(
-            "{}[[camera]]\nid = \"cam01\"\nsource = \"{}\"\nspeed = 2\nloop = true\n",
-            exporter_section(port),
+            "[[camera]]\nid = \"cam01\"\nsource = \"{}\"\nspeed = 2\nloop = true\n",
             vtest().display()
         ),
     );

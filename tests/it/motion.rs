@@ -45,10 +45,8 @@ fn read_until_end_of_stream(
 
 #[test]
 fn capture_to_motion_on_vtest_delivers_every_pair_and_sees_the_people() {
-    let site = TestSite::lossless_vtest("motion-vtest", START);
-    let ipc = site.ipc("subscriber");
-    // Subscribe before the producers start: lossless delivery counts from here.
-    let motion = ipc.subscriber::<Motion>("cam01").unwrap();
+    // Subscribed before the producers start: lossless delivery counts from here.
+    let (site, ipc, motion) = TestSite::lossless_vtest::<Motion>("motion-vtest", START);
     let mut motion_proc = site.spawn("isochron-motion", &["--camera", "cam01"]);
     eventually(Duration::from_secs(20), || {
         (ipc.subscriber_count("cam01", Stream::Frames)? >= 1).then_some(())

@@ -3,30 +3,15 @@
 
 use std::path::Path;
 
-use isochron_tests::{TestSite, VTEST_FRAMES, repo_root, vtest};
+use isochron_tests::{TestSite, VTEST_FRAMES, mjpg_writer, read_jsonl, repo_root, vtest};
 use opencv::core::{Mat, Rect, Scalar, Size};
+use opencv::imgproc;
 use opencv::prelude::*;
-use opencv::{imgproc, videoio};
 use serde_json::Value;
-
-fn read_jsonl(path: &Path) -> Vec<Value> {
-    std::fs::read_to_string(path)
-        .unwrap_or_default()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect()
-}
 
 fn replay(site: &TestSite, video: &Path, out: &str) -> Value {
     let out = site.path(out);
-    let run = site.replay(video, &out, "2026-03-02T07:00:00Z");
-    assert!(
-        run.status.success(),
-        "replay failed\nstdout:\n{}\nstderr:\n{}\nlogs: {}",
-        run.stdout,
-        run.stderr,
-        out.join("logs").display()
-    );
+    site.replay_ok(video, &out, "2026-03-02T07:00:00Z");
     serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
 }
 
@@ -134,15 +119,7 @@ const LENGTH_S: f64 = 110.0;
 /// [`INTERVALS`], written as MJPG.
 fn write_empty_scene_video(path: &Path) {
     let (w, h) = (320, 240);
-    let mut writer = videoio::VideoWriter::new(
-        path.to_str().unwrap(),
-        videoio::VideoWriter::fourcc('M', 'J', 'P', 'G').unwrap(),
-        FPS,
-        Size::new(w, h),
-        true,
-    )
-    .unwrap();
-    assert!(writer.is_opened().unwrap(), "OpenCV cannot write MJPG");
+    let mut writer = mjpg_writer(path, FPS, Size::new(w, h));
     // Background: smooth noise, so edges exist everywhere but nothing moves.
     let mut noise =
         Mat::new_rows_cols_with_default(h, w, opencv::core::CV_8UC3, Scalar::all(0.0)).unwrap();

@@ -2,8 +2,8 @@
 """An independent ROS 2 subscriber for isochron's activity cost map.
 
 It uses Eclipse Cyclone DDS (the `cyclonedds` package from PyPI) and nothing of
-isochron or ROS: the message types are declared here from the ROS 2 `.msg`
-definitions with their DDS names (`nav_msgs::msg::dds_::OccupancyGrid_`,
+isochron or ROS (what it shares with plan_client.py is in ros2_dds.py): the message
+types are declared here from the ROS 2 `.msg` definitions with their DDS names (`nav_msgs::msg::dds_::OccupancyGrid_`,
 `map_msgs::msg::dds_::OccupancyGridUpdate_`), the topics are the DDS names of the
 ROS 2 topics (`rt/<topic>`), and the QoS is what Nav2's StaticLayer asks for:
 reliable and transient-local for the grid, reliable and volatile for the updates.
@@ -37,23 +37,9 @@ instead of loopback-only unicast.
 """
 
 import argparse
-import json
-import os
-import sys
 import time
-from dataclasses import dataclass
 
-LOOPBACK_ONLY = """<CycloneDDS><Domain id="any">
-  <General>
-    <Interfaces><NetworkInterface address="127.0.0.1"/></Interfaces>
-    <AllowMulticast>false</AllowMulticast>
-  </General>
-  <Discovery>
-    <ParticipantIndex>auto</ParticipantIndex>
-    <MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>
-    <Peers><Peer address="127.0.0.1"/></Peers>
-  </Discovery>
-</Domain></CycloneDDS>"""
+from ros2_dds import absolute, configure, emit, reliable_qos, ros_type
 
 
 def main():
@@ -68,183 +54,89 @@ def main():
     parser.add_argument("--multicast", action="store_true", help="default multicast discovery")
     args = parser.parse_args()
 
-    # Must be set before Cyclone DDS creates its domain.
-    if not args.multicast:
-        os.environ["CYCLONEDDS_URI"] = LOOPBACK_ONLY
-    else:
-        os.environ.pop("CYCLONEDDS_URI", None)
+    configure(args.multicast)
 
-    from cyclonedds.core import Policy, Qos
     from cyclonedds.domain import DomainParticipant
-    from cyclonedds.idl import IdlStruct
     from cyclonedds.idl.types import float32, float64, int8, int32, sequence, uint8, uint32
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
-    from cyclonedds.util import duration
 
-    @dataclass
-    class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
-        sec: int32
-        nanosec: uint32
+    Time = ros_type("builtin_interfaces/msg/Time", sec=int32, nanosec=uint32)
 
-    @dataclass
-    class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
-        stamp: Time
-        frame_id: str
+    Header = ros_type("std_msgs/msg/Header", stamp=Time, frame_id=str)
 
-    @dataclass
-    class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
-        x: float64
-        y: float64
-        z: float64
+    Point = ros_type("geometry_msgs/msg/Point", x=float64, y=float64, z=float64)
 
-    @dataclass
-    class Quaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
-        x: float64
-        y: float64
-        z: float64
-        w: float64
+    Quaternion = ros_type("geometry_msgs/msg/Quaternion", x=float64, y=float64, z=float64, w=float64)
 
-    @dataclass
-    class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
-        position: Point
-        orientation: Quaternion
+    Pose = ros_type("geometry_msgs/msg/Pose", position=Point, orientation=Quaternion)
 
-    @dataclass
-    class MapMetaData(IdlStruct, typename="nav_msgs::msg::dds_::MapMetaData_"):
-        map_load_time: Time
-        resolution: float32
-        width: uint32
-        height: uint32
-        origin: Pose
+    MapMetaData = ros_type(
+        "nav_msgs/msg/MapMetaData",
+        map_load_time=Time, resolution=float32, width=uint32, height=uint32, origin=Pose,
+    )
 
-    @dataclass
-    class OccupancyGrid(IdlStruct, typename="nav_msgs::msg::dds_::OccupancyGrid_"):
-        header: Header
-        info: MapMetaData
-        data: sequence[int8]
+    OccupancyGrid = ros_type(
+        "nav_msgs/msg/OccupancyGrid",
+        header=Header, info=MapMetaData, data=sequence[int8],
+    )
 
-    @dataclass
-    class OccupancyGridUpdate(IdlStruct, typename="map_msgs::msg::dds_::OccupancyGridUpdate_"):
-        header: Header
-        x: int32
-        y: int32
-        width: uint32
-        height: uint32
-        data: sequence[int8]
+    OccupancyGridUpdate = ros_type(
+        "map_msgs/msg/OccupancyGridUpdate",
+        header=Header, x=int32, y=int32, width=uint32, height=uint32, data=sequence[int8],
+    )
 
-    @dataclass
-    class PoseArray(IdlStruct, typename="geometry_msgs::msg::dds_::PoseArray_"):
-        header: Header
-        poses: sequence[Pose]
+    PoseArray = ros_type("geometry_msgs/msg/PoseArray", header=Header, poses=sequence[Pose])
 
-    @dataclass
-    class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
-        x: float64
-        y: float64
-        z: float64
+    Vector3 = ros_type("geometry_msgs/msg/Vector3", x=float64, y=float64, z=float64)
 
-    @dataclass
-    class ColorRGBA(IdlStruct, typename="std_msgs::msg::dds_::ColorRGBA_"):
-        r: float32
-        g: float32
-        b: float32
-        a: float32
+    ColorRGBA = ros_type("std_msgs/msg/ColorRGBA", r=float32, g=float32, b=float32, a=float32)
 
-    @dataclass
-    class Duration(IdlStruct, typename="builtin_interfaces::msg::dds_::Duration_"):
-        sec: int32
-        nanosec: uint32
+    Duration = ros_type("builtin_interfaces/msg/Duration", sec=int32, nanosec=uint32)
 
-    @dataclass
-    class CompressedImage(IdlStruct, typename="sensor_msgs::msg::dds_::CompressedImage_"):
-        header: Header
-        format: str
-        data: sequence[uint8]
+    CompressedImage = ros_type(
+        "sensor_msgs/msg/CompressedImage",
+        header=Header, format=str, data=sequence[uint8],
+    )
 
-    @dataclass
-    class UVCoordinate(IdlStruct, typename="visualization_msgs::msg::dds_::UVCoordinate_"):
-        u: float32
-        v: float32
+    UVCoordinate = ros_type("visualization_msgs/msg/UVCoordinate", u=float32, v=float32)
 
-    @dataclass
-    class MeshFile(IdlStruct, typename="visualization_msgs::msg::dds_::MeshFile_"):
-        filename: str
-        data: sequence[uint8]
+    MeshFile = ros_type("visualization_msgs/msg/MeshFile", filename=str, data=sequence[uint8])
 
     # visualization_msgs/msg/Marker as of Iron/Jazzy.
-    @dataclass
-    class Marker(IdlStruct, typename="visualization_msgs::msg::dds_::Marker_"):
-        header: Header
-        ns: str
-        id: int32
-        type: int32
-        action: int32
-        pose: Pose
-        scale: Vector3
-        color: ColorRGBA
-        lifetime: Duration
-        frame_locked: bool
-        points: sequence[Point]
-        colors: sequence[ColorRGBA]
-        texture_resource: str
-        texture: CompressedImage
-        uv_coordinates: sequence[UVCoordinate]
-        text: str
-        mesh_resource: str
-        mesh_file: MeshFile
-        mesh_use_embedded_materials: bool
-
-    @dataclass
-    class MarkerArray(IdlStruct, typename="visualization_msgs::msg::dds_::MarkerArray_"):
-        markers: sequence[Marker]
-
-    @dataclass
-    class CostmapFilterInfo(IdlStruct, typename="nav2_msgs::msg::dds_::CostmapFilterInfo_"):
-        header: Header
-        type: uint8
-        filter_mask_topic: str
-        base: float32
-        multiplier: float32
-
-    def emit(obj):
-        sys.stdout.write(json.dumps(obj) + "\n")
-        sys.stdout.flush()
-
-    # ROS 2 middlewares send plain CDR (XCDR1): accept it explicitly.
-    xcdr1 = Policy.DataRepresentation(use_cdrv0_representation=True, use_xcdrv2_representation=True)
-    grid_qos = Qos(
-        Policy.Reliability.Reliable(duration(seconds=1)),
-        Policy.Durability.TransientLocal,
-        Policy.History.KeepLast(1),
-        xcdr1,
+    Marker = ros_type(
+        "visualization_msgs/msg/Marker",
+        header=Header, ns=str, id=int32, type=int32, action=int32, pose=Pose, scale=Vector3,
+        color=ColorRGBA, lifetime=Duration, frame_locked=bool, points=sequence[Point],
+        colors=sequence[ColorRGBA], texture_resource=str, texture=CompressedImage,
+        uv_coordinates=sequence[UVCoordinate], text=str, mesh_resource=str, mesh_file=MeshFile,
+        mesh_use_embedded_materials=bool,
     )
-    updates_qos = Qos(
-        Policy.Reliability.Reliable(duration(seconds=1)),
-        Policy.Durability.Volatile,
-        Policy.History.KeepLast(10),
-        xcdr1,
+
+    MarkerArray = ros_type("visualization_msgs/msg/MarkerArray", markers=sequence[Marker])
+
+    CostmapFilterInfo = ros_type(
+        "nav2_msgs/msg/CostmapFilterInfo",
+        header=Header, type=uint8, filter_mask_topic=str, base=float32, multiplier=float32,
     )
+
+    grid_qos = reliable_qos(latched=True, depth=1)
+    volatile_qos = reliable_qos(latched=False, depth=10)
     participant = DomainParticipant(args.domain)
+
     def dds(topic):
-        return "rt" + (topic if topic.startswith("/") else "/" + topic)
+        return "rt" + absolute(topic)
 
     dds_name = dds(args.topic)
     grid_reader = DataReader(participant, Topic(participant, dds_name, OccupancyGrid), qos=grid_qos)
     updates_reader = None
     if args.updates:
         updates_reader = DataReader(
-            participant, Topic(participant, dds_name + "_updates", OccupancyGridUpdate), qos=updates_qos
+            participant, Topic(participant, dds_name + "_updates", OccupancyGridUpdate), qos=volatile_qos
         )
-    people_qos = Qos(
-        Policy.Reliability.Reliable(duration(seconds=1)),
-        Policy.Durability.Volatile,
-        Policy.History.KeepLast(10),
-        xcdr1,
-    )
     extra = []  # (kind, reader)
     for kind, topic, cls, qos in [
-        ("people", args.people, PoseArray, people_qos),
+        ("people", args.people, PoseArray, volatile_qos),
         ("markers", args.markers, MarkerArray, grid_qos),
         ("filter_info", args.speed_info, CostmapFilterInfo, grid_qos),
         ("speed_mask", args.speed_mask, OccupancyGrid, grid_qos),
@@ -310,27 +202,7 @@ def main():
         for msg in grid_reader.take(N=16):
             got = True
             grids += 1
-            o = msg.info.origin
-            emit(
-                {
-                    "kind": "grid",
-                    "frame_id": msg.header.frame_id,
-                    "stamp": [msg.header.stamp.sec, msg.header.stamp.nanosec],
-                    "resolution": msg.info.resolution,
-                    "width": msg.info.width,
-                    "height": msg.info.height,
-                    "origin": [
-                        o.position.x,
-                        o.position.y,
-                        o.position.z,
-                        o.orientation.x,
-                        o.orientation.y,
-                        o.orientation.z,
-                        o.orientation.w,
-                    ],
-                    "data": list(msg.data),
-                }
-            )
+            emit(grid_json("grid", msg))
         if updates_reader is not None:
             for msg in updates_reader.take(N=64):
                 got = True

@@ -2,7 +2,7 @@
 """An independent ROS 2 client of isochron's planning services.
 
 Eclipse Cyclone DDS from Python (`cyclonedds` on PyPI) and nothing of isochron or
-ROS: the types are declared here from ros/isochron_msgs/srv/PlanOffline.srv and
+ROS: the types are declared here (with ros2_dds.py) from ros/isochron_msgs/srv/PlanOffline.srv and
 PlanNow.srv with their DDS names (`isochron_msgs::srv::dds_::PlanNow_Request_`,
 ..._Response_), on the topics ROS 2 gives a service `/s`: `rq/sRequest` and
 `rr/sReply`. As rmw_cyclonedds does, each request and reply starts with the
@@ -20,25 +20,11 @@ Usage: plan_client.py --domain D --service /isochron/plan_now now ROUTE [ROUTE..
 """
 
 import argparse
-import json
 import math
-import os
 import random
-import sys
 import time
-from dataclasses import dataclass
 
-LOOPBACK_ONLY = """<CycloneDDS><Domain id="any">
-  <General>
-    <Interfaces><NetworkInterface address="127.0.0.1"/></Interfaces>
-    <AllowMulticast>false</AllowMulticast>
-  </General>
-  <Discovery>
-    <ParticipantIndex>auto</ParticipantIndex>
-    <MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>
-    <Peers><Peer address="127.0.0.1"/></Peers>
-  </Discovery>
-</Domain></CycloneDDS>"""
+from ros2_dds import absolute, configure, emit, reliable_qos, ros_type
 
 
 def cost(v):
@@ -57,74 +43,45 @@ def main():
     parser.add_argument("kind", choices=["offline", "now"])
     parser.add_argument("args", nargs="+")
     args = parser.parse_args()
-    os.environ["CYCLONEDDS_URI"] = LOOPBACK_ONLY
+    configure()
 
-    from cyclonedds.core import Policy, Qos
     from cyclonedds.domain import DomainParticipant
-    from cyclonedds.idl import IdlStruct
     from cyclonedds.idl.types import float64, int64, sequence, uint8, uint16, uint64
     from cyclonedds.pub import DataWriter
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
-    from cyclonedds.util import duration
 
-    @dataclass
-    class CostPoint(IdlStruct, typename="isochron_msgs::msg::dds_::CostPoint_"):
-        minute: uint16
-        cost: float64
+    CostPoint = ros_type("isochron_msgs/msg/CostPoint", minute=uint16, cost=float64)
 
-    @dataclass
-    class Window(IdlStruct, typename="isochron_msgs::msg::dds_::Window_"):
-        start_minute: uint16
-        end_minute: uint16
-        cost: float64
+    Window = ros_type("isochron_msgs/msg/Window", start_minute=uint16, end_minute=uint16, cost=float64)
 
-    @dataclass
-    class RouteCost(IdlStruct, typename="isochron_msgs::msg::dds_::RouteCost_"):
-        route: str
-        cost2: float64
-        cost1: float64
-        short_term: float64
-        infinite: bool
-        estimated: bool
-        no_long_term: bool
+    RouteCost = ros_type(
+        "isochron_msgs/msg/RouteCost",
+        route=str, cost2=float64, cost1=float64, short_term=float64, infinite=bool, estimated=bool,
+        no_long_term=bool,
+    )
 
-    # rmw_cyclonedds request/reply header (client id, sequence number), then the
-    # .srv fields.
-    @dataclass
-    class PlanOfflineRequest(IdlStruct, typename="isochron_msgs::srv::dds_::PlanOffline_Request_"):
-        client: uint64
-        seq: int64
-        route: str
-        start_minute: uint16
-        end_minute: uint16
-        step_min: uint16
-        weekday: uint8
+    def service_type(name, **fields):
+        """A request or reply: rmw_cyclonedds's header (client id, sequence number),
+        then the .srv fields."""
+        return ros_type(name, client=uint64, seq=int64, **fields)
 
-    @dataclass
-    class PlanOfflineResponse(IdlStruct, typename="isochron_msgs::srv::dds_::PlanOffline_Response_"):
-        client: uint64
-        seq: int64
-        status: uint8
-        message: str
-        windows: sequence[Window]
-        curve: sequence[CostPoint]
-        infinite: bool
+    PlanOfflineRequest = service_type(
+        "isochron_msgs/srv/PlanOffline_Request",
+        route=str, start_minute=uint16, end_minute=uint16, step_min=uint16, weekday=uint8,
+    )
 
-    @dataclass
-    class PlanNowRequest(IdlStruct, typename="isochron_msgs::srv::dds_::PlanNow_Request_"):
-        client: uint64
-        seq: int64
-        routes: sequence[str]
+    PlanOfflineResponse = service_type(
+        "isochron_msgs/srv/PlanOffline_Response",
+        status=uint8, message=str, windows=sequence[Window], curve=sequence[CostPoint], infinite=bool,
+    )
 
-    @dataclass
-    class PlanNowResponse(IdlStruct, typename="isochron_msgs::srv::dds_::PlanNow_Response_"):
-        client: uint64
-        seq: int64
-        status: uint8
-        message: str
-        t_star: uint16
-        routes: sequence[RouteCost]
+    PlanNowRequest = service_type("isochron_msgs/srv/PlanNow_Request", routes=sequence[str])
+
+    PlanNowResponse = service_type(
+        "isochron_msgs/srv/PlanNow_Response",
+        status=uint8, message=str, t_star=uint16, routes=sequence[RouteCost],
+    )
 
     client = random.getrandbits(63)
     if args.kind == "offline":
@@ -171,14 +128,9 @@ def main():
                 ],
             }
 
-    qos = Qos(
-        Policy.Reliability.Reliable(duration(seconds=1)),
-        Policy.Durability.Volatile,
-        Policy.History.KeepLast(10),
-        Policy.DataRepresentation(use_cdrv0_representation=True, use_xcdrv2_representation=True),
-    )
+    qos = reliable_qos(latched=False, depth=10)
     participant = DomainParticipant(args.domain)
-    name = args.service if args.service.startswith("/") else "/" + args.service
+    name = absolute(args.service)
     writer = DataWriter(participant, Topic(participant, "rq" + name + "Request", req_type), qos=qos)
     reader = DataReader(participant, Topic(participant, "rr" + name + "Reply", resp_type), qos=qos)
 
@@ -194,14 +146,10 @@ def main():
             next_send = time.monotonic() + 0.5
         for r in reader.take(N=16):
             if r.client == client and r.seq in sent:
-                out = {"kind": "reply"}
-                out.update(reply_json(r))
-                sys.stdout.write(json.dumps(out) + "\n")
-                sys.stdout.flush()
+                emit({"kind": "reply", **reply_json(r)})
                 return
         time.sleep(0.02)
-    sys.stdout.write(json.dumps({"kind": "timeout"}) + "\n")
-    sys.stdout.flush()
+    emit({"kind": "timeout"})
 
 
 if __name__ == "__main__":

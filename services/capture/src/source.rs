@@ -312,7 +312,7 @@ impl PreloadedSource {
                 fps: p.fps,
             });
         }
-        let source = Self::decode(kind, count, width, height, format)?;
+        let source = Self::decode(&key)?;
         preloads.push(Preload {
             key,
             frames: source.frames.clone(),
@@ -321,13 +321,9 @@ impl PreloadedSource {
         Ok(source)
     }
 
-    fn decode(
-        kind: &SourceKind,
-        count: u32,
-        width: u32,
-        height: u32,
-        format: PixelFormat,
-    ) -> Result<Self, SourceError> {
+    /// Decodes what `key` names: `count` frames of `kind` as `width × height` `format`.
+    fn decode(key: &PreloadKey) -> Result<Self, SourceError> {
+        let (kind, count, width, height, format) = (&key.0, key.1, key.2, key.3, key.4);
         let mut video = VideoSource::open(kind)?;
         let fps = video.stated_fps();
         let bytes = width as usize * height as usize * format.channels();

@@ -234,6 +234,16 @@ pub fn f_l1<T: Real>(b: &mut T, m: T, w: T) -> T {
     (m - *b).max(T::of(0.0))
 }
 
+/// F_L1 on one block's motion `b` with baseline `level` and weight `w`: `M_L1` and
+/// the flow vector scaled by the [pass fraction](pass_fraction).
+#[inline(always)]
+fn f_l1_block<T: Real>(level: &mut T, b: &BlockMotion, w: T) -> (T, T, T) {
+    let m = T::of(b.density);
+    let m_l1 = f_l1(level, m, w);
+    let frac = pass_fraction(m, m_l1);
+    (m_l1, T::of(b.dx) * frac, T::of(b.dy) * frac)
+}
+
 /// The fraction of a block's density that passes F_L1 (`M_L1 / M`, 0 without motion),
 /// by which its flow vector is scaled.
 #[inline(always)]
@@ -246,6 +256,26 @@ pub fn pass_fraction<T: Real>(m: T, m_l1: T) -> T {
 #[inline(always)]
 pub fn ema<T: Real>(y: &mut T, x: T, alpha: T) {
     *y = alpha * *y + (T::of(1.0) - alpha) * x;
+}
+
+/// Decays filter states by `g` (`gap_decay`: seconds that had no frames).
+#[inline(always)]
+fn decay<T: Real, const N: usize>(g: T, states: [&mut T; N]) {
+    for v in states {
+        *v *= g;
+    }
+}
+
+/// Writes one block's activity: `s1` (F_S1's output and vector, as held) and the
+/// band-pass output `s2` with the vector `v` scaled by its pass fraction `frac`.
+#[inline(always)]
+fn write_activity<T: Real>(o: &mut BlockActivity, s1: [T; 3], s2: T, [vx, vy]: [T; 2], frac: T) {
+    o.s1 = s1[0].get();
+    o.s1_dx = s1[1].get();
+    o.s1_dy = s1[2].get();
+    o.s2 = s2.get();
+    o.s2_dx = (vx * frac).get();
+    o.s2_dy = (vy * frac).get();
 }
 
 /// F_S1 and the low end of the band-pass on one block, once per second: returns
@@ -279,6 +309,16 @@ pub struct SecondInput {
     pub gap_decay: f32,
     /// α of F_S1.
     pub alpha_s1: f32,
+}
+
+impl SecondInput {
+    /// `(1 / frames, α of F_S1, the gap decay unless it is 1)` in the banks' number
+    /// type.
+    fn factors<T: Real>(&self) -> (T, T, Option<T>) {
+        let inv = T::of(1.0 / self.frames.max(1) as f32);
+        let gap = (self.gap_decay != 1.0).then(|| T::of(self.gap_decay));
+        (inv, T::of(self.alpha_s1), gap)
+    }
 }
 
 /// The per-block filter state of one camera, cascade or not.
@@ -322,6 +362,45 @@ pub trait FilterBank {
     fn state_bytes(&self) -> usize;
 }
 
+/// The [`FilterBank`] methods that only manage a bank's state, alike for both banks:
+/// `$bank` holds the F_L1 baseline `level` and the short-term vectors `$state`
+/// (which include the minute sums `min_m`), one value per block each.
+macro_rules! bank_state {
+    ($bank:ident: $($state:ident),+) => {
+        fn new(blocks: usize) -> Self {
+            let z = || vec![T::default(); blocks];
+            $bank {
+                level: z(),
+                $($state: z(),)+
+            }
+        }
+
+        fn blocks(&self) -> usize {
+            self.level.len()
+        }
+
+        fn minute_mean(&mut self, frames: u32, out: &mut [f32]) {
+            take_minute_mean(&mut self.min_m, frames, out);
+        }
+
+        fn reset_short_term(&mut self) {
+            zero([$(&mut self.$state),+]);
+        }
+
+        fn baseline(&self) -> Vec<f32> {
+            self.level.iter().map(|v| v.get()).collect()
+        }
+
+        fn set_baseline(&mut self, level: &[f32]) {
+            copy_baseline(&mut self.level, level);
+        }
+
+        fn state_bytes(&self) -> usize {
+            state_bytes(&[&self.level, $(&self.$state),+])
+        }
+    };
+}
+
 /// The cascade: F_L1 → one 1-s FIR → F_S1 (in-place) and, sharing F_S1, the rectified
 /// band-pass (moving); the minute mean is accumulated from the second sums.
 ///
@@ -342,109 +421,49 @@ pub struct CascadeBank<T: Real = f32> {
 impl<T: Real> FilterBank for CascadeBank<T> {
     const FILTERS: u32 = 4;
 
-    fn new(blocks: usize) -> Self {
-        let z = || vec![T::default(); blocks];
-        CascadeBank {
-            level: z(),
-            sec_m: z(),
-            sec_dx: z(),
-            sec_dy: z(),
-            s1: z(),
-            s1_dx: z(),
-            s1_dy: z(),
-            min_m: z(),
-        }
-    }
-
-    fn blocks(&self) -> usize {
-        self.level.len()
-    }
+    bank_state!(CascadeBank: sec_m, sec_dx, sec_dy, s1, s1_dx, s1_dy, min_m);
 
     fn frame(&mut self, motion: &[BlockMotion], w_l1: f32) {
         let n = self.level.len().min(motion.len());
         let w = T::of(w_l1);
-        let (level, sm, sx, sy) = (
-            &mut self.level[..n],
-            &mut self.sec_m[..n],
-            &mut self.sec_dx[..n],
-            &mut self.sec_dy[..n],
+        let [level, sm, sx, sy] = prefixes(
+            n,
+            [
+                &mut self.level,
+                &mut self.sec_m,
+                &mut self.sec_dx,
+                &mut self.sec_dy,
+            ],
         );
         for (k, b) in motion[..n].iter().enumerate() {
-            let m = T::of(b.density);
-            let m_l1 = f_l1(&mut level[k], m, w);
-            let frac = pass_fraction(m, m_l1);
+            let (m_l1, vx, vy) = f_l1_block(&mut level[k], b, w);
             sm[k] += m_l1;
-            sx[k] += T::of(b.dx) * frac;
-            sy[k] += T::of(b.dy) * frac;
+            sx[k] += vx;
+            sy[k] += vy;
         }
     }
 
     fn second(&mut self, input: SecondInput, out: &mut [BlockActivity]) {
         let n = self.level.len().min(out.len());
-        let inv = T::of(1.0 / input.frames.max(1) as f32);
-        let a = T::of(input.alpha_s1);
-        let gap = (input.gap_decay != 1.0).then(|| T::of(input.gap_decay));
+        let (inv, a, gap) = input.factors();
         for (k, o) in out[..n].iter_mut().enumerate() {
             let m_sec = self.sec_m[k] * inv;
             let (vx, vy) = (self.sec_dx[k] * inv, self.sec_dy[k] * inv);
             // The minute mean is built from the seconds: one add per block-second.
             self.min_m[k] += self.sec_m[k];
             if let Some(g) = gap {
-                self.s1[k] *= g;
-                self.s1_dx[k] *= g;
-                self.s1_dy[k] *= g;
+                decay(g, [&mut self.s1[k], &mut self.s1_dx[k], &mut self.s1_dy[k]]);
             }
             let s2 = f_s1(&mut self.s1[k], m_sec, a);
             ema(&mut self.s1_dx[k], vx, a);
             ema(&mut self.s1_dy[k], vy, a);
             let frac = pass_fraction(m_sec, s2);
-            o.s1 = self.s1[k].get();
-            o.s1_dx = self.s1_dx[k].get();
-            o.s1_dy = self.s1_dy[k].get();
-            o.s2 = s2.get();
-            o.s2_dx = (vx * frac).get();
-            o.s2_dy = (vy * frac).get();
+            let s1 = [self.s1[k], self.s1_dx[k], self.s1_dy[k]];
+            write_activity(o, s1, s2, [vx, vy], frac);
             self.sec_m[k] = T::default();
             self.sec_dx[k] = T::default();
             self.sec_dy[k] = T::default();
         }
-    }
-
-    fn minute_mean(&mut self, frames: u32, out: &mut [f32]) {
-        take_minute_mean(&mut self.min_m, frames, out);
-    }
-
-    fn reset_short_term(&mut self) {
-        zero([
-            &mut self.sec_m,
-            &mut self.sec_dx,
-            &mut self.sec_dy,
-            &mut self.s1,
-            &mut self.s1_dx,
-            &mut self.s1_dy,
-            &mut self.min_m,
-        ]);
-    }
-
-    fn baseline(&self) -> Vec<f32> {
-        self.level.iter().map(|v| v.get()).collect()
-    }
-
-    fn set_baseline(&mut self, level: &[f32]) {
-        copy_baseline(&mut self.level, level);
-    }
-
-    fn state_bytes(&self) -> usize {
-        state_bytes(&[
-            &self.level,
-            &self.sec_m,
-            &self.sec_dx,
-            &self.sec_dy,
-            &self.s1,
-            &self.s1_dx,
-            &self.s1_dy,
-            &self.min_m,
-        ])
     }
 }
 
@@ -481,48 +500,26 @@ pub struct NonCascadeBank<T: Real = f32> {
 impl<T: Real> FilterBank for NonCascadeBank<T> {
     const FILTERS: u32 = 5;
 
-    fn new(blocks: usize) -> Self {
-        let z = || vec![T::default(); blocks];
-        NonCascadeBank {
-            level: z(),
-            ip_m: z(),
-            ip_dx: z(),
-            ip_dy: z(),
-            s1: z(),
-            s1_dx: z(),
-            s1_dy: z(),
-            bp_m: z(),
-            bp_dx: z(),
-            bp_dy: z(),
-            bp_low: z(),
-            min_m: z(),
-        }
-    }
-
-    fn blocks(&self) -> usize {
-        self.level.len()
-    }
+    bank_state!(NonCascadeBank: ip_m, ip_dx, ip_dy, s1, s1_dx, s1_dy, bp_m, bp_dx, bp_dy, bp_low, min_m);
 
     fn frame(&mut self, motion: &[BlockMotion], w_l1: f32) {
         let n = self.level.len().min(motion.len());
         let w = T::of(w_l1);
-        let (level, ip_m, ip_dx, ip_dy) = (
-            &mut self.level[..n],
-            &mut self.ip_m[..n],
-            &mut self.ip_dx[..n],
-            &mut self.ip_dy[..n],
-        );
-        let (bp_m, bp_dx, bp_dy, min_m) = (
-            &mut self.bp_m[..n],
-            &mut self.bp_dx[..n],
-            &mut self.bp_dy[..n],
-            &mut self.min_m[..n],
+        let [level, ip_m, ip_dx, ip_dy, bp_m, bp_dx, bp_dy, min_m] = prefixes(
+            n,
+            [
+                &mut self.level,
+                &mut self.ip_m,
+                &mut self.ip_dx,
+                &mut self.ip_dy,
+                &mut self.bp_m,
+                &mut self.bp_dx,
+                &mut self.bp_dy,
+                &mut self.min_m,
+            ],
         );
         for (k, b) in motion[..n].iter().enumerate() {
-            let m = T::of(b.density);
-            let m_l1 = f_l1(&mut level[k], m, w);
-            let frac = pass_fraction(m, m_l1);
-            let (vx, vy) = (T::of(b.dx) * frac, T::of(b.dy) * frac);
+            let (m_l1, vx, vy) = f_l1_block(&mut level[k], b, w);
             // In-place path.
             ip_m[k] += m_l1;
             ip_dx[k] += vx;
@@ -538,15 +535,18 @@ impl<T: Real> FilterBank for NonCascadeBank<T> {
 
     fn second(&mut self, input: SecondInput, out: &mut [BlockActivity]) {
         let n = self.level.len().min(out.len());
-        let inv = T::of(1.0 / input.frames.max(1) as f32);
-        let a = T::of(input.alpha_s1);
-        let gap = (input.gap_decay != 1.0).then(|| T::of(input.gap_decay));
+        let (inv, a, gap) = input.factors();
         for (k, o) in out[..n].iter_mut().enumerate() {
             if let Some(g) = gap {
-                self.s1[k] *= g;
-                self.s1_dx[k] *= g;
-                self.s1_dy[k] *= g;
-                self.bp_low[k] *= g;
+                decay(
+                    g,
+                    [
+                        &mut self.s1[k],
+                        &mut self.s1_dx[k],
+                        &mut self.s1_dy[k],
+                        &mut self.bp_low[k],
+                    ],
+                );
             }
             // In-place: F_S1, a low-pass, on the decimated M_L1.
             let ip = self.ip_m[k] * inv;
@@ -561,12 +561,8 @@ impl<T: Real> FilterBank for NonCascadeBank<T> {
             let s2 = (fir - self.bp_low[k]).max(T::of(0.0));
             ema(&mut self.bp_low[k], fir, a);
             let frac = pass_fraction(fir, s2);
-            o.s1 = self.s1[k].get();
-            o.s1_dx = self.s1_dx[k].get();
-            o.s1_dy = self.s1_dy[k].get();
-            o.s2 = s2.get();
-            o.s2_dx = (fx * frac).get();
-            o.s2_dy = (fy * frac).get();
+            let s1 = [self.s1[k], self.s1_dx[k], self.s1_dy[k]];
+            write_activity(o, s1, s2, [fx, fy], frac);
             self.ip_m[k] = T::default();
             self.ip_dx[k] = T::default();
             self.ip_dy[k] = T::default();
@@ -574,51 +570,6 @@ impl<T: Real> FilterBank for NonCascadeBank<T> {
             self.bp_dx[k] = T::default();
             self.bp_dy[k] = T::default();
         }
-    }
-
-    fn minute_mean(&mut self, frames: u32, out: &mut [f32]) {
-        take_minute_mean(&mut self.min_m, frames, out);
-    }
-
-    fn reset_short_term(&mut self) {
-        zero([
-            &mut self.ip_m,
-            &mut self.ip_dx,
-            &mut self.ip_dy,
-            &mut self.s1,
-            &mut self.s1_dx,
-            &mut self.s1_dy,
-            &mut self.bp_m,
-            &mut self.bp_dx,
-            &mut self.bp_dy,
-            &mut self.bp_low,
-            &mut self.min_m,
-        ]);
-    }
-
-    fn baseline(&self) -> Vec<f32> {
-        self.level.iter().map(|v| v.get()).collect()
-    }
-
-    fn set_baseline(&mut self, level: &[f32]) {
-        copy_baseline(&mut self.level, level);
-    }
-
-    fn state_bytes(&self) -> usize {
-        state_bytes(&[
-            &self.level,
-            &self.ip_m,
-            &self.ip_dx,
-            &self.ip_dy,
-            &self.s1,
-            &self.s1_dx,
-            &self.s1_dy,
-            &self.bp_m,
-            &self.bp_dx,
-            &self.bp_dy,
-            &self.bp_low,
-            &self.min_m,
-        ])
     }
 }
 
@@ -637,6 +588,12 @@ fn copy_baseline<T: Real>(level: &mut [T], from: &[f32]) {
     for (l, &f) in level.iter_mut().zip(from) {
         *l = T::of(f);
     }
+}
+
+/// The first `n` values of each of the per-block vectors `state` (re-sliced once, so
+/// the per-frame loop has no bounds checks).
+fn prefixes<T, const N: usize>(n: usize, state: [&mut Vec<T>; N]) -> [&mut [T]; N] {
+    state.map(|v| &mut v[..n])
 }
 
 /// Sets every value of the per-block vectors `state` to zero.

@@ -438,6 +438,15 @@ stale_s = 5
         dh
     }
 
+    /// A bridge that has seen one quiet second at capture time 1000 s (at `t0`), and
+    /// those quiet blocks.
+    fn quiet_bridge_at_1000_s(t0: Instant) -> (Bridge, Vec<BlockActivity>) {
+        let mut b = bridge();
+        let blocks = vec![BlockActivity::default(); 300];
+        b.on_activity(0, &header(1_000 * NS_PER_S), &blocks, t0);
+        (b, blocks)
+    }
+
     /// A person whose feet are at image (105, 124).
     fn person_at_feet_105_124() -> Detection {
         Detection {
@@ -452,10 +461,8 @@ stale_s = 5
 
     #[test]
     fn confirmed_people_raise_their_cells_for_a_while() {
-        let mut b = bridge();
         let t0 = Instant::now();
-        let blocks = vec![BlockActivity::default(); 300];
-        b.on_activity(0, &header(1_000 * NS_PER_S), &blocks, t0);
+        let (mut b, blocks) = quiet_bridge_at_1000_s(t0);
         let dh = detections_at_1000_s(1);
         // Feet at image (105, 124) → floor (1.3125, 1.45): cell (13, 14).
         let person = person_at_feet_105_124();
@@ -479,10 +486,8 @@ stale_s = 5
 
     #[test]
     fn a_detection_that_searched_there_and_found_nobody_ends_a_confirmation() {
-        let mut b = bridge();
         let t0 = Instant::now();
-        let blocks = vec![BlockActivity::default(); 300];
-        b.on_activity(0, &header(1_000 * NS_PER_S), &blocks, t0);
+        let (mut b, _) = quiet_bridge_at_1000_s(t0);
         b.on_detections(0, &detections_at_1000_s(1), &[person_at_feet_105_124()]);
         let grid = b.grid.unwrap();
         let at_feet = |b: &Bridge| b.compose(t0).unwrap()[grid.index(13, 14)];

@@ -26,7 +26,7 @@ use crate::msgs::{
     CostmapFilterInfo, Header, MapMetaData, OccupancyGrid, OccupancyGridUpdate, Point, Pose,
     PoseArray, Quaternion, Time,
 };
-use crate::ros::{RosOutput, RosSettings, domain_id, interfaces, limit_dds_logging};
+use crate::ros::{PublishError, RosOutput, RosSettings, domain_id, interfaces, limit_dds_logging};
 use isochron_planning::snapshot::{self, FloorPlan, Snapshot, SnapshotError};
 
 /// How long a read long-term model is trusted before the store is checked again.
@@ -45,6 +45,29 @@ struct Counters {
     markers: u64,
     masks: u64,
     forecasts: u64,
+}
+
+impl Counters {
+    /// Counts one publish of `what`: into the counter `sent` picks if it went out
+    /// (then true), else as a publish error with a warning.
+    fn published(
+        &mut self,
+        what: &str,
+        result: Result<(), PublishError>,
+        sent: fn(&mut Counters) -> &mut u64,
+    ) -> bool {
+        match result {
+            Ok(()) => {
+                *sent(self) += 1;
+                true
+            }
+            Err(e) => {
+                self.publish_errors += 1;
+                tracing::warn!("publishing {what} failed: {e}");
+                false
+            }
+        }
+    }
 }
 
 /// The ROS 2 side: the output and what was sent.
@@ -319,15 +342,12 @@ impl Stage for CostmapStage {
                 let mask: Vec<i8> = cells.iter().map(|&v| c.speed_mask_value(v)).collect();
                 if ros.mask_sent.as_ref() != Some(&mask) {
                     let message = occupancy_grid(grid, &ros.frame_id, stamp_ns, mask.clone());
-                    match ros.output.publish_mask(message) {
-                        Ok(()) => {
-                            self.counters.masks += 1;
-                            ros.mask_sent = Some(mask);
-                        }
-                        Err(e) => {
-                            self.counters.publish_errors += 1;
-                            tracing::warn!("publishing the speed mask failed: {e}");
-                        }
+                    let result = ros.output.publish_mask(message);
+                    if self
+                        .counters
+                        .published("the speed mask", result, |c| &mut c.masks)
+                    {
+                        ros.mask_sent = Some(mask);
                     }
                 }
                 if !ros.publish_unknown {
@@ -359,13 +379,9 @@ impl Stage for CostmapStage {
                 Ok(cells) => {
                     let at_ns = now_ns + c.forecast_ahead_min as i64 * 60 * NS_PER_S;
                     let message = occupancy_grid(grid, &ros.frame_id, at_ns, cells);
-                    match ros.output.publish_forecast(message) {
-                        Ok(()) => self.counters.forecasts += 1,
-                        Err(e) => {
-                            self.counters.publish_errors += 1;
-                            tracing::warn!("publishing the forecast failed: {e}");
-                        }
-                    }
+                    let result = ros.output.publish_forecast(message);
+                    self.counters
+                        .published("the forecast", result, |c| &mut c.forecasts);
                 }
                 Err(e) => cx.warnings.warn("forecast", || {
                     format!("no forecast: the long-term store cannot be read: {e}")
@@ -379,19 +395,13 @@ impl Stage for CostmapStage {
                     stamp: Time::from_utc_ns(wall_now_ns()),
                     frame_id: ros.frame_id.clone(),
                 };
-                match ros.output.publish_markers(site_markers(
-                    &self.planning.loaded,
-                    &self.bridge,
-                    &header,
-                )) {
-                    Ok(()) => {
-                        self.counters.markers += 1;
-                        ros.markers_sent = Some(key);
-                    }
-                    Err(e) => {
-                        self.counters.publish_errors += 1;
-                        tracing::warn!("publishing the markers failed: {e}");
-                    }
+                let markers = site_markers(&self.planning.loaded, &self.bridge, &header);
+                let result = ros.output.publish_markers(markers);
+                if self
+                    .counters
+                    .published("the markers", result, |c| &mut c.markers)
+                {
+                    ros.markers_sent = Some(key);
                 }
             }
         }
@@ -485,13 +495,9 @@ fn publish_people(
         },
         poses,
     };
-    match ros.output.publish_people(people) {
-        Ok(()) => counters.people += 1,
-        Err(e) => {
-            counters.publish_errors += 1;
-            tracing::warn!("publishing people failed: {e}");
-        }
-    }
+    counters.published("people", ros.output.publish_people(people), |c| {
+        &mut c.people
+    });
 }
 
 /// A full grid message of `grid`'s geometry.

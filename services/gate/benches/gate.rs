@@ -17,13 +17,14 @@
 //! [`QUICK_DETECT_ALL_FRAMES`] of them: a check that the bench runs; the JSON line
 //! gets `"quick":true`.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use std::time::Instant;
 
 use isochron_gate::detector::Detector;
 use isochron_gate::worker::Region;
 use isochron_shared::config::Config;
+use isochron_tests::{bin_dir, mjpg_writer, repo_root};
 use opencv::core::Size;
 use opencv::prelude::*;
 use opencv::{imgproc, videoio};
@@ -35,37 +36,10 @@ const QUICK_CLIP_FRAMES: usize = 150;
 /// Frames the detect-all pass times with `--quick`.
 const QUICK_DETECT_ALL_FRAMES: usize = 4;
 
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../..")
-        .canonicalize()
-        .unwrap()
-}
-
-/// The binaries of the profile this bench was built in: `$ISOCHRON_BIN_DIR`, else
-/// `target/<profile>` (the bench runs as `target/<profile>/deps/gate-…`).
-fn bin_dir() -> PathBuf {
-    if let Some(dir) = std::env::var_os("ISOCHRON_BIN_DIR") {
-        return PathBuf::from(dir);
-    }
-    let exe = std::env::current_exe().expect("bench binary path");
-    exe.parent()
-        .and_then(Path::parent)
-        .expect("target/<profile>")
-        .to_path_buf()
-}
-
 /// Writes `frames` (BGR) to an MJPG clip at `path`.
 fn write_clip(path: &Path, frames: &[Mat], fps: f64) {
     let size = Size::new(frames[0].cols(), frames[0].rows());
-    let fourcc = videoio::VideoWriter::fourcc('M', 'J', 'P', 'G').unwrap();
-    let mut writer =
-        videoio::VideoWriter::new(path.to_str().unwrap(), fourcc, fps, size, true).unwrap();
-    assert!(
-        writer.is_opened().unwrap(),
-        "cannot write {}",
-        path.display()
-    );
+    let mut writer = mjpg_writer(path, fps, size);
     for f in frames {
         writer.write(f).unwrap();
     }
@@ -74,7 +48,7 @@ fn write_clip(path: &Path, frames: &[Mat], fps: f64) {
 
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");
-    let root = repo();
+    let root = repo_root();
     let mut video = root.join("data/vtest.avi");
     let config_path = root.join("config/demo.toml");
     let config = Config::load(&config_path).expect("config/demo.toml");

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::{Invalid, check_polygon, check_range};
+use super::{Invalid, check_at_least, check_polygon, check_range};
 use crate::wire::{PixelFormat, is_valid_camera_id};
 
 /// Playback speed of a file source.
@@ -389,15 +389,12 @@ fn check_floor_points(key: &str, points: &[FloorPoint]) -> Result<(), Invalid> {
     if points.is_empty() {
         return Ok(());
     }
-    if points.len() < 4 {
-        return Err(Invalid::new(
-            key,
-            format!(
-                "expected at least 4 {{ image_px = [x, y], floor_m = [x, y] }} pairs, found {}",
-                points.len()
-            ),
-        ));
-    }
+    check_at_least(
+        key,
+        points.len(),
+        4,
+        "at least 4 { image_px = [x, y], floor_m = [x, y] } pairs",
+    )?;
     for (side, pick) in [
         (
             "image_px",

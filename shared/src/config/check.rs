@@ -26,19 +26,52 @@ pub fn check_positive(key: &str, v: f64) -> Result<(), Invalid> {
     }
 }
 
+/// Checks a section's DDS settings: `<section>.ros_domain_id` 0 to 232, and
+/// `<section>.dds_interfaces` IP addresses (`example` shows one in the message).
+pub(super) fn check_dds(
+    section: &str,
+    ros_domain_id: Option<u16>,
+    dds_interfaces: &[String],
+    example: &str,
+) -> Result<(), Invalid> {
+    if let Some(d) = ros_domain_id {
+        check_range(&format!("{section}.ros_domain_id"), d as f64, 0.0, 232.0)?;
+    }
+    for (i, addr) in dds_interfaces.iter().enumerate() {
+        if addr.parse::<std::net::IpAddr>().is_err() {
+            return Err(Invalid::new(
+                format!("{section}.dds_interfaces[{i}]"),
+                format!(
+                    "expected the IP address of a network interface such as \"{example}\", found \"{addr}\""
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Errors unless there are at least `min` of the `found` items; `expected` says
+/// what is expected, e.g. "a polygon of at least 3 [x, y] points".
+pub(super) fn check_at_least(
+    key: &str,
+    found: usize,
+    min: usize,
+    expected: &str,
+) -> Result<(), Invalid> {
+    if found < min {
+        return Err(Invalid::new(
+            key,
+            format!("expected {expected}, found {found}"),
+        ));
+    }
+    Ok(())
+}
+
 /// Errors unless `poly` has at least 3 points, all finite, and is simple: no two
 /// edges that are not neighbours cross or touch (a bow tie or figure eight has no
 /// well-defined inside).
 pub(super) fn check_polygon(key: &str, poly: &Polygon) -> Result<(), Invalid> {
-    if poly.len() < 3 {
-        return Err(Invalid::new(
-            key,
-            format!(
-                "expected a polygon of at least 3 [x, y] points, found {}",
-                poly.len()
-            ),
-        ));
-    }
+    check_at_least(key, poly.len(), 3, "a polygon of at least 3 [x, y] points")?;
     if poly.iter().flatten().any(|v| !v.is_finite()) {
         return Err(Invalid::new(key, "expected finite coordinates"));
     }

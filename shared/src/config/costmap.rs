@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
-use super::{CameraConfig, Invalid, check_polygon, check_positive, check_range};
+use super::{CameraConfig, Invalid, check_dds, check_polygon, check_positive, check_range};
 
 /// `[costmap]`: block activity on the robots' map as a ROS 2 `OccupancyGrid`
 /// (docs/ARCHITECTURE.md, "Cost map and planning"), snapshots, and path planning on segments and routes.
@@ -418,19 +418,12 @@ impl CostmapConfig {
         }
         check_range("costmap.publish_hz", self.publish_hz, 0.01, 100.0)?;
         check_range("costmap.full_every_s", self.full_every_s, 0.0, 86_400.0)?;
-        if let Some(d) = self.ros_domain_id {
-            check_range("costmap.ros_domain_id", d as f64, 0.0, 232.0)?;
-        }
-        for (i, addr) in self.dds_interfaces.iter().enumerate() {
-            if addr.parse::<std::net::IpAddr>().is_err() {
-                return Err(Invalid::new(
-                    format!("costmap.dds_interfaces[{i}]"),
-                    format!(
-                        "expected the IP address of a network interface such as \"127.0.0.1\", found \"{addr}\""
-                    ),
-                ));
-            }
-        }
+        check_dds(
+            "costmap",
+            self.ros_domain_id,
+            &self.dds_interfaces,
+            "127.0.0.1",
+        )?;
         for (name, v) in [
             ("weight_in_place", self.weight_in_place),
             ("weight_moving", self.weight_moving),

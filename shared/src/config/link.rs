@@ -6,7 +6,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{CameraConfig, Invalid, check_range};
+use super::{CameraConfig, Invalid, check_dds};
 
 /// `[link]`: the box-to-box link.
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
@@ -118,19 +118,7 @@ impl LinkConfig {
         if let Some(q) = self.queue_messages {
             check_range("link.queue_messages", q as f64, 1.0, 10_000.0)?;
         }
-        if let Some(d) = self.ros_domain_id {
-            check_range("link.ros_domain_id", d as f64, 0.0, 232.0)?;
-        }
-        for (i, addr) in self.dds_interfaces.iter().enumerate() {
-            if addr.parse::<std::net::IpAddr>().is_err() {
-                return Err(Invalid::new(
-                    format!("link.dds_interfaces[{i}]"),
-                    format!(
-                        "expected the IP address of a network interface such as \"10.0.0.5\", found \"{addr}\""
-                    ),
-                ));
-            }
-        }
+        check_dds("link", self.ros_domain_id, &self.dds_interfaces, "10.0.0.5")?;
         if let Some(ns) = &self.namespace {
             let ok = ns.starts_with('/') && ns[1..].split('/').all(is_ros_token);
             if !ok {

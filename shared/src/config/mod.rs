@@ -33,7 +33,7 @@ pub use camera::{
     CameraConfig, FloorPoint, Polygon, SourceKind, Speed, ZoneConfig, degenerate_points,
 };
 pub use cascade::CascadeConfig;
-use check::check_polygon;
+use check::{check_at_least, check_dds, check_polygon};
 pub use check::{check_positive, check_range};
 pub use costmap::{
     CostmapConfig, MAX_GRID_CELLS, PLAN_NAME_LEN, RouteConfig, SegmentConfig, is_valid_ros_topic,

@@ -2,8 +2,8 @@
 //! run time): a 16-pixel block row is one 256-bit register of `i16`, the six
 //! products go through `_mm256_madd_epi16`.
 
-use super::portable::{Bands, Portable, Simd, run_bands};
-use super::{BlockSums, GRADIENT_SATURATION, Geometry, LANES, MAX_SPEED, Thresholds};
+use super::portable::{Bands, Job, Portable, Simd, run_bands};
+use super::{BlockSums, GRADIENT_SATURATION, LANES, MAX_SPEED, Thresholds};
 use std::arch::x86_64::*;
 
 /// Lane masks for strips narrower than 16: `VALID[n]` keeps lanes `0..n`.
@@ -29,6 +29,36 @@ fn hsum_epi32(v: __m256i) -> i32 {
     let s = _mm_add_epi32(s, _mm_shuffle_epi32::<0b01_00_11_10>(s));
     let s = _mm_add_epi32(s, _mm_shuffle_epi32::<0b10_11_00_01>(s));
     _mm_cvtsi128_si32(s)
+}
+
+/// `out[x] = op(p[x], c[x])` for `x < n`, 16 pixels (widened to `i16`) at a time;
+/// the last chunk overlaps the one before.
+///
+/// # Safety
+/// `LANES ≤ n` and `n` is at most the length of `p`, `c` and `out`.
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn map_pixels(
+    p: &[u8],
+    c: &[u8],
+    out: &mut [i16],
+    n: usize,
+    op: impl Fn(__m256i, __m256i) -> __m256i,
+) {
+    let mut x = 0;
+    loop {
+        let at = x.min(n - LANES);
+        // SAFETY: at + 16 ≤ n for every access (the caller's contract).
+        unsafe {
+            let a = _mm256_cvtepu8_epi16(_mm_loadu_si128(p.as_ptr().add(at).cast()));
+            let b = _mm256_cvtepu8_epi16(_mm_loadu_si128(c.as_ptr().add(at).cast()));
+            _mm256_storeu_si256(out.as_mut_ptr().add(at).cast(), op(a, b));
+        }
+        if at + LANES == n {
+            break;
+        }
+        x += LANES;
+    }
 }
 
 /// Sum of the four `u64` lanes.
@@ -108,21 +138,11 @@ impl Simd for Avx2 {
             return unsafe { Portable::diff_row(p, c, offset, it) };
         }
         let off = _mm256_set1_epi16(offset);
-        // Chunks of 16; the last one overlaps the one before (n ≥ 16).
-        let mut x = 0;
-        loop {
-            let at = x.min(n - LANES);
-            // SAFETY: AVX2 is present (caller); at + 16 ≤ n for every access.
-            unsafe {
-                let a = _mm256_cvtepu8_epi16(_mm_loadu_si128(p.as_ptr().add(at).cast()));
-                let b = _mm256_cvtepu8_epi16(_mm_loadu_si128(c.as_ptr().add(at).cast()));
-                let t = _mm256_sub_epi16(_mm256_sub_epi16(b, a), off);
-                _mm256_storeu_si256(it.as_mut_ptr().add(at).cast(), t);
-            }
-            if at + LANES == n {
-                break;
-            }
-            x += LANES;
+        // SAFETY: AVX2 is present (caller); 16 ≤ n ≤ every length.
+        unsafe {
+            map_pixels(p, c, it, n, |a, b| {
+                _mm256_sub_epi16(_mm256_sub_epi16(b, a), off)
+            })
         }
     }
 
@@ -134,20 +154,8 @@ impl Simd for Avx2 {
             // SAFETY: the portable routine needs no CPU feature.
             return unsafe { Portable::sum_row(p, c, s) };
         }
-        let mut x = 0;
-        loop {
-            let at = x.min(n - LANES);
-            // SAFETY: AVX2 is present (caller); at + 16 ≤ n for every access.
-            unsafe {
-                let a = _mm256_cvtepu8_epi16(_mm_loadu_si128(p.as_ptr().add(at).cast()));
-                let b = _mm256_cvtepu8_epi16(_mm_loadu_si128(c.as_ptr().add(at).cast()));
-                _mm256_storeu_si256(s.as_mut_ptr().add(at).cast(), _mm256_add_epi16(a, b));
-            }
-            if at + LANES == n {
-                break;
-            }
-            x += LANES;
-        }
+        // SAFETY: AVX2 is present (caller); 16 ≤ n ≤ every length.
+        unsafe { map_pixels(p, c, s, n, |a, b| _mm256_add_epi16(a, b)) }
     }
 
     #[inline]
@@ -312,17 +320,12 @@ impl Acc {
 /// # Safety
 /// The CPU must have AVX2; the arguments must match `geom`.
 #[target_feature(enable = "avx2")]
-#[allow(clippy::too_many_arguments)]
 pub(super) unsafe fn run(
     bands: &mut Bands,
-    prev: &[u8],
-    cur: &[u8],
-    geom: &Geometry,
-    thresholds: Thresholds,
-    mask: &[bool],
+    job: Job<'_>,
     out: &mut [BlockSums],
     active: &mut Vec<usize>,
 ) -> i16 {
     // SAFETY: AVX2 is present (this function's contract).
-    unsafe { run_bands::<Avx2>(bands, prev, cur, geom, thresholds, mask, out, active) }
+    unsafe { run_bands::<Avx2>(bands, job, out, active) }
 }

@@ -88,7 +88,7 @@ pub use spec::{
     OFFSET_ROW_STEP, Thresholds,
 };
 
-use portable::{Bands, Portable, run_bands};
+use portable::{Bands, Job, Portable, run_bands};
 
 /// Which code computes the sums.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -212,6 +212,13 @@ impl MotionKernel {
         }
         self.active.clear();
         let (bands, sums, active) = (&mut self.bands, &mut self.sums, &mut self.active);
+        let job = Job {
+            prev,
+            cur,
+            geom: g,
+            thresholds,
+            mask,
+        };
         self.offset = match self.implementation {
             Implementation::Scalar => {
                 let offset = brightness_offset(prev, cur, g.width, g.height);
@@ -221,14 +228,10 @@ impl MotionKernel {
                 offset
             }
             // SAFETY: the portable routines need no CPU feature; sizes checked above.
-            Implementation::Portable => unsafe {
-                run_bands::<Portable>(bands, prev, cur, g, thresholds, mask, sums, active)
-            },
+            Implementation::Portable => unsafe { run_bands::<Portable>(bands, job, sums, active) },
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `new` checked that the CPU has AVX2; sizes checked above.
-            Implementation::Avx2 => unsafe {
-                avx2::run(bands, prev, cur, g, thresholds, mask, sums, active)
-            },
+            Implementation::Avx2 => unsafe { avx2::run(bands, job, sums, active) },
             #[cfg(not(target_arch = "x86_64"))]
             Implementation::Avx2 => unreachable!("AVX2 kernel on a non-x86 target"),
         };

@@ -178,25 +178,38 @@ pub(super) trait Simd {
     }
 }
 
+/// The input of one run of the kernel: the frame pair, its grid, the thresholds and
+/// the block mask (empty: none).
+#[derive(Clone, Copy)]
+pub(super) struct Job<'a> {
+    pub prev: &'a [u8],
+    pub cur: &'a [u8],
+    pub geom: &'a Geometry,
+    pub thresholds: Thresholds,
+    pub mask: &'a [bool],
+}
+
 /// Runs the band-buffered kernel with routines `K` over the whole frame; returns
 /// the brightness offset it used. Writes the sums of the blocks it computes and
 /// pushes their indices to `active`; `out` must be all zero before.
 ///
 /// # Safety
-/// `K`'s CPU features must be present; the frames, `mask` and `out` must match
-/// `geom` (checked by [`MotionKernel::run`](super::MotionKernel::run)).
+/// `K`'s CPU features must be present; the job's frames and mask, and `out`, must
+/// match its `geom` (checked by [`MotionKernel::run`](super::MotionKernel::run)).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 pub(super) unsafe fn run_bands<K: Simd>(
     bands: &mut Bands,
-    prev: &[u8],
-    cur: &[u8],
-    geom: &Geometry,
-    thresholds: Thresholds,
-    mask: &[bool],
+    job: Job<'_>,
     out: &mut [BlockSums],
     active: &mut Vec<usize>,
 ) -> i16 {
+    let Job {
+        prev,
+        cur,
+        geom,
+        thresholds,
+        mask,
+    } = job;
     // SAFETY: forwarded from the caller.
     let offset = unsafe { bands.pretest::<K>(prev, cur, geom) };
     let bp = geom.block_px;
