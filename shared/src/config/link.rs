@@ -6,7 +6,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{CameraConfig, Invalid, check_dds};
+use super::{CameraConfig, Invalid, check_dds, check_range};
 
 /// `[link]`: the box-to-box link.
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
