@@ -84,7 +84,7 @@ fn main() -> anyhow::Result<()> {
                 if matches!(*target, "gate" | "group" | "site") {
                     run(cargo().args(["build", "--workspace", "--bins"]))?;
                 }
-                quick_bench(cargo(), package, target, &rest)
+                quick_bench(cargo(), target, &rest)
             } else {
                 bench(package, target, extra)
             }
@@ -355,9 +355,9 @@ fn test() -> anyhow::Result<()> {
     run(linted_cargo()?.args(["test", "--workspace"]))?;
     // Every benchmark in quick mode, so that none can rot.
     let mut times = Vec::new();
-    for (name, package, target) in BENCHES {
+    for (name, _, target) in BENCHES {
         let t0 = Instant::now();
-        quick_bench(linted_cargo()?, package, target, &[])?;
+        quick_bench(linted_cargo()?, target, &[])?;
         times.push(format!("{name} {:.0} s", t0.elapsed().as_secs_f64()));
     }
     eprintln!(
@@ -397,17 +397,14 @@ fn linted_cargo() -> anyhow::Result<Command> {
     Ok(cmd)
 }
 
-/// Runs benchmark `target` of `package` in quick mode in the dev profile (`cmd`, a
-/// `cargo` command, with `test --bench`: the `harness = false` binary, run with the arguments after `--`), its
-/// output shown as it comes, and fails unless the last line of its output that names
+/// Runs benchmark `target` in quick mode in the dev profile (`cmd`, a `cargo`
+/// command, with `test --workspace --bench`: the `harness = false` binary, run with
+/// the arguments after `--`; `--workspace` rather than `-p`, so that dependencies keep
+/// the workspace's unified features and nothing is compiled again), its output shown
+/// as it comes, and fails unless the last line of its output that names
 /// `"bench"` is a JSON object of this benchmark.
-fn quick_bench(
-    mut cmd: Command,
-    package: &str,
-    target: &str,
-    extra: &[String],
-) -> anyhow::Result<()> {
-    cmd.args(["test", "-p", package, "--bench", target, "--", "--quick"])
+fn quick_bench(mut cmd: Command, target: &str, extra: &[String]) -> anyhow::Result<()> {
+    cmd.args(["test", "--workspace", "--bench", target, "--", "--quick"])
         .args(extra)
         .stdout(Stdio::piped());
     let shown = format!("{cmd:?}");
