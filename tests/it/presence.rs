@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use isochron_motion::eval::{GroundTruth, PersonBox};
-use isochron_tests::{TestSite, repo_root, vtest};
+use isochron_tests::{TestSite, read_jsonl, repo_root, vtest};
 use opencv::core::{Mat, Size, Vec3b};
 use opencv::prelude::*;
 use opencv::videoio;
@@ -196,28 +196,13 @@ fn write_clip(path: &Path) -> Vec<bool> {
     present
 }
 
-fn read_jsonl(path: &Path) -> Vec<Value> {
-    std::fs::read_to_string(path)
-        .unwrap_or_default()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect()
-}
-
 #[test]
 fn people_who_stand_still_stay_present_and_no_event_is_false() {
     let site = TestSite::with_source("presence", "", "replaced-by-replay");
     let video = site.path("standing.avi");
     let present = write_clip(&video);
     let out = site.path("out");
-    let run = site.replay(&video, &out, "2026-03-02T07:00:00Z");
-    assert!(
-        run.status.success(),
-        "replay failed\nstdout:\n{}\nstderr:\n{}\nlogs: {}",
-        run.stdout,
-        run.stderr,
-        out.join("logs").display()
-    );
+    site.replay_ok(&video, &out, "2026-03-02T07:00:00Z");
     let events = read_jsonl(&out.join("events.jsonl"));
     let detections = read_jsonl(&out.join("detections.jsonl"));
     let span = |e: &Value| {
