@@ -11,10 +11,11 @@ use std::time::Duration;
 
 use isochron_shared::config::LoadedConfig;
 use isochron_shared::ipc::{
-    Activity, Detections, Events, Frames, Ipc, IpcError, Motion, StatusSubscriber, StreamSubscriber,
+    Activity, Detections, Events, Frames, Ipc, IpcError, Motion, ReceivedSample, StatusSubscriber,
+    StreamSubscriber, StreamType,
 };
 use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{CameraId, Stream};
+use isochron_shared::wire::{CameraId, Stream, StreamHeader};
 
 use crate::channels::SiteChannels;
 
@@ -176,40 +177,20 @@ impl Follower {
     pub fn poll(&mut self, channels: &mut SiteChannels) -> Result<u64, IpcError> {
         let before = self.samples;
         for c in &mut self.cameras {
-            if let Some(sub) = &c.frames {
-                // Latest first: of what waits, only the newest frame can be shown.
-                let mut newest = None;
-                while let Some(sample) = sub.receive()? {
-                    newest = Some(sample);
-                }
-                if let Some(s) = newest {
-                    let h = s.user_header();
-                    if h.validate(&c.camera, s.payload().len()).is_err() {
-                        self.rejected += 1;
-                    } else if !h.preamble.is_end_of_stream() {
-                        self.samples += 1;
-                        if channels.wants_frame(c.k, h.preamble.capture_time_ns) {
-                            channels.on_frame(c.k, h, s.payload());
-                        }
-                    }
+            // Latest first: of what waits, only the newest frame can be shown, and
+            // only the newest motion is published (at most 2 Hz).
+            if let Some(s) = newest(&c.frames, &c.camera, &mut self.rejected)? {
+                self.samples += 1;
+                let h = s.user_header();
+                if channels.wants_frame(c.k, h.preamble.capture_time_ns) {
+                    channels.on_frame(c.k, h, s.payload());
                 }
             }
-            if let Some(sub) = &c.motion {
-                // Latest first, as frames: only the newest is published, at most 2 Hz.
-                let mut newest = None;
-                while let Some(sample) = sub.receive()? {
-                    newest = Some(sample);
-                }
-                if let Some(s) = newest {
-                    let h = s.user_header();
-                    if h.validate(&c.camera, s.payload().len()).is_err() {
-                        self.rejected += 1;
-                    } else if !h.preamble.is_end_of_stream() {
-                        self.samples += 1;
-                        if channels.wants_motion(c.k, h.preamble.capture_time_ns) {
-                            channels.on_motion(c.k, h, s.payload());
-                        }
-                    }
+            if let Some(s) = newest(&c.motion, &c.camera, &mut self.rejected)? {
+                self.samples += 1;
+                let h = s.user_header();
+                if channels.wants_motion(c.k, h.preamble.capture_time_ns) {
+                    channels.on_motion(c.k, h, s.payload());
                 }
             }
             if let Some(sub) = &c.activity {
@@ -273,4 +254,27 @@ impl Follower {
             None => std::thread::sleep(timeout),
         }
     }
+}
+
+/// The newest sample waiting on `sub` (if subscribed), the older ones skipped; `None`
+/// when nothing waits, or the newest is the end of stream or malformed (counted in
+/// `rejected`).
+fn newest<S: StreamType>(
+    sub: &Option<StreamSubscriber<S>>,
+    camera: &CameraId,
+    rejected: &mut u64,
+) -> Result<Option<ReceivedSample<S>>, IpcError> {
+    let Some(sub) = sub else { return Ok(None) };
+    let mut newest = None;
+    while let Some(sample) = sub.receive()? {
+        newest = Some(sample);
+    }
+    Ok(newest.filter(|s| {
+        let h = s.user_header();
+        if h.validate(camera, s.payload().len()).is_err() {
+            *rejected += 1;
+            return false;
+        }
+        !h.preamble().is_end_of_stream()
+    }))
 }
