@@ -237,13 +237,7 @@ fn expected_snapshot(args: SnapshotArgs, at: &str) -> anyhow::Result<ExitCode> {
         .filter(|(f, _)| f.is_some())
         .map(|(_, c)| c.0.as_str())
         .collect();
-    let segments: Vec<&[[f64; 2]]> = loaded
-        .config
-        .costmap
-        .segments
-        .iter()
-        .filter_map(|s| s.polygon_m.as_deref())
-        .collect();
+    let segments: Vec<&[[f64; 2]]> = loaded.config.costmap.segment_polygons();
     let when = match day {
         Some(d) => format!("{} {}", DAYS[d as usize], format_t_star(minute)),
         None => format_t_star(minute),

@@ -622,13 +622,7 @@ impl Planning {
             ts.subsec_millisecond()
         );
         let coverage = bridge.coverage();
-        let polygons: Vec<&[[f64; 2]]> = loaded
-            .config
-            .costmap
-            .segments
-            .iter()
-            .filter_map(|s| s.polygon_m.as_deref())
-            .collect();
+        let polygons: Vec<&[[f64; 2]]> = loaded.config.costmap.segment_polygons();
         let stamp = format_rfc3339(stamp_ns);
         // As many as `coverage`: the cameras with a footprint.
         let camera_ids: Vec<&str> = bridge

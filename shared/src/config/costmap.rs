@@ -229,6 +229,14 @@ impl CostmapConfig {
         self.map_yaml.is_some() || self.width_cells.is_some()
     }
 
+    /// The floor polygons (metres) of the segments that have one, as drawn on maps.
+    pub fn segment_polygons(&self) -> Vec<&[[f64; 2]]> {
+        self.segments
+            .iter()
+            .filter_map(|s| s.polygon_m.as_deref())
+            .collect()
+    }
+
     /// The updates topic: `updates_topic`, else `<topic>_updates`.
     pub fn updates_topic(&self) -> String {
         self.updates_topic
