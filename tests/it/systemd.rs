@@ -124,76 +124,49 @@ fn each_service_gets_the_access_it_needs_and_no_more() {
     };
     // Capture reads V4L2 devices and network cameras: the shared hardening must not
     // win over its exceptions.
-    expect(
-        "isochron-capture@cam01.service",
-        &[
-            ("PrivateDevices=", false),
-            ("PrivateUsers=", false),
-            ("IPAddressDeny=", false),
-            ("RestrictAddressFamilies=~AF_(INET|INET6)", false),
-            ("NoNewPrivileges=", true),
-        ],
-    );
+    let capture = [
+        ("PrivateDevices=", false),
+        ("PrivateUsers=", false),
+        ("IPAddressDeny=", false),
+        ("RestrictAddressFamilies=~AF_(INET|INET6)", false),
+        ("NoNewPrivileges=", true),
+    ];
     // The bridge talks DDS over the network, and needs no device.
-    expect(
-        "isochron-costmap.service",
-        &[
-            ("PrivateDevices=", true),
-            ("IPAddressDeny=", false),
-            ("RestrictAddressFamilies=~AF_(INET|INET6)", false),
-            ("NoNewPrivileges=", true),
-        ],
-    );
+    let bridge = [
+        ("PrivateDevices=", true),
+        ("IPAddressDeny=", false),
+        ("RestrictAddressFamilies=~AF_(INET|INET6)", false),
+        ("NoNewPrivileges=", true),
+    ];
     // The exporter serves HTTP to this machine only (an allow list, which the
-    // analyser marks as open), and needs no device.
-    expect(
-        "isochron-exporter.service",
-        &[
-            ("PrivateDevices=", true),
-            ("PrivateUsers=", true),
-            ("IPAddressDeny=", false),
-            ("RestrictAddressFamilies=~AF_(INET|INET6)", false),
-            ("NoNewPrivileges=", true),
-        ],
-    );
-    // The MQTT sink connects to its broker (this machine only unless a drop-in
-    // allows more), and needs no device.
-    expect(
-        "isochron-mqtt.service",
-        &[
-            ("PrivateDevices=", true),
-            ("PrivateUsers=", true),
-            ("IPAddressDeny=", false),
-            ("RestrictAddressFamilies=~AF_(INET|INET6)", false),
-            ("NoNewPrivileges=", true),
-        ],
-    );
-    // The link talks DDS to the other boxes, and needs no device.
-    expect(
-        "isochron-link.service",
-        &[
-            ("PrivateDevices=", true),
-            ("PrivateUsers=", true),
-            ("IPAddressDeny=", false),
-            ("RestrictAddressFamilies=~AF_(INET|INET6)", false),
-            ("NoNewPrivileges=", true),
-        ],
-    );
+    // analyser marks as open), the MQTT sink connects to its broker (this machine
+    // only unless a drop-in allows more), the link talks DDS to the other boxes;
+    // none needs a device.
+    let networked = [
+        ("PrivateDevices=", true),
+        ("PrivateUsers=", true),
+        ("IPAddressDeny=", false),
+        ("RestrictAddressFamilies=~AF_(INET|INET6)", false),
+        ("NoNewPrivileges=", true),
+    ];
     // The others need neither devices nor the network.
-    for unit in [
-        "isochron-motion@cam01.service",
-        "isochron-cascade@cam01.service",
-        "isochron-gate@cam01.service",
+    let isolated = [
+        ("PrivateDevices=", true),
+        ("PrivateUsers=", true),
+        ("IPAddressDeny=", true),
+        ("RestrictAddressFamilies=~AF_(INET|INET6)", true),
+    ];
+    for (unit, settings) in [
+        ("isochron-capture@cam01.service", &capture[..]),
+        ("isochron-costmap.service", &bridge),
+        ("isochron-exporter.service", &networked),
+        ("isochron-mqtt.service", &networked),
+        ("isochron-link.service", &networked),
+        ("isochron-motion@cam01.service", &isolated),
+        ("isochron-cascade@cam01.service", &isolated),
+        ("isochron-gate@cam01.service", &isolated),
     ] {
-        expect(
-            unit,
-            &[
-                ("PrivateDevices=", true),
-                ("PrivateUsers=", true),
-                ("IPAddressDeny=", true),
-                ("RestrictAddressFamilies=~AF_(INET|INET6)", true),
-            ],
-        );
+        expect(unit, settings);
     }
 }
 
