@@ -9,19 +9,15 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
+use isochron_shared::topology::StageKind;
 use isochron_tests::{Proc, bin, repo_root};
 
-/// Every binary of a site (as `BINARIES` of the xtask).
-const BINARIES: [&str; 8] = [
-    "isochron",
-    "isochron-capture",
-    "isochron-motion",
-    "isochron-cascade",
-    "isochron-gate",
-    "isochron-costmap",
-    "isochron-exporter",
-    "isochron-link",
-];
+/// Every binary of a site: the CLI and each stage's binary.
+fn binaries() -> std::collections::BTreeSet<&'static str> {
+    std::iter::once("isochron")
+        .chain(StageKind::EVERY.map(StageKind::binary))
+        .collect()
+}
 
 /// The units that could be enabled: after the install, none may be.
 const UNITS: [&str; 5] = [
@@ -128,14 +124,22 @@ fn the_package_holds_the_site_and_installs_enabling_nothing() {
         .lines()
         .filter_map(|l| l.split_whitespace().nth(5))
         .collect();
-    let mut expected: Vec<String> = BINARIES.iter().map(|b| format!("./usr/bin/{b}")).collect();
+    let mut expected: Vec<String> = binaries()
+        .iter()
+        .map(|b| format!("./usr/bin/{b}"))
+        .collect();
+    // Every unit of the repository, and a service man page for every stage's binary.
+    for unit in std::fs::read_dir(repo_root().join("systemd")).unwrap() {
+        let name = unit.unwrap().file_name().into_string().unwrap();
+        if name.ends_with(".service") || name.ends_with(".target") {
+            expected.push(format!("./usr/lib/systemd/system/{name}"));
+        }
+    }
+    for b in binaries().into_iter().filter(|b| *b != "isochron") {
+        expected.push(format!("./usr/share/man/man8/{b}.8.gz"));
+    }
     expected.extend(
         [
-            "./usr/lib/systemd/system/isochron.target",
-            "./usr/lib/systemd/system/isochron-capture@.service",
-            "./usr/lib/systemd/system/isochron-costmap.service",
-            "./usr/lib/systemd/system/isochron-exporter.service",
-            "./usr/lib/systemd/system/isochron-link.service",
             "./usr/lib/systemd/system/isochron-.service.d/10-hardening.conf",
             "./usr/lib/sysusers.d/isochron.conf",
             "./usr/lib/tmpfiles.d/isochron.conf",
@@ -144,9 +148,6 @@ fn the_package_holds_the_site_and_installs_enabling_nothing() {
             "./usr/share/man/man1/isochron.1.gz",
             "./usr/share/man/man1/isochron-up.1.gz",
             "./usr/share/man/man1/isochron-costmap.1.gz",
-            "./usr/share/man/man8/isochron-capture.8.gz",
-            "./usr/share/man/man8/isochron-costmap.8.gz",
-            "./usr/share/man/man8/isochron-exporter.8.gz",
             "./usr/share/bash-completion/completions/isochron",
             "./usr/share/zsh/vendor-completions/_isochron",
             "./usr/share/fish/vendor_completions.d/isochron.fish",
@@ -240,7 +241,7 @@ fn install_and_remove(deb: &Path) {
     let state = std::fs::metadata("/var/lib/isochron").expect("the state directory");
     let uid: u32 = user.split(':').nth(2).unwrap().parse().unwrap();
     assert_eq!(state.uid(), uid, "/var/lib/isochron belongs to isochron");
-    for b in BINARIES {
+    for b in binaries() {
         assert!(Path::new("/usr/bin").join(b).is_file(), "/usr/bin/{b}");
     }
     let version = ok("/usr/bin/isochron", &["--version"]);
