@@ -263,17 +263,8 @@ impl Health {
         tracing::info!(
             stage = self.stage.name(),
             camera = %self.camera,
-            "in={} ({:.1}/s) out={} ({:.1}/s) dropped={} rejected={} latency_ms={:.2} e2e_ms(p50/p99)={:.1}/{:.1} {}",
-            s.received,
-            s.rate_in,
-            s.sent,
-            s.rate_out,
-            s.dropped,
-            s.rejected,
-            s.stage_latency_ms,
-            s.e2e_latency_p50_ms,
-            s.e2e_latency_p99_ms,
-            detail
+            "{} {detail}",
+            s.counters()
         );
         let _ = sd_notify::notify(&[sd_notify::NotifyState::Status(&format!(
             "in={} out={} dropped={} {detail}",

@@ -138,7 +138,7 @@ pub fn is_valid_camera_id(id: &str) -> bool {
 }
 
 /// The fields every header starts with.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize)]
 #[type_name("isochron::Preamble")]
 #[repr(C)]
 pub struct Preamble {
@@ -539,7 +539,7 @@ pub struct BlockActivity {
 }
 
 /// Header of an `activity` sample (1 Hz); payload `grid_w * grid_h` [`BlockActivity`].
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize)]
 #[type_name("isochron::ActivityHeader")]
 #[repr(C)]
 pub struct ActivityHeader {
@@ -611,6 +611,26 @@ block_header!(
     Stream::Activity,
     "activity payload"
 );
+
+impl ActivityHeader {
+    /// The header of camera `camera`'s activity sample `sequence` over `grid`, for the
+    /// second that ends at `capture_time_ns`; the second's own fields (`t_star`,
+    /// `frames`, …) are zero for the caller to set.
+    pub fn new(camera: CameraId, sequence: u64, grid: BlockGrid, capture_time_ns: i64) -> Self {
+        let mut preamble =
+            Preamble::new::<BlockActivity>(Stream::Activity, camera, sequence, grid.len());
+        preamble.capture_time_ns = capture_time_ns;
+        ActivityHeader {
+            preamble,
+            grid_w: grid.grid_w(),
+            grid_h: grid.grid_h(),
+            block_px: grid.block_px,
+            frame_width: grid.frame_width,
+            frame_height: grid.frame_height,
+            ..ActivityHeader::default()
+        }
+    }
+}
 
 u32_enum! {
     /// Kind of activity an event was raised on.
@@ -909,6 +929,24 @@ impl StageStatus {
     /// Checks magic and version.
     pub fn validate(&self) -> Result<(), WireError> {
         check_layout(self.magic, self.layout_version)
+    }
+
+    /// The counters and latencies as one line of `key=value` words, for logs
+    /// (`in=250 (25.0/s) out=250 (25.0/s) dropped=0 rejected=0 latency_ms=0.12
+    /// e2e_ms(p50/p99)=1.0/2.1`).
+    pub fn counters(&self) -> String {
+        format!(
+            "in={} ({:.1}/s) out={} ({:.1}/s) dropped={} rejected={} latency_ms={:.2} e2e_ms(p50/p99)={:.1}/{:.1}",
+            self.received,
+            self.rate_in,
+            self.sent,
+            self.rate_out,
+            self.dropped,
+            self.rejected,
+            self.stage_latency_ms,
+            self.e2e_latency_p50_ms,
+            self.e2e_latency_p99_ms,
+        )
     }
 }
 
