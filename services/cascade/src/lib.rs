@@ -47,7 +47,7 @@ use isochron_shared::geometry::BlockGrid;
 use isochron_shared::health::quantile;
 use isochron_shared::store::{Baseline, Bin, MinuteCommit, Progress, Store, StoreError};
 use isochron_shared::wire::{
-    ActivityHeader, BlockActivity, BlockMotion, CameraId, MotionHeader, Preamble, Stream, WireError,
+    ActivityHeader, BlockActivity, BlockMotion, CameraId, MotionHeader, WireError,
 };
 
 pub use crate::filters::NonCascadeBank;
@@ -245,56 +245,16 @@ pub enum PushError {
     Store(#[from] StoreError),
 }
 
-/// One completed second: everything for the activity header (the blocks are
-/// [`Cascade::activity`]).
+/// One completed second: its activity header (camera and sequence left for the
+/// publisher; the blocks are [`Cascade::activity`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SecondOut {
     /// The second: `floor(capture_ns / 1 s)`.
     pub second: i64,
-    /// Isochronal time t* of the second.
-    pub t_star: u32,
-    /// Days (cycles) of data the long-term model has at t*.
-    pub model_days: u32,
-    /// Frames in the second.
-    pub frames: u32,
-    /// Source index of its first frame.
-    pub first_source_index: u64,
-    /// Source index of its last frame.
-    pub last_source_index: u64,
-    /// Frame rate r in use (0 while unknown).
-    pub frame_rate: f32,
-    /// `origin_wall_ns` of its last frame (for end-to-end latency).
-    pub origin_wall_ns: i64,
-}
-
-impl SecondOut {
-    /// End of the second, UTC ns: the activity sample's capture time.
-    pub fn capture_time_ns(&self) -> i64 {
-        (self.second + 1).saturating_mul(NS_PER_S)
-    }
-
-    /// The activity header for this second.
-    pub fn header(&self, camera: CameraId, grid: &BlockGrid, sequence: u64) -> ActivityHeader {
-        let mut preamble =
-            Preamble::new::<BlockActivity>(Stream::Activity, camera, sequence, grid.len());
-        preamble.capture_time_ns = self.capture_time_ns();
-        preamble.origin_wall_ns = self.origin_wall_ns;
-        ActivityHeader {
-            preamble,
-            grid_w: grid.grid_w(),
-            grid_h: grid.grid_h(),
-            block_px: grid.block_px,
-            frame_width: grid.frame_width,
-            frame_height: grid.frame_height,
-            t_star: self.t_star,
-            model_days: self.model_days,
-            frames: self.frames,
-            first_source_index: self.first_source_index,
-            last_source_index: self.last_source_index,
-            frame_rate: self.frame_rate,
-            reserved: 0,
-        }
-    }
+    /// The header: t*, model days, frames and source indices of the second, the
+    /// frame rate in use (0 while unknown), and the `origin_wall_ns` of its last
+    /// frame (for end-to-end latency).
+    pub header: ActivityHeader,
 }
 
 /// Counters of a cascade.
@@ -630,15 +590,20 @@ impl<B: FilterBank> Cascade<B> {
         }
         self.last_second_done = Some(s.index);
         self.stats.seconds += 1;
-        SecondOut {
-            second: s.index,
+        let end_ns = (s.index + 1).saturating_mul(NS_PER_S);
+        let mut header = ActivityHeader {
             t_star,
             model_days: bin.map_or(0, |b| b.count),
             frames: s.frames,
             first_source_index: s.first_source,
             last_source_index: s.last_source,
             frame_rate: self.rate_in_use.unwrap_or(0.0) as f32,
-            origin_wall_ns: s.origin_wall_ns,
+            ..ActivityHeader::new(CameraId::default(), 0, self.grid, end_ns)
+        };
+        header.preamble.origin_wall_ns = s.origin_wall_ns;
+        SecondOut {
+            second: s.index,
+            header,
         }
     }
 

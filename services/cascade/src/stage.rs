@@ -281,10 +281,12 @@ fn publish_second(
     arrived: Instant,
 ) {
     let blocks = cascade.activity();
-    let mut header = second.header(CameraId::default(), cascade.grid(), 0);
+    let mut header = second.header;
     header.preamble = output.preamble(blocks.len(), &header.preamble);
     match output.send_copy(header, blocks) {
-        Ok(()) => cx.health.sent(Some(arrived), second.origin_wall_ns),
+        Ok(()) => cx
+            .health
+            .sent(Some(arrived), header.preamble.origin_wall_ns),
         Err(e) => {
             tracing::warn!("activity sample dropped: {e}");
             cx.health.dropped(1);

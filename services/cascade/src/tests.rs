@@ -5,7 +5,7 @@ use crate::filters::Counted;
 use isochron_shared::clock::{Cycle, parse_rfc3339};
 use isochron_shared::rng::Lcg;
 use isochron_shared::store::{StoreMeta, store_path};
-use isochron_shared::wire::FLAG_END_OF_STREAM;
+use isochron_shared::wire::{FLAG_END_OF_STREAM, Preamble, Stream};
 
 const CAM: &str = "cam01";
 
@@ -331,7 +331,7 @@ fn cascade_and_non_cascade_give_the_same_outputs_on_a_long_random_stream() {
         }
     }
     assert!(oc.iter().any(|o| o.blocks.iter().any(|b| b.s2 > 0.1)));
-    assert!(oc.iter().any(|o| o.second.model_days == 2));
+    assert!(oc.iter().any(|o| o.second.header.model_days == 2));
     assert_eq!(mc.bins.len(), mn.bins.len());
     assert!(mc.bins.len() >= 30, "{}", mc.bins.len());
     for (t_star, bc) in &mc.bins {
@@ -379,7 +379,7 @@ fn minutes_teach_their_bin_only_with_enough_frames_and_t_star_is_local() {
         r.push(&h, &[]);
     }
     let berlin = 8 * 60 + 30;
-    assert_eq!(r.outs[0].second.t_star, berlin);
+    assert_eq!(r.outs[0].second.header.t_star, berlin);
     assert_eq!(r.model.bins.len(), 10);
     for m in 0..10u32 {
         let expected = if (3..5).contains(&m) || m == 7 { 2 } else { 3 };
@@ -389,7 +389,7 @@ fn minutes_teach_their_bin_only_with_enough_frames_and_t_star_is_local() {
     assert_eq!(r.c.stats().minutes_sparse, 1);
     // The model the activity reports is the one of its t*.
     let day3 = &r.outs[r.outs.len() - 10];
-    assert_eq!(day3.second.model_days, 2);
+    assert_eq!(day3.second.header.model_days, 2);
     assert!(day3.blocks[0].lt_mean > 0.0);
     assert_eq!(
         r.model.progress.last_minute,
@@ -506,8 +506,8 @@ fn the_frame_rate_is_measured_from_headers_unless_configured() {
     let rate = r.c.frame_rate().unwrap();
     assert!((rate - 25.0).abs() < 0.01, "{rate}");
     assert!((r.c.alpha_l1() - alpha(1800.0, 25.0)).abs() < 1e-12);
-    assert!((r.outs.last().unwrap().second.frame_rate - 25.0).abs() < 0.01);
-    assert_eq!(r.outs.last().unwrap().second.frames, 25);
+    assert!((r.outs.last().unwrap().second.header.frame_rate - 25.0).abs() < 0.01);
+    assert_eq!(r.outs.last().unwrap().second.header.frames, 25);
     // The camera switches to 10 fps: α follows.
     r.run(start() + 10 * NS_PER_S, 10.0, 10.0, |_, _| {});
     assert!((r.c.frame_rate().unwrap() - 10.0).abs() < 0.01);
@@ -536,7 +536,7 @@ fn end_of_stream_flushes_the_partial_second_and_a_covered_partial_minute() {
             .unwrap()
             .expect("partial second");
     assert_eq!(
-        (last.second, last.frames),
+        (last.second, last.header.frames),
         (r.outs[58].second.second + 1, 5)
     );
     assert_eq!(r.model.bins.len(), 1);
@@ -548,22 +548,17 @@ fn end_of_stream_flushes_the_partial_second_and_a_covered_partial_minute() {
 #[test]
 fn activity_headers_validate_and_carry_the_second() {
     let g = grid(4, 3);
-    let out = SecondOut {
-        second: 1_768_435_200,
-        t_star: 0,
-        model_days: 3,
-        frames: 30,
-        first_source_index: 100,
-        last_source_index: 129,
-        frame_rate: 30.0,
-        origin_wall_ns: 5,
-    };
-    let h = out.header(camera(), &g, 7);
-    h.validate(&camera(), 12).unwrap();
-    assert_eq!(h.preamble.capture_time_ns, 1_768_435_201 * NS_PER_S);
-    assert_eq!(h.preamble.sequence, 7);
-    assert_eq!((h.grid_w, h.grid_h, h.frames, h.model_days), (4, 3, 30, 3));
-    assert_eq!((h.first_source_index, h.last_source_index), (100, 129));
+    let mut r = Rig::new(g);
+    r.run(start(), 2.0, 30.0, |_, _| {});
+    let out = r.outs[0].second;
+    let h = out.header;
+    h.validate(&CameraId::default(), 12).unwrap();
+    assert_eq!(out.second, start() / NS_PER_S);
+    assert_eq!(h.preamble.capture_time_ns, start() + NS_PER_S);
+    assert_eq!(h.preamble.origin_wall_ns, start() + 29 * NS_PER_S / 30);
+    assert_eq!((h.grid_w, h.grid_h, h.frames, h.model_days), (4, 3, 30, 0));
+    assert_eq!((h.first_source_index, h.last_source_index), (0, 29));
+    assert!((h.frame_rate - 30.0).abs() < 0.01);
 }
 
 #[test]
@@ -655,7 +650,7 @@ fn a_restart_resumes_the_baseline_and_the_model_from_the_store() {
         today.second.second,
         (start() + 86_400 * NS_PER_S) / NS_PER_S
     );
-    assert_eq!(today.second.model_days, 1);
+    assert_eq!(today.second.header.model_days, 1);
     assert!(today.blocks[0].lt_mean > 0.03, "{:?}", today.blocks[0]);
     assert!(today.blocks[0].lt_sigma == 0.0, "one day: no spread yet");
     assert_eq!(today.blocks[1].lt_mean, 0.0);
