@@ -21,7 +21,7 @@ use crate::detector::Detector;
 use crate::events::Event;
 use crate::gate::{Action, Found, Gate, GateSettings};
 use crate::ring::FrameRing;
-use crate::worker::{DetectorSlots, Outcome, Report, Worker};
+use crate::worker::{DetectorSlots, Job, Outcome, Report, Worker};
 
 /// Serves the camera of `ctx` (the `main` of isochron-gate): opens the stage
 /// and runs it until the process is asked to stop.
@@ -248,22 +248,16 @@ impl<'ipc> GateStage<'ipc> {
                     .on_detections(outcome.job_id, outcome.region, Some(found));
                 return self.publish_detections(&outcome);
             }
-            Report::FrameGone(job) => {
-                c.frames_gone += 1;
-                tracing::debug!(
-                    event = job.event_id,
-                    "the gated frame left the ring before the detector got to it"
-                );
-                job
-            }
-            Report::Busy(job) => {
-                c.detector_busy += 1;
-                tracing::debug!(
-                    event = job.event_id,
-                    "every detector slot of the process was busy: detection dropped"
-                );
-                job
-            }
+            Report::FrameGone(job) => not_run(
+                job,
+                &mut c.frames_gone,
+                "the gated frame left the ring before the detector got to it",
+            ),
+            Report::Busy(job) => not_run(
+                job,
+                &mut c.detector_busy,
+                "every detector slot of the process was busy: detection dropped",
+            ),
             Report::Failed(job, e) => {
                 c.detector_errors += 1;
                 tracing::warn!(event = job.event_id, "detector failed: {e}");
@@ -341,6 +335,13 @@ impl<'ipc> GateStage<'ipc> {
         }
         Ok(())
     }
+}
+
+/// Counts a detection job that did not run (`why`, at debug level) and hands it back.
+fn not_run(job: Job, counter: &mut u64, why: &str) -> Job {
+    *counter += 1;
+    tracing::debug!(event = job.event_id, "{why}");
+    job
 }
 
 impl Stage for GateStage<'_> {
