@@ -2,7 +2,7 @@
 //! run time): a 16-pixel block row is one 256-bit register of `i16`, the six
 //! products go through `_mm256_madd_epi16`.
 
-use super::portable::{Bands, Job, Portable, Simd, run_bands};
+use super::portable::{Bands, Job, Portable, Simd, Strip, run_bands};
 use super::{BlockSums, GRADIENT_SATURATION, LANES, MAX_SPEED, Thresholds};
 use std::arch::x86_64::*;
 
@@ -160,13 +160,8 @@ impl Simd for Avx2 {
 
     #[inline]
     #[target_feature(enable = "avx2")]
-    unsafe fn strip<const FULL: bool>(
-        bands: &Bands,
-        x: usize,
-        rows: usize,
-        lanes: usize,
-        thresholds: Thresholds,
-    ) -> BlockSums {
+    unsafe fn strip<const FULL: bool>(bands: &Bands, at: Strip, th: Thresholds) -> BlockSums {
+        let Strip { x, rows, lanes } = at;
         let (ss, is) = (bands.s_stride, bands.it_stride);
         // Every load below stays inside the padded buffers (see Bands::new).
         debug_assert!((rows + 1) * ss + x + LANES + 2 <= bands.s.len());
@@ -176,7 +171,7 @@ impl Simd for Avx2 {
         // SAFETY: the caller guarantees AVX2; all loads are unaligned loads inside
         // the buffers (asserted above).
         unsafe {
-            let mut acc = Acc::new(thresholds, lanes);
+            let mut acc = Acc::new(th, lanes);
             for r in 0..rows {
                 let mid = s.add((r + 1) * ss + x);
                 let left = _mm256_loadu_si256(mid.cast());

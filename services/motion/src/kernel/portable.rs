@@ -143,19 +143,13 @@ pub(super) trait Simd {
     /// The implementation's CPU features must be present; the slices have one length.
     unsafe fn sum_row(p: &[u8], c: &[u8], s: &mut [i16]);
 
-    /// Sums the motion pixels of the `lanes`-wide (≤ 16) vertical strip at local
-    /// column `x` of the block windows over `rows` rows; `FULL` when `lanes == 16`.
+    /// Sums the motion pixels of strip `at` of the block windows, with the test's
+    /// thresholds `th`; `FULL` when `at.lanes == 16`.
     ///
     /// # Safety
-    /// The implementation's CPU features must be present; `x < block width`,
-    /// `rows ≤ block_px`, `1 ≤ lanes ≤ 16` and `FULL == (lanes == 16)`.
-    unsafe fn strip<const FULL: bool>(
-        bands: &Bands,
-        x: usize,
-        rows: usize,
-        lanes: usize,
-        thresholds: Thresholds,
-    ) -> BlockSums;
+    /// The implementation's CPU features must be present; `at.x < block width`,
+    /// `at.rows ≤ block_px`, `1 ≤ at.lanes ≤ 16` and `FULL == (at.lanes == 16)`.
+    unsafe fn strip<const FULL: bool>(bands: &Bands, at: Strip, th: Thresholds) -> BlockSums;
 
     /// The same sums for the full 16-pixel strip at frame column `x`, rows
     /// `y0 .. y0 + rows`, straight from the frames (no windows), when the
@@ -176,6 +170,15 @@ pub(super) trait Simd {
     ) -> Option<BlockSums> {
         None
     }
+}
+
+/// A vertical strip of the block windows: `lanes` (≤ 16) columns from local column
+/// `x`, over `rows` rows.
+#[derive(Clone, Copy)]
+pub(super) struct Strip {
+    pub x: usize,
+    pub rows: usize,
+    pub lanes: usize,
 }
 
 /// The input of one run of the kernel: the frame pair, its grid, the thresholds and
@@ -259,10 +262,11 @@ pub(super) unsafe fn run_bands<K: Simd>(
                             built = true;
                         }
                         unsafe {
+                            let at = Strip { x: sx, rows, lanes };
                             if lanes == LANES {
-                                K::strip::<true>(bands, sx, rows, lanes, thresholds)
+                                K::strip::<true>(bands, at, thresholds)
                             } else {
-                                K::strip::<false>(bands, sx, rows, lanes, thresholds)
+                                K::strip::<false>(bands, at, thresholds)
                             }
                         }
                     }
@@ -311,19 +315,14 @@ impl Simd for Portable {
     }
 
     #[inline(always)]
-    unsafe fn strip<const FULL: bool>(
-        bands: &Bands,
-        x: usize,
-        rows: usize,
-        lanes: usize,
-        thresholds: Thresholds,
-    ) -> BlockSums {
+    unsafe fn strip<const FULL: bool>(bands: &Bands, at: Strip, th: Thresholds) -> BlockSums {
+        let Strip { x, rows, lanes } = at;
         let (ss, is) = (bands.s_stride, bands.it_stride);
-        let dt = thresholds.diff as i16;
+        let dt = th.diff as i16;
         // g ≤ 1020, so clamping keeps `g ≥ gt` exact.
-        let gt = thresholds.gradient.min(i16::MAX as u16) as i16;
+        let gt = th.gradient.min(i16::MAX as u16) as i16;
         let gsat = GRADIENT_SATURATION as i16;
-        let k = thresholds.speed.min(MAX_SPEED) as u32;
+        let k = th.speed.min(MAX_SPEED) as u32;
         let mut acc_w = [0i16; LANES];
         let mut acc_x = [0i32; LANES];
         let mut acc_y = [0i32; LANES];
