@@ -279,6 +279,30 @@ impl TestSite {
         }
     }
 
+    /// The rows of `isochron status --json` on this site: one JSON object per
+    /// service (`stage`, `camera`, `state`, `pid`, …).
+    pub fn status_rows(&self) -> Vec<serde_json::Value> {
+        let config = self.config_path().display().to_string();
+        let status = self.isochron(
+            &["status", "--config", &config, "--json"],
+            Duration::from_secs(20),
+        );
+        status
+            .stdout
+            .lines()
+            .filter_map(|l| serde_json::from_str(l).ok())
+            .collect()
+    }
+
+    /// The row of `stage` in [`TestSite::status_rows`] (the test fails without one).
+    pub fn status_row(&self, stage: &str) -> serde_json::Value {
+        let rows = self.status_rows();
+        rows.iter()
+            .find(|o| o["stage"] == stage)
+            .cloned()
+            .unwrap_or_else(|| panic!("no {stage} row in the status: {rows:?}"))
+    }
+
     /// The arguments of `isochron tap cam01 frames` on this site: print `count`
     /// frames, give up after `timeout_s`.
     pub fn tap_frames_args(&self, count: u32, timeout_s: u32) -> Vec<String> {

@@ -190,17 +190,7 @@ fn a_killed_service_goes_down_and_a_taken_port_is_one_line() {
         Some(0.0)
     );
     // `isochron status` shows the exporter's own row (the config has [exporter]).
-    let config = site.config_path().display().to_string();
-    let status = site.isochron(
-        &["status", "--config", &config, "--json"],
-        Duration::from_secs(20),
-    );
-    let exporter_row = status
-        .stdout
-        .lines()
-        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
-        .find(|o| o["stage"] == "exporter")
-        .unwrap_or_else(|| panic!("no exporter row:\n{}", status.stdout));
+    let exporter_row = site.status_row("exporter");
     assert_eq!(exporter_row["state"], "running", "{exporter_row}");
 
     // Killed and reaped (as systemd or `up` would): down at the next scrape,

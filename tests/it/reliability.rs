@@ -111,17 +111,7 @@ fn status_right_after_start_reports_the_service_running() {
         // Past the first report (sent at the first tick), so only a late-joiner
         // delivery can answer.
         std::thread::sleep(Duration::from_millis(500));
-        let config = site.config_path().display().to_string();
-        let done = site.isochron(
-            &["status", "--config", &config, "--json"],
-            Duration::from_secs(20),
-        );
-        let motion_row = done
-            .stdout
-            .lines()
-            .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
-            .find(|o| o["stage"] == "motion")
-            .unwrap_or_else(|| panic!("no motion row:\n{}", done.stdout));
+        let motion_row = site.status_row("motion");
         assert_eq!(motion_row["state"], "running", "{motion_row}");
         motion.terminate(Duration::from_secs(10));
     }
