@@ -45,15 +45,8 @@ const PACKAGES: [&str; 7] = [
     "dpkg-dev",
 ];
 
-/// Benchmarks: name → (package, bench target).
-const BENCHES: [(&str, &str, &str); 6] = [
-    ("ipc", "isochron-shared", "ipc"),
-    ("motion", "isochron-motion", "motion"),
-    ("cascade", "isochron-cascade", "cascade"),
-    ("gate", "isochron-gate", "gate"),
-    ("group", "isochron-tests", "group"),
-    ("site", "isochron-tests", "site"),
-];
+/// The benchmarks, by bench target name (each unique in the workspace).
+const BENCHES: [&str; 6] = ["ipc", "motion", "cascade", "gate", "group", "site"];
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -71,11 +64,8 @@ fn main() -> anyhow::Result<()> {
         }
         Some("bench") => {
             let name = args.get(1).map(String::as_str).unwrap_or("");
-            let Some((_, package, target)) = BENCHES.iter().find(|(n, _, _)| *n == name) else {
-                bail!(
-                    "usage: cargo xtask bench <{}>",
-                    BENCHES.map(|b| b.0).join("|")
-                );
+            let Some(target) = BENCHES.iter().find(|n| **n == name) else {
+                bail!("usage: cargo xtask bench <{}>", BENCHES.join("|"));
             };
             setup(&root)?;
             let extra = &args[2..];
@@ -86,7 +76,7 @@ fn main() -> anyhow::Result<()> {
                 }
                 quick_bench(cargo(), target, &rest)
             } else {
-                bench(package, target, extra)
+                bench(target, extra)
             }
         }
         Some("docs") => {
@@ -355,9 +345,9 @@ fn test() -> anyhow::Result<()> {
     run(linted_cargo()?.args(["test", "--workspace"]))?;
     // Every benchmark in quick mode, so that none can rot.
     let mut times = Vec::new();
-    for (name, _, target) in BENCHES {
+    for name in BENCHES {
         let t0 = Instant::now();
-        quick_bench(linted_cargo()?, target, &[])?;
+        quick_bench(linted_cargo()?, name, &[])?;
         times.push(format!("{name} {:.0} s", t0.elapsed().as_secs_f64()));
     }
     eprintln!(
@@ -435,13 +425,15 @@ fn quick_bench(mut cmd: Command, target: &str, extra: &[String]) -> anyhow::Resu
     Ok(())
 }
 
-fn bench(package: &str, target: &str, extra: &[String]) -> anyhow::Result<()> {
+fn bench(target: &str, extra: &[String]) -> anyhow::Result<()> {
     if matches!(target, "gate" | "group" | "site") {
         // These run the whole process group (site: the link and the bridge).
         run(cargo().args(["build", "--release", "--workspace", "--bins"]))?;
     }
+    // `--workspace`, not `-p`: the dependencies keep the features of the release
+    // build above, so they are not compiled again.
     run(cargo()
-        .args(["bench", "-p", package, "--bench", target, "--"])
+        .args(["bench", "--workspace", "--bench", target, "--"])
         .args(extra))
 }
 
