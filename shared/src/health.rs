@@ -101,8 +101,8 @@ pub struct Health {
     last_watchdog: Instant,
     last_connect: Instant,
     heartbeat: Arc<AtomicU64>,
-    stage_latency_ms: Window,
-    e2e_latency_ms: Window,
+    stage_latency_ms: LatencyWindow,
+    e2e_latency_ms: LatencyWindow,
     last_sequence: Option<u64>,
 }
 
@@ -149,8 +149,8 @@ impl Health {
             last_watchdog: now,
             last_connect: now,
             heartbeat: register_heartbeat(now),
-            stage_latency_ms: Window::default(),
-            e2e_latency_ms: Window::default(),
+            stage_latency_ms: LatencyWindow::default(),
+            e2e_latency_ms: LatencyWindow::default(),
             last_sequence: None,
         }
     }
@@ -254,9 +254,9 @@ impl Health {
         s.rate_in = (s.received - self.last_counts.0) as f32 / secs;
         s.rate_out = (s.sent - self.last_counts.1) as f32 / secs;
         self.last_counts = (s.received, s.sent);
-        s.stage_latency_ms = quantile(&self.stage_latency_ms.values, 0.5);
-        s.e2e_latency_p50_ms = quantile(&self.e2e_latency_ms.values, 0.5);
-        s.e2e_latency_p99_ms = quantile(&self.e2e_latency_ms.values, 0.99);
+        s.stage_latency_ms = self.stage_latency_ms.quantile(0.5);
+        s.e2e_latency_p50_ms = self.e2e_latency_ms.quantile(0.5);
+        s.e2e_latency_p99_ms = self.e2e_latency_ms.quantile(0.99);
         s.report_wall_ns = wall_now_ns();
         s.detail = to_fixed::<STATUS_DETAIL_LEN>(&detail);
         self.last_report = now;
@@ -330,21 +330,27 @@ impl InputCompleteness {
     }
 }
 
-/// The most recent [`LATENCY_WINDOW`] values.
+/// The most recent 512 values (latencies), for their quantiles.
 #[derive(Debug, Default)]
-struct Window {
+pub struct LatencyWindow {
     values: Vec<f32>,
     cursor: usize,
 }
 
-impl Window {
-    fn push(&mut self, v: f32) {
+impl LatencyWindow {
+    /// Adds `v`, replacing the oldest value once the window is full.
+    pub fn push(&mut self, v: f32) {
         if self.values.len() < LATENCY_WINDOW {
             self.values.push(v);
         } else {
             self.values[self.cursor] = v;
             self.cursor = (self.cursor + 1) % LATENCY_WINDOW;
         }
+    }
+
+    /// The `q` quantile (0..=1) of the values (0 if none).
+    pub fn quantile(&self, q: f64) -> f32 {
+        quantile(&self.values, q)
     }
 }
 

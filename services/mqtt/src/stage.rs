@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 
 use isochron_shared::config::LoadedConfig;
 use isochron_shared::exit::{self, Fatal};
+use isochron_shared::health::LatencyWindow;
 use isochron_shared::ipc::{Detections, Events, Ipc};
 use isochron_shared::service::ServiceContext;
 use isochron_shared::stage::{self, Context, Input, Stage, Woken};
@@ -36,9 +37,6 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
 /// The sink's inputs: every camera's events, then every camera's detections.
 pub type MqttInputs = (Vec<Input<Events>>, Vec<Input<Detections>>);
 
-/// Recent PUBACK latencies kept for the status's quantiles.
-const LATENCY_WINDOW: usize = 512;
-
 /// The MQTT sink of one site.
 pub struct MqttStage {
     shared: Arc<Shared>,
@@ -48,8 +46,8 @@ pub struct MqttStage {
     broker: String,
     messages: u64,
     dropped_reported: u64,
-    ack_ms: Vec<f32>,
-    next_latency: usize,
+    /// Recent PUBACK latencies, ms, for the status's quantiles.
+    ack_ms: LatencyWindow,
 }
 
 impl MqttStage {
@@ -104,8 +102,7 @@ impl MqttStage {
             broker: config.broker.clone(),
             messages: 0,
             dropped_reported: 0,
-            ack_ms: Vec::with_capacity(LATENCY_WINDOW),
-            next_latency: 0,
+            ack_ms: LatencyWindow::default(),
         };
         Ok(Some((sink, (events, detections))))
     }
@@ -128,28 +125,13 @@ impl MqttStage {
             (outbox.take_acked(), outbox.dropped())
         };
         for m in acked {
-            let ms = m.arrived.elapsed().as_secs_f32() * 1e3;
-            if self.ack_ms.len() < LATENCY_WINDOW {
-                self.ack_ms.push(ms);
-            } else {
-                self.ack_ms[self.next_latency] = ms;
-                self.next_latency = (self.next_latency + 1) % LATENCY_WINDOW;
-            }
+            self.ack_ms.push(m.arrived.elapsed().as_secs_f32() * 1e3);
             cx.health.sent(Some(m.arrived), m.origin_wall_ns);
         }
         if dropped > self.dropped_reported {
             cx.health.dropped(dropped - self.dropped_reported);
             self.dropped_reported = dropped;
         }
-    }
-
-    fn ack_quantile(&self, q: f64) -> f32 {
-        if self.ack_ms.is_empty() {
-            return 0.0;
-        }
-        let mut v = self.ack_ms.clone();
-        v.sort_by(f32::total_cmp);
-        v[((v.len() - 1) as f64 * q).round() as usize]
     }
 }
 
@@ -230,8 +212,8 @@ impl Stage for MqttStage {
             u8::from(self.shared.connected()),
             self.messages,
             self.shared.reconnects(),
-            self.ack_quantile(0.5),
-            self.ack_quantile(0.99)
+            self.ack_ms.quantile(0.5),
+            self.ack_ms.quantile(0.99)
         )
     }
 }
