@@ -262,12 +262,10 @@ impl CameraConfig {
     fn validate(&self, i: usize, earlier: &[CameraConfig]) -> Result<(), Invalid> {
         let key = |k: &str| format!("camera[{i}].{k}");
         if !is_valid_camera_id(&self.id) {
-            return Err(Invalid::new(
+            return Err(Invalid::found(
                 key("id"),
-                format!(
-                    "expected 1 to 24 characters of letters, digits, '_' or '-', found \"{}\"",
-                    self.id
-                ),
+                "1 to 24 characters of letters, digits, '_' or '-'",
+                &self.id,
             ));
         }
         if earlier.iter().any(|c| c.id == self.id) {
@@ -298,12 +296,10 @@ impl CameraConfig {
             ));
         }
         if !matches!(self.pixel_format.as_str(), "gray8" | "bgr8") {
-            return Err(Invalid::new(
+            return Err(Invalid::found(
                 key("pixel_format"),
-                format!(
-                    "expected \"gray8\" or \"bgr8\", found \"{}\"",
-                    self.pixel_format
-                ),
+                "\"gray8\" or \"bgr8\"",
+                &self.pixel_format,
             ));
         }
         if let Some(fps) = self.fps {
@@ -312,11 +308,10 @@ impl CameraConfig {
         if let Some(start) = &self.start
             && crate::clock::parse_rfc3339(start).is_err()
         {
-            return Err(Invalid::new(
+            return Err(Invalid::found(
                 key("start"),
-                format!(
-                    "expected an RFC 3339 time such as \"2026-03-02T07:00:00Z\", found \"{start}\""
-                ),
+                "an RFC 3339 time such as \"2026-03-02T07:00:00Z\"",
+                start,
             ));
         }
         if let Some(n) = self.preload_frames {

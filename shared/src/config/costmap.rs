@@ -416,11 +416,10 @@ impl CostmapConfig {
             if let Some(topic) = topic
                 && !is_valid_ros_topic(topic)
             {
-                return Err(Invalid::new(
+                return Err(Invalid::found(
                     key,
-                    format!(
-                        "expected a ROS 2 topic name such as \"/isochron/activity_costmap\" (letters, digits, '_', '/'), found \"{topic}\""
-                    ),
+                    "a ROS 2 topic name such as \"/isochron/activity_costmap\" (letters, digits, '_', '/')",
+                    topic,
                 ));
             }
         }

@@ -35,12 +35,10 @@ impl ExporterConfig {
     /// The listen address (validated by [`ExporterConfig::validate`]).
     pub fn listen_addr(&self) -> Result<SocketAddr, Invalid> {
         self.listen.parse().map_err(|_| {
-            Invalid::new(
+            Invalid::found(
                 "exporter.listen",
-                format!(
-                    "expected an IP address and port such as \"127.0.0.1:9464\", found \"{}\"",
-                    self.listen
-                ),
+                "an IP address and port such as \"127.0.0.1:9464\"",
+                &self.listen,
             )
         })
     }

@@ -68,12 +68,10 @@ impl LinkConfig {
     /// Checks the `link.*` keys against the configured cameras.
     pub(super) fn validate(&self, cameras: &[CameraConfig]) -> Result<(), Invalid> {
         if !self.box_id.is_empty() && !is_ros_token(&self.box_id) {
-            return Err(Invalid::new(
+            return Err(Invalid::found(
                 "link.box_id",
-                format!(
-                    "expected a name of letters, digits and '_' not starting with a digit, such as \"box_a\", found \"{}\"",
-                    self.box_id
-                ),
+                "a name of letters, digits and '_' not starting with a digit, such as \"box_a\"",
+                &self.box_id,
             ));
         }
         if !self.export.is_empty() && self.box_id.is_empty() {
@@ -103,9 +101,10 @@ impl LinkConfig {
         }
         for (i, id) in self.export.iter().enumerate() {
             if !cameras.iter().any(|c| &c.id == id) {
-                return Err(Invalid::new(
+                return Err(Invalid::found(
                     format!("link.export[{i}]"),
-                    format!("expected a [[camera]] id of this site, found \"{id}\""),
+                    "a [[camera]] id of this site",
+                    id,
                 ));
             }
             if self.import.contains(id) {
@@ -122,11 +121,10 @@ impl LinkConfig {
         if let Some(ns) = &self.namespace {
             let ok = ns.starts_with('/') && ns[1..].split('/').all(is_ros_token);
             if !ok {
-                return Err(Invalid::new(
+                return Err(Invalid::found(
                     "link.namespace",
-                    format!(
-                        "expected an absolute ROS 2 namespace such as \"/isochron/link\", found \"{ns}\""
-                    ),
+                    "an absolute ROS 2 namespace such as \"/isochron/link\"",
+                    ns,
                 ));
             }
         }

@@ -90,6 +90,12 @@ impl Invalid {
             message: message.into(),
         }
     }
+
+    /// An error at `key` whose value `found` is not what was `expected`:
+    /// `expected <expected>, found "<found>"`.
+    pub fn found(key: impl Into<String>, expected: &str, found: &str) -> Self {
+        Invalid::new(key, format!("expected {expected}, found \"{found}\""))
+    }
 }
 
 /// The whole configuration of one site.

@@ -114,28 +114,26 @@ impl MqttConfig {
     pub fn validate(&self, site_name: &str) -> Result<(), Invalid> {
         self.broker_addr()?;
         if !is_topic_level(&self.topic_prefix) {
-            return Err(Invalid::new(
+            return Err(Invalid::found(
                 "mqtt.topic_prefix",
-                format!(
-                    "expected one topic level without '/', '+', '#' or a leading '$', such as \"isochron\", found \"{}\"",
-                    self.topic_prefix
-                ),
+                "one topic level without '/', '+', '#' or a leading '$', such as \"isochron\"",
+                &self.topic_prefix,
             ));
         }
         let site = self.site_level(site_name);
         if !is_topic_level(site) {
-            return Err(Invalid::new(
+            return Err(Invalid::found(
                 "mqtt.site",
-                format!(
-                    "expected one topic level without '/', '+', '#' or a leading '$' (default: [site] name), found \"{site}\""
-                ),
+                "one topic level without '/', '+', '#' or a leading '$' (default: [site] name)",
+                site,
             ));
         }
         let id = self.client_id(site_name);
         if id.is_empty() || id.len() > 65535 || id.contains('\0') {
-            return Err(Invalid::new(
+            return Err(Invalid::found(
                 "mqtt.client_id",
-                format!("expected a non-empty client id, found \"{id}\""),
+                "a non-empty client id",
+                &id,
             ));
         }
         check_range("mqtt.queue_len", self.queue_len as f64, 1.0, 1_000_000.0)?;

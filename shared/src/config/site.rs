@@ -42,21 +42,17 @@ impl SiteConfig {
     /// Checks the `site.*` keys.
     pub(super) fn validate(&self) -> Result<(), Invalid> {
         if jiff::tz::TimeZone::get(&self.time_zone).is_err() {
-            return Err(Invalid::new(
+            return Err(Invalid::found(
                 "site.time_zone",
-                format!(
-                    "expected an IANA time zone such as \"Europe/Berlin\" or \"UTC\", found \"{}\"",
-                    self.time_zone
-                ),
+                "an IANA time zone such as \"Europe/Berlin\" or \"UTC\"",
+                &self.time_zone,
             ));
         }
         if !is_valid_prefix(&self.service_prefix) {
-            return Err(Invalid::new(
+            return Err(Invalid::found(
                 "site.service_prefix",
-                format!(
-                    "expected letters, digits, '_', '-', '.', '/' (not at either end), found \"{}\"",
-                    self.service_prefix
-                ),
+                "letters, digits, '_', '-', '.', '/' (not at either end)",
+                &self.service_prefix,
             ));
         }
         check_range(

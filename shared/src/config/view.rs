@@ -45,12 +45,10 @@ impl ViewConfig {
         check_range("view.frame_max_px", self.frame_max_px as f64, 16.0, 8192.0)?;
         check_range("view.jpeg_quality", self.jpeg_quality as f64, 1.0, 100.0)?;
         if self.listen.parse::<SocketAddr>().is_err() {
-            return Err(Invalid::new(
+            return Err(Invalid::found(
                 "view.listen",
-                format!(
-                    "expected an IP address and port such as \"127.0.0.1:8765\", found \"{}\"",
-                    self.listen
-                ),
+                "an IP address and port such as \"127.0.0.1:8765\"",
+                &self.listen,
             ));
         }
         Ok(())
