@@ -99,7 +99,7 @@ impl<'ipc> GateStage<'ipc> {
             ring.clone(),
             queue,
             slots,
-            lossless,
+            (!lossless).then(|| Duration::from_secs_f64(config.gate.detector.slot_wait_s)),
         )?;
         let gate = Gate::new(
             GateSettings {

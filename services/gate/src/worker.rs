@@ -149,8 +149,10 @@ impl DetectorSlots {
         Ok(DetectorSlots { files })
     }
 
-    /// A free slot; `None` if all are taken, unless `wait`, which waits for one.
-    pub fn acquire(&self, wait: bool) -> Option<Slot> {
+    /// A free slot, waiting for one up to `patience` (`None`: as long as it takes);
+    /// `None` if every slot stayed taken.
+    pub fn acquire(&self, patience: Option<Duration>) -> Option<Slot> {
+        let deadline = patience.map(|p| Instant::now() + p);
         loop {
             for path in &self.files {
                 // A fresh open per try: a lock belongs to one open file, so two
@@ -170,7 +172,7 @@ impl DetectorSlots {
                     }
                 }
             }
-            if !wait {
+            if deadline.is_some_and(|d| Instant::now() >= d) {
                 return None;
             }
             std::thread::sleep(Self::RETRY);
@@ -211,14 +213,14 @@ impl Worker {
     /// the thread that made them). Fails if the detector cannot be built. With a
     /// `queue` of 0 a job is handed over only when the detector takes it, so the
     /// frame it names is copied out of the ring before anything can replace it.
-    /// A job runs only in a free slot of `slots`; when none is free it is dropped,
-    /// or, with `wait_for_slot` (lossless replays), it waits for one.
+    /// A job runs only in a free slot of `slots`; it waits for one up to
+    /// `slot_wait` (`None`, lossless replays: as long as it takes), then is dropped.
     pub fn start(
         make: impl FnOnce() -> Result<Detector, DetectorError> + Send + 'static,
         ring: Arc<Mutex<FrameRing>>,
         queue: usize,
         slots: Arc<DetectorSlots>,
-        wait_for_slot: bool,
+        slot_wait: Option<Duration>,
     ) -> Result<(Worker, &'static str), DetectorError> {
         let (jobs_tx, jobs_rx) = sync_channel::<Job>(queue);
         let (reports_tx, reports_rx) = sync_channel::<Report>(1024);
@@ -243,7 +245,7 @@ impl Worker {
                     if closing.load(Ordering::Relaxed) {
                         break; // stopping: what is still queued is abandoned
                     }
-                    let Some(_slot) = slots.acquire(wait_for_slot) else {
+                    let Some(_slot) = slots.acquire(slot_wait) else {
                         if reports_tx.send(Report::Busy(job)).is_err() {
                             break;
                         }
@@ -371,11 +373,17 @@ mod tests {
     #[test]
     fn detector_slots_bound_what_runs_at_once() {
         let slots = test_slots("bound", 2);
-        let a = slots.acquire(false).expect("first slot");
-        let _b = slots.acquire(false).expect("second slot");
-        assert!(slots.acquire(false).is_none(), "both slots busy: dropped");
+        let a = slots.acquire(Some(Duration::ZERO)).expect("first slot");
+        let _b = slots.acquire(Some(Duration::ZERO)).expect("second slot");
+        assert!(
+            slots.acquire(Some(Duration::ZERO)).is_none(),
+            "both slots busy: dropped"
+        );
         drop(a);
-        assert!(slots.acquire(false).is_some(), "a freed slot is reused");
+        assert!(
+            slots.acquire(Some(Duration::ZERO)).is_some(),
+            "a freed slot is reused"
+        );
     }
 
     #[test]
@@ -391,7 +399,7 @@ mod tests {
             .spawn()
             .expect("python3");
         let deadline = Instant::now() + Duration::from_secs(10);
-        while slots.acquire(false).is_some() {
+        while slots.acquire(Some(Duration::ZERO)).is_some() {
             assert!(Instant::now() < deadline, "the other process never locked");
             std::thread::sleep(Duration::from_millis(10));
         }
@@ -402,7 +410,7 @@ mod tests {
         holder.kill().unwrap();
         holder.wait().unwrap();
         assert!(
-            slots.acquire(false).is_some(),
+            slots.acquire(Some(Duration::ZERO)).is_some(),
             "the kernel released the dead holder's lock"
         );
     }
@@ -415,7 +423,7 @@ mod tests {
         let ring = Arc::new(Mutex::new(FrameRing::new(1)));
         ring.lock().push(0, 0, w, h, &pixels);
         let slots = Arc::new(test_slots("abandon", 1));
-        let held = slots.acquire(false).expect("the only slot");
+        let held = slots.acquire(Some(Duration::ZERO)).expect("the only slot");
         // At upscale 1: a shorter test, and the point is the same.
         let config = isochron_shared::config::DetectorConfig {
             hog_upscale: 1.0,
@@ -427,7 +435,7 @@ mod tests {
             ring,
             8,
             slots.clone(),
-            true,
+            None,
         )
         .expect("HOG detector");
         // The first job waits for the slot; eight more wait in the queue.
@@ -468,10 +476,10 @@ mod tests {
     #[test]
     fn a_waiting_job_gets_the_next_free_slot() {
         let slots = Arc::new(test_slots("wait", 1));
-        let held = slots.acquire(false).expect("slot");
+        let held = slots.acquire(Some(Duration::ZERO)).expect("slot");
         let waiter = {
             let slots = slots.clone();
-            std::thread::spawn(move || slots.acquire(true).is_some())
+            std::thread::spawn(move || slots.acquire(None).is_some())
         };
         std::thread::sleep(Duration::from_millis(50));
         assert!(!waiter.is_finished(), "it waits while the slot is taken");

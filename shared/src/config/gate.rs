@@ -112,9 +112,15 @@ pub struct DetectorConfig {
     /// Default 2.
     pub queue: usize,
     /// Detections that run at once on the site, all cameras and gate processes
-    /// together; a job that finds every one busy is dropped and counted (a
-    /// lossless replay waits instead). Default 1.
+    /// together. Default 1.
     pub concurrent: usize,
+    /// How long a job waits for one of the `concurrent` slots before it is dropped
+    /// and counted, seconds (a lossless replay waits as long as it takes). The
+    /// waiting is on the detector's thread: activity and events never wait.
+    /// Cameras whose seconds end together all ask at once; waiting spreads their
+    /// jobs over the second instead of always serving the first to ask.
+    /// Default 1.
+    pub slot_wait_s: f64,
 }
 
 impl Default for DetectorConfig {
@@ -134,6 +140,7 @@ impl Default for DetectorConfig {
             crop_margin_px: 64,
             queue: 2,
             concurrent: 1,
+            slot_wait_s: 1.0,
         }
     }
 }
@@ -228,6 +235,7 @@ impl DetectorConfig {
             self.concurrent as f64,
             1.0,
             64.0,
-        )
+        )?;
+        check_range("gate.detector.slot_wait_s", self.slot_wait_s, 0.0, 60.0)
     }
 }
