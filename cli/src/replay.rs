@@ -36,7 +36,7 @@ use isochron_shared::wire::{ActivityKind, DetectionHeader, EventPhase, Stream, f
 use serde_json::json;
 
 use crate::launch::{ServiceSpec, State, Supervisor, group_specs, installed_stages};
-use crate::record::Recorder;
+use crate::record::RecorderThread;
 
 /// Run the whole group on a video file and write what every stage produced.
 #[derive(clap::Args)]
@@ -94,16 +94,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
     let ipc = Ipc::of_site("isochron-replay", &loaded.config)?;
     let subscribers = Subscribers::open(&ipc, &camera, &stages)?;
-    let mut recorder = match &args.record {
-        Some(path) => Some(Recorder::start(
-            &ipc,
-            &loaded,
-            path,
-            crate::record::streams_of(None, &loaded)?,
-        )?),
-        None => None,
-    };
-    let mut recording_failed = false;
+    // The recorder runs on a thread of its own, woken by its own subscribers.
+    let recorder = args
+        .record
+        .as_deref()
+        .map(|path| RecorderThread::start(&loaded, path))
+        .transpose()?;
     let mut tally = Tally::new(&camera, &subscribers, &out)?;
 
     let specs = group_specs(&loaded);
@@ -150,13 +146,6 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             Duration::from_millis(100),
         );
         tally.drain(&subscribers)?;
-        if let Some(r) = &mut recorder
-            && r.poll()?
-        {
-            // The disk runs low: the recording ends here, cleanly; the replay goes on.
-            recording_failed =
-                recorder.take().map(Recorder::finish).transpose()? != Some(ExitCode::SUCCESS);
-        }
         if let Some(status) = capture_status.latest() {
             capture_detail = Some(fixed_str(&status.detail));
         }
@@ -196,10 +185,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let wall = started.elapsed();
     drop(guards);
     supervisor.stop_all(Duration::from_secs(10));
-    if let Some(mut r) = recorder {
-        r.poll()?;
-        recording_failed |= r.finish()? != ExitCode::SUCCESS;
-    }
+    // What arrived is recorded, then the file closed (early, and the replay went
+    // on, if the disk ran low: then the exit code is 1).
+    let recording_failed = recorder
+        .map(RecorderThread::finish)
+        .transpose()?
+        .is_some_and(|code| code != ExitCode::SUCCESS);
     let input = capture_detail
         .as_deref()
         .and_then(InputCompleteness::from_detail);

@@ -76,11 +76,13 @@ pub fn expected_stages(config: &LoadedConfig) -> Vec<StageKind> {
 }
 
 /// Reads the last status of every expected stage ([`expected_stages`]) of every
-/// camera of `config`.
+/// camera of `config`, and of the view while one runs.
 pub fn collect(ipc: &Ipc, config: &LoadedConfig) -> anyhow::Result<Vec<Row>> {
     let cameras: Vec<String> = config.config.cameras.iter().map(|c| c.id.clone()).collect();
     let mut readers = Vec::new();
-    for stage in expected_stages(config) {
+    // A view or recorder (`isochron view`, `record`) has a row while it runs.
+    let view = (ipc.status_publishers("", StageKind::View) > 0).then_some(StageKind::View);
+    for stage in expected_stages(config).into_iter().chain(view) {
         let targets: Vec<String> = if stage.per_camera() {
             cameras.clone()
         } else {

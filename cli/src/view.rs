@@ -3,18 +3,20 @@
 //! `foxglove.websocket.v1`) with the same channels as
 //! `isochron record` ([`isochron_view::channels`]). Listens on `view.listen`
 //! (default 127.0.0.1:8765, loopback) unless `--listen` says otherwise. Open
-//! Foxglove, "Open connection", `ws://127.0.0.1:8765`.
+//! Foxglove, "Open connection", `ws://127.0.0.1:8765`. It runs as a stage on the
+//! stage runtime ([`isochron_view::stage`]) until Ctrl-C or SIGTERM, and reports
+//! its status (`isochron status` lists it as `view`).
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Duration;
 
-use anyhow::{Context as _, bail};
+use anyhow::bail;
 use isochron_shared::ipc::Ipc;
 use isochron_view::Context;
 use isochron_view::channels::SiteChannels;
-use isochron_view::follow::{Follower, Streams};
+use isochron_view::follow::Streams;
+use isochron_view::stage::{Sink, Until, ViewStage};
 
 use crate::common::load_config;
 
@@ -37,14 +39,21 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         bail!("--listen: expected an IP address and port such as 127.0.0.1:8765, found '{listen}'");
     };
     let ctx = Context::new();
-    let mut channels = SiteChannels::new(&loaded, &ctx)?;
+    let channels = SiteChannels::new(&loaded, &ctx)?;
     // The port first: a taken one fails before joining the group.
     let server = isochron_view::live::serve(&ctx, addr, &loaded.config.site.name)?;
     let ipc = Ipc::of_site(
         &format!("isochron-view-{}", std::process::id()),
         &loaded.config,
     )?;
-    let mut follower = Follower::open(&ipc, &loaded, &channels, Streams::all(&loaded))?;
+    let (mut stage, inputs) = ViewStage::open(
+        &ipc,
+        &loaded,
+        channels,
+        Sink::Live(server),
+        Streams::all(&loaded),
+        Until::default(),
+    )?;
     println!(
         "view: Foxglove WebSocket on ws://{addr} (images {})",
         if loaded.config.view.frames {
@@ -56,13 +65,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if !addr.ip().is_loopback() {
         eprintln!("isochron view: listening on {addr}, reachable from the network");
     }
-    while !ipc.should_stop() {
-        follower
-            .poll(&mut channels)
-            .context("reading the streams")?;
-        follower.wait(Duration::from_millis(50));
-    }
-    // Clients are dropped with the process; nothing to wait for.
-    server.stop().detach_all();
+    // Until Ctrl-C or SIGTERM.
+    isochron_shared::stage::run(&ipc, "", &mut stage, &inputs)?;
+    stage.finish()?;
     Ok(ExitCode::SUCCESS)
 }

@@ -73,6 +73,10 @@ impl std::fmt::Display for Fatal {
     }
 }
 
+/// So a command can pass a stage's failure on with `?`; [`code_of_chain`] keeps
+/// its code.
+impl std::error::Error for Fatal {}
+
 impl<E: Classify> From<E> for Fatal {
     fn from(e: E) -> Self {
         Fatal::new(e.exit_code(), e.to_string())
@@ -123,6 +127,8 @@ pub fn code_of_chain<'a>(
                 Some(e.exit_code())
             } else if let Some(e) = e.downcast_ref::<crate::wire::WireError>() {
                 Some(e.exit_code())
+            } else if let Some(e) = e.downcast_ref::<Fatal>() {
+                Some(e.code)
             } else {
                 e.downcast_ref::<crate::ipc::IpcError>()
                     .map(Classify::exit_code)

@@ -398,6 +398,13 @@ impl Ipc {
         Ok(StatusPublisher { publisher })
     }
 
+    /// How many processes publish `stage`'s status for `camera` now (0 or 1): whether
+    /// a stage run on demand, such as the view, is running.
+    pub fn status_publishers(&self, camera: &str, stage: StageKind) -> usize {
+        self.open_status(camera, stage)
+            .map_or(0, |f| f.dynamic_config().number_of_publishers())
+    }
+
     /// A reader of `stage`'s status for `camera` (the latest report arrives at once
     /// if the stage runs).
     pub fn status_subscriber(

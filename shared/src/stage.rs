@@ -10,7 +10,9 @@
 //!   notified ([`Woken`]);
 //! * an [`Input`] checks every sample's header (magic, version, stream, camera,
 //!   payload size), counts it, counts sequence gaps as drops, and rejects a
-//!   malformed sample with a rate-limited warning instead of passing it on;
+//!   malformed sample with a rate-limited warning instead of passing it on; a
+//!   reader that shows only the present takes the newest sample
+//!   ([`Input::latest`]) and the ones it skipped count as its drops;
 //! * an [`Output`] is a publisher sized for the largest payload so far (re-created
 //!   when a payload needs more room), numbers its samples and forwards end of
 //!   stream ([`Output::end_of_stream`]);
@@ -52,8 +54,8 @@ const WARN_EVERY: Duration = Duration::from_secs(5);
 
 /// A service's work, driven by the runtime.
 pub trait Stage {
-    /// The stage's inputs: an [`Input`], a tuple or `Vec` of them, or any
-    /// [`Inputs`].
+    /// The stage's inputs: an [`Input`], a tuple (of 2, 3 or 5) or `Vec` of them,
+    /// or any [`Inputs`].
     type Inputs: Inputs;
 
     /// Which stage this is (its health reports and logs say so).
@@ -83,6 +85,14 @@ pub trait Stage {
     /// is asked to stop, its inputs are woken once more (what is queued for it is
     /// taken) before [`Stage::on_stop`]. Default false: the rest stop at once.
     fn take_inputs_on_stop(&self) -> bool {
+        false
+    }
+
+    /// True once the stage has done its work (a recording that reached its end):
+    /// the loop then ends as on a stop request (inputs taken once more if
+    /// [`Stage::take_inputs_on_stop`], [`Stage::on_stop`], the final report).
+    /// Asked before every pass. Default false: a service runs until it is stopped.
+    fn finished(&self) -> bool {
         false
     }
 
@@ -144,7 +154,7 @@ pub fn run<S: Stage>(
     notify_ready(&format!("{} {camera}", S::KIND));
 
     let mut more = false;
-    while !ipc.should_stop() {
+    while !ipc.should_stop() && !stage.finished() {
         let mut woken = Woken::default();
         // After a full batch, samples are still waiting: look again at once.
         let wait = if more { Duration::ZERO } else { idle };
@@ -300,6 +310,7 @@ macro_rules! tuple_inputs {
 }
 tuple_inputs!(A 0, B 1);
 tuple_inputs!(A 0, B 1, C 2);
+tuple_inputs!(A 0, B 1, C 2, D 3, E 4);
 
 /// An input the stage reads (and drains the wake-ups of) by itself, such as a
 /// request-response server: the runtime only wakes the stage for it.
@@ -436,6 +447,22 @@ impl<S: StreamType> Input<S> {
         }
         self.taken.set(0);
         None
+    }
+
+    /// The newest valid sample waiting, the older ones skipped: for a reader that
+    /// shows only the present (the view's frames and motion). Every sample taken is
+    /// checked and counted as [`Input::next`] does; a valid one skipped for a newer
+    /// one counts as dropped by this stage. `None` when no valid sample waits. A
+    /// full batch is skipped down to its newest sample, and the runtime comes back
+    /// at once for the rest.
+    pub fn latest(&self, cx: &mut Context) -> Option<Received<S>> {
+        let mut newest = None;
+        while let Some(sample) = self.next(cx) {
+            if newest.replace(sample).is_some() {
+                cx.health.dropped(1);
+            }
+        }
+        newest
     }
 
     /// Counts a received sample; a gap in the sequence counts as dropped upstream,
@@ -682,5 +709,63 @@ impl Warnings {
         }
         s.issued += 1;
         s.last = Some(now);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ipc::Detections;
+    use crate::wire::{Detection, DetectionHeader, Stream};
+
+    /// A detections sample of cam01 numbered `sequence` (of `camera` if given).
+    fn sample(sequence: u64, camera: &str) -> Owned<Detections> {
+        let id = CameraId::new(camera).unwrap();
+        let header = DetectionHeader {
+            preamble: Preamble::new::<Detection>(Stream::Detections, id, sequence, 0),
+            source_index: sequence,
+            ..Default::default()
+        };
+        Owned {
+            header,
+            payload: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn latest_takes_the_newest_valid_sample_and_counts_what_it_skipped() {
+        let (input, queue) = Input::<Detections>::memory("cam01");
+        let mut cx = Context::new(StageKind::View, "", None);
+        // 0 and 1 are skipped for 3; 2 never arrives; cam02's sample is rejected.
+        queue.borrow_mut().extend([
+            sample(0, "cam01"),
+            sample(1, "cam01"),
+            sample(3, "cam01"),
+            sample(4, "cam02"),
+        ]);
+        let newest = input.latest(&mut cx).expect("a sample");
+        assert_eq!(newest.header().source_index, 3);
+        assert!(input.latest(&mut cx).is_none(), "nothing left");
+        let status = cx.health.status();
+        assert_eq!(status.received, 3);
+        assert_eq!(status.rejected, 1);
+        assert_eq!(status.dropped, 3, "two skipped here, one lost upstream");
+    }
+
+    #[test]
+    fn latest_stops_at_a_full_batch_and_the_runtime_comes_back() {
+        let (input, queue) = Input::<Detections>::memory("cam01");
+        let mut cx = Context::new(StageKind::View, "", None);
+        let n = BATCH as u64 + 10;
+        queue
+            .borrow_mut()
+            .extend((0..n).map(|s| sample(s, "cam01")));
+        let first = input.latest(&mut cx).expect("a sample");
+        assert_eq!(first.header().source_index, BATCH as u64 - 1);
+        assert!(input.take_batch_full(), "more waits");
+        let second = input.latest(&mut cx).expect("the rest");
+        assert_eq!(second.header().source_index, n - 1);
+        assert!(!input.take_batch_full());
+        assert_eq!(cx.health.status().dropped, n - 2);
     }
 }

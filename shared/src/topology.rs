@@ -30,6 +30,12 @@ pub enum StageKind {
     /// site-wide, optional: started when `[mqtt]` is configured, so not in
     /// [`StageKind::ALL`]).
     Mqtt,
+    /// What people look at: the live Foxglove view (`isochron view`) and MCAP
+    /// recordings (`isochron record`, `isochron replay --record`). Site-wide, run
+    /// on demand by the `isochron` command (no binary of its own, so neither in
+    /// [`StageKind::ALL`] nor in [`StageKind::EVERY`]); it reports its status like
+    /// every stage, so `isochron status` lists it while it runs.
+    View,
 }
 
 impl StageKind {
@@ -66,15 +72,20 @@ impl StageKind {
             StageKind::Exporter => "exporter",
             StageKind::Link => "link",
             StageKind::Mqtt => "mqtt",
+            StageKind::View => "view",
         }
     }
 
     /// The stage named `name`, if any.
     pub fn from_name(name: &str) -> Option<StageKind> {
-        StageKind::EVERY.into_iter().find(|s| s.name() == name)
+        StageKind::EVERY
+            .into_iter()
+            .chain([StageKind::View])
+            .find(|s| s.name() == name)
     }
 
-    /// The binary that runs the stage.
+    /// The binary that runs the stage (`isochron` for the view: its `view` and
+    /// `record` commands).
     pub fn binary(self) -> &'static str {
         match self {
             StageKind::Capture => "isochron-capture",
@@ -85,6 +96,7 @@ impl StageKind {
             StageKind::Exporter => "isochron-exporter",
             StageKind::Link => "isochron-link",
             StageKind::Mqtt => "isochron-mqtt",
+            StageKind::View => "isochron",
         }
     }
 
@@ -116,6 +128,10 @@ impl StageKind {
                  box's services as if local"
             }
             StageKind::Mqtt => "Publishes zone events and detections as JSON to an MQTT broker",
+            StageKind::View => {
+                "Shows the site live in Foxglove (`isochron view`) or records it into an MCAP \
+                 file (`isochron record`)"
+            }
         }
     }
 
@@ -130,6 +146,7 @@ impl StageKind {
             StageKind::Exporter => &[],
             StageKind::Link => &[Stream::Activity, Stream::Events, Stream::Detections],
             StageKind::Mqtt => &[Stream::Events, Stream::Detections],
+            StageKind::View => &Stream::ALL,
         }
     }
 
@@ -140,7 +157,7 @@ impl StageKind {
             StageKind::Motion => &[Stream::Motion],
             StageKind::Cascade => &[Stream::Activity],
             StageKind::Gate => &[Stream::Events, Stream::Detections],
-            StageKind::Costmap | StageKind::Exporter | StageKind::Mqtt => &[],
+            StageKind::Costmap | StageKind::Exporter | StageKind::Mqtt | StageKind::View => &[],
             StageKind::Link => &[Stream::Activity, Stream::Events, Stream::Detections],
         }
     }
@@ -152,11 +169,15 @@ impl StageKind {
     }
 
     /// True for stages that run once per camera; false for the site-wide costmap,
-    /// exporter, link and MQTT sink.
+    /// exporter, link, MQTT sink and view.
     pub fn per_camera(self) -> bool {
         !matches!(
             self,
-            StageKind::Costmap | StageKind::Exporter | StageKind::Link | StageKind::Mqtt
+            StageKind::Costmap
+                | StageKind::Exporter
+                | StageKind::Link
+                | StageKind::Mqtt
+                | StageKind::View
         )
     }
 }
@@ -191,6 +212,8 @@ mod tests {
             assert_eq!(StageKind::from_name(stage.name()), Some(stage));
             assert_eq!(stage.binary(), format!("isochron-{stage}"));
         }
+        assert_eq!(StageKind::from_name("view"), Some(StageKind::View));
+        assert!(!StageKind::View.per_camera());
         assert_eq!(StageKind::from_name("nope"), None);
     }
 }

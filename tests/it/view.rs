@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use isochron_tests::{Proc, TestSite, bin, repo_root, venv_python, vtest};
+use isochron_tests::{Proc, TestSite, bin, eventually, free_port, repo_root, venv_python, vtest};
 use serde_json::Value;
 
 /// config/demo.toml without its `[site]` section (the test site has its own), the
@@ -161,6 +161,7 @@ fn bad_overlay_input_is_one_clear_line() {
     let config = site.config_path().display().to_string();
     let png = site.path("x.png").display().to_string();
     let not_video = site.config_path().display().to_string();
+    let overlay = ["--camera", "cam01", "--overlay", png.as_str()];
     for (args, expect) in [
         (
             vec!["--camera", "cam09", "--overlay", &png],
@@ -171,25 +172,11 @@ fn bad_overlay_input_is_one_clear_line() {
             "--overlay /nonexistent/dir/x.png: cannot write",
         ),
         (
-            vec![
-                "--camera",
-                "cam01",
-                "--overlay",
-                &png,
-                "--frame",
-                &not_video,
-            ],
+            [&overlay[..], &["--frame", &not_video]].concat(),
             "not a video or image",
         ),
         (
-            vec![
-                "--camera",
-                "cam01",
-                "--overlay",
-                &png,
-                "--frame",
-                "/nonexistent.avi",
-            ],
+            [&overlay[..], &["--frame", "/nonexistent.avi"]].concat(),
             "--frame /nonexistent.avi: no such file",
         ),
     ] {
@@ -213,20 +200,22 @@ fn python() -> PathBuf {
     venv_python("mcap.reader, websockets")
 }
 
-/// What `tests/view/mcap_summary.py` reads in `file`.
-fn mcap_summary(file: &Path) -> Value {
+/// What the Python peer `tests/view/<script>` prints (one JSON value) when run
+/// with `args`.
+fn python_peer(script: &str, args: &[String]) -> Value {
     let out = std::process::Command::new(python())
-        .arg(repo_root().join("tests/view/mcap_summary.py"))
-        .arg(file)
+        .arg(repo_root().join("tests/view").join(script))
+        .args(args)
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "the MCAP reader failed on {}: {}",
-        file.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{script} {args:?} failed: {stderr}");
     serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// What `tests/view/mcap_summary.py` reads in `file`.
+fn mcap_summary(file: &Path) -> Value {
+    python_peer("mcap_summary.py", &[file.display().to_string()])
 }
 
 /// The channel of `topic` in a summary.
@@ -237,6 +226,17 @@ fn channel<'a>(summary: &'a Value, topic: &str) -> Option<&'a Value> {
         .iter()
         .find(|c| c["topic"] == topic)
 }
+
+/// The channels of every recording and view of cam01, with their schemas (besides
+/// the status channels, and the image only with `view.frames = true`).
+const CHANNELS: [(&str, &str); 6] = [
+    ("/costmap", "foxglove.Grid"),
+    ("/scene", "foxglove.SceneUpdate"),
+    ("/cam01/activity", "foxglove.Grid"),
+    ("/cam01/motion", "foxglove.Grid"),
+    ("/cam01/events", "foxglove.Log"),
+    ("/cam01/detections", "foxglove.ImageAnnotations"),
+];
 
 /// Runs `isochron replay` of vtest on `site` with `--record file` (and `extra`).
 fn replay_recorded(site: &TestSite, file: &Path, extra: &[&str]) -> isochron_tests::Finished {
@@ -268,17 +268,11 @@ fn a_recording_of_the_demo_video_opens_in_an_independent_mcap_reader() {
     assert_eq!(summary["compression"], serde_json::json!(["lz4"]));
     assert!(summary["chunks"].as_u64().unwrap() >= 1);
     assert_eq!(summary["messages_read"], summary["message_count"]);
-    for (topic, schema) in [
-        ("/costmap", "foxglove.Grid"),
-        ("/scene", "foxglove.SceneUpdate"),
-        ("/cam01/activity", "foxglove.Grid"),
-        ("/cam01/motion", "foxglove.Grid"),
-        ("/cam01/events", "foxglove.Log"),
-        ("/cam01/detections", "foxglove.ImageAnnotations"),
+    for (topic, schema) in CHANNELS.into_iter().chain([
         ("/cam01/status/motion", "foxglove.Log"),
         ("/cam01/status/cascade", "foxglove.Log"),
         ("/status/costmap", "foxglove.Log"),
-    ] {
+    ]) {
         let ch = channel(&summary, topic).unwrap_or_else(|| panic!("no {topic}: {summary}"));
         assert_eq!(ch["schema"], schema, "{ch}");
         assert_eq!(ch["schema_encoding"], "protobuf", "{ch}");
@@ -323,41 +317,17 @@ fn a_recording_of_the_demo_video_opens_in_an_independent_mcap_reader() {
     );
 }
 
-/// A free TCP port on loopback.
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
 /// What `tests/view/ws_client.py` gets from `port` on `topic` (up to `want`).
 fn ws_client(port: u16, topic: &str, want: u32, timeout_s: u32) -> Value {
-    let out = std::process::Command::new(python())
-        .arg(repo_root().join("tests/view/ws_client.py"))
-        .arg(format!("ws://127.0.0.1:{port}"))
-        .arg(topic)
-        .arg(want.to_string())
-        .arg(timeout_s.to_string())
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "the WebSocket client failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
+    let url = format!("ws://127.0.0.1:{port}");
+    let args = [url, topic.into(), want.to_string(), timeout_s.to_string()];
+    python_peer("ws_client.py", &args)
 }
 
-#[test]
-fn the_live_view_serves_foxglove_clients_during_a_replay() {
-    // Images on for this site; the replay's effective config (its private prefix)
-    // is what the view and the recorder join.
-    // Two views and a recorder join the group: room for them.
-    let site = demo_site("live", |b| {
-        format!("[ipc]\nmax_subscribers = 8\n\n{b}\n[view]\nframes = true\n")
-    });
+/// Starts `isochron replay` of vtest on `site` at `--speed 1`; returns it once it
+/// runs, with its effective config (its private prefix), which views and
+/// recorders join.
+fn replay_live(site: &TestSite) -> (Proc, PathBuf) {
     let video = vtest().display().to_string();
     let out = site.path("replay");
     let config = site.config_path().display().to_string();
@@ -381,34 +351,52 @@ fn the_live_view_serves_foxglove_clients_during_a_replay() {
         "replay did not start: {}",
         replay.stderr()
     );
-    let with_frames = out.join("config.toml");
+    (replay, out.join("config.toml"))
+}
+
+/// Starts `isochron view` of `config` on loopback port `port`.
+fn spawn_view(config: &Path, port: u16) -> Proc {
+    Proc::spawn(
+        &bin("isochron"),
+        &[
+            "view",
+            "--config",
+            config.to_str().unwrap(),
+            "--listen",
+            &format!("127.0.0.1:{port}"),
+        ],
+    )
+}
+
+/// Waits until `view` serves.
+fn wait_for_view(view: &mut Proc) {
+    assert!(
+        view.wait_for_line("view: Foxglove WebSocket", Duration::from_secs(30))
+            .is_some(),
+        "view did not start: {}",
+        view.stderr()
+    );
+}
+
+#[test]
+fn the_live_view_serves_foxglove_clients_during_a_replay() {
+    // Images on for this site; the replay's effective config (its private prefix)
+    // is what the view and the recorder join.
+    // Two views and a recorder join the group: room for them.
+    let site = demo_site("live", |b| {
+        format!("[ipc]\nmax_subscribers = 8\n\n{b}\n[view]\nframes = true\n")
+    });
+    let (replay, with_frames) = replay_live(&site);
     let text = std::fs::read_to_string(&with_frames).unwrap();
     assert!(text.contains("frames = true"), "{text}");
     let without = site.path("no-frames.toml");
     std::fs::write(&without, text.replace("frames = true", "frames = false")).unwrap();
 
     let (p1, p2) = (free_port(), free_port());
-    let view = |config: &Path, port: u16| {
-        Proc::spawn(
-            &bin("isochron"),
-            &[
-                "view",
-                "--config",
-                config.to_str().unwrap(),
-                "--listen",
-                &format!("127.0.0.1:{port}"),
-            ],
-        )
-    };
-    let mut with = view(&with_frames, p1);
-    let mut plain = view(&without, p2);
+    let mut with = spawn_view(&with_frames, p1);
+    let mut plain = spawn_view(&without, p2);
     for v in [&mut with, &mut plain] {
-        assert!(
-            v.wait_for_line("view: Foxglove WebSocket", Duration::from_secs(30))
-                .is_some(),
-            "view did not start: {}",
-            v.stderr()
-        );
+        wait_for_view(v);
     }
     // A recorder on the same group, for a few seconds, with images.
     let mcap = site.path("live.mcap");
@@ -430,15 +418,10 @@ fn the_live_view_serves_foxglove_clients_during_a_replay() {
     assert_eq!(got["subprotocol"], "foxglove.sdk.v1", "{got}");
     assert!(got["server"].is_string(), "serverInfo: {got}");
     let channels = got["channels"].as_object().unwrap();
-    for (topic, schema) in [
-        ("/costmap", "foxglove.Grid"),
-        ("/scene", "foxglove.SceneUpdate"),
-        ("/cam01/activity", "foxglove.Grid"),
-        ("/cam01/motion", "foxglove.Grid"),
-        ("/cam01/events", "foxglove.Log"),
-        ("/cam01/detections", "foxglove.ImageAnnotations"),
-        ("/cam01/status/gate", "foxglove.Log"),
-    ] {
+    for (topic, schema) in CHANNELS
+        .into_iter()
+        .chain([("/cam01/status/gate", "foxglove.Log")])
+    {
         assert_eq!(channels[topic]["schema"], schema, "{got}");
     }
     assert!(!channels.contains_key("/cam01/image"), "{got}");
@@ -454,7 +437,7 @@ fn the_live_view_serves_foxglove_clients_during_a_replay() {
     assert_eq!(got["received"], 2, "{got}");
 
     // A second view on a taken port: one line, non-zero exit.
-    let mut taken = view(&with_frames, p1);
+    let mut taken = spawn_view(&with_frames, p1);
     let status = taken.wait(Duration::from_secs(30)).expect("exits");
     assert!(!status.success());
     let err = taken.stderr();
@@ -482,6 +465,50 @@ fn channels_schema(got: &Value, topic: &str) -> String {
         .as_str()
         .unwrap_or_else(|| panic!("{topic} not advertised: {got}"))
         .to_string()
+}
+
+/// The row of the view in `isochron status --json` of `config`, if it has one.
+fn view_row(site: &TestSite, config: &Path) -> Option<Value> {
+    let config = config.to_str().unwrap();
+    let done = site.isochron(
+        &["status", "--config", config, "--json"],
+        Duration::from_secs(30),
+    );
+    let rows: Vec<Value> = done
+        .stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect();
+    assert!(rows.iter().any(|r| r["stage"] == "gate"), "{}", done.stdout);
+    rows.into_iter().find(|r| r["stage"] == "view")
+}
+
+#[test]
+fn a_running_view_is_a_row_of_isochron_status() {
+    let site = demo_site("view-status", |b| b);
+    let (replay, config) = replay_live(&site);
+    assert_eq!(view_row(&site, &config), None, "no view runs yet");
+
+    let mut view = spawn_view(&config, free_port());
+    wait_for_view(&mut view);
+    // The first report comes at the view's first tick, the next 5 s later with
+    // what it took from the streams.
+    let row = eventually(Duration::from_secs(30), || {
+        view_row(&site, &config).filter(|r| r["received"].as_u64() > Some(0))
+    })
+    .unwrap_or_else(|| panic!("no view row with samples: {}", view.stderr()));
+    assert_eq!(row["state"], "running", "{row}");
+    assert_eq!(row["camera"], "", "site-wide: {row}");
+    assert_eq!(row["pid"], view.pid(), "{row}");
+    assert!(row["dropped"].is_u64() && row["rejected"] == 0, "{row}");
+    let detail = row["detail"].as_str().unwrap();
+    assert!(detail.starts_with("sink=live published="), "{row}");
+    assert!(row["sent"].as_u64() > Some(0), "it published: {row}");
+
+    // Stopped, it has no row any more.
+    assert!(view.terminate(Duration::from_secs(10)).success());
+    assert_eq!(view_row(&site, &config), None, "the view stopped");
+    drop(replay);
 }
 
 #[test]
@@ -542,33 +569,15 @@ fn a_recorder_whose_disk_fills_closes_the_file_cleanly() {
 fn heat_store(path: &Path, camera: &str) {
     use isochron_shared::clock::Cycle;
     use isochron_shared::geometry::BlockGrid;
-    use isochron_shared::store::{Bin, MinuteCommit, Store, StoreMeta};
+    use isochron_shared::store::{Store, StoreMeta};
     let meta = StoreMeta::new(camera, BlockGrid::new(320, 240, 16), Cycle::Daily, 0);
     let mut store = Store::open_or_create(path, &meta).unwrap();
     for t in 6 * 60..20 * 60 {
-        let mean: Vec<f32> = (0..300)
-            .map(|b| {
-                if b < 150 && (8 * 60..18 * 60).contains(&t) {
-                    0.04
-                } else {
-                    0.01
-                }
-            })
+        let busy = (8 * 60..18 * 60).contains(&t);
+        let mean = (0..300)
+            .map(|b| if b < 150 && busy { 0.04 } else { 0.01 })
             .collect();
-        let bin = Bin {
-            t_star: t,
-            count: 7,
-            last_minute: t as i64,
-            var: vec![0.0; 300],
-            mean,
-        };
-        store
-            .commit_minute(&MinuteCommit {
-                minute: t as i64,
-                bin: Some(&bin),
-                baseline: None,
-            })
-            .unwrap();
+        store.teach(t, 7, mean).unwrap();
     }
 }
 
@@ -624,6 +633,44 @@ fn assert_clear_failure(status: &std::process::ExitStatus, expect: &str, stderr:
     assert_eq!(status.code(), Some(code), "{expect}: {stderr}");
 }
 
+/// `isochron costmap snapshot --config site.toml ARGS --out OUT --json` of `site`.
+fn snapshot(site: &TestSite, args: &[&str], out: &str) -> isochron_tests::Finished {
+    let config = site.config_path().display().to_string();
+    let mut all = vec!["costmap", "snapshot", "--config", &config];
+    all.extend_from_slice(args);
+    all.extend(["--out", out, "--json"]);
+    site.isochron(&all, Duration::from_secs(60))
+}
+
+/// The JSON and the cells (rows of cost) of a snapshot with `args` that must
+/// succeed; the picture and the map_server pair beside it are checked too.
+fn snapshot_cells(site: &TestSite, args: &[&str]) -> (Value, Vec<Vec<i64>>) {
+    let name: String = args
+        .concat()
+        .chars()
+        .filter(char::is_ascii_alphanumeric)
+        .collect();
+    let out = site.path(&format!("{name}.png"));
+    let done = snapshot(site, args, out.to_str().unwrap());
+    assert!(done.status.success(), "{}", done.stderr);
+    let json: Value = serde_json::from_str(&done.stdout).unwrap();
+    let rows = json["cells"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| {
+            r.as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_i64().unwrap())
+                .collect()
+        })
+        .collect();
+    assert!(png_size(&out).0 >= 800, "{}", out.display());
+    assert!(out.with_extension("pgm").is_file() && out.with_extension("yaml").is_file());
+    (json, rows)
+}
+
 /// The floor camera of planning's tests (320×240 looking straight down at a
 /// 4 m × 3 m floor), a 5 cm grid with a margin no camera sees, one segment.
 const SNAPSHOT_SITE: &str = r#"[[camera]]
@@ -643,10 +690,7 @@ height_cells = 80
 origin_x_m = -0.5
 origin_y_m = -0.5
 cost_scale = 0.02
-
-[[costmap.segment]]
-name = "west"
-polygon_m = [[0.2, 0.2], [1.8, 0.2], [1.8, 2.8], [0.2, 2.8]]
+segment = [{ name = "west", polygon_m = [[0.2, 0.2], [1.8, 0.2], [1.8, 2.8], [0.2, 2.8]] }]
 "#;
 
 #[test]
@@ -659,56 +703,16 @@ fn a_snapshot_at_a_time_of_day_draws_what_the_long_term_model_expects() {
     )
     .unwrap();
     let (profile, state) = (site.path("busy.csv"), site.path("state"));
-    let done = site.isochron(
-        &[
-            "synth",
-            "--camera",
-            "cam01",
-            "--profile",
-            profile.to_str().unwrap(),
-            "--days",
-            "1",
-            "--out",
-            state.to_str().unwrap(),
-            "--fps",
-            "1",
-            "--grid",
-            "20x15",
-        ],
-        Duration::from_secs(120),
-    );
+    let (profile, state) = (profile.to_str().unwrap(), state.to_str().unwrap());
+    let synth = [
+        ["synth", "--camera", "cam01", "--days", "1"].as_slice(),
+        &["--profile", profile, "--out", state],
+        &["--fps", "1", "--grid", "20x15"],
+    ];
+    let done = site.isochron(&synth.concat(), Duration::from_secs(120));
     assert!(done.status.success(), "{}", done.stderr);
-    let config = site.config_path().display().to_string();
-    let snapshot = |at: &str, out: &str| {
-        site.isochron(
-            &[
-                "costmap", "snapshot", "--config", &config, "--at", at, "--out", out, "--json",
-            ],
-            Duration::from_secs(60),
-        )
-    };
-    let cells_of = |at: &str| -> (Value, Vec<Vec<i64>>) {
-        let out = site.path(&format!("at-{}.png", at.replace(':', "")));
-        let done = snapshot(at, out.to_str().unwrap());
-        assert!(done.status.success(), "{}", done.stderr);
-        let json: Value = serde_json::from_str(&done.stdout).unwrap();
-        let rows = json["cells"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|r| {
-                r.as_array()
-                    .unwrap()
-                    .iter()
-                    .map(|v| v.as_i64().unwrap())
-                    .collect()
-            })
-            .collect();
-        // The picture and the map_server pair beside it.
-        assert!(png_size(&out).0 >= 800, "{}", out.display());
-        assert!(out.with_extension("pgm").is_file() && out.with_extension("yaml").is_file());
-        (json, rows)
-    };
+    let snapshot_at = |at: &str, out: &str| snapshot(&site, &["--at", at], out);
+    let cells_of = |at: &str| snapshot_cells(&site, &["--at", at]);
     // Cell (i, j) is at x = -0.5 + 0.05 (i + 0.5) m: the camera sees 0..4 × 0..3 m.
     let in_view = |i: usize, j: usize| (11..89).contains(&i) && (11..69).contains(&j);
     let (busy, rows) = cells_of("10:00");
@@ -735,12 +739,71 @@ fn a_snapshot_at_a_time_of_day_draws_what_the_long_term_model_expects() {
 
     // Bad --at: one line, the usage exit code (shared/src/exit.rs).
     let out = site.path("bad.png");
-    let done = snapshot("25:00", out.to_str().unwrap());
+    let done = snapshot_at("25:00", out.to_str().unwrap());
+    assert_usage_error(&done, "--at: expected a time of day HH:MM");
+}
+
+/// A usage error: exit 64 (shared/src/exit.rs) and one line that says `expect`.
+fn assert_usage_error(done: &isochron_tests::Finished, expect: &str) {
     assert_eq!(done.status.code(), Some(64), "{}", done.stderr);
     assert_eq!(done.stderr.lines().count(), 1, "{}", done.stderr);
-    assert!(
-        done.stderr.contains("--at: expected a time of day HH:MM"),
-        "{}",
-        done.stderr
+    assert!(done.stderr.contains(expect), "{}", done.stderr);
+}
+
+#[test]
+fn a_snapshot_of_a_weekly_store_draws_the_day_asked_for() {
+    use isochron_shared::clock::Cycle;
+    use isochron_shared::geometry::BlockGrid;
+    use isochron_shared::store::{Store, StoreMeta, store_path};
+    let site = TestSite::new(
+        "snapshot-day",
+        &format!("[cascade]\ncycle = \"weekly\"\n\n{SNAPSHOT_SITE}"),
     );
+    // A weekly store (one model per weekday) written as the cascade writes it:
+    // from 09:00 to 11:00 people on Mondays in the west half of the view (blocks
+    // with x < 160 px: x < 2 m on the floor), on Tuesdays in the east half.
+    let meta = StoreMeta::new("cam01", BlockGrid::new(320, 240, 16), Cycle::Weekly, 0);
+    let path = store_path(&site.config().state_dir(), "cam01");
+    let mut store = Store::open_or_create(&path, &meta).unwrap();
+    for (day, west) in [(0, true), (1, false)] {
+        for minute in 9 * 60..11 * 60 {
+            let mean = (0..300)
+                .map(|b| if (b % 20 < 10) == west { 0.04 } else { 0.0 })
+                .collect();
+            store.teach(day * 1440 + minute, 7, mean).unwrap();
+        }
+    }
+    drop(store);
+
+    // Cell i is at x = -0.5 + 0.05 (i + 0.5) m: i < 50 is west of x = 2 m.
+    let lit = |rows: &[Vec<i64>], west: bool| -> usize {
+        let side = |i: usize| if west { i < 45 } else { i >= 55 };
+        rows.iter()
+            .flat_map(|r| r.iter().enumerate())
+            .filter(|(i, c)| side(*i) && **c > 0)
+            .count()
+    };
+    for (day, t_star, west) in [("mon", 600, true), ("tue", 1440 + 600, false)] {
+        let (json, rows) = snapshot_cells(&site, &["--at", "10:00", "--day", day]);
+        assert_eq!(json["cycle"], "weekly", "{day}");
+        assert_eq!(json["day"], day);
+        assert_eq!(json["t_star"], t_star, "{day}");
+        assert!(
+            lit(&rows, west) > 1500,
+            "{day}: {} cells lit",
+            lit(&rows, west)
+        );
+        assert_eq!(lit(&rows, !west), 0, "{day}: the other half is quiet");
+    }
+    // A day the store never learned: nothing expected.
+    let (wed, _) = snapshot_cells(&site, &["--at", "10:00", "--day", "wednesday"]);
+    assert_eq!(
+        (&wed["day"], &wed["cells_above_zero"]),
+        (&"wed".into(), &0.into())
+    );
+
+    // A bad --day: one line, the usage exit code.
+    let out = site.path("bad-day.png").display().to_string();
+    let done = snapshot(&site, &["--at", "10:00", "--day", "funday"], &out);
+    assert_usage_error(&done, "--day: expected mon .. sun, found 'funday'");
 }

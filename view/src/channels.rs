@@ -220,31 +220,15 @@ impl SiteChannels {
             return;
         };
         cam.last_motion_ns = Some(t);
-        let mut data = Vec::with_capacity(blocks.len() * 12);
-        for b in blocks {
-            for v in [b.density, b.dx, b.dy] {
-                data.extend_from_slice(&v.to_le_bytes());
-            }
-        }
-        let bp = h.block_px as f64;
-        cam.motion.log_with_time(
-            &Grid {
-                timestamp: Some(timestamp(t)),
-                frame_id: cam.id.clone(),
-                pose: Some(identity()),
-                column_count: h.grid_w,
-                cell_size: Some(Vector2 { x: bp, y: bp }),
-                row_stride: h.grid_w * 12,
-                cell_stride: 12,
-                fields: vec![
-                    float_field("density", 0),
-                    float_field("dx", 4),
-                    float_field("dy", 8),
-                ],
-                data: data.into(),
-            },
-            nanos(t),
+        let values = blocks.iter().map(|b| [b.density, b.dx, b.dy]);
+        let grid = block_grid(
+            t,
+            &cam.id,
+            (h.grid_w, h.block_px),
+            ["density", "dx", "dy"],
+            values,
         );
+        cam.motion.log_with_time(&grid, nanos(t));
         let topic = camera_topic(&cam.id, "motion");
         self.count(&topic);
         self.seen(t);
@@ -307,35 +291,13 @@ impl SiteChannels {
             return;
         };
         cam.frame_px = Some((h.frame_width, h.frame_height));
-        let mut data = Vec::with_capacity(blocks.len() * 12);
-        for b in blocks {
-            for v in [b.s1, b.s2, b.lt_mean] {
-                data.extend_from_slice(&v.to_le_bytes());
-            }
-        }
-        let field = |name: &str, offset: u32| PackedElementField {
-            name: name.into(),
-            offset,
-            r#type: foxglove::messages::packed_element_field::NumericType::Float32 as i32,
-        };
-        let bp = h.block_px as f64;
-        cam.activity.log_with_time(
-            &Grid {
-                timestamp: Some(timestamp(t)),
-                frame_id: cam.id.clone(),
-                pose: Some(identity()),
-                column_count: h.grid_w,
-                cell_size: Some(Vector2 { x: bp, y: bp }),
-                row_stride: h.grid_w * 12,
-                cell_stride: 12,
-                fields: vec![field("s1", 0), field("s2", 4), field("lt_mean", 8)],
-                data: data.into(),
-            },
-            nanos(t),
-        );
-        let topic = camera_topic(&cam.id, "activity");
         cam.latest.clear();
         cam.latest.extend_from_slice(blocks);
+        let values = blocks.iter().map(|b| [b.s1, b.s2, b.lt_mean]);
+        let fields = ["s1", "s2", "lt_mean"];
+        let grid = block_grid(t, &cam.id, (h.grid_w, h.block_px), fields, values);
+        cam.activity.log_with_time(&grid, nanos(t));
+        let topic = camera_topic(&cam.id, "activity");
         let blocks_grid = BlockGrid::new(h.frame_width, h.frame_height, h.block_px);
         if let (Some(g), Some(hom)) = (&self.grid, &cam.homography)
             && cam
@@ -561,24 +523,23 @@ impl SiteChannels {
     }
 
     /// A `frames` sample of camera `k` (call when [`Self::wants_frame`]): downscaled,
-    /// JPEG.
-    pub fn on_frame(&mut self, k: usize, h: &FrameHeader, pixels: &[u8]) {
+    /// JPEG. False if no image was published (images off, a frame JPEG cannot hold).
+    pub fn on_frame(&mut self, k: usize, h: &FrameHeader, pixels: &[u8]) -> bool {
         let quality = self.view.jpeg_quality;
         let max_px = self.view.frame_max_px;
         let Some(cam) = self.cameras.get_mut(k) else {
-            return;
+            return false;
         };
         let Some(channel) = &cam.image else {
-            return;
+            return false;
         };
         let t = h.preamble.capture_time_ns;
-        let format = match PixelFormat::from_u32(h.pixel_format) {
-            Some(f) => f,
-            None => return,
+        let Some(format) = PixelFormat::from_u32(h.pixel_format) else {
+            return false;
         };
         let Some(data) = jpeg::encode(pixels, h.width, h.height, h.stride, format, max_px, quality)
         else {
-            return;
+            return false;
         };
         cam.last_image_ns = Some(t);
         cam.frame_px = Some((h.width, h.height));
@@ -593,14 +554,40 @@ impl SiteChannels {
         );
         let topic = camera_topic(&cam.id, "image");
         self.count(&topic);
+        true
     }
 }
 
-fn float_field(name: &str, offset: u32) -> PackedElementField {
-    PackedElementField {
-        name: name.into(),
-        offset,
-        r#type: foxglove::messages::packed_element_field::NumericType::Float32 as i32,
+/// A camera's per-block grid in its own frame `frame_id` (one cell per block of
+/// `block_px` pixels, `grid_w` blocks a row): three float32 fields, `names`, per
+/// block from `values`.
+fn block_grid(
+    t: i64,
+    frame_id: &str,
+    (grid_w, block_px): (u32, u32),
+    names: [&str; 3],
+    values: impl Iterator<Item = [f32; 3]>,
+) -> Grid {
+    let data: Vec<u8> = values.flatten().flat_map(f32::to_le_bytes).collect();
+    let bp = block_px as f64;
+    Grid {
+        timestamp: Some(timestamp(t)),
+        frame_id: frame_id.into(),
+        pose: Some(identity()),
+        column_count: grid_w,
+        cell_size: Some(Vector2 { x: bp, y: bp }),
+        row_stride: grid_w * 12,
+        cell_stride: 12,
+        fields: names
+            .into_iter()
+            .zip([0, 4, 8])
+            .map(|(name, offset)| PackedElementField {
+                name: name.into(),
+                offset,
+                r#type: foxglove::messages::packed_element_field::NumericType::Float32 as i32,
+            })
+            .collect(),
+        data: data.into(),
     }
 }
 

@@ -1,23 +1,18 @@
-//! The view's and recorder's side of the group: one more subscriber of each
-//! camera's streams, which takes what is there and never waits for anything, so it
-//! cannot slow a producer (on a live site delivery is lossy: a reader that falls
-//! behind loses its own oldest samples). Images are taken latest-first and at most
-//! `view.frame_rate_hz`; frames are not subscribed to at all unless
-//! `view.frames = true`. Motion is taken latest-first too, at most 2 per second
-//! ([`crate::channels::MOTION_EVERY_NS`]); each service's status is read as
+//! What the view and the recorder follow: one more subscriber of each camera's
+//! streams, as stage inputs ([`Input`]: every sample checked and counted), which
+//! take what is there and never wait for anything, so they cannot slow a producer
+//! (on a live site delivery is lossy: a reader that falls behind loses its own
+//! oldest samples). Frames are not subscribed to at all unless
+//! `view.frames = true`. Each pipeline service's status is read as
 //! `isochron status` reads it (the newest report, history 1).
-
-use std::time::Duration;
 
 use isochron_shared::config::LoadedConfig;
 use isochron_shared::ipc::{
-    Activity, Detections, Events, Frames, Ipc, IpcError, Motion, ReceivedSample, StatusSubscriber,
-    StreamSubscriber, StreamType,
+    Activity, Detections, Events, Frames, Ipc, IpcError, Motion, StatusSubscriber, StreamType,
 };
+use isochron_shared::stage::Input;
 use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{CameraId, Stream, StreamHeader};
-
-use crate::channels::SiteChannels;
+use isochron_shared::wire::Stream;
 
 /// Which streams to follow (the cost map and scene come with `activity`; `status`
 /// is not a stream but every service's status service).
@@ -88,193 +83,68 @@ impl Streams {
     }
 }
 
-struct CameraSubscribers {
-    k: usize,
-    camera: CameraId,
-    activity: Option<StreamSubscriber<Activity>>,
-    events: Option<StreamSubscriber<Events>>,
-    detections: Option<StreamSubscriber<Detections>>,
-    frames: Option<StreamSubscriber<Frames>>,
-    motion: Option<StreamSubscriber<Motion>>,
-    ended: bool,
-}
+/// The view's inputs: per followed stream, one input per camera in the config's
+/// order (none when the stream is not followed), so an input's position is its
+/// camera's index in [`crate::channels::SiteChannels`].
+pub type ViewInputs = (
+    Vec<Input<Activity>>,
+    Vec<Input<Events>>,
+    Vec<Input<Detections>>,
+    Vec<Input<Frames>>,
+    Vec<Input<Motion>>,
+);
 
-/// The subscribers of every camera.
-pub struct Follower {
-    cameras: Vec<CameraSubscribers>,
-    /// Every service's status reader: camera ("" site-wide), stage.
-    status: Vec<(String, StageKind, StatusSubscriber)>,
-    /// Samples taken and published.
-    pub samples: u64,
-    /// Samples whose header did not check out (skipped).
-    pub rejected: u64,
-}
+/// A service's status reader: camera ("" site-wide), stage, reader.
+pub type StatusReader = (String, StageKind, StatusSubscriber);
 
-impl Follower {
-    /// Subscribes to `streams` of every camera of the site.
-    pub fn open(
+/// Subscribes to `streams` of every camera of the site (frames only with
+/// `view.frames = true`).
+pub fn open_inputs(
+    ipc: &Ipc,
+    loaded: &LoadedConfig,
+    streams: Streams,
+) -> Result<ViewInputs, IpcError> {
+    fn of_every_camera<S: StreamType>(
         ipc: &Ipc,
         loaded: &LoadedConfig,
-        channels: &SiteChannels,
-        streams: Streams,
-    ) -> Result<Follower, IpcError> {
-        let mut cameras = Vec::new();
-        for cam in &loaded.config.cameras {
-            let (Some(k), Some(camera)) = (channels.camera_index(&cam.id), CameraId::new(&cam.id))
-            else {
-                continue;
-            };
-            cameras.push(CameraSubscribers {
-                k,
-                camera,
-                activity: streams
-                    .activity
-                    .then(|| ipc.subscriber(&cam.id))
-                    .transpose()?,
-                events: streams
-                    .events
-                    .then(|| ipc.subscriber(&cam.id))
-                    .transpose()?,
-                detections: streams
-                    .detections
-                    .then(|| ipc.subscriber(&cam.id))
-                    .transpose()?,
-                frames: (streams.frames && loaded.config.view.frames)
-                    .then(|| ipc.subscriber(&cam.id))
-                    .transpose()?,
-                motion: streams
-                    .motion
-                    .then(|| ipc.subscriber(&cam.id))
-                    .transpose()?,
-                ended: false,
-            });
+        followed: bool,
+    ) -> Result<Vec<Input<S>>, IpcError> {
+        if !followed {
+            return Ok(Vec::new());
         }
-        let mut status = Vec::new();
-        if streams.status {
-            for stage in StageKind::ALL {
-                if stage.per_camera() {
-                    for cam in &loaded.config.cameras {
-                        status.push((
-                            cam.id.clone(),
-                            stage,
-                            ipc.status_subscriber(&cam.id, stage)?,
-                        ));
-                    }
-                } else {
-                    status.push((String::new(), stage, ipc.status_subscriber("", stage)?));
-                }
-            }
-        }
-        Ok(Follower {
-            cameras,
-            status,
-            samples: 0,
-            rejected: 0,
-        })
+        let cameras = &loaded.config.cameras;
+        cameras.iter().map(|c| Input::open(ipc, &c.id)).collect()
     }
-
-    /// Takes every waiting sample and publishes it on `channels`; returns how many.
-    pub fn poll(&mut self, channels: &mut SiteChannels) -> Result<u64, IpcError> {
-        let before = self.samples;
-        for c in &mut self.cameras {
-            // Latest first: of what waits, only the newest frame can be shown, and
-            // only the newest motion is published (at most 2 Hz).
-            if let Some(s) = newest(&c.frames, &c.camera, &mut self.rejected)? {
-                self.samples += 1;
-                let h = s.user_header();
-                if channels.wants_frame(c.k, h.preamble.capture_time_ns) {
-                    channels.on_frame(c.k, h, s.payload());
-                }
-            }
-            if let Some(s) = newest(&c.motion, &c.camera, &mut self.rejected)? {
-                self.samples += 1;
-                let h = s.user_header();
-                if channels.wants_motion(c.k, h.preamble.capture_time_ns) {
-                    channels.on_motion(c.k, h, s.payload());
-                }
-            }
-            if let Some(sub) = &c.activity {
-                while let Some(s) = sub.receive()? {
-                    let h = s.user_header();
-                    if h.validate(&c.camera, s.payload().len()).is_err() {
-                        self.rejected += 1;
-                    } else if h.preamble.is_end_of_stream() {
-                        c.ended = true;
-                    } else {
-                        self.samples += 1;
-                        channels.on_activity(c.k, h, s.payload());
-                    }
-                }
-            }
-            if let Some(sub) = &c.events {
-                while let Some(s) = sub.receive()? {
-                    let h = s.user_header();
-                    if h.validate(&c.camera, s.payload().len()).is_err() {
-                        self.rejected += 1;
-                    } else if !h.preamble.is_end_of_stream() {
-                        self.samples += 1;
-                        channels.on_event(c.k, h, s.payload());
-                    }
-                }
-            }
-            if let Some(sub) = &c.detections {
-                while let Some(s) = sub.receive()? {
-                    let h = s.user_header();
-                    if h.validate(&c.camera, s.payload().len()).is_err() {
-                        self.rejected += 1;
-                    } else if !h.preamble.is_end_of_stream() {
-                        self.samples += 1;
-                        channels.on_detections(c.k, h, s.payload());
-                    }
-                }
-            }
-        }
-        for (camera, stage, reader) in &self.status {
-            if let Some(report) = reader.latest() {
-                if report.validate().is_ok() {
-                    channels.on_status(camera, *stage, &report);
-                } else {
-                    self.rejected += 1;
-                }
-            }
-        }
-        Ok(self.samples - before)
-    }
-
-    /// True once every followed camera's activity has ended (a file source ran
-    /// out); never without `activity`.
-    pub fn all_ended(&self) -> bool {
-        !self.cameras.is_empty() && self.cameras.iter().all(|c| c.activity.is_some() && c.ended)
-    }
-
-    /// Sleeps until a followed stream may have news, at most `timeout`.
-    pub fn wait(&self, timeout: Duration) {
-        match self.cameras.first().and_then(|c| c.activity.as_ref()) {
-            Some(sub) => sub.wait(timeout),
-            None => std::thread::sleep(timeout),
-        }
-    }
+    Ok((
+        of_every_camera(ipc, loaded, streams.activity)?,
+        of_every_camera(ipc, loaded, streams.events)?,
+        of_every_camera(ipc, loaded, streams.detections)?,
+        of_every_camera(ipc, loaded, streams.frames && loaded.config.view.frames)?,
+        of_every_camera(ipc, loaded, streams.motion)?,
+    ))
 }
 
-/// The newest sample waiting on `sub` (if subscribed), the older ones skipped; `None`
-/// when nothing waits, or the newest is the end of stream or malformed (counted in
-/// `rejected`).
-fn newest<S: StreamType>(
-    sub: &Option<StreamSubscriber<S>>,
-    camera: &CameraId,
-    rejected: &mut u64,
-) -> Result<Option<ReceivedSample<S>>, IpcError> {
-    let Some(sub) = sub else { return Ok(None) };
-    let mut newest = None;
-    while let Some(sample) = sub.receive()? {
-        newest = Some(sample);
+/// Readers of every pipeline service's status (each stage of each camera, the
+/// costmap once), if `streams.status`.
+pub fn status_readers(
+    ipc: &Ipc,
+    loaded: &LoadedConfig,
+    streams: Streams,
+) -> Result<Vec<StatusReader>, IpcError> {
+    let mut readers = Vec::new();
+    if !streams.status {
+        return Ok(readers);
     }
-    Ok(newest.filter(|s| {
-        let h = s.user_header();
-        if h.validate(camera, s.payload().len()).is_err() {
-            *rejected += 1;
-            return false;
+    for stage in StageKind::ALL {
+        let cameras: Vec<String> = if stage.per_camera() {
+            loaded.config.cameras.iter().map(|c| c.id.clone()).collect()
+        } else {
+            vec![String::new()]
+        };
+        for camera in cameras {
+            let reader = ipc.status_subscriber(&camera, stage)?;
+            readers.push((camera, stage, reader));
         }
-        !h.preamble().is_end_of_stream()
-    }))
+    }
+    Ok(readers)
 }

@@ -5,7 +5,9 @@
 //! * [`channels`]: the topics, their Foxglove well-known schemas, and how samples
 //!   become messages — one module for both sinks;
 //! * [`follow`]: one more subscriber of the cameras' streams that never slows a
-//!   producer;
+//!   producer, and the services' status readers;
+//! * [`stage`]: the view and the recorder as a stage on the stage runtime
+//!   (`StageKind::View`: its own status, the runtime's drop counting);
 //! * [`record`]: the MCAP file, closed cleanly also when the disk runs low;
 //! * [`live`]: the WebSocket server, on loopback unless the site says otherwise;
 //! * [`jpeg`]: camera frames as small JPEGs (only with `view.frames = true`).
@@ -20,5 +22,6 @@ pub mod follow;
 pub mod jpeg;
 pub mod live;
 pub mod record;
+pub mod stage;
 
 pub use foxglove::Context;
