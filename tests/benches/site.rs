@@ -36,7 +36,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use isochron_link::dds::LinkDds;
+use isochron_link::dds::{LinkDds, Publisher};
 use isochron_link::msgs::{Message, cdr_len};
 use isochron_shared::clock::{NS_PER_S, wall_now_ns};
 use isochron_shared::config::DEFAULT_LINK_NAMESPACE;
@@ -45,7 +45,10 @@ use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{
     ActivityHeader, BlockActivity, CameraId, Preamble, StageStatus, Stream,
 };
-use isochron_tests::{Proc, TestSite, bin, clock_ticks_per_s, cpu_ticks};
+use isochron_tests::{
+    Proc, TestSite, bench_args, bench_count, bench_options, bench_secs, bin, clock_ticks_per_s,
+    cpu_ticks,
+};
 
 /// Cameras per simulated base station.
 const PER_BOX: usize = 48;
@@ -68,51 +71,26 @@ fn parse_args(args: impl IntoIterator<Item = String>) -> Result<Options, String>
         warmup: Duration::from_secs(6),
         seconds: Duration::from_secs(15),
     };
-    let mut args = args.into_iter();
-    while let Some(arg) = args.next() {
-        let (flag, inline) = match arg.split_once('=') {
-            Some((f, v)) => (f.to_string(), Some(v.to_string())),
-            None => (arg.clone(), None),
-        };
+    let valued = ["--cameras", "--warmup", "--seconds"];
+    for (flag, value) in bench_args("site", USAGE, (&["--quick"], &valued), args)? {
+        let value = value.unwrap_or_default();
         match flag.as_str() {
-            "--help" | "-h" => return Err(USAGE.into()),
             "--quick" => {
                 o.cameras = vec![48];
                 o.warmup = Duration::from_secs(3);
                 o.seconds = Duration::from_secs(6);
-                continue;
             }
-            "--cameras" | "--warmup" | "--seconds" => {}
-            other => {
-                if other != "--bench" {
-                    eprintln!("site: ignoring unknown argument '{arg}'");
-                }
-                continue;
-            }
-        }
-        let value = inline
-            .or_else(|| args.next())
-            .ok_or_else(|| format!("{flag} needs a value\n{USAGE}"))?;
-        let secs = || {
-            value
-                .parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite() && *v >= 1.0)
-                .map(Duration::from_secs_f64)
-                .ok_or_else(|| format!("{flag}: expected seconds ≥ 1, found '{value}'"))
-        };
-        match flag.as_str() {
             "--cameras" => {
                 o.cameras = value
                     .split(',')
-                    .map(|v| v.trim().parse::<usize>().ok().filter(|n| *n >= 1))
+                    .map(|v| bench_count(&flag, v.trim()).ok())
                     .collect::<Option<Vec<_>>>()
                     .ok_or_else(|| {
                         format!("--cameras: expected counts ≥ 1 such as 48,96, found '{value}'")
                     })?
             }
-            "--warmup" => o.warmup = secs()?,
-            _ => o.seconds = secs()?,
+            "--warmup" => o.warmup = bench_secs(&flag, &value, 1.0)?,
+            _ => o.seconds = bench_secs(&flag, &value, 1.0)?,
         }
     }
     Ok(o)
@@ -208,7 +186,7 @@ fn simulated_box(b: usize, cameras: usize, domain: u16, stop: Arc<AtomicBool>) -
         let ids: Vec<String> = (0..cameras).map(|k| camera_id(b, k)).collect();
         let writers: Vec<_> = ids
             .iter()
-            .map(|id| dds.publisher::<Activity>(id, 1).unwrap())
+            .map(|id| dds.stream::<Activity, Publisher<_>>(id, 1).unwrap())
             .collect();
         let (t0, start_ns) = (Instant::now(), wall_now_ns());
         for second in 0u64.. {
@@ -384,13 +362,7 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
 }
 
 fn main() {
-    let opts = match parse_args(std::env::args().skip(1)) {
-        Ok(o) => o,
-        Err(e) => {
-            eprintln!("{e}");
-            std::process::exit(2);
-        }
-    };
+    let opts = bench_options(parse_args);
     let msg_bytes = cdr_len(&activity("box0", &camera_id(0, 0), 0, 0));
     let domain = 1 + (std::process::id() % 228) as u16;
     println!(

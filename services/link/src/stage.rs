@@ -38,7 +38,7 @@ use isochron_shared::stage::{Context, Input, Output, Stage, Woken};
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{CameraId, StreamHeader, fixed_str};
 
-use crate::dds::{LinkDds, domain_id};
+use crate::dds::LinkDds;
 use crate::msgs::{Delivery, LinkStream, Message, Status, cdr_len};
 
 /// How often the DDS readers are polled: a message waits at most this long on
@@ -97,7 +97,7 @@ struct ExportLane<S: LinkStream> {
 impl<S: LinkStream> ExportLane<S> {
     fn new(dds: &mut LinkDds, camera: &str, queue: usize) -> Result<Self, Fatal> {
         Ok(ExportLane {
-            writer: dds.publisher::<S>(camera, queue)?,
+            writer: dds.stream::<S, _>(camera, queue)?,
             queue: VecDeque::new(),
             last_sequence: None,
             counts: Counts::default(),
@@ -184,7 +184,7 @@ struct ImportLane<'ipc, S: LinkStream> {
 impl<'ipc, S: LinkStream> ImportLane<'ipc, S> {
     fn new(dds: &mut LinkDds, ipc: &'ipc Ipc, camera: &str, queue: usize) -> Result<Self, Fatal> {
         Ok(ImportLane {
-            reader: dds.subscription::<S>(camera, queue)?,
+            reader: dds.stream::<S, _>(camera, queue)?,
             output: Output::new(ipc, camera),
             last_sequence: None,
             counts: Counts::default(),
@@ -312,7 +312,7 @@ impl<'ipc> LinkStage<'ipc> {
                 "[link] exports and imports no camera: nothing to do (see link.export, link.import)"
             );
         }
-        let domain = domain_id(link.ros_domain_id)?;
+        let domain = isochron_dds::domain_id(link.ros_domain_id)?;
         let interfaces: Vec<IpAddr> = link
             .dds_interfaces
             .iter()
@@ -333,7 +333,7 @@ impl<'ipc> LinkStage<'ipc> {
                 events: ExportLane::new(&mut dds, camera, queue)?,
                 detections: ExportLane::new(&mut dds, camera, queue)?,
                 status_in,
-                status_out: dds.status_publisher(camera)?,
+                status_out: dds.status(camera)?,
                 status: Counts::default(),
             });
             inputs.0.push(Input::open(ipc, camera)?);
@@ -348,7 +348,7 @@ impl<'ipc> LinkStage<'ipc> {
                 activity: ImportLane::new(&mut dds, ipc, camera, queue)?,
                 events: ImportLane::new(&mut dds, ipc, camera, queue)?,
                 detections: ImportLane::new(&mut dds, ipc, camera, queue)?,
-                status_in: dds.status_subscription(camera)?,
+                status_in: dds.status(camera)?,
                 status_out: HashMap::new(),
                 status: Counts::default(),
                 last: None,
