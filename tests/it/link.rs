@@ -694,3 +694,39 @@ fn the_real_pipeline_on_one_box_feeds_the_bridge_on_another() {
         eprintln!("MEASURED real pipeline: {line}");
     }
 }
+
+/// A link whose open-file limit cannot hold what its imports need refuses to
+/// start, before joining DDS, with one line naming the limit and the value
+/// (`prlimit` sets a hard limit of 300: 20 imported cameras need more).
+#[test]
+fn a_link_without_enough_open_files_says_which_limit_to_raise() {
+    let imports: Vec<String> = (0..20).map(|k| format!("\"cam{k:02}\"")).collect();
+    let site = TestSite::new(
+        "link-files",
+        &format!(
+            "{}\n[link]\nbox_id = \"site\"\nimport = [{}]\nros_domain_id = {}\ndds_interfaces = [\"127.0.0.1\"]\n",
+            camera_toml(),
+            imports.join(", "),
+            dds_domain()
+        ),
+    );
+    let config = site.config_path().display().to_string();
+    let link = bin("isochron-link").display().to_string();
+    let mut proc = Proc::spawn(
+        std::path::Path::new("prlimit"),
+        &["--nofile=300:300", &link, "--config", &config],
+    );
+    let done = proc.finish(Duration::from_secs(20));
+    assert_eq!(done.status.code(), Some(78), "{}", done.stderr);
+    let line = done
+        .stderr
+        .lines()
+        .find(|l| l.contains("open files"))
+        .unwrap_or_else(|| panic!("no open-files line:\n{}", done.stderr));
+    assert!(
+        line.contains("importing 20 and exporting 0 cameras")
+            && line.contains("may open 300")
+            && line.contains("raise LimitNOFILE= of isochron-link.service"),
+        "{line}"
+    );
+}
