@@ -57,6 +57,34 @@ const FRAME: (u32, u32, u32) = (640, 480, 16);
 /// Edge of a camera's floor footprint, metres.
 const TILE_M: f64 = 4.0;
 
+/// systemd's default hard limit of open files, up to which a service may raise
+/// its soft limit (as every isochron service does).
+const SYSTEMD_NOFILE: u64 = 524_288;
+
+/// Gives this process and the processes it starts the open-file limits of a
+/// systemd service (soft and hard [`SYSTEMD_NOFILE`]) where it may (as root), so
+/// the count a run reaches is the site box's, not the shell's; returns the soft
+/// limit in force.
+fn systemd_open_file_limit() -> u64 {
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit and setrlimit only read and write `limit`.
+    unsafe {
+        libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit);
+        let want = limit.rlim_max.max(SYSTEMD_NOFILE);
+        let raised = libc::rlimit {
+            rlim_cur: want,
+            rlim_max: want,
+        };
+        if libc::setrlimit(libc::RLIMIT_NOFILE, &raised) == 0 {
+            limit = raised;
+        }
+    }
+    limit.rlim_cur
+}
+
 const USAGE: &str = "usage: site [--quick] [--cameras N,N,...] [--warmup S] [--seconds S]";
 
 struct Options {
@@ -270,8 +298,19 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
     // per camera, before their first reports.
     let spawned = (Instant::now(), wall_now_ns());
     let up = Duration::from_secs(120);
-    if status_after(&ipc, StageKind::Link, spawned.1, up).is_none() {
-        eprintln!("site: the link did not report within {up:?}");
+    let reports = ipc.status_subscriber("", StageKind::Link).ok();
+    let link_up = loop {
+        let report = reports
+            .as_ref()
+            .and_then(|r| r.latest())
+            .filter(|s| s.report_wall_ns > spawned.1);
+        if report.is_some() || link.wait(Duration::ZERO).is_some() || spawned.0.elapsed() > up {
+            break report;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    if link_up.is_none() {
+        eprintln!("site: the link did not report within {up:?}, or died");
     }
     let link_start_s = spawned.0.elapsed().as_secs_f64();
     if status_after(&ipc, StageKind::Costmap, spawned.1, up).is_none() {
@@ -348,14 +387,20 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
     if r.grid_p99_ms.is_nan() || r.grid_p99_ms >= 1000.0 {
         fail(format!("origin → grid p99 {:.0} ms", r.grid_p99_ms));
     }
-    link.terminate(Duration::from_secs(10));
-    bridge.terminate(Duration::from_secs(10));
-    if !r.held {
-        for (name, p) in [("link", &link), ("bridge", &bridge)] {
+    for (name, p) in [("link", &mut link), ("bridge", &mut bridge)] {
+        if !r.held {
             let log = p.stderr();
             let tail: Vec<&str> = log.lines().rev().take(6).collect();
             eprintln!("site: {n} cameras, {name}'s last log lines (newest first):");
             tail.iter().for_each(|l| eprintln!("  {l}"));
+        }
+        // Not `terminate`: a process that does not stop is a result, not a
+        // reason to lose the others (dropping it kills it).
+        if p.wait(Duration::ZERO).is_none() {
+            p.signal(libc::SIGTERM);
+            if p.wait(Duration::from_secs(20)).is_none() {
+                eprintln!("site: {n} cameras: the {name} did not stop within 20 s of SIGTERM");
+            }
         }
     }
     r
@@ -364,9 +409,10 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
 fn main() {
     let opts = bench_options(parse_args);
     let msg_bytes = cdr_len(&activity("box0", &camera_id(0, 0), 0, 0));
+    let open_files = systemd_open_file_limit();
     let domain = 1 + (std::process::id() % 228) as u16;
     println!(
-        "site bench: {PER_BOX} cameras per box, {}×{} px cameras ({} B of CDR per activity message, 1 Hz), warmup {:?}, window {:?}",
+        "site bench: {PER_BOX} cameras per box, {}×{} px cameras ({} B of CDR per activity message, 1 Hz), warmup {:?}, window {:?}, open files ≤ {open_files}",
         FRAME.0, FRAME.1, msg_bytes, opts.warmup, opts.seconds
     );
     println!(
