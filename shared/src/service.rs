@@ -36,6 +36,7 @@ impl ServiceContext {
 pub fn start(stage: StageKind, config: &Path) -> Result<ServiceContext, Fatal> {
     crate::logging::init(stage.binary());
     owner_only_files();
+    raise_open_file_limit();
     context(stage, load(config)?, None)
 }
 
@@ -68,6 +69,7 @@ pub struct CameraArgs {
 pub fn run_cameras(stage: StageKind, args: &CameraArgs, run: Serve) -> ExitCode {
     crate::logging::init(stage.binary());
     owner_only_files();
+    raise_open_file_limit();
     let result = load(&args.config).and_then(|loaded| {
         let mut chosen: Vec<CameraConfig> = Vec::new();
         for id in &args.camera {
@@ -251,4 +253,39 @@ pub fn finish(stage: StageKind, result: Result<(), Fatal>) -> ExitCode {
 pub fn owner_only_files() {
     // SAFETY: umask only sets the process's file-mode creation mask.
     unsafe { libc::umask(0o077) };
+}
+
+/// Raises the process's soft limit of open files to its hard limit and returns
+/// the limit now in force (`None` where it cannot be read). Every iceoryx2 port
+/// holds a few files (its port tag, the service's dynamic config, its data
+/// segment) and every RustDDS reader four sockets, so a process serving many
+/// cameras needs more than the soft limit a shell or systemd gives by default
+/// (1 024), while their hard limit (systemd: 524 288) is ample.
+pub fn raise_open_file_limit() -> Option<u64> {
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit and setrlimit only read and write `limit`.
+    unsafe {
+        if libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit) != 0 {
+            return None;
+        }
+        if limit.rlim_cur < limit.rlim_max {
+            let raised = libc::rlimit {
+                rlim_cur: limit.rlim_max,
+                rlim_max: limit.rlim_max,
+            };
+            if libc::setrlimit(libc::RLIMIT_NOFILE, &raised) == 0 {
+                limit = raised;
+            }
+        }
+    }
+    Some(limit.rlim_cur)
+}
+
+/// How many files (and sockets) the process holds open now (`None` where
+/// `/proc/self/fd` cannot be read).
+pub fn open_files() -> Option<u64> {
+    Some(std::fs::read_dir("/proc/self/fd").ok()?.count() as u64)
 }

@@ -75,7 +75,10 @@ use isochron_shared::ipc::{
 };
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{EventPhase, StageStatus, StreamHeader};
-use isochron_tests::{Proc, TestSite, bin, clock_ticks_per_s, cpu_ticks, repo_root, vtest};
+use isochron_tests::{
+    Proc, TestSite, bench_args, bench_count, bench_options, bench_secs, bin, clock_ticks_per_s,
+    cpu_ticks, repo_root, vtest,
+};
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 use opencv::videoio;
@@ -252,52 +255,18 @@ const USAGE: &str = "usage: group [--quick] [--mode decode-only|predecoded|decod
 /// Parses the options; unknown flags (cargo passes `--bench`) are ignored.
 fn parse_args(args: impl IntoIterator<Item = String>) -> Result<Options, String> {
     let mut o = Options::default();
-    let mut args = args.into_iter();
-    while let Some(arg) = args.next() {
-        let (flag, inline) = match arg.split_once('=') {
-            Some((f, v)) => (f.to_string(), Some(v.to_string())),
-            None => (arg.clone(), None),
-        };
-        let known = [
-            "--mode",
-            "--per-process",
-            "--start",
-            "--max",
-            "--warmup",
-            "--seconds",
-        ];
-        if flag == "--help" || flag == "-h" {
-            return Err(USAGE.into());
-        }
-        if flag == "--quick" {
-            o = o.quick();
-            continue;
-        }
-        if !known.contains(&flag.as_str()) {
-            if flag != "--bench" {
-                eprintln!("group: ignoring unknown argument '{arg}'");
-            }
-            continue;
-        }
-        let value = inline
-            .or_else(|| args.next())
-            .ok_or_else(|| format!("{flag} needs a value\n{USAGE}"))?;
-        let count = || -> Result<usize, String> {
-            value
-                .parse::<usize>()
-                .ok()
-                .filter(|v| *v >= 1)
-                .ok_or_else(|| format!("{flag}: expected a whole number ≥ 1, found '{value}'"))
-        };
-        let secs = || -> Result<Duration, String> {
-            value
-                .parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite() && *v >= 0.0)
-                .map(Duration::from_secs_f64)
-                .ok_or_else(|| format!("{flag}: expected seconds ≥ 0, found '{value}'"))
-        };
+    let valued = [
+        "--mode",
+        "--per-process",
+        "--start",
+        "--max",
+        "--warmup",
+        "--seconds",
+    ];
+    for (flag, value) in bench_args("group", USAGE, (&["--quick"], &valued), args)? {
+        let value = value.unwrap_or_default();
         match flag.as_str() {
+            "--quick" => o = o.quick(),
             "--mode" => {
                 o.modes = match value.as_str() {
                     "all" => Mode::ALL.to_vec(),
@@ -311,15 +280,14 @@ fn parse_args(args: impl IntoIterator<Item = String>) -> Result<Options, String>
                     },
                 }
             }
-            "--per-process" => o.per_process = count()?,
-            "--start" => o.start = count()?,
-            "--max" => o.max = count()?,
-            "--warmup" => o.warmup = secs()?,
-            "--seconds" => {
-                o.seconds = secs()?.max(Duration::from_secs(1));
+            "--per-process" => o.per_process = bench_count(&flag, &value)?,
+            "--start" => o.start = bench_count(&flag, &value)?,
+            "--max" => o.max = bench_count(&flag, &value)?,
+            "--warmup" => o.warmup = bench_secs(&flag, &value, 0.0)?,
+            _ => {
+                o.seconds = bench_secs(&flag, &value, 0.0)?.max(Duration::from_secs(1));
                 o.decode_only_seconds = o.seconds;
             }
-            _ => unreachable!("checked against `known`"),
         }
     }
     o.max = o.max.max(o.start);
@@ -1744,13 +1712,7 @@ fn quick_problems(runs: &[Run]) -> Vec<String> {
 }
 
 fn main() {
-    let opts = match parse_args(std::env::args().skip(1)) {
-        Ok(o) => o,
-        Err(e) => {
-            eprintln!("{e}");
-            std::process::exit(2);
-        }
-    };
+    let opts = bench_options(parse_args);
     // Fail early, with what to do, when something is missing.
     for stage in STAGES {
         bin(&format!("isochron-{stage}"));

@@ -36,7 +36,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use isochron_link::dds::LinkDds;
+use isochron_link::dds::{LinkDds, Publisher};
 use isochron_link::msgs::{Message, cdr_len};
 use isochron_shared::clock::{NS_PER_S, wall_now_ns};
 use isochron_shared::config::DEFAULT_LINK_NAMESPACE;
@@ -45,7 +45,10 @@ use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{
     ActivityHeader, BlockActivity, CameraId, Preamble, StageStatus, Stream,
 };
-use isochron_tests::{Proc, TestSite, bin, clock_ticks_per_s, cpu_ticks};
+use isochron_tests::{
+    Proc, TestSite, bench_args, bench_count, bench_options, bench_secs, bin, clock_ticks_per_s,
+    cpu_ticks,
+};
 
 /// Cameras per simulated base station.
 const PER_BOX: usize = 48;
@@ -53,6 +56,34 @@ const PER_BOX: usize = 48;
 const FRAME: (u32, u32, u32) = (640, 480, 16);
 /// Edge of a camera's floor footprint, metres.
 const TILE_M: f64 = 4.0;
+
+/// systemd's default hard limit of open files, up to which a service may raise
+/// its soft limit (as every isochron service does).
+const SYSTEMD_NOFILE: u64 = 524_288;
+
+/// Gives this process and the processes it starts the open-file limits of a
+/// systemd service (soft and hard [`SYSTEMD_NOFILE`]) where it may (as root), so
+/// the count a run reaches is the site box's, not the shell's; returns the soft
+/// limit in force.
+fn systemd_open_file_limit() -> u64 {
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit and setrlimit only read and write `limit`.
+    unsafe {
+        libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit);
+        let want = limit.rlim_max.max(SYSTEMD_NOFILE);
+        let raised = libc::rlimit {
+            rlim_cur: want,
+            rlim_max: want,
+        };
+        if libc::setrlimit(libc::RLIMIT_NOFILE, &raised) == 0 {
+            limit = raised;
+        }
+    }
+    limit.rlim_cur
+}
 
 const USAGE: &str = "usage: site [--quick] [--cameras N,N,...] [--warmup S] [--seconds S]";
 
@@ -68,51 +99,26 @@ fn parse_args(args: impl IntoIterator<Item = String>) -> Result<Options, String>
         warmup: Duration::from_secs(6),
         seconds: Duration::from_secs(15),
     };
-    let mut args = args.into_iter();
-    while let Some(arg) = args.next() {
-        let (flag, inline) = match arg.split_once('=') {
-            Some((f, v)) => (f.to_string(), Some(v.to_string())),
-            None => (arg.clone(), None),
-        };
+    let valued = ["--cameras", "--warmup", "--seconds"];
+    for (flag, value) in bench_args("site", USAGE, (&["--quick"], &valued), args)? {
+        let value = value.unwrap_or_default();
         match flag.as_str() {
-            "--help" | "-h" => return Err(USAGE.into()),
             "--quick" => {
                 o.cameras = vec![48];
                 o.warmup = Duration::from_secs(3);
                 o.seconds = Duration::from_secs(6);
-                continue;
             }
-            "--cameras" | "--warmup" | "--seconds" => {}
-            other => {
-                if other != "--bench" {
-                    eprintln!("site: ignoring unknown argument '{arg}'");
-                }
-                continue;
-            }
-        }
-        let value = inline
-            .or_else(|| args.next())
-            .ok_or_else(|| format!("{flag} needs a value\n{USAGE}"))?;
-        let secs = || {
-            value
-                .parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite() && *v >= 1.0)
-                .map(Duration::from_secs_f64)
-                .ok_or_else(|| format!("{flag}: expected seconds ≥ 1, found '{value}'"))
-        };
-        match flag.as_str() {
             "--cameras" => {
                 o.cameras = value
                     .split(',')
-                    .map(|v| v.trim().parse::<usize>().ok().filter(|n| *n >= 1))
+                    .map(|v| bench_count(&flag, v.trim()).ok())
                     .collect::<Option<Vec<_>>>()
                     .ok_or_else(|| {
                         format!("--cameras: expected counts ≥ 1 such as 48,96, found '{value}'")
                     })?
             }
-            "--warmup" => o.warmup = secs()?,
-            _ => o.seconds = secs()?,
+            "--warmup" => o.warmup = bench_secs(&flag, &value, 1.0)?,
+            _ => o.seconds = bench_secs(&flag, &value, 1.0)?,
         }
     }
     Ok(o)
@@ -208,7 +214,7 @@ fn simulated_box(b: usize, cameras: usize, domain: u16, stop: Arc<AtomicBool>) -
         let ids: Vec<String> = (0..cameras).map(|k| camera_id(b, k)).collect();
         let writers: Vec<_> = ids
             .iter()
-            .map(|id| dds.publisher::<Activity>(id, 1).unwrap())
+            .map(|id| dds.stream::<Activity, Publisher<_>>(id, 1).unwrap())
             .collect();
         let (t0, start_ns) = (Instant::now(), wall_now_ns());
         for second in 0u64.. {
@@ -292,8 +298,19 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
     // per camera, before their first reports.
     let spawned = (Instant::now(), wall_now_ns());
     let up = Duration::from_secs(120);
-    if status_after(&ipc, StageKind::Link, spawned.1, up).is_none() {
-        eprintln!("site: the link did not report within {up:?}");
+    let reports = ipc.status_subscriber("", StageKind::Link).ok();
+    let link_up = loop {
+        let report = reports
+            .as_ref()
+            .and_then(|r| r.latest())
+            .filter(|s| s.report_wall_ns > spawned.1);
+        if report.is_some() || link.wait(Duration::ZERO).is_some() || spawned.0.elapsed() > up {
+            break report;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    if link_up.is_none() {
+        eprintln!("site: the link did not report within {up:?}, or died");
     }
     let link_start_s = spawned.0.elapsed().as_secs_f64();
     if status_after(&ipc, StageKind::Costmap, spawned.1, up).is_none() {
@@ -370,31 +387,32 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
     if r.grid_p99_ms.is_nan() || r.grid_p99_ms >= 1000.0 {
         fail(format!("origin → grid p99 {:.0} ms", r.grid_p99_ms));
     }
-    link.terminate(Duration::from_secs(10));
-    bridge.terminate(Duration::from_secs(10));
-    if !r.held {
-        for (name, p) in [("link", &link), ("bridge", &bridge)] {
+    for (name, p) in [("link", &mut link), ("bridge", &mut bridge)] {
+        if !r.held {
             let log = p.stderr();
             let tail: Vec<&str> = log.lines().rev().take(6).collect();
             eprintln!("site: {n} cameras, {name}'s last log lines (newest first):");
             tail.iter().for_each(|l| eprintln!("  {l}"));
+        }
+        // Not `terminate`: a process that does not stop is a result, not a
+        // reason to lose the others (dropping it kills it).
+        if p.wait(Duration::ZERO).is_none() {
+            p.signal(libc::SIGTERM);
+            if p.wait(Duration::from_secs(20)).is_none() {
+                eprintln!("site: {n} cameras: the {name} did not stop within 20 s of SIGTERM");
+            }
         }
     }
     r
 }
 
 fn main() {
-    let opts = match parse_args(std::env::args().skip(1)) {
-        Ok(o) => o,
-        Err(e) => {
-            eprintln!("{e}");
-            std::process::exit(2);
-        }
-    };
+    let opts = bench_options(parse_args);
     let msg_bytes = cdr_len(&activity("box0", &camera_id(0, 0), 0, 0));
+    let open_files = systemd_open_file_limit();
     let domain = 1 + (std::process::id() % 228) as u16;
     println!(
-        "site bench: {PER_BOX} cameras per box, {}×{} px cameras ({} B of CDR per activity message, 1 Hz), warmup {:?}, window {:?}",
+        "site bench: {PER_BOX} cameras per box, {}×{} px cameras ({} B of CDR per activity message, 1 Hz), warmup {:?}, window {:?}, open files ≤ {open_files}",
         FRAME.0, FRAME.1, msg_bytes, opts.warmup, opts.seconds
     );
     println!(

@@ -8,7 +8,9 @@
 //! that has cam01's floor points, and the independent Cyclone DDS peer reading the
 //! grid. Checked: the grid under cam01's footprint on B is what A's activity
 //! gives; headers cross unchanged; veth down → unknown, up → back; kill -9 of A's
-//! link → unknown, restarted → back; events and detections cross with their
+//! link → unknown, restarted → back; kill -9 of B's bridge or B's link, started
+//! again → A's cells back within 10 s while every other process keeps its pid;
+//! events and detections cross with their
 //! sequence numbers, and a burst larger than the link's queue is counted as
 //! dropped (A) and as a gap (B), never lost silently; on the real pipeline, A's
 //! gate events reach B and B's `isochron status` lists A's stages. Measured
@@ -27,7 +29,7 @@ use isochron_tests::{NetnsPair, Proc, TestSite, bin, eventually, repo_root};
 
 use crate::costmap::{
     HOT_BLOCK, HOT_S1, Source, camera_toml, costmap_toml, dds_domain, expected_cells, held_grid,
-    messages, python,
+    messages, netns_pair, python,
 };
 
 const START: &str = "2026-03-02T11:00:00Z";
@@ -35,11 +37,28 @@ const START: &str = "2026-03-02T11:00:00Z";
 const STALE_S: u32 = 3;
 /// How soon the grid must follow the link going down or up.
 const FOLLOW: Duration = Duration::from_secs(5);
+/// How soon after a killed link or bridge is started again camera A's cells
+/// must be back in B's grid.
+const RECOVER: Duration = Duration::from_secs(10);
+/// The processes of the test's boxes.
+const LINK_A: &str = "link A";
+const LINK_B: &str = "link B";
+const BRIDGE: &str = "bridge B";
 
-/// The `[link]` section of a box.
-fn link_toml(box_id: &str, key: &str, domain: u16, addr: &str) -> String {
-    format!(
-        "\n[link]\nbox_id = \"{box_id}\"\n{key} = [\"cam01\"]\nros_domain_id = {domain}\ndds_interfaces = [\"{addr}\"]\n"
+/// The site of a box: `sections`, then its `[link]` (`box_id`, exporting or
+/// importing cam01 as `key` says, over `addr`) ending in `extra` keys.
+fn box_site(
+    name: &str,
+    sections: &str,
+    (box_id, key, addr): (&str, &str, &str),
+    domain: u16,
+    extra: &str,
+) -> TestSite {
+    TestSite::new(
+        name,
+        &format!(
+            "{sections}\n[link]\nbox_id = \"{box_id}\"\n{key} = [\"cam01\"]\nros_domain_id = {domain}\ndds_interfaces = [\"{addr}\"]\n{extra}"
+        ),
     )
 }
 
@@ -99,25 +118,39 @@ fn footprint_unknown(grid: &[i64], hot: &[i64]) -> bool {
     grid.iter().zip(hot).all(|(g, h)| *h == -1 || *g == -1)
 }
 
-/// The test's view of box B: the peer's messages and the probe on B's activity.
-struct BoxB {
+/// A process of a test box: how the launcher or systemd starts it, and the
+/// running one.
+struct Service<'a> {
+    name: &'static str,
+    start: Box<dyn Fn() -> Proc + 'a>,
+    proc: Proc,
+}
+
+/// Both boxes as a test drives them: A's source (`feed`, called at 1 Hz), the
+/// Cyclone DDS peer reading B's grid and a probe on B's cam01 activity, the
+/// boxes' processes (their logs come with a failure) and the veth between them.
+struct Scene<'a> {
+    pair: &'a NetnsPair,
+    feed: Box<dyn FnMut() + 'a>,
     peer: Proc,
-    probe: isochron_shared::ipc::StreamSubscriber<Activity>,
+    /// The peer's messages before this one came from a bridge since killed.
+    since: usize,
+    probe: StreamSubscriber<Activity>,
     latencies_ms: Vec<f64>,
     /// The synthetic source's start: its samples' capture times are checked.
     synthetic_start_ns: Option<i64>,
+    services: Vec<Service<'a>>,
 }
 
-impl BoxB {
+impl<'a> Scene<'a> {
     /// Starts the Cyclone DDS peer in B's namespace (reading the bridge's grid on
     /// `domain` for up to `timeout_s`) and the probe on B's cam01 activity.
-    fn start(
-        pair: &NetnsPair,
-        ipc_b: &Ipc,
-        domain: u16,
-        timeout_s: u32,
+    fn new(
+        pair: &'a NetnsPair,
+        (ipc_b, domain, timeout_s): (&Ipc, u16, u32),
         synthetic_start_ns: Option<i64>,
-    ) -> BoxB {
+        feed: Box<dyn FnMut() + 'a>,
+    ) -> Scene<'a> {
         let script = repo_root().join("tests/ros2/costmap_listener.py");
         let peer = pair.spawn(
             1,
@@ -133,17 +166,90 @@ impl BoxB {
                 timeout_s.to_string(),
             ],
         );
-        BoxB {
+        Scene {
+            pair,
+            feed,
             peer,
+            since: 0,
             probe: ipc_b.subscriber::<Activity>("cam01").unwrap(),
             latencies_ms: Vec::new(),
             synthetic_start_ns,
+            services: Vec::new(),
         }
+    }
+
+    /// Adds `name`, running as `proc` (started by `start`, which starts it again).
+    fn adopt(&mut self, name: &'static str, start: impl Fn() -> Proc + 'a, proc: Proc) {
+        self.services.push(Service {
+            name,
+            start: Box::new(start),
+            proc,
+        });
+    }
+
+    /// Starts `name` with `start`.
+    fn add(&mut self, name: &'static str, start: impl Fn() -> Proc + 'a) {
+        let proc = start();
+        self.adopt(name, start, proc);
+    }
+
+    fn service(&mut self, name: &str) -> &mut Service<'a> {
+        self.services
+            .iter_mut()
+            .find(|s| s.name == name)
+            .unwrap_or_else(|| panic!("no process {name}"))
+    }
+
+    /// The process `name`.
+    fn proc(&mut self, name: &str) -> &mut Proc {
+        &mut self.service(name).proc
+    }
+
+    /// The running processes' names and ids.
+    fn pids(&mut self) -> Vec<(&'static str, u32)> {
+        self.services
+            .iter_mut()
+            .filter_map(|s| {
+                s.proc
+                    .wait(Duration::ZERO)
+                    .is_none()
+                    .then(|| (s.name, s.proc.pid()))
+            })
+            .collect()
+    }
+
+    /// `kill -9` of `name`, and its end; the other running processes and their ids.
+    fn kill(&mut self, name: &str) -> Vec<(&'static str, u32)> {
+        let others = self
+            .pids()
+            .into_iter()
+            .filter(|(n, _)| *n != name)
+            .collect();
+        let proc = self.proc(name);
+        proc.signal(libc::SIGKILL);
+        assert!(
+            proc.wait(Duration::from_secs(5)).is_some(),
+            "{name} outlived SIGKILL"
+        );
+        others
+    }
+
+    /// Starts `name` again, as the launcher or systemd would.
+    fn restart(&mut self, name: &str) {
+        let service = self.service(name);
+        service.proc = (service.start)();
     }
 
     /// The grid the peer holds now.
     fn grid(&mut self) -> Option<Vec<i64>> {
-        held_grid(&messages(&mut self.peer))
+        held_grid(messages(&mut self.peer).get(self.since..)?)
+    }
+
+    /// Ignores what the peer received so far, and in the next 300 ms (from a
+    /// bridge that was killed).
+    fn forget_grids(&mut self) {
+        std::thread::sleep(Duration::from_millis(300));
+        self.since = messages(&mut self.peer).len();
     }
 
     /// Reads what B's link wrote into B's cam01 activity service: the header as
@@ -166,89 +272,115 @@ impl BoxB {
                 .push((wall_now_ns() - p.origin_wall_ns) as f64 / 1e6);
         }
     }
-}
 
-/// Calls `feed` at 1 Hz (A's source) and reads B until `f` holds for the peer's
-/// grid; how long that took. Fails after `timeout`.
-fn until(
-    what: &str,
-    feed: &mut dyn FnMut(),
-    b: &mut BoxB,
-    procs: &[&Proc],
-    timeout: Duration,
-    mut f: impl FnMut(&[i64]) -> bool,
-) -> Duration {
-    let begin = Instant::now();
-    let mut last_sent: Option<Instant> = None;
-    loop {
-        if last_sent.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
-            feed();
-            last_sent = Some(Instant::now());
+    /// Feeds A at 1 Hz and reads B until `f` holds for the peer's grid; prints
+    /// and returns how long that took. Fails after `timeout`, with every log.
+    fn until(
+        &mut self,
+        what: &str,
+        timeout: Duration,
+        mut f: impl FnMut(&[i64]) -> bool,
+    ) -> Duration {
+        let begin = Instant::now();
+        let mut last_sent: Option<Instant> = None;
+        loop {
+            if last_sent.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
+                (self.feed)();
+                last_sent = Some(Instant::now());
+            }
+            self.probe();
+            if self.grid().is_some_and(|g| f(&g)) {
+                eprintln!("{what}: after {:?}", begin.elapsed());
+                return begin.elapsed();
+            }
+            if begin.elapsed() > timeout {
+                let logs: Vec<String> = self
+                    .services
+                    .iter()
+                    .map(|s| format!("{}:\n{}", s.name, s.proc.stderr()))
+                    .collect();
+                panic!(
+                    "timed out ({timeout:?}) waiting for {what}\npeer stderr:\n{}\nprocess logs:\n{}",
+                    self.peer.stderr(),
+                    logs.join("\n-----\n")
+                );
+            }
+            // Wakes as soon as B's link writes a sample: the latency is measured on arrival.
+            self.probe.wait(Duration::from_millis(100));
         }
-        b.probe();
-        if b.grid().is_some_and(|g| f(&g)) {
-            return begin.elapsed();
-        }
-        if begin.elapsed() > timeout {
-            let logs: Vec<String> = procs.iter().map(|p| p.stderr()).collect();
-            panic!(
-                "timed out ({timeout:?}) waiting for {what}\npeer stderr:\n{}\nprocess logs:\n{}",
-                b.peer.stderr(),
-                logs.join("\n-----\n")
-            );
-        }
-        // Wakes as soon as B's link writes a sample: the latency is measured on arrival.
-        b.probe.wait(Duration::from_millis(100));
     }
-}
 
-/// Follows 10 s of steady state and prints the bytes per second on A's veth (all
-/// traffic) and the origin → B activity-service latency (p50, p99).
-fn steady_state(
-    label: &str,
-    feed: &mut dyn FnMut(),
-    b: &mut BoxB,
-    pair: &NetnsPair,
-    procs: &[&Proc],
-) {
-    b.latencies_ms.clear();
-    let tx0 = pair.tx_bytes(0);
-    let t0 = Instant::now();
-    let steady = until(
-        "10 s of steady state",
-        feed,
-        b,
-        procs,
-        Duration::from_secs(20),
-        |_| t0.elapsed() >= Duration::from_secs(10),
-    );
-    let veth_bps = (pair.tx_bytes(0) - tx0) as f64 / steady.as_secs_f64();
-    let mut lat = b.latencies_ms.clone();
-    lat.sort_by(f64::total_cmp);
-    assert!(
-        lat.len() >= 8,
-        "only {} samples reached B in 10 s",
-        lat.len()
-    );
-    eprintln!(
-        "MEASURED {label}: veth A→B {veth_bps:.0} B/s (all traffic, 1 camera); origin → B's activity service over {} samples: p50 {:.1} ms, p99 {:.1} ms",
-        lat.len(),
-        percentile(&lat, 0.5),
-        percentile(&lat, 0.99)
-    );
+    /// Follows 10 s of steady state and prints the bytes per second on A's veth
+    /// (all traffic) and the origin → B activity-service latency (p50, p99).
+    fn steady_state(&mut self, label: &str) {
+        self.latencies_ms.clear();
+        let tx0 = self.pair.tx_bytes(0);
+        let t0 = Instant::now();
+        let steady = self.until("10 s of steady state", Duration::from_secs(20), |_| {
+            t0.elapsed() >= Duration::from_secs(10)
+        });
+        let veth_bps = (self.pair.tx_bytes(0) - tx0) as f64 / steady.as_secs_f64();
+        let mut lat = self.latencies_ms.clone();
+        lat.sort_by(f64::total_cmp);
+        assert!(
+            lat.len() >= 8,
+            "only {} samples reached B in 10 s",
+            lat.len()
+        );
+        eprintln!(
+            "MEASURED {label}: veth A→B {veth_bps:.0} B/s (all traffic, 1 camera); origin → B's activity service over {} samples: p50 {:.1} ms, p99 {:.1} ms",
+            lat.len(),
+            percentile(&lat, 0.5),
+            percentile(&lat, 0.99)
+        );
+    }
+
+    /// Waits for B's grid to be `back` (A's cells known: a wait without feeding,
+    /// such as for a status report, lets them go stale), sets the veth down
+    /// until it is `unknown`, then up until it is `back` again.
+    fn veth_down_and_up(
+        &mut self,
+        label: &str,
+        unknown: impl FnMut(&[i64]) -> bool,
+        back: impl FnMut(&[i64]) -> bool + Copy,
+    ) {
+        self.until(
+            &format!("{label}: A's cells before the veth goes down"),
+            FOLLOW,
+            back,
+        );
+        self.pair.set_link(0, false);
+        self.until(&format!("{label}: veth down → unknown"), FOLLOW, unknown);
+        self.pair.set_link(0, true);
+        self.until(&format!("{label}: veth up → back"), FOLLOW, back);
+    }
+
+    /// Starts the killed `name` again, as the launcher or systemd would: camera
+    /// A's cells are `back` within [`RECOVER`], and the `others` running at the
+    /// kill still run with the same pids.
+    fn recovers(
+        &mut self,
+        name: &str,
+        others: &[(&'static str, u32)],
+        back: impl FnMut(&[i64]) -> bool,
+    ) {
+        self.restart(name);
+        self.until(
+            &format!("MEASURED {name} restarted → A's activity in B's grid"),
+            RECOVER,
+            back,
+        );
+        let mut still = self.pids();
+        still.retain(|(n, _)| *n != name);
+        assert_eq!(still, others, "the other processes run on, untouched");
+    }
 }
 
 /// A's event and detection reach B unchanged; then a burst of [`BURST`] events:
 /// A's link drops what does not fit its queue of [`QUEUE`] and counts it
 /// (`ev_drop`); B counts every missing sequence number (`ev_gap`); what B got
 /// and what it counts as missing are the whole burst.
-fn records_cross_and_a_burst_is_counted(
-    ipc_a: &Ipc,
-    ipc_b: &Ipc,
-    feed: &mut dyn FnMut(),
-    b: &mut BoxB,
-    procs: &[&Proc],
-) {
+fn records_cross_and_a_burst_is_counted(ipc_a: &Ipc, ipc_b: &Ipc, scene: &mut Scene) {
     let events_a = ipc_a.publisher::<Events>("cam01", 1).unwrap();
     let detections_a = ipc_a.publisher::<Detections>("cam01", 1).unwrap();
     let events_b = ipc_b.subscriber::<Events>("cam01").unwrap();
@@ -277,11 +409,8 @@ fn records_cross_and_a_burst_is_counted(
     };
     detections_a.send_copy(det, &[person]).unwrap();
     let (mut got, mut got_det) = (Vec::new(), None);
-    until(
+    scene.until(
         "A's event and detection on B",
-        feed,
-        b,
-        procs,
         Duration::from_secs(20),
         |_| {
             got.extend(events_of(&events_b));
@@ -309,11 +438,8 @@ fn records_cross_and_a_burst_is_counted(
         events_a.send_copy(event(seq, 100 + seq), &[3]).unwrap();
     }
     let mut burst = Vec::new();
-    let t = until(
+    let t = scene.until(
         "the burst's last event on B",
-        feed,
-        b,
-        procs,
         Duration::from_secs(20),
         |_| {
             burst.extend(events_of(&events_b));
@@ -343,148 +469,100 @@ fn records_cross_and_a_burst_is_counted(
     assert!(dropped_a <= gaps_b, "what A dropped B counts as missing");
 }
 
-/// Sets the veth down until B's grid is `unknown`, then up until it is `back`.
-fn veth_down_and_up(
-    label: &str,
-    (feed, b, pair, procs): (&mut dyn FnMut(), &mut BoxB, &NetnsPair, &[&Proc]),
-    unknown: impl FnMut(&[i64]) -> bool,
-    back: impl FnMut(&[i64]) -> bool,
-) {
-    pair.set_link(0, false);
-    let t = until(
-        "unknown cells while the veth is down",
-        feed,
-        b,
-        procs,
-        FOLLOW,
-        unknown,
-    );
-    eprintln!("{label}: veth down → unknown after {t:?}");
-    pair.set_link(0, true);
-    let t = until(
-        "B's cells again once the veth is up",
-        feed,
-        b,
-        procs,
-        FOLLOW,
-        back,
-    );
-    eprintln!("{label}: veth up → back after {t:?}");
-}
-
 fn percentile(sorted: &[f64], p: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * p).round() as usize]
 }
 
 #[test]
 fn activity_crosses_boxes_and_goes_unknown_while_the_link_is_down() {
-    python();
-    let tag = format!("{}{}", std::process::id() % 100_000, dds_domain());
-    let Some(pair) = NetnsPair::new(&tag, 1) else {
+    let Some(pair) = netns_pair(1) else {
         return;
     };
     let (link_domain, bridge_domain) = (dds_domain(), dds_domain());
-    let site_a = TestSite::new(
+    let site_a = box_site(
         "link-a",
-        &format!(
-            "{}{}queue_messages = {QUEUE}\n",
-            camera_toml(),
-            link_toml("box_a", "export", link_domain, &pair.addrs[0])
-        ),
+        &camera_toml(),
+        ("box_a", "export", &pair.addrs[0]),
+        link_domain,
+        &format!("queue_messages = {QUEUE}\n"),
     );
     let costmap =
         costmap_toml(bridge_domain, "").replace("stale_s = 120", &format!("stale_s = {STALE_S}"));
     // B's services buffer a whole burst, so the test's reader loses nothing.
-    let site_b = TestSite::new(
+    let site_b = box_site(
         "link-b",
-        &format!(
-            "[ipc]\nstream_buffer = 256\n\n{}{costmap}{}",
-            camera_toml(),
-            link_toml("box_b", "import", link_domain, &pair.addrs[1])
-        ),
+        &format!("[ipc]\nstream_buffer = 256\n\n{}{costmap}", camera_toml()),
+        ("box_b", "import", &pair.addrs[1]),
+        link_domain,
+        "",
     );
-    let link_bin = bin("isochron-link");
+    let (link_bin, bridge_bin) = (bin("isochron-link"), bin("isochron-costmap"));
     let config_a = site_a.config_path().display().to_string();
     let config_b = site_b.config_path().display().to_string();
     let start_link_a = || pair.spawn(0, &link_bin, &["--config", &config_a]);
 
     let ipc_a = site_a.ipc("source");
     let mut source = Source::new(&ipc_a, START);
-    let mut link_a = start_link_a();
+    let link_a = start_link_a();
     source.wait_for_subscriber(&link_a);
-    let link_b = pair.spawn(1, &link_bin, &["--config", &config_b]);
-    let bridge = pair.spawn(1, &bin("isochron-costmap"), &["--config", &config_b]);
     let ipc_b = site_b.ipc("probe");
-    let mut b = BoxB::start(
+    let mut scene = Scene::new(
         &pair,
-        &ipc_b,
-        bridge_domain,
-        150,
+        (&ipc_b, bridge_domain, 240),
         Some(parse_rfc3339(START).unwrap()),
+        Box::new(|| source.send(&[(HOT_BLOCK, HOT_S1)], 660)),
     );
+    scene.adopt(LINK_A, start_link_a, link_a);
+    scene.add(LINK_B, || {
+        pair.spawn(1, &link_bin, &["--config", &config_b])
+    });
+    scene.add(BRIDGE, || {
+        pair.spawn(1, &bridge_bin, &["--config", &config_b])
+    });
     let hot = expected_cells(true);
-    let mut feed = || source.send(&[(HOT_BLOCK, HOT_S1)], 660);
+    let (unknown, back) = (|g: &[i64]| footprint_unknown(g, &hot), |g: &[i64]| g == hot);
 
     // 1. A's activity reaches B's grid.
-    let t = until(
-        "cam01's activity in B's grid",
-        &mut feed,
-        &mut b,
-        &[&link_a, &link_b, &bridge],
+    scene.until(
+        "first grid with A's activity on B",
         Duration::from_secs(60),
-        |g| g == hot,
+        back,
     );
-    eprintln!("first grid with A's activity on B after {t:?}");
 
     // 2. Steady state: bytes on the veth and latency over 10 s.
-    let procs = [&link_a, &link_b, &bridge];
-    steady_state("synthetic activity", &mut feed, &mut b, &pair, &procs);
+    scene.steady_state("synthetic activity");
 
     // 3. Events and detections cross with their headers; a burst larger than
     //    A's queue is counted, never lost silently.
-    records_cross_and_a_burst_is_counted(&ipc_a, &ipc_b, &mut feed, &mut b, &procs);
+    records_cross_and_a_burst_is_counted(&ipc_a, &ipc_b, &mut scene);
 
     // 4. The veth goes down: B's cells of cam01 turn unknown; up: they come back.
-    veth_down_and_up(
-        "synthetic activity",
-        (&mut feed, &mut b, &pair, &procs),
-        |g| footprint_unknown(g, &hot),
-        |g| g == hot,
-    );
+    scene.veth_down_and_up("synthetic activity", unknown, back);
 
     // 5. kill -9 A's link: unknown; restarted: back, without touching B.
-    link_a.signal(libc::SIGKILL);
-    link_a.wait(Duration::from_secs(5));
-    let t = until(
-        "unknown cells while A's link is dead",
-        &mut feed,
-        &mut b,
-        &[&link_b, &bridge],
-        FOLLOW,
-        |g| footprint_unknown(g, &hot),
-    );
-    eprintln!("link A killed → unknown after {t:?}");
-    let mut link_a = start_link_a();
-    let t = until(
-        "activity again from the restarted link",
-        &mut feed,
-        &mut b,
-        &[&link_a, &link_b, &bridge],
-        Duration::from_secs(20),
-        |g| g == hot,
-    );
-    eprintln!("link A restarted → activity after {t:?}");
+    let others = scene.kill(LINK_A);
+    scene.until("link A killed → unknown", FOLLOW, unknown);
+    scene.recovers(LINK_A, &others, back);
     let t0 = Instant::now();
-    until(
+    scene.until(
         "5 s more from the restarted link",
-        &mut feed,
-        &mut b,
-        &[&link_a, &link_b, &bridge],
         Duration::from_secs(10),
         |_| t0.elapsed() >= Duration::from_secs(5),
     );
 
+    // 6. kill -9 B's bridge, started again: A's cells in the new bridge's grid,
+    //    nothing else restarted.
+    let others = scene.kill(BRIDGE);
+    scene.forget_grids();
+    scene.recovers(BRIDGE, &others, back);
+
+    // 7. kill -9 B's link: unknown; started again: back, nothing else restarted.
+    let others = scene.kill(LINK_B);
+    scene.until("link B killed → unknown", FOLLOW, unknown);
+    scene.recovers(LINK_B, &others, back);
+
     // The link's own count of what it sent.
+    let link_a = scene.proc(LINK_A);
     link_a.terminate(Duration::from_secs(10));
     let log = link_a.stderr();
     let line = log
@@ -492,8 +570,6 @@ fn activity_crosses_boxes_and_goes_unknown_while_the_link_is_down() {
         .find(|l| l.contains("exported cam01 activity:"))
         .unwrap_or_else(|| panic!("no export summary in A's log:\n{log}"));
     eprintln!("MEASURED {line}");
-    drop(b);
-    drop(pair);
 }
 
 /// The demo camera (vtest.avi at `--speed 1`, looping, with its real floor points)
@@ -535,28 +611,17 @@ stale_s = {STALE_S}
 #[test]
 fn the_real_pipeline_on_one_box_feeds_the_bridge_on_another() {
     python();
-    let tag = format!("{}{}", std::process::id() % 100_000, dds_domain());
-    let Some(pair) = NetnsPair::new(&tag, 2) else {
+    let Some(pair) = netns_pair(2) else {
         return;
     };
     let (link_domain, bridge_domain) = (dds_domain(), dds_domain());
     let camera_and_grid = demo_camera_and_grid(bridge_domain);
     let camera = &camera_and_grid[..camera_and_grid.find("[costmap]").unwrap()];
-    let site_a = TestSite::new(
-        "link-pipe-a",
-        &format!(
-            "{camera}{}",
-            link_toml("box_a", "export", link_domain, &pair.addrs[0])
-        ),
-    );
-    let site_b = TestSite::new(
-        "link-pipe-b",
-        &format!(
-            "{camera_and_grid}{}",
-            link_toml("box_b", "import", link_domain, &pair.addrs[1])
-        ),
-    );
-    let link_bin = bin("isochron-link");
+    let a = ("box_a", "export", pair.addrs[0].as_str());
+    let site_a = box_site("link-pipe-a", camera, a, link_domain, "");
+    let b = ("box_b", "import", pair.addrs[1].as_str());
+    let site_b = box_site("link-pipe-b", &camera_and_grid, b, link_domain, "");
+    let (link_bin, bridge_bin) = (bin("isochron-link"), bin("isochron-costmap"));
     let config_a = site_a.config_path().display().to_string();
     let config_b = site_b.config_path().display().to_string();
     // Box A's pipeline: shared memory only, so it needs no network namespace.
@@ -564,46 +629,40 @@ fn the_real_pipeline_on_one_box_feeds_the_bridge_on_another() {
     let ipc_b = site_b.ipc("probe");
     let events_a = ipc_a.subscriber::<Events>("cam01").unwrap();
     let events_b = ipc_b.subscriber::<Events>("cam01").unwrap();
+    let mut scene = Scene::new(&pair, (&ipc_b, bridge_domain, 120), None, Box::new(|| {}));
     let stages = ["capture", "motion", "cascade", "gate"];
-    let pipeline: Vec<Proc> = stages
-        .iter()
-        .map(|s| site_a.spawn(&format!("isochron-{s}"), &["--camera", "cam01"]))
-        .collect();
-    let mut link_a = pair.spawn(0, &link_bin, &["--config", &config_a]);
-    let link_b = pair.spawn(1, &link_bin, &["--config", &config_b]);
-    let bridge = pair.spawn(1, &bin("isochron-costmap"), &["--config", &config_b]);
-    let mut b = BoxB::start(&pair, &ipc_b, bridge_domain, 120, None);
-    let mut feed = || {};
-    let mut logs: Vec<&Proc> = pipeline.iter().collect();
-    logs.extend([&link_a, &link_b, &bridge]);
+    for stage in stages {
+        let site_a = &site_a;
+        scene.add(stage, move || {
+            site_a.spawn(&format!("isochron-{stage}"), &["--camera", "cam01"])
+        });
+    }
+    scene.add(LINK_A, || {
+        pair.spawn(0, &link_bin, &["--config", &config_a])
+    });
+    scene.add(LINK_B, || {
+        pair.spawn(1, &link_bin, &["--config", &config_b])
+    });
+    scene.add(BRIDGE, || {
+        pair.spawn(1, &bridge_bin, &["--config", &config_b])
+    });
     let known = |g: &[i64]| g.iter().filter(|&&c| c != -1).count();
-    let t = until(
-        "known cells under the demo camera on box B",
-        &mut feed,
-        &mut b,
-        &logs,
+    scene.until(
+        "first known cells under the demo camera on B",
         Duration::from_secs(60),
         |g| known(g) > 100,
     );
-    eprintln!("first known cells on B after {t:?}");
-    let (mut on_a, mut on_b) = (Vec::new(), Vec::new());
-    steady_state("real pipeline", &mut feed, &mut b, &pair, &logs);
+    scene.steady_state("real pipeline");
 
     // A's gate events reach B with their sequence numbers and times.
-    let t = until(
-        "A's gate events on B",
-        &mut feed,
-        &mut b,
-        &logs,
-        Duration::from_secs(30),
-        |_| {
-            on_a.extend(events_of(&events_a));
-            on_b.extend(events_of(&events_b));
-            !on_b.is_empty() && on_b.iter().all(|e| on_a.contains(e))
-        },
-    );
+    let (mut on_a, mut on_b) = (Vec::new(), Vec::new());
+    scene.until("A's gate events on B", Duration::from_secs(30), |_| {
+        on_a.extend(events_of(&events_a));
+        on_b.extend(events_of(&events_b));
+        !on_b.is_empty() && on_b.iter().all(|e| on_a.contains(e))
+    });
     eprintln!(
-        "{} gate events on A, {} on B after {t:?}: {on_b:?}",
+        "{} gate events on A, {} on B: {on_b:?}",
         on_a.len(),
         on_b.len()
     );
@@ -613,7 +672,7 @@ fn the_real_pipeline_on_one_box_feeds_the_bridge_on_another() {
         &["status", "--json", "--config", &config_b],
         Duration::from_secs(20),
     );
-    for (stage, proc) in stages.iter().zip(&pipeline) {
+    for stage in stages {
         let row = status
             .stdout
             .lines()
@@ -621,15 +680,11 @@ fn the_real_pipeline_on_one_box_feeds_the_bridge_on_another() {
             .find(|o| o["stage"] == *stage && o["camera"] == "cam01")
             .unwrap_or_else(|| panic!("no {stage} row in B's status:\n{}", status.stdout));
         assert_eq!(row["state"], "running", "{row}");
-        assert_eq!(row["pid"], proc.pid(), "{row}");
+        assert_eq!(row["pid"], scene.proc(stage).pid(), "{row}");
     }
 
-    veth_down_and_up(
-        "real pipeline",
-        (&mut feed, &mut b, &pair, &logs),
-        |g| known(g) == 0,
-        |g| known(g) > 100,
-    );
+    scene.veth_down_and_up("real pipeline", |g| known(g) == 0, |g| known(g) > 100);
+    let link_a = scene.proc(LINK_A);
     link_a.terminate(Duration::from_secs(10));
     for line in link_a
         .stderr()
@@ -638,6 +693,40 @@ fn the_real_pipeline_on_one_box_feeds_the_bridge_on_another() {
     {
         eprintln!("MEASURED real pipeline: {line}");
     }
-    drop(b);
-    drop(pair);
+}
+
+/// A link whose open-file limit cannot hold what its imports need refuses to
+/// start, before joining DDS, with one line naming the limit and the value
+/// (`prlimit` sets a hard limit of 300: 20 imported cameras need more).
+#[test]
+fn a_link_without_enough_open_files_says_which_limit_to_raise() {
+    let imports: Vec<String> = (0..20).map(|k| format!("\"cam{k:02}\"")).collect();
+    let site = TestSite::new(
+        "link-files",
+        &format!(
+            "{}\n[link]\nbox_id = \"site\"\nimport = [{}]\nros_domain_id = {}\ndds_interfaces = [\"127.0.0.1\"]\n",
+            camera_toml(),
+            imports.join(", "),
+            dds_domain()
+        ),
+    );
+    let config = site.config_path().display().to_string();
+    let link = bin("isochron-link").display().to_string();
+    let mut proc = Proc::spawn(
+        std::path::Path::new("prlimit"),
+        &["--nofile=300:300", &link, "--config", &config],
+    );
+    let done = proc.finish(Duration::from_secs(20));
+    assert_eq!(done.status.code(), Some(78), "{}", done.stderr);
+    let line = done
+        .stderr
+        .lines()
+        .find(|l| l.contains("open files"))
+        .unwrap_or_else(|| panic!("no open-files line:\n{}", done.stderr));
+    assert!(
+        line.contains("importing 20 and exporting 0 cameras")
+            && line.contains("may open 300")
+            && line.contains("raise LimitNOFILE= of isochron-link.service"),
+        "{line}"
+    );
 }

@@ -32,13 +32,13 @@
 use std::net::IpAddr;
 use std::time::Duration;
 
-use ros2_client::dds::{Context, DEFAULT_PUBLISHER_QOS, Node, Publisher, Server, ServiceMapping};
+use ros2_client::dds::{DEFAULT_PUBLISHER_QOS, Publisher, Server, ServiceMapping};
 use ros2_client::qos::{Durability, History};
-use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions, QosProfile, ServiceTypeName};
+use ros2_client::{Name, QosProfile, ServiceTypeName};
 use rustdds::dds::qos::HasQoSPolicy;
-use rustdds::{
-    DomainParticipantBuilder, QosPolicies, QosPolicyBuilder, TopicDescription, TopicKind, policy,
-};
+use rustdds::{QosPolicies, TopicDescription, policy};
+
+use isochron_dds::{DdsError, RosNode, keep_last};
 
 use isochron_planning::plan_service::{offline_plan_of, ranking_of};
 use isochron_planning::query::{
@@ -51,8 +51,6 @@ use crate::msgs::{
     PlanNowResponse, PlanOfflineRequest, PlanOfflineResponse, PoseArray, RouteCost, Window,
 };
 
-/// Highest DDS domain id whose RTPS ports fit in 16 bits.
-pub const MAX_DOMAIN_ID: u16 = 232;
 /// Grids kept for late joiners: the current one.
 const GRID_DEPTH: i32 = 1;
 /// Updates kept for slow readers.
@@ -104,13 +102,8 @@ pub enum RosError {
         detail: String,
     },
     /// DDS could not be set up (ports, interfaces).
-    #[error("starting DDS on domain {domain}: {detail}")]
-    Dds {
-        /// The domain.
-        domain: u16,
-        /// What failed.
-        detail: String,
-    },
+    #[error(transparent)]
+    Dds(#[from] DdsError),
 }
 
 impl isochron_shared::exit::Classify for RosError {
@@ -127,20 +120,6 @@ impl isochron_shared::exit::Classify for RosError {
 pub struct PublishError {
     /// What DDS said.
     pub detail: String,
-}
-
-/// `$ROS_DOMAIN_ID` is not a domain id.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("ROS_DOMAIN_ID={value}: expected 0 to {MAX_DOMAIN_ID}")]
-pub struct DomainIdError {
-    /// The variable's value.
-    pub value: String,
-}
-
-impl isochron_shared::exit::Classify for DomainIdError {
-    fn exit_code(&self) -> i32 {
-        isochron_shared::exit::CONFIG
-    }
 }
 
 /// Parses a topic name (`/a/b` absolute, `a/b` relative to the node's namespace `/`).
@@ -167,46 +146,22 @@ pub struct RosOutput {
     /// The grid topic's DDS name (`rt/...`) and the QoS its writer offers: what
     /// RustDDS matches remote readers against.
     grid_match: (String, QosPolicies),
-    _node: Node,
-    _spinner: Option<std::thread::JoinHandle<()>>,
-    context: Context,
+    ros: RosNode,
 }
 
 impl RosOutput {
     /// Joins the DDS domain and creates the node `/isochron/costmap_bridge` with its
     /// publishers.
     pub fn start(settings: &RosSettings) -> Result<RosOutput, RosError> {
-        let dds = |detail: String| RosError::Dds {
-            domain: settings.domain_id,
-            detail,
-        };
-        let mut builder = DomainParticipantBuilder::new(settings.domain_id);
-        if !settings.interfaces.is_empty() {
-            builder = builder.with_only_networks(settings.interfaces.iter().copied());
-        }
-        let participant = builder.build().map_err(|e| dds(format!("{e:?}")))?;
-        let context =
-            Context::from_domain_participant(participant).map_err(|e| dds(format!("{e:?}")))?;
-        let node_name = NodeName::new("/isochron", "costmap_bridge").expect("a valid node name");
-        let mut node = context
-            .new_node(
-                node_name.clone(),
-                NodeOptions::new()
-                    .enable_rosout(false)
-                    .start_parameter_services(false),
-            )
-            .map_err(|e| dds(format!("creating the node: {e:?}")))?;
+        let mut ros = RosNode::start(settings.domain_id, &settings.interfaces, "costmap_bridge")?;
 
-        // Keep-last is enforced through the writer's resource limits: RustDDS keeps
-        // every sample no reader has acknowledged, so without them a bridge nobody
-        // listens to would pile up grids, and a late joiner would receive all of
-        // them before the current one.
         let topic = |name: &str, package: &str, type_name: &str, durability, depth| {
-            let parsed = topic_name(name)?;
-            create_topic(
-                &context, &node_name, &parsed, package, type_name, durability, depth,
+            ros.topic(
+                &topic_name(name)?,
+                (package, type_name),
+                &topic_qos(durability, depth),
             )
-            .map_err(|e| dds(format!("creating topic {name}: {e:?}")))
+            .map_err(RosError::from)
         };
         let latched = Durability::TransientLocal;
         let grid_topic = topic(
@@ -266,12 +221,14 @@ impl RosOutput {
         );
         macro_rules! publisher {
             ($topic:expr, $what:literal) => {
-                node.create_publisher(&$topic, None).map_err(|e| {
-                    dds(format!(
-                        concat!("creating the ", $what, " publisher: {:?}"),
-                        e
-                    ))
-                })?
+                ros.node_mut()
+                    .create_publisher(&$topic, None)
+                    .map_err(|e| {
+                        ros.error(format!(
+                            concat!("creating the ", $what, " publisher: {:?}"),
+                            e
+                        ))
+                    })?
             };
         }
         let grid = publisher!(grid_topic, "grid");
@@ -288,33 +245,20 @@ impl RosOutput {
         });
         macro_rules! server {
             ($name:expr, $type_name:literal) => {
-                node.create_server(
-                    ServiceMapping::Cyclone,
-                    &topic_name($name)?,
-                    &ServiceTypeName::new("isochron_msgs", $type_name),
-                    service_qos.clone(),
-                    service_qos.clone(),
-                )
-                .map_err(|e| dds(format!("creating the service {}: {e:?}", $name)))?
+                ros.node_mut()
+                    .create_server(
+                        ServiceMapping::Cyclone,
+                        &topic_name($name)?,
+                        &ServiceTypeName::new("isochron_msgs", $type_name),
+                        service_qos.clone(),
+                        service_qos.clone(),
+                    )
+                    .map_err(|e| ros.error(format!("creating the service {}: {e:?}", $name)))?
             };
         }
         let plan_offline = server!(&settings.plan_offline_service, "PlanOffline");
         let plan_now = server!(&settings.plan_now_service, "PlanNow");
 
-        // The spinner keeps the node visible in the ROS graph (`ros2 node list`) and
-        // answers its discovery traffic; it ends when the node is dropped.
-        let spinner = match node.spinner() {
-            Ok(spinner) => std::thread::Builder::new()
-                .name("ros2-spinner".into())
-                .spawn(move || {
-                    let _ = futures::executor::block_on(spinner.spin());
-                })
-                .ok(),
-            Err(e) => {
-                tracing::warn!("ROS 2 spinner not started: {e:?}");
-                None
-            }
-        };
         Ok(RosOutput {
             grid,
             updates,
@@ -326,9 +270,7 @@ impl RosOutput {
             plan_offline,
             plan_now,
             grid_match,
-            _node: node,
-            _spinner: spinner,
-            context,
+            ros,
         })
     }
 
@@ -449,7 +391,8 @@ impl RosOutput {
     /// every status report of a bridge nobody listens to.
     pub fn grid_subscribers(&self) -> usize {
         let (topic, offered) = &self.grid_match;
-        self.context
+        self.ros
+            .context()
             .domain_participant()
             .discovered_readers()
             .iter()
@@ -562,67 +505,20 @@ fn now_response(r: &PlanResponse) -> PlanNowResponse {
     }
 }
 
-/// Creates the DDS topic of ROS 2 topic `name` for `package/msg/type_name`: reliable
-/// (waiting at most [`MAX_BLOCKING`] for room), `durability`, keep last `depth`,
-/// and at most `depth` samples in the writer's cache.
-fn create_topic(
-    context: &Context,
-    node_name: &NodeName,
-    name: &Name,
-    package: &str,
-    type_name: &str,
-    durability: Durability,
-    depth: i32,
-) -> rustdds::dds::CreateResult<rustdds::Topic> {
-    let qos = QosPolicyBuilder::new()
-        .reliability(policy::Reliability::Reliable {
+/// The QoS of the bridge's topics: reliable (waiting at most [`MAX_BLOCKING`] for
+/// room), `durability`, keep last `depth`, and at most `depth` samples in the
+/// writer's cache ([`keep_last`]).
+fn topic_qos(durability: Durability, depth: i32) -> QosPolicies {
+    keep_last(
+        policy::Reliability::Reliable {
             max_blocking_time: rustdds::Duration::from_std(MAX_BLOCKING),
-        })
-        .durability(match durability {
+        },
+        match durability {
             Durability::Volatile => policy::Durability::Volatile,
             Durability::TransientLocal => policy::Durability::TransientLocal,
-        })
-        .history(policy::History::KeepLast { depth })
-        .resource_limits(policy::ResourceLimits {
-            max_samples: depth,
-            max_instances: 1,
-            max_samples_per_instance: depth,
-        })
-        .build();
-    context.domain_participant().create_topic(
-        name.to_dds_name("rt", node_name, ""),
-        MessageTypeName::new(package, type_name).dds_msg_type(),
-        &qos,
-        TopicKind::NoKey,
+        },
+        depth,
     )
-}
-
-/// Limits what RustDDS and ros2-client log (through the `log` facade) to
-/// `$ISOCHRON_DDS_LOG` (`off`, `error`, `warn`, `info`, `debug`, `trace`; default
-/// `error`): they report routine discovery events as warnings many times a second.
-/// Call after the process's logging is set up.
-pub fn limit_dds_logging() {
-    let level = std::env::var("ISOCHRON_DDS_LOG")
-        .ok()
-        .and_then(|v| v.trim().parse::<log::LevelFilter>().ok())
-        .unwrap_or(log::LevelFilter::Error);
-    log::set_max_level(level);
-}
-
-/// The domain id: `configured`, else `$ROS_DOMAIN_ID`, else 0.
-pub fn domain_id(configured: Option<u16>) -> Result<u16, DomainIdError> {
-    if let Some(d) = configured {
-        return Ok(d);
-    }
-    match std::env::var("ROS_DOMAIN_ID") {
-        Ok(v) if !v.trim().is_empty() => v
-            .trim()
-            .parse::<u16>()
-            .ok()
-            .filter(|d| *d <= MAX_DOMAIN_ID)
-            .ok_or(DomainIdError { value: v }),
-        _ => Ok(0),
-    }
 }
 
 /// The interfaces DDS may use: `configured`, else loopback only when ROS's own
@@ -696,19 +592,11 @@ mod tests {
     }
 
     #[test]
-    fn domain_and_interfaces_prefer_the_config() {
-        assert_eq!(domain_id(Some(42)), Ok(42));
+    fn interfaces_prefer_the_config() {
         let lo: IpAddr = "127.0.0.1".parse().unwrap();
         assert_eq!(interfaces(&[lo]), vec![lo]);
         assert!(topic_name("/isochron/activity_costmap").is_ok());
         assert!(topic_name("/bad//name").is_err());
         assert!(topic_name("/bad name").is_err());
-        assert_eq!(
-            DomainIdError {
-                value: "300".into()
-            }
-            .to_string(),
-            "ROS_DOMAIN_ID=300: expected 0 to 232"
-        );
     }
 }

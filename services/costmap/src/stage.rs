@@ -6,6 +6,7 @@ use std::hash::{Hash, Hasher};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
+use isochron_dds::{domain_id, limit_dds_logging};
 use isochron_planning::grid::MapGrid;
 use isochron_planning::plan::{DayRange, PlanError};
 use isochron_planning::plan_service::{PlanServer, answer_now, answer_offline};
@@ -26,7 +27,7 @@ use crate::msgs::{
     CostmapFilterInfo, Header, MapMetaData, OccupancyGrid, OccupancyGridUpdate, Point, Pose,
     PoseArray, Quaternion, Time,
 };
-use crate::ros::{PublishError, RosOutput, RosSettings, domain_id, interfaces, limit_dds_logging};
+use crate::ros::{PublishError, RosOutput, RosSettings, interfaces};
 use isochron_planning::snapshot::{self, FloorPlan, Snapshot, SnapshotError};
 
 /// How long a read long-term model is trusted before the store is checked again.

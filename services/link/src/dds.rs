@@ -8,74 +8,23 @@
 
 use std::net::IpAddr;
 
-use ros2_client::dds::{Context, Node, Publisher, Subscription};
-use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions};
-use rustdds::{DomainParticipantBuilder, QosPolicies, QosPolicyBuilder, TopicKind, policy};
+use ros2_client::dds::Node;
+/// The writer and reader types [`LinkDds`] makes.
+pub use ros2_client::dds::{Publisher, Subscription};
+use ros2_client::{CreateResult, Name};
+use rustdds::{QosPolicies, policy};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
+use isochron_dds::{DdsError, RosNode, keep_last};
 use isochron_shared::topology::StageKind;
 
 use crate::msgs::{Delivery, LinkStream, Message, Status};
 
-/// Highest DDS domain id whose RTPS ports fit in 16 bits.
-pub const MAX_DOMAIN_ID: u16 = 232;
-
-/// Why the DDS side could not start.
-#[derive(Debug, thiserror::Error)]
-#[error("starting DDS on domain {domain}: {detail}")]
-pub struct DdsError {
-    /// The domain.
-    pub domain: u16,
-    /// What failed.
-    pub detail: String,
-}
-
-impl isochron_shared::exit::Classify for DdsError {
-    /// DDS did not start (ports, interfaces): the network side is unavailable.
-    fn exit_code(&self) -> i32 {
-        isochron_shared::exit::UNAVAILABLE
-    }
-}
-
-/// `$ROS_DOMAIN_ID` is not a domain id.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("ROS_DOMAIN_ID={value}: expected 0 to {MAX_DOMAIN_ID}")]
-pub struct DomainIdError {
-    /// The variable's value.
-    pub value: String,
-}
-
-impl isochron_shared::exit::Classify for DomainIdError {
-    fn exit_code(&self) -> i32 {
-        isochron_shared::exit::CONFIG
-    }
-}
-
-/// The domain: `configured`, else `$ROS_DOMAIN_ID`, else 0.
-pub fn domain_id(configured: Option<u16>) -> Result<u16, DomainIdError> {
-    if let Some(d) = configured {
-        return Ok(d);
-    }
-    match std::env::var("ROS_DOMAIN_ID") {
-        Ok(v) if !v.trim().is_empty() => v
-            .trim()
-            .parse::<u16>()
-            .ok()
-            .filter(|d| *d <= MAX_DOMAIN_ID)
-            .ok_or(DomainIdError { value: v }),
-        _ => Ok(0),
-    }
-}
-
 /// The link's DDS participant and node.
 pub struct LinkDds {
-    node: Node,
-    node_name: NodeName,
+    ros: RosNode,
     namespace: String,
-    domain: u16,
-    context: Context,
-    _spinner: Option<std::thread::JoinHandle<()>>,
 }
 
 impl LinkDds {
@@ -87,55 +36,15 @@ impl LinkDds {
         box_id: &str,
         namespace: &str,
     ) -> Result<LinkDds, DdsError> {
-        let dds = |detail: String| DdsError { domain, detail };
-        // RustDDS's own log is noisy at info; errors only unless ISOCHRON_DDS_LOG says.
-        let level = std::env::var("ISOCHRON_DDS_LOG")
-            .ok()
-            .and_then(|v| v.trim().parse::<log::LevelFilter>().ok())
-            .unwrap_or(log::LevelFilter::Error);
-        log::set_max_level(level);
-        let mut builder = DomainParticipantBuilder::new(domain);
-        if !interfaces.is_empty() {
-            builder = builder.with_only_networks(interfaces.iter().copied());
-        }
-        let participant = builder.build().map_err(|e| dds(format!("{e:?}")))?;
-        let context =
-            Context::from_domain_participant(participant).map_err(|e| dds(format!("{e:?}")))?;
-        let base = if box_id.is_empty() {
+        isochron_dds::limit_dds_logging();
+        let name = if box_id.is_empty() {
             "link".to_string()
         } else {
             format!("link_{box_id}")
         };
-        let node_name = NodeName::new("/isochron", &base)
-            .map_err(|e| dds(format!("node name {base}: {e:?}")))?;
-        let mut node = context
-            .new_node(
-                node_name.clone(),
-                NodeOptions::new()
-                    .enable_rosout(false)
-                    .start_parameter_services(false),
-            )
-            .map_err(|e| dds(format!("creating the node: {e:?}")))?;
-        // The spinner answers discovery and keeps the node in the ROS graph.
-        let spinner = match node.spinner() {
-            Ok(spinner) => std::thread::Builder::new()
-                .name("ros2-spinner".into())
-                .spawn(move || {
-                    let _ = futures::executor::block_on(spinner.spin());
-                })
-                .ok(),
-            Err(e) => {
-                tracing::warn!("ROS 2 spinner not started: {e:?}");
-                None
-            }
-        };
         Ok(LinkDds {
-            node,
-            node_name,
+            ros: RosNode::start(domain, interfaces, &name)?,
             namespace: namespace.to_string(),
-            domain,
-            context,
-            _spinner: spinner,
         })
     }
 
@@ -146,89 +55,65 @@ impl LinkDds {
 
     /// The node, for the publishers' matched-subscription counts.
     pub fn node(&self) -> &Node {
-        &self.node
+        self.ros.node()
     }
 
-    fn topic(
-        &self,
+    /// The `suffix` topic of `camera` (message `isochron_msgs/msg/<msg>`) and an
+    /// endpoint on it: a writer or a reader, as the caller asks.
+    fn endpoint<M, E: Endpoint<M>>(
+        &mut self,
         camera: &str,
-        suffix: &str,
-        msg: &str,
-        qos: &QosPolicies,
-    ) -> Result<rustdds::Topic, DdsError> {
+        (suffix, msg): (&str, &str),
+        qos: QosPolicies,
+    ) -> Result<E, DdsError> {
         let name = self.topic_name(camera, suffix);
-        let dds = |detail: String| DdsError {
-            domain: self.domain,
-            detail,
-        };
-        let parsed = Name::parse(&name).map_err(|e| dds(format!("topic {name}: {e:?}")))?;
-        self.context
-            .domain_participant()
-            .create_topic(
-                parsed.to_dds_name("rt", &self.node_name, ""),
-                MessageTypeName::new("isochron_msgs", msg).dds_msg_type(),
-                qos,
-                TopicKind::NoKey,
-            )
-            .map_err(|e| dds(format!("creating topic {name}: {e:?}")))
+        let parsed =
+            Name::parse(&name).map_err(|e| self.ros.error(format!("topic {name}: {e:?}")))?;
+        let topic = self.ros.topic(&parsed, ("isochron_msgs", msg), &qos)?;
+        patiently(|| E::create(self.ros.node_mut(), &topic)).map_err(|e| {
+            self.ros.error(format!(
+                "creating the {suffix} {} of {camera}: {e:?}",
+                E::WHAT
+            ))
+        })
     }
 
-    fn writer<M: Serialize>(
-        &mut self,
-        camera: &str,
-        (suffix, msg): (&str, &str),
-        qos: QosPolicies,
-    ) -> Result<Publisher<M>, DdsError> {
-        let topic = self.topic(camera, suffix, msg, &qos)?;
-        patiently(|| self.node.create_publisher(&topic, None))
-            .map_err(|e| self.error(format!("creating the {suffix} writer of {camera}: {e:?}")))
-    }
-
-    fn reader<M: DeserializeOwned + 'static>(
-        &mut self,
-        camera: &str,
-        (suffix, msg): (&str, &str),
-        qos: QosPolicies,
-    ) -> Result<Subscription<M>, DdsError> {
-        let topic = self.topic(camera, suffix, msg, &qos)?;
-        patiently(|| self.node.create_subscription(&topic, None))
-            .map_err(|e| self.error(format!("creating the {suffix} reader of {camera}: {e:?}")))
-    }
-
-    /// A writer of stream `S` of `camera`; `queue` is the depth of a queued
-    /// stream's DDS history.
-    pub fn publisher<S: LinkStream>(
+    /// A writer or a reader (as the caller's type says: [`Publisher`] or
+    /// [`Subscription`]) of stream `S` of `camera`; `queue` is the depth of a
+    /// queued stream's DDS history.
+    pub fn stream<S: LinkStream, E: Endpoint<Message<S>>>(
         &mut self,
         camera: &str,
         queue: usize,
-    ) -> Result<Publisher<Message<S>>, DdsError> {
-        self.writer(camera, (S::SUFFIX, S::MSG), qos(S::DELIVERY, queue))
+    ) -> Result<E, DdsError> {
+        self.endpoint(camera, (S::SUFFIX, S::MSG), qos(S::DELIVERY, queue))
     }
 
-    /// A reader of stream `S` of `camera`.
-    pub fn subscription<S: LinkStream>(
-        &mut self,
-        camera: &str,
-        queue: usize,
-    ) -> Result<Subscription<Message<S>>, DdsError> {
-        self.reader(camera, (S::SUFFIX, S::MSG), qos(S::DELIVERY, queue))
+    /// The writer or the reader of `camera`'s stages' status.
+    pub fn status<E: Endpoint<Status>>(&mut self, camera: &str) -> Result<E, DdsError> {
+        self.endpoint(camera, STATUS, status_qos())
     }
+}
 
-    /// The writer of `camera`'s stages' status.
-    pub fn status_publisher(&mut self, camera: &str) -> Result<Publisher<Status>, DdsError> {
-        self.writer(camera, STATUS, status_qos())
+/// A DDS endpoint of the link for messages `M`: a writer or a reader.
+pub trait Endpoint<M>: Sized {
+    /// What it is called in errors.
+    const WHAT: &'static str;
+    /// Creates it on `topic`.
+    fn create(node: &mut Node, topic: &rustdds::Topic) -> CreateResult<Self>;
+}
+
+impl<M: Serialize> Endpoint<M> for Publisher<M> {
+    const WHAT: &'static str = "writer";
+    fn create(node: &mut Node, topic: &rustdds::Topic) -> CreateResult<Self> {
+        node.create_publisher(topic, None)
     }
+}
 
-    /// The reader of `camera`'s stages' status.
-    pub fn status_subscription(&mut self, camera: &str) -> Result<Subscription<Status>, DdsError> {
-        self.reader(camera, STATUS, status_qos())
-    }
-
-    fn error(&self, detail: String) -> DdsError {
-        DdsError {
-            domain: self.domain,
-            detail,
-        }
+impl<M: DeserializeOwned + 'static> Endpoint<M> for Subscription<M> {
+    const WHAT: &'static str = "reader";
+    fn create(node: &mut Node, topic: &rustdds::Topic) -> CreateResult<Self> {
+        node.create_subscription(topic, None)
     }
 }
 
@@ -268,16 +153,7 @@ fn qos(delivery: Delivery, queue: usize) -> QosPolicies {
             max_blocking_time: rustdds::Duration::ZERO,
         },
     };
-    QosPolicyBuilder::new()
-        .reliability(reliability)
-        .durability(policy::Durability::Volatile)
-        .history(policy::History::KeepLast { depth })
-        .resource_limits(policy::ResourceLimits {
-            max_samples: depth,
-            max_instances: 1,
-            max_samples_per_instance: depth,
-        })
-        .build()
+    keep_last(reliability, policy::Durability::Volatile, depth)
 }
 
 /// Status: reliable and keep last one report per stage of a camera, so the
@@ -285,21 +161,4 @@ fn qos(delivery: Delivery, queue: usize) -> QosPolicies {
 /// (latest-only per stage).
 fn status_qos() -> QosPolicies {
     qos(Delivery::Queued, StageKind::ALL.len())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_config_decides_the_domain() {
-        assert_eq!(domain_id(Some(42)), Ok(42));
-        assert_eq!(
-            DomainIdError {
-                value: "300".into()
-            }
-            .to_string(),
-            "ROS_DOMAIN_ID=300: expected 0 to 232"
-        );
-    }
 }

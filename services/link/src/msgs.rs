@@ -134,6 +134,13 @@ mod tests {
             .0
     }
 
+    /// A sample of stream `S` of box_a after the crossing, checked as received.
+    fn crossed<S: LinkStream>(header: &S::Header, payload: &[S::Element]) -> Message<S> {
+        let back = round_trip(&Message::<S>::from_sample("box_a", header, payload));
+        back.validate(&cam()).unwrap();
+        back
+    }
+
     fn activity() -> Message<Activity> {
         let mut p = Preamble::new::<BlockActivity>(Stream::Activity, cam(), 41, 6);
         p.capture_time_ns = 1_700_000_000_123_456_789;
@@ -201,9 +208,7 @@ mod tests {
             peak: 2.5,
             threshold: 1.0,
         };
-        let msg = Message::<Events>::from_sample("box_a", &ev, &[4, 9]);
-        let back = round_trip(&msg);
-        back.validate(&cam()).unwrap();
+        let back = crossed::<Events>(&ev, &[4, 9]);
         assert_eq!(back.header.zone_name(), "door");
         assert_eq!(
             (back.header.preamble.sequence, back.payload),
@@ -217,15 +222,9 @@ mod tests {
             roi_w: 20,
             ..Default::default()
         };
-        let person = Detection {
-            x: 1.0,
-            w: 4.0,
-            score: 0.9,
-            ..Default::default()
-        };
-        let msg = Message::<Detections>::from_sample("box_a", &det, &[person]);
-        let back = round_trip(&msg);
-        back.validate(&cam()).unwrap();
+        let mut person = Detection::default();
+        (person.x, person.w, person.score) = (1.0, 4.0, 0.9);
+        let back = crossed::<Detections>(&det, &[person]);
         assert_eq!((back.header.roi_w, back.payload), (20, vec![person]));
 
         let mut status = StageStatus {

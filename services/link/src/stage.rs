@@ -32,18 +32,82 @@ use ros2_client::WriteError;
 use ros2_client::dds::{Node, Publisher, Subscription};
 
 use isochron_shared::config::LoadedConfig;
+use isochron_shared::exit;
 use isochron_shared::ipc::{Activity, Detections, Events, Ipc, StatusPublisher, StatusSubscriber};
-use isochron_shared::service::Fatal;
+use isochron_shared::service::{Fatal, open_files, raise_open_file_limit};
 use isochron_shared::stage::{Context, Input, Output, Stage, Woken};
 use isochron_shared::topology::StageKind;
 use isochron_shared::wire::{CameraId, StreamHeader, fixed_str};
 
-use crate::dds::{LinkDds, domain_id};
+use crate::dds::LinkDds;
 use crate::msgs::{Delivery, LinkStream, Message, Status, cdr_len};
 
 /// How often the DDS readers are polled: a message waits at most this long on
 /// the importing box.
 pub const POLL: Duration = Duration::from_millis(20);
+
+/// Files a link needs besides what it holds when it starts: RustDDS's
+/// participant (its sockets and event loop: about 50, counted in the site bench's
+/// link), then four sockets per DDS reader and two per writer (RustDDS's poll
+/// and status channels are socket pairs; it panics when it cannot make one), and
+/// iceoryx2's: an imported camera's three publishers (each a port tag, the
+/// service's dynamic config and its data segment) with their notifiers (a port
+/// tag and the event service's dynamic config) and a status publisher per stage
+/// (3 files); an exported camera's three subscribers (a port tag, the dynamic
+/// config, the publisher's data segment) with their listeners (a socket, a port
+/// tag, the event's dynamic config) and a status subscriber per stage (3).
+struct FileBudget {
+    dds_base: u64,
+    per_import: u64,
+    per_export: u64,
+    spare: u64,
+}
+
+impl FileBudget {
+    fn new() -> Self {
+        let stages = camera_stages().count() as u64;
+        let (reader, writer) = (4, 2);
+        FileBudget {
+            dds_base: 64,
+            per_import: 4 * reader + 3 * (3 + 2) + 3 * stages,
+            per_export: 4 * writer + 3 * (3 + 3) + 3 * stages,
+            spare: 64,
+        }
+    }
+
+    /// Files needed by a link of `imports` and `exports` cameras, on top of `open`.
+    fn need(&self, open: u64, imports: usize, exports: usize) -> u64 {
+        open + self.dds_base
+            + imports as u64 * self.per_import
+            + exports as u64 * self.per_export
+            + self.spare
+    }
+}
+
+/// Checks, before joining DDS, that the process may open the files the link
+/// will need (after raising its soft limit to its hard one); else fails with one
+/// line naming the limit to set and the value.
+fn check_open_files(imports: usize, exports: usize) -> Result<(), Fatal> {
+    let (Some(limit), Some(open)) = (raise_open_file_limit(), open_files()) else {
+        return Ok(());
+    };
+    let budget = FileBudget::new();
+    let need = budget.need(open, imports, exports);
+    if need > limit {
+        return Err(Fatal::new(
+            exit::CONFIG,
+            format!(
+                "importing {imports} and exporting {exports} cameras needs about {need} open files \
+                 ({} per imported camera: DDS readers' sockets and iceoryx2 ports) but this process \
+                 may open {limit}: raise LimitNOFILE= of isochron-link.service (or `ulimit -n` where \
+                 it is started by hand) to at least {need}",
+                budget.per_import
+            ),
+        ));
+    }
+    tracing::info!(open, need, limit, "open files");
+    Ok(())
+}
 
 /// The stages whose status crosses with a camera.
 fn camera_stages() -> impl Iterator<Item = StageKind> {
@@ -97,7 +161,7 @@ struct ExportLane<S: LinkStream> {
 impl<S: LinkStream> ExportLane<S> {
     fn new(dds: &mut LinkDds, camera: &str, queue: usize) -> Result<Self, Fatal> {
         Ok(ExportLane {
-            writer: dds.publisher::<S>(camera, queue)?,
+            writer: dds.stream::<S, _>(camera, queue)?,
             queue: VecDeque::new(),
             last_sequence: None,
             counts: Counts::default(),
@@ -184,7 +248,7 @@ struct ImportLane<'ipc, S: LinkStream> {
 impl<'ipc, S: LinkStream> ImportLane<'ipc, S> {
     fn new(dds: &mut LinkDds, ipc: &'ipc Ipc, camera: &str, queue: usize) -> Result<Self, Fatal> {
         Ok(ImportLane {
-            reader: dds.subscription::<S>(camera, queue)?,
+            reader: dds.stream::<S, _>(camera, queue)?,
             output: Output::new(ipc, camera),
             last_sequence: None,
             counts: Counts::default(),
@@ -312,13 +376,14 @@ impl<'ipc> LinkStage<'ipc> {
                 "[link] exports and imports no camera: nothing to do (see link.export, link.import)"
             );
         }
-        let domain = domain_id(link.ros_domain_id)?;
+        let domain = isochron_dds::domain_id(link.ros_domain_id)?;
         let interfaces: Vec<IpAddr> = link
             .dds_interfaces
             .iter()
             .filter_map(|a| a.parse().ok())
             .collect();
         let queue = link.queue_messages();
+        check_open_files(link.import.len(), link.export.len())?;
         let mut dds = LinkDds::start(domain, &interfaces, &link.box_id, link.namespace())?;
         let mut exports = Vec::new();
         let mut inputs: LinkInputs = Default::default();
@@ -333,7 +398,7 @@ impl<'ipc> LinkStage<'ipc> {
                 events: ExportLane::new(&mut dds, camera, queue)?,
                 detections: ExportLane::new(&mut dds, camera, queue)?,
                 status_in,
-                status_out: dds.status_publisher(camera)?,
+                status_out: dds.status(camera)?,
                 status: Counts::default(),
             });
             inputs.0.push(Input::open(ipc, camera)?);
@@ -348,7 +413,7 @@ impl<'ipc> LinkStage<'ipc> {
                 activity: ImportLane::new(&mut dds, ipc, camera, queue)?,
                 events: ImportLane::new(&mut dds, ipc, camera, queue)?,
                 detections: ImportLane::new(&mut dds, ipc, camera, queue)?,
-                status_in: dds.status_subscription(camera)?,
+                status_in: dds.status(camera)?,
                 status_out: HashMap::new(),
                 status: Counts::default(),
                 last: None,
