@@ -654,22 +654,6 @@ fn interrupted() -> bool {
     INTERRUPTED.load(Ordering::Relaxed)
 }
 
-/// Raises the soft limit of open files to the hard one: hundreds of iceoryx2
-/// services in the bench and in processes serving many cameras (children inherit).
-fn raise_open_file_limit() {
-    // SAFETY: getrlimit/setrlimit on a valid struct.
-    unsafe {
-        let mut lim = libc::rlimit {
-            rlim_cur: 0,
-            rlim_max: 0,
-        };
-        if libc::getrlimit(libc::RLIMIT_NOFILE, &mut lim) == 0 && lim.rlim_cur < lim.rlim_max {
-            lim.rlim_cur = lim.rlim_max;
-            libc::setrlimit(libc::RLIMIT_NOFILE, &lim);
-        }
-    }
-}
-
 /// The status reports of one stage of one camera within the measurement window.
 struct Track {
     stage: StageKind,
@@ -1724,7 +1708,9 @@ fn main() {
             std::process::exit(1);
         }
     };
-    raise_open_file_limit();
+    // Hundreds of iceoryx2 services in the bench and in the processes it starts
+    // (children inherit the limit).
+    isochron_shared::service::raise_open_file_limit();
     catch_interrupts();
 
     print_header(&opts, &codec);
