@@ -25,7 +25,7 @@ pub const MAGIC: u32 = u32::from_le_bytes(*b"ISOC");
 
 /// Version of the layout of all headers and payload elements in this file. Bump it on
 /// any change to a `#[repr(C)]` type here.
-pub const LAYOUT_VERSION: u16 = 2;
+pub const LAYOUT_VERSION: u16 = 3;
 
 /// Longest camera id, in bytes.
 pub const CAMERA_ID_LEN: usize = 24;
@@ -36,6 +36,12 @@ pub const FLAG_END_OF_STREAM: u32 = 1 << 0;
 pub const FLAG_ILLUMINATION: u32 = 1 << 1;
 /// Header flag (frames): the frame follows a source reconnect or a gap in capture.
 pub const FLAG_DISCONTINUITY: u32 = 1 << 2;
+/// Header flag (motion): the blocks' `luma` and `texture` were measured on this
+/// frame (otherwise they are zero).
+pub const FLAG_APPEARANCE: u32 = 1 << 3;
+
+/// `BlockMotion::luma` and `texture` are in 1/`APPEARANCE_SCALE` grey levels.
+pub const APPEARANCE_SCALE: u16 = 256;
 
 /// Checks a sample's magic number and layout version, the first fields of every
 /// shared-memory type.
@@ -443,15 +449,21 @@ pub struct BlockMotion {
     pub direction: u8,
     /// Zero.
     pub reserved: [u8; 3],
+    /// Appearance of the block in the current frame (with [`FLAG_APPEARANCE`],
+    /// else 0): its mean grey level, in 1/[`APPEARANCE_SCALE`] grey levels.
+    pub luma: u16,
+    /// ... and its texture: the mean absolute difference of each pixel to its
+    /// right and lower neighbours, in 1/[`APPEARANCE_SCALE`] grey levels.
+    pub texture: u16,
 }
 
 /// Header of a `motion` sample; the payload is `grid_w * grid_h` [`BlockMotion`]s,
 /// row-major, one sample per pair of consecutive frames (none for the first frame
 /// of a run). `preamble.capture_time_ns` and `origin_wall_ns` are the current
-/// frame's. Flags: [`FLAG_END_OF_STREAM`] (the frames ended; no payload) and
+/// frame's. Flags: [`FLAG_END_OF_STREAM`] (the frames ended; no payload),
 /// [`FLAG_ILLUMINATION`] (a global brightness step of at least half the difference
 /// threshold was compensated, or a lighting change was detected and every block
-/// zeroed).
+/// zeroed) and [`FLAG_APPEARANCE`] (the blocks' appearance was measured).
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
 #[type_name("isochron::MotionHeader")]
 #[repr(C)]
@@ -536,6 +548,10 @@ pub struct BlockActivity {
     pub lt_mean: f32,
     /// Long-term standard deviation at the current t*.
     pub lt_sigma: f32,
+    /// Presence band: 1 while something that entered with motion stays in the
+    /// block (it differs from the block's learned empty appearance), else 0. See
+    /// the cascade's `presence` module.
+    pub present: f32,
 }
 
 /// Header of an `activity` sample (1 Hz); payload `grid_w * grid_h` [`BlockActivity`].

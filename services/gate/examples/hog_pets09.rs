@@ -166,7 +166,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         // Only the pairs of the second before a sampled frame.
         let next_sample = n.div_ceil(step) * step;
         if n > 0 && next_sample - n < per_second {
-            det.process(&previous, &pixels, &mut blocks)?;
+            det.process(&previous, &pixels, n as i64 * 100_000_000, &mut blocks)?;
             for (i, b) in blocks.iter().enumerate() {
                 if b.density >= motion_config.density_threshold {
                     active.insert(i as u32);

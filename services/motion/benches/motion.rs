@@ -6,7 +6,11 @@
 //!
 //! * `isochron` — the whole motion stage per frame: brightness offset, fused kernel
 //!   (runtime-dispatched: AVX2 when the CPU has it), block features, illumination
-//!   check, written into a block buffer;
+//!   check, written into a block buffer, and the block appearance for the presence
+//!   band on the frames it is due (`motion.appearance_hz`, 2 Hz: every fifth frame
+//!   of vtest's 10 frames/s, by their capture times);
+//! * `isochron-no-appearance` — the same without the appearance: the band's cost is
+//!   the ratio of the two (`appearance_cost` in the JSON line);
 //! * `isochron-portable`, `isochron-scalar` — the same with the other kernels;
 //! * `opencv-absdiff` — `absdiff` + `threshold` + block mean (`resize` INTER_AREA to
 //!   the block grid): density only;
@@ -19,7 +23,7 @@
 //! method's time is the median over the rounds, in thread CPU time (time spent
 //! waiting for a core is not the method's cost). Output: a table, then as the last
 //! line one JSON object
-//! `{"bench":"motion","fps_per_core":..,"over_absdiff":..,"over_mog2":..,"over_dis":..,"floor_fraction":..}`.
+//! `{"bench":"motion","fps_per_core":..,"over_absdiff":..,"over_mog2":..,"over_dis":..,"floor_fraction":..,"appearance_cost":..}`.
 //!
 //! Options (after `--`): `--frames N` (pairs of the fast methods, default 200),
 //! `--rounds N` (default 15), `--profile` (only our kernel, for `perf record` or
@@ -38,6 +42,11 @@ use opencv::{core, imgproc, video, videoio};
 
 /// Pairs the slow methods (scalar, MOG2, DIS) process per round.
 const SLOW_PAIRS: usize = 6;
+
+/// Capture time of vtest.avi's frame `i` (10 frames/s), ns.
+fn capture_ns(i: usize) -> i64 {
+    i as i64 * 100_000_000
+}
 
 struct Options {
     frames: usize,
@@ -153,7 +162,7 @@ fn main() -> opencv::Result<()> {
         for _ in 0..o.rounds {
             let start = thread_cpu_ns();
             for i in 1..=pairs {
-                det.process(&frames[i - 1], &frames[i], &mut blocks)
+                det.process(&frames[i - 1], &frames[i], capture_ns(i), &mut blocks)
                     .expect("sizes");
             }
             println!(
@@ -185,21 +194,41 @@ fn main() -> opencv::Result<()> {
         }),
         times: Vec::new(),
     });
-    for imp in Implementation::available().into_iter().rev() {
+    let without_appearance = MotionParams {
+        appearance_hz: 0.0,
+        ..params
+    };
+    let best = Implementation::detect();
+    let variants = Implementation::available()
+        .into_iter()
+        .rev()
+        .map(|imp| (imp, params))
+        .chain([(best, without_appearance)]);
+    for (imp, params) in variants {
         let mut det = MotionDetector::with_implementation(geom, params, imp, &[]);
         let mut blocks = vec![BlockMotion::default(); geom.blocks()];
+        let appearance = params.appearance_hz > 0.0;
         methods.push(Method {
             name: match imp {
-                i if i == Implementation::detect() => "isochron",
+                _ if !appearance => "isochron-no-appearance",
+                i if i == best => "isochron",
                 Implementation::Portable => "isochron-portable",
                 Implementation::Scalar => "isochron-scalar",
                 Implementation::Avx2 => "isochron-avx2",
             },
-            what: format!("{} kernel + features + illumination check", imp.name()),
+            what: format!(
+                "{} kernel + features + illumination check{}",
+                imp.name(),
+                if appearance {
+                    " + appearance at 2 Hz"
+                } else {
+                    ""
+                }
+            ),
             slow: imp == Implementation::Scalar,
             run: Box::new(move |first, last| {
                 for i in first..=last {
-                    det.process(&frames[i - 1], &frames[i], &mut blocks)
+                    det.process(&frames[i - 1], &frames[i], capture_ns(i), &mut blocks)
                         .expect("frame sizes match");
                 }
                 black_box(&blocks);
@@ -298,6 +327,10 @@ fn main() -> opencv::Result<()> {
             .expect("method ran")
     };
     let ours = ns("isochron");
+    eprintln!(
+        "motion bench: the appearance for the presence band adds {:.1} % to the stage's time per frame",
+        (ours / ns("isochron-no-appearance") - 1.0) * 100.0
+    );
     println!(
         "{:<18} {:>10} {:>10} {:>9}  what",
         "method", "us/frame", "frames/s", "vs ours"
@@ -320,6 +353,7 @@ fn main() -> opencv::Result<()> {
         "over_mog2": round(ns("opencv-mog2") / ours, 1),
         "over_dis": round(ns("opencv-dis") / ours, 1),
         "floor_fraction": round(ns("read-floor") / ours, 3),
+        "appearance_cost": round(ours / ns("isochron-no-appearance") - 1.0, 3),
     });
     if o.quick {
         json["quick"] = true.into();

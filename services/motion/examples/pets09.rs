@@ -74,7 +74,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let mut score = Score::default();
         let mut illumination = 0;
         for n in 1..frames.len() {
-            let r = det.process(&frames[n - 1], &frames[n], &mut blocks)?;
+            let r = det.process(
+                &frames[n - 1],
+                &frames[n],
+                n as i64 * 100_000_000,
+                &mut blocks,
+            )?;
             illumination += (r.flags != 0) as u32;
             score.add(&gt, n as u64, det.geometry(), &blocks, density);
         }

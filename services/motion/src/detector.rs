@@ -28,8 +28,9 @@
 use std::mem::MaybeUninit;
 
 use isochron_shared::config::{MotionBackend, MotionConfig, Polygon};
-use isochron_shared::wire::{BlockMotion, DIRECTION_NONE, FLAG_ILLUMINATION};
+use isochron_shared::wire::{BlockMotion, DIRECTION_NONE, FLAG_APPEARANCE, FLAG_ILLUMINATION};
 
+use crate::appearance::{Appearance, AppearanceSampler};
 use crate::dis::DisFlow;
 use crate::features::Features;
 use crate::kernel::{Geometry, GeometryError, Implementation, MotionKernel, Thresholds};
@@ -48,6 +49,9 @@ pub struct MotionParams {
     pub density_threshold: f32,
     /// Fraction of unmasked blocks that must move for an illumination change.
     pub illumination_fraction: f32,
+    /// Block appearance (for the presence band) is measured at most this often per
+    /// second of capture time; 0: never.
+    pub appearance_hz: f64,
 }
 
 impl MotionParams {
@@ -61,6 +65,7 @@ impl MotionParams {
             },
             density_threshold: config.density_threshold,
             illumination_fraction: config.illumination_fraction,
+            appearance_hz: config.appearance_hz,
         }
     }
 }
@@ -99,6 +104,8 @@ pub struct FrameReport {
     pub offset: i16,
     /// Unmasked blocks at or above the density threshold, after suppression.
     pub moving_blocks: usize,
+    /// The blocks' appearance was measured on this frame (`FLAG_APPEARANCE`).
+    pub appearance: bool,
 }
 
 enum Backend {
@@ -115,6 +122,8 @@ pub struct MotionDetector {
     masked_blocks: usize,
     /// `0 .. blocks`, for backends that compute every block.
     all_blocks: Vec<usize>,
+    appearance: Appearance,
+    sampler: AppearanceSampler,
 }
 
 impl MotionDetector {
@@ -166,6 +175,8 @@ impl MotionDetector {
             mask,
             masked_blocks,
             all_blocks: (0..geom.blocks()).collect(),
+            appearance: Appearance::new(&geom),
+            sampler: AppearanceSampler::new(params.appearance_hz),
         }
     }
 
@@ -197,11 +208,14 @@ impl MotionDetector {
         }
     }
 
-    /// Computes the blocks of the frame pair into `out` (one per block, row-major).
+    /// Computes the blocks of the frame pair into `out` (one per block, row-major);
+    /// `capture_ns` is the current frame's capture time, which decides whether its
+    /// appearance is measured too (at most `appearance_hz` times a second).
     pub fn process(
         &mut self,
         prev: &[u8],
         cur: &[u8],
+        capture_ns: i64,
         out: &mut [BlockMotion],
     ) -> Result<FrameReport, MotionError> {
         // SAFETY: `BlockMotion` and `MaybeUninit<BlockMotion>` have the same layout, and
@@ -212,7 +226,7 @@ impl MotionDetector {
                 out.len(),
             )
         };
-        self.process_uninit(prev, cur, out)
+        self.process_uninit(prev, cur, capture_ns, out)
     }
 
     /// As [`MotionDetector::process`], into possibly uninitialised memory (a loaned
@@ -221,6 +235,7 @@ impl MotionDetector {
         &mut self,
         prev: &[u8],
         cur: &[u8],
+        capture_ns: i64,
         out: &mut [MaybeUninit<BlockMotion>],
     ) -> Result<FrameReport, MotionError> {
         let g = self.geom;
@@ -294,16 +309,30 @@ impl MotionDetector {
             }
         }
         let stepped = 2 * offset.unsigned_abs() as u32 >= p.thresholds.diff as u32;
+        let appearance = self.sampler.due(capture_ns);
+        if appearance {
+            // SAFETY: every element of `out` was written above (`still` first), and
+            // `MaybeUninit<BlockMotion>` has the layout of `BlockMotion`.
+            let blocks = unsafe {
+                std::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<BlockMotion>(), out.len())
+            };
+            self.appearance.measure(cur, &g, &self.mask, blocks);
+        }
+        let mut flags = if suppressed || stepped {
+            FLAG_ILLUMINATION
+        } else {
+            0
+        };
+        if appearance {
+            flags |= FLAG_APPEARANCE;
+        }
         Ok(FrameReport {
-            flags: if suppressed || stepped {
-                FLAG_ILLUMINATION
-            } else {
-                0
-            },
+            flags,
             changed_fraction,
             suppressed,
             offset,
             moving_blocks: if suppressed { 0 } else { changed },
+            appearance,
         })
     }
 }
@@ -392,7 +421,7 @@ mod tests {
 
     fn run(d: &mut MotionDetector, prev: &[u8], cur: &[u8]) -> (FrameReport, Vec<BlockMotion>) {
         let mut out = vec![BlockMotion::default(); d.geometry().blocks()];
-        let report = d.process(prev, cur, &mut out).unwrap();
+        let report = d.process(prev, cur, 0, &mut out).unwrap();
         (report, out)
     }
 
@@ -637,10 +666,10 @@ mod tests {
         let mut d = detector(32, 32, &[]).remove(0);
         let f = vec![0u8; 32 * 32];
         let mut out = vec![BlockMotion::default(); 4];
-        assert!(d.process(&f, &f[..100], &mut out).is_err());
+        assert!(d.process(&f, &f[..100], 0, &mut out).is_err());
         let mut short = vec![BlockMotion::default(); 3];
-        assert!(d.process(&f, &f, &mut short).is_err());
-        assert!(d.process(&f, &f, &mut out).is_ok());
+        assert!(d.process(&f, &f, 0, &mut short).is_err());
+        assert!(d.process(&f, &f, 0, &mut out).is_ok());
     }
 
     #[test]

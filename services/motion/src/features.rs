@@ -150,7 +150,7 @@ impl Features {
             } else {
                 DIRECTION_NONE
             },
-            reserved: [0; 3],
+            ..BlockMotion::default()
         }
     }
 }

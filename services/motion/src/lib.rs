@@ -7,6 +7,8 @@
 //!   reference, portable (LLVM-vectorised) and AVX2, dispatched at run time (off
 //!   x86-64, and on x86-64 without AVX2, the portable kernel runs);
 //! * [`features`]: integer sums → density, coherence, flow vector, 8-way label;
+//! * [`appearance`]: per-block mean grey level and texture of a frame, measured a
+//!   few times a second for the cascade's presence band;
 //! * [`mask`]: camera mask polygons → block mask;
 //! * [`pairing`]: which consecutive frames may be differenced (restarts, gaps);
 //! * [`dis`]: the optional OpenCV DIS optical-flow backend, reduced to the same sums;
@@ -25,10 +27,11 @@
 //! let prev = vec![0u8; w * h];
 //! let cur = vec![0u8; w * h];
 //! let mut blocks = vec![BlockMotion::default(); detector.geometry().blocks()];
-//! let report = detector.process(&prev, &cur, &mut blocks).unwrap();
+//! let report = detector.process(&prev, &cur, 0, &mut blocks).unwrap();
 //! assert_eq!(report.moving_blocks, 0);
 //! ```
 
+pub mod appearance;
 pub mod detector;
 pub mod dis;
 pub mod eval;

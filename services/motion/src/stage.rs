@@ -178,7 +178,14 @@ impl<'ipc> MotionStage<'ipc> {
                 self.output.send_in_place(
                     geom.blocks(),
                     &header.preamble,
-                    |blocks| detector.process_uninit(prev.payload(), sample.payload(), blocks),
+                    |blocks| {
+                        detector.process_uninit(
+                            prev.payload(),
+                            sample.payload(),
+                            header.preamble.capture_time_ns,
+                            blocks,
+                        )
+                    },
                     |report, mut preamble| {
                         preamble.flags = report.flags;
                         MotionHeader {

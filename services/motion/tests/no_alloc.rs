@@ -78,14 +78,20 @@ fn main() {
             MotionDetector::with_implementation(geom, MotionParams::default(), imp, &mask);
         let mut blocks = vec![BlockMotion::default(); geom.blocks()];
         detector
-            .process(&frames[0], &frames[1], &mut blocks)
+            .process(&frames[0], &frames[1], 0, &mut blocks)
             .unwrap(); // warm-up
         let before = ALLOCATIONS.load(Ordering::Relaxed);
         let mut moving = 0;
         for _ in 0..3 {
-            for pair in frames.windows(2) {
+            for (i, pair) in frames.windows(2).enumerate() {
+                // Ten frames a second: the appearance is measured on some.
                 moving += detector
-                    .process(&pair[0], &pair[1], &mut blocks)
+                    .process(
+                        &pair[0],
+                        &pair[1],
+                        (i as i64 + 1) * 100_000_000,
+                        &mut blocks,
+                    )
                     .unwrap()
                     .moving_blocks;
             }

@@ -40,6 +40,11 @@ pub struct MotionConfig {
     pub illumination_fraction: f32,
     /// Backend: `"motion-flow"` (default) or `"dis"`.
     pub backend: MotionBackend,
+    /// Each block's appearance (mean grey level and texture, for the cascade's
+    /// presence band, `[presence]`) is measured on at most this many frames per
+    /// second of capture time, Hz; 0 turns it off (and with it the band).
+    /// Default 2.
+    pub appearance_hz: f64,
 }
 
 impl Default for MotionConfig {
@@ -52,6 +57,7 @@ impl Default for MotionConfig {
             density_threshold: 0.02,
             illumination_fraction: 0.5,
             backend: MotionBackend::MotionFlow,
+            appearance_hz: 2.0,
         }
     }
 }
@@ -84,6 +90,7 @@ impl MotionConfig {
             self.illumination_fraction as f64,
             0.05,
             1.0,
-        )
+        )?;
+        check_range("motion.appearance_hz", self.appearance_hz, 0.0, 100.0)
     }
 }
