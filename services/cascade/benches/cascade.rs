@@ -1,9 +1,12 @@
 //! `cargo xtask bench cascade`: the cascade against the non-cascade reference on the
 //! same motion stream (K = 1200 blocks, 30 fps): time per block-frame, arithmetic
-//! operations per block-frame, state bytes per camera; then the durable commit of one
+//! operations per block-frame, state bytes per camera; the presence band's cost
+//! (the cascade with the band against without); then the durable commit of one
 //! minute to the SQLite store. Prints a table, then as its last line
-//! `{"bench":"cascade","ns_per_block_frame":..,"ops_ratio":..,"state_ratio":..,"time_ratio":..,..}`
-//! (ratios are non-cascade / cascade; times are medians over the runs).
+//! `{"bench":"cascade","ns_per_block_frame":..,"ops_ratio":..,"state_ratio":..,"time_ratio":..,"presence_cost":..,..}`
+//! (ratios are non-cascade / cascade; times are medians over the runs). The bank
+//! comparison runs without the presence band, which both would share; the
+//! service runs with it (`ns_per_block_frame_with_presence`).
 //!
 //! Operations are counted by running both banks once on
 //! [`Counted`](isochron_cascade::filters::Counted), an `f32` that counts every
@@ -34,7 +37,10 @@ use isochron_shared::clock::{Cycle, NS_PER_S, SiteClock, parse_rfc3339};
 use isochron_shared::config::Config;
 use isochron_shared::geometry::BlockGrid;
 use isochron_shared::store::{Baseline, Bin, MinuteCommit, Store, StoreMeta, store_path};
-use isochron_shared::wire::{BlockActivity, BlockMotion, CameraId, MotionHeader, Preamble, Stream};
+use isochron_shared::wire::{
+    APPEARANCE_SCALE, BlockActivity, BlockMotion, CameraId, FLAG_APPEARANCE, MotionHeader,
+    Preamble, Stream,
+};
 
 const GRID_W: u32 = 40;
 const GRID_H: u32 = 30;
@@ -88,9 +94,16 @@ fn frames() -> Vec<Vec<BlockMotion>> {
     let people: Vec<(f32, f32, f32, f32)> = (0..12)
         .map(|_| (rnd() * 40.0, rnd() * 30.0, rnd() - 0.5, rnd() - 0.5))
         .collect();
+    // The floor's appearance: a smooth gradient with some texture; people are
+    // brighter and more textured.
+    let floor = |k: usize| BlockMotion {
+        luma: ((60 + (k % 40) * 3) as u16) * APPEARANCE_SCALE,
+        texture: ((2 + k % 5) as u16) * APPEARANCE_SCALE,
+        ..BlockMotion::default()
+    };
     (0..DISTINCT)
         .map(|f| {
-            let mut b = vec![BlockMotion::default(); k];
+            let mut b: Vec<BlockMotion> = (0..k).map(floor).collect();
             for (i, p) in people.iter().enumerate() {
                 let t = f as f32 * 0.1 + i as f32;
                 let (px, py) = (
@@ -106,7 +119,9 @@ fn frames() -> Vec<Vec<BlockMotion>> {
                             dx: d * p.2,
                             dy: d * p.3,
                             direction: 0,
-                            reserved: [0; 3],
+                            luma: 220 * APPEARANCE_SCALE,
+                            texture: 12 * APPEARANCE_SCALE,
+                            ..BlockMotion::default()
                         };
                     }
                 }
@@ -128,6 +143,10 @@ fn header(camera: CameraId, start: i64, i: i64) -> MotionHeader {
     let k = (GRID_W * GRID_H) as usize;
     let mut preamble = Preamble::new::<BlockMotion>(Stream::Motion, camera, i as u64, k);
     preamble.capture_time_ns = start + i * NS_PER_S / FPS;
+    // The motion stage measures the appearance at 2 Hz.
+    if i % (FPS / 2) == 0 {
+        preamble.flags = FLAG_APPEARANCE;
+    }
     let g = grid();
     MotionHeader {
         preamble,
@@ -148,12 +167,20 @@ struct RunResult {
     outputs: Vec<(SecondOut, Vec<BlockActivity>)>,
 }
 
-/// One run over `seconds` of the stream; keeps the outputs if `keep`.
-fn run<B: FilterBank>(frames: &[Vec<BlockMotion>], seconds: i64, keep: bool) -> RunResult {
+/// One run over `seconds` of the stream, with or without the presence band; keeps
+/// the outputs if `keep`.
+fn run<B: FilterBank>(
+    frames: &[Vec<BlockMotion>],
+    seconds: i64,
+    presence: bool,
+    keep: bool,
+) -> RunResult {
     let camera = CameraId::new("bench").unwrap();
     let clock = SiteClock::new("UTC", Cycle::Daily).unwrap();
     let start = parse_rfc3339("2026-03-02T08:00:00Z").unwrap();
-    let mut cascade: Cascade<B> = Cascade::new(camera, Params::default(), clock, grid(), None);
+    let mut params = Params::default();
+    params.presence.enabled = presence;
+    let mut cascade: Cascade<B> = Cascade::new(camera, params, clock, grid(), None);
     let mut model = MemoryModel::default();
     let headers: Vec<MotionHeader> = (0..seconds * FPS)
         .map(|i| header(camera, start, i))
@@ -346,11 +373,18 @@ fn main() {
     // Count the operations (each bank on the counting type), and check the outputs:
     // the two banks agree, and the counting type computes what f32 does.
     Counted::take();
-    let c = run::<CascadeBank<Counted>>(&frames, run_seconds, true);
+    let c = run::<CascadeBank<Counted>>(&frames, run_seconds, false, true);
     let ops_c = Counted::take();
-    let n = run::<NonCascadeBank<Counted>>(&frames, run_seconds, true);
+    let n = run::<NonCascadeBank<Counted>>(&frames, run_seconds, false, true);
     let ops_n = Counted::take();
-    let plain = run::<CascadeBank>(&frames, run_seconds, true);
+    let plain = run::<CascadeBank>(&frames, run_seconds, false, true);
+    let present = run::<CascadeBank>(&frames, run_seconds, true, true);
+    let present_blocks: f64 = present
+        .outputs
+        .iter()
+        .map(|(_, b)| b.iter().filter(|b| b.present > 0.5).count() as f64)
+        .sum::<f64>()
+        / present.outputs.len().max(1) as f64;
     for (what, result) in [
         (
             "cascade and non-cascade outputs differ",
@@ -368,14 +402,31 @@ fn main() {
     }
     let per_block_frame = |n: u64| n as f64 / block_frames;
     let seconds = c.outputs.len();
-    let (mut tc, mut tn) = (Vec::new(), Vec::new());
-    // Alternate, so that a noisy neighbour hurts both alike.
+    let (mut tc, mut tn, mut tp) = (Vec::new(), Vec::new(), Vec::new());
+    // Alternate, so that a noisy neighbour hurts all alike.
     for _ in 0..runs {
         let elapsed = |r: RunResult| r.elapsed.as_secs_f64() * 1e9 / block_frames;
-        tc.push(elapsed(run::<CascadeBank>(&frames, run_seconds, false)));
-        tn.push(elapsed(run::<NonCascadeBank>(&frames, run_seconds, false)));
+        tc.push(elapsed(run::<CascadeBank>(
+            &frames,
+            run_seconds,
+            false,
+            false,
+        )));
+        tn.push(elapsed(run::<NonCascadeBank>(
+            &frames,
+            run_seconds,
+            false,
+            false,
+        )));
+        tp.push(elapsed(run::<CascadeBank>(
+            &frames,
+            run_seconds,
+            true,
+            false,
+        )));
     }
-    let (ns_c, ns_n) = (median(tc.clone()), median(tn.clone()));
+    let (ns_c, ns_n, ns_p) = (median(tc.clone()), median(tn.clone()), median(tp));
+    let presence_cost = ns_p / ns_c - 1.0;
     let (min_c, min_n) = (
         tc.iter().cloned().fold(f64::MAX, f64::min),
         tn.iter().cloned().fold(f64::MAX, f64::min),
@@ -457,6 +508,11 @@ fn main() {
          (operations counted on the counting type, F_L2 excluded; times on f32)"
     );
     println!(
+        "presence band: {ns_p:.3} ns per block-frame with it, {:+.1} % on the cascade \
+         (appearance on every 15th frame, {present_blocks:.1} blocks present per second on average)",
+        presence_cost * 100.0
+    );
+    println!(
         "{:<34} p50 {commit_p50:.3} ms, p99 {commit_p99:.3} ms ({commits} commits of {} blocks, WAL, synchronous=FULL, in {} on {fs}{})",
         if is_durable {
             "store: durable commit of a minute"
@@ -472,7 +528,7 @@ fn main() {
         }
     );
     println!(
-        "{{\"bench\":\"cascade\",\"ns_per_block_frame\":{ns_c:.3},\"ops_ratio\":{ops_ratio:.3},\"state_ratio\":{state_ratio:.3},\"time_ratio\":{time_ratio:.3},\"commit_p50_ms\":{commit_p50:.3},\"commit_p99_ms\":{commit_p99:.3},\"commit_fs\":\"{fs}\",\"commit_durable\":{is_durable}{}}}",
+        "{{\"bench\":\"cascade\",\"ns_per_block_frame\":{ns_c:.3},\"ops_ratio\":{ops_ratio:.3},\"state_ratio\":{state_ratio:.3},\"time_ratio\":{time_ratio:.3},\"presence_cost\":{presence_cost:.3},\"ns_per_block_frame_with_presence\":{ns_p:.3},\"commit_p50_ms\":{commit_p50:.3},\"commit_p99_ms\":{commit_p99:.3},\"commit_fs\":\"{fs}\",\"commit_durable\":{is_durable}{}}}",
         if quick { ",\"quick\":true" } else { "" }
     );
 }

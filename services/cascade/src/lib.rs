@@ -33,6 +33,7 @@
 //!   T_L1 after it; an older one is dropped (the scene may have changed).
 
 pub mod filters;
+pub mod presence;
 pub mod stage;
 
 use std::collections::HashMap;
@@ -41,8 +42,9 @@ use std::time::Instant;
 use crate::filters::{
     CascadeBank, FilterBank, RateEstimator, SecondInput, alpha, f_l2, warmup_weight,
 };
+use crate::presence::{Presence, PresenceParams, PresenceStats};
 use isochron_shared::clock::{NS_PER_S, SiteClock};
-use isochron_shared::config::CascadeConfig;
+use isochron_shared::config::{CascadeConfig, Config};
 use isochron_shared::geometry::BlockGrid;
 use isochron_shared::health::quantile;
 use isochron_shared::store::{Baseline, Bin, MinuteCommit, Progress, Store, StoreError};
@@ -73,23 +75,35 @@ pub struct Params {
     pub frame_rate: Option<f64>,
     /// Fraction of a minute's expected frames it needs to teach F_L2.
     pub min_coverage: f64,
+    /// The presence band.
+    pub presence: PresenceParams,
 }
 
-impl From<&CascadeConfig> for Params {
-    fn from(c: &CascadeConfig) -> Self {
+impl Params {
+    /// The parameters of a site's `[cascade]`, `[presence]` and `[motion]`.
+    pub fn of(config: &Config) -> Self {
+        let c: &CascadeConfig = &config.cascade;
+        let p = &config.presence;
         Params {
             t_l1_s: c.t_l1_s,
             t_l2_days: c.t_l2_days,
             t_s1_s: c.t_s1_s,
             frame_rate: c.frame_rate,
             min_coverage: c.min_coverage,
+            presence: PresenceParams {
+                enabled: p.enabled && config.motion.appearance_hz > 0.0,
+                absorb_s: p.absorb_s,
+                luma_change: p.luma_change as f32,
+                texture_change: p.texture_change as f32,
+                moving_density: config.motion.density_threshold,
+            },
         }
     }
 }
 
 impl Default for Params {
     fn default() -> Self {
-        Params::from(&CascadeConfig::default())
+        Params::of(&Config::default())
     }
 }
 
@@ -310,6 +324,7 @@ pub struct Cascade<B: FilterBank = CascadeBank> {
     second: Option<SecondState>,
     minute: Option<MinuteState>,
     minute_means: Vec<f32>,
+    presence: Presence,
     out: Vec<BlockActivity>,
     stats: Stats,
 }
@@ -326,6 +341,7 @@ impl<B: FilterBank> Cascade<B> {
     ) -> Self {
         let k = grid.len();
         let rate_in_use = params.frame_rate;
+        let presence = params.presence;
         let l1_one_minus_alpha = rate_in_use.map_or(0.0, |r| 1.0 - alpha(params.t_l1_s, r));
         Cascade {
             camera,
@@ -345,6 +361,7 @@ impl<B: FilterBank> Cascade<B> {
             second: None,
             minute: None,
             minute_means: vec![0.0; k],
+            presence: Presence::new(presence, grid.grid_w() as usize, grid.grid_h() as usize),
             out: vec![BlockActivity::default(); k],
             stats: Stats::default(),
         }
@@ -364,6 +381,11 @@ impl<B: FilterBank> Cascade<B> {
     /// Counters.
     pub fn stats(&self) -> Stats {
         self.stats
+    }
+
+    /// Counters of the presence band.
+    pub fn presence_stats(&self) -> PresenceStats {
+        self.presence.stats()
     }
 
     /// Bytes of per-block filter state.
@@ -478,6 +500,7 @@ impl<B: FilterBank> Cascade<B> {
         self.update_rate(t);
         let w = warmup_weight(self.l1_one_minus_alpha, self.l1_frames) as f32;
         self.bank.frame(blocks, w);
+        self.presence.frame(header.preamble.flags, blocks);
         self.l1_frames += 1;
         self.last_capture_ns = Some(t);
         self.stats.frames += 1;
@@ -500,6 +523,7 @@ impl<B: FilterBank> Cascade<B> {
             self.finish_minute(m, model)?;
         }
         self.bank.reset_short_term();
+        self.presence.reset();
         self.rate.reset();
         self.last_capture_ns = None;
         self.last_second_done = None;
@@ -570,6 +594,7 @@ impl<B: FilterBank> Cascade<B> {
             },
             &mut self.out,
         );
+        self.presence.second(s.index, &mut self.out);
         let (t_star, bin) = match &self.minute {
             Some(m) => (m.t_star, m.bin.as_ref()),
             None => (self.clock.t_star(s.index * NS_PER_S), None),

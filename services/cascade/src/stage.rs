@@ -73,7 +73,7 @@ impl<'ipc> CascadeStage<'ipc> {
         let config = &loaded.config;
         let clock = SiteClock::new(&config.site.time_zone, config.cascade.cycle)
             .map_err(|e| Fatal::new(exit::CONFIG, format!("site.time_zone: {e}")))?;
-        let params = Params::from(&config.cascade);
+        let params = Params::of(config);
         let path = store_path(&loaded.state_dir(), &camera.id);
         let store = if path.exists() {
             let s = Store::open_writer(&path, &camera.id, config.cascade.cycle)?;
@@ -335,6 +335,11 @@ impl Stage for CascadeStage<'_> {
                 st.minutes_sparse,
                 st.minutes_repeated,
                 c.frame_rate().unwrap_or(0.0)
+            );
+            let p = c.presence_stats();
+            s += &format!(
+                " present={} absorbed={} ghosts={}",
+                p.present, p.absorbed, p.ghosts
             );
         }
         if let Some(t) = &self.store {

@@ -19,6 +19,7 @@ mod ipc;
 mod link;
 mod motion;
 mod mqtt;
+mod presence;
 mod site;
 #[cfg(test)]
 mod tests;
@@ -44,6 +45,7 @@ pub use ipc::IpcConfig;
 pub use link::{DEFAULT_LINK_NAMESPACE, LinkConfig, is_ros_token};
 pub use motion::{MotionBackend, MotionConfig};
 pub use mqtt::{DEFAULT_MQTT_PORT, MqttConfig, is_topic_level};
+pub use presence::PresenceConfig;
 pub use site::SiteConfig;
 pub use view::ViewConfig;
 
@@ -113,6 +115,8 @@ pub struct Config {
     pub motion: MotionConfig,
     /// The cascade filter and long-term store.
     pub cascade: CascadeConfig,
+    /// The presence band (learned in the cascade).
+    pub presence: PresenceConfig,
     /// The event gate and its detector.
     pub gate: GateConfig,
     /// The cost map on the robots' floor, its ROS 2 output, and path planning.
@@ -316,6 +320,7 @@ impl Config {
         self.ipc.validate()?;
         self.motion.validate()?;
         self.cascade.validate()?;
+        self.presence.validate()?;
         self.gate.validate()?;
         if let Some(exporter) = &self.exporter {
             exporter.validate()?;
