@@ -3,8 +3,10 @@
 //! and detector results; the service wires it to iceoryx2 and the detector thread.
 //!
 //! **Presence.** A zone's events stay open while its activity is above the
-//! threshold (or was, within `hold_s`), and while the detector holds a person
-//! confirmed there:
+//! threshold (or was, within `hold_s`), while the presence band has a block
+//! present in the zone (something that entered stays there, moving or not: the
+//! cascade's `presence` module; the event lasts at least to the end of every such
+//! second), and while the detector holds a person confirmed there:
 //!
 //! * a detection creates a confirmed person where a person box overlaps a block
 //!   that was active in the detected second (a detector hit on a background that
@@ -22,9 +24,10 @@
 //!   `confirm_still_max_s` is no longer confirmed, whatever the detector finds
 //!   (a poster or a mannequin it likes would otherwise stay for ever).
 //!
-//! So an event ends only when its activity has been quiet for `hold_s` **and**
-//! nobody is confirmed in its zone; its end is the later of its last second above
-//! the threshold and the last frame a person was confirmed in.
+//! So an event ends only when its activity has been quiet for `hold_s`, nothing
+//! is present **and** nobody is confirmed in its zone; its end is the latest of
+//! its last second above the threshold, its last second with something present
+//! and the last frame a person was confirmed in.
 //!
 //! With `detector.crop` a job searches only [`crop_region`]: around the zone's
 //! blocks that move or stay this second and its confirmed people.
@@ -41,6 +44,9 @@ use crate::worker::{Job, Region};
 
 /// A block counts as involved in an event when its own activity is at least this.
 pub const BLOCK_ACTIVE: f32 = 0.01;
+
+/// A block is present when its presence band is at least this.
+pub const PRESENT: f32 = 0.5;
 
 /// A detection job the gate has not heard back about for this long (capture
 /// time) is forgotten, so a lost report cannot hold events open for ever.
@@ -270,8 +276,10 @@ impl Gate {
                 keep
             });
             let (mut s1, mut s2, mut mean, mut var) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
+            let mut present = false;
             for &i in &zone.blocks {
                 let b = &blocks[i as usize];
+                present |= b.present >= PRESENT;
                 if b.s1 >= g.in_place_block_min {
                     s1 += b.s1;
                 }
@@ -280,7 +288,7 @@ impl Gate {
                 var += b.lt_sigma * b.lt_sigma;
             }
             let thr = threshold(mean, var, warm, g.k_sigma, g.floor, g.min_threshold);
-            let hold_open = !zone.people.is_empty();
+            let hold_open = !zone.people.is_empty() || present;
             let mut quiet = true;
             let mut wanted = None;
             let zone_actions = actions.len();
@@ -334,6 +342,13 @@ impl Gate {
                     }
                 }
             }
+            // Something stays in the zone (the presence band): its events last at
+            // least to the end of this second.
+            if present {
+                for tracker in &mut zone.trackers {
+                    tracker.extend(second.end_ns, second.last_frame);
+                }
+            }
             // Presence: re-check confirmed people, or check once whether someone
             // stays where the activity fell quiet. At most one detection per zone
             // and second, whoever asks for it; each counts as a check.
@@ -349,11 +364,12 @@ impl Gate {
             let closing = idle
                 && zone.people.is_empty()
                 && quiet
+                && !present
                 && open.is_some_and(|e| zone.closing_checked != Some(e.end_ns));
             if closing {
                 zone.closing_checked = open.map(|e| e.end_ns);
             }
-            if wanted.is_some() || recheck || closing {
+            if g.detector.enabled && (wanted.is_some() || recheck || closing) {
                 zone.last_check_ns = second.end_ns;
                 let event_id = wanted.or(open.map(|e| e.id)).unwrap_or(u64::MAX);
                 let job = issue(

@@ -73,6 +73,9 @@ impl Default for GateConfig {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DetectorConfig {
+    /// Run the detector at all. Default true. `false`: events and presence come
+    /// from activity and the presence band alone (no boxes, no confirmed people).
+    pub enabled: bool,
     /// ONNX model file (a YOLOv5/YOLOv8 export; see the README); relative to the
     /// config file. Default: none (HOG).
     pub model: Option<PathBuf>,
@@ -126,6 +129,7 @@ pub struct DetectorConfig {
 impl Default for DetectorConfig {
     fn default() -> Self {
         DetectorConfig {
+            enabled: true,
             model: None,
             input_px: 640,
             input_channels: 3,
