@@ -6,8 +6,10 @@
 //! `a = weight_in_place·S1 + weight_moving·S2 + weight_long_term·M(t*)` per block, the
 //! cost is rounded to an integer, a cell takes the highest cost of the cameras that
 //! see it and -1 where none does, and a person the detector confirmed raises the
-//! cells around their feet to at least `confirm_cost`. For planning, `Cost` is
-//! applied unrounded to a segment's activity `M_p`.
+//! cells around their feet to at least `confirm_cost`; a block of the presence
+//! band (something that entered and stays, moving or not) gives its cells at
+//! least `presence_cost`. For planning, `Cost` is applied unrounded to a
+//! segment's activity `M_p`.
 
 use isochron_shared::config::CostmapConfig;
 use isochron_shared::wire::BlockActivity;
@@ -35,6 +37,8 @@ pub struct CostParams {
     pub confirm_cost: u8,
     /// Radius around a confirmed person's feet, metres.
     pub confirm_radius_m: f64,
+    /// Least cost of a present block, 0..=100.
+    pub presence_cost: u8,
 }
 
 impl CostParams {
@@ -48,6 +52,7 @@ impl CostParams {
             cap: c.cap.min(100),
             confirm_cost: c.confirm_cost().min(100),
             confirm_radius_m: c.confirm_radius_m,
+            presence_cost: c.presence_cost().min(100),
         }
     }
 
@@ -85,6 +90,17 @@ impl CostParams {
     pub fn cell_cost(&self, activity: f64) -> i8 {
         self.cost_of(activity).round() as i8
     }
+
+    /// A block's cell value on the map: the cost of its activity, at least
+    /// `presence_cost` while the block is present.
+    pub fn block_cost(&self, b: &BlockActivity) -> i8 {
+        let cost = self.cell_cost(self.block_activity(b));
+        if b.present >= 0.5 {
+            cost.max(self.presence_cost as i8)
+        } else {
+            cost
+        }
+    }
 }
 
 /// One camera's contribution: its footprint and its latest block activity.
@@ -110,11 +126,7 @@ pub fn compose(
         if layer.footprint.cell_block.len() != cells.len() {
             continue;
         }
-        let block_cost: Vec<i8> = layer
-            .blocks
-            .iter()
-            .map(|b| params.cell_cost(params.block_activity(b)))
-            .collect();
+        let block_cost: Vec<i8> = layer.blocks.iter().map(|b| params.block_cost(b)).collect();
         for (cell, &b) in cells.iter_mut().zip(&layer.footprint.cell_block) {
             if b == NOT_SEEN {
                 continue;
@@ -163,6 +175,7 @@ mod tests {
             cap: 90,
             confirm_cost: 100,
             confirm_radius_m: 0.25,
+            presence_cost: 60,
         }
     }
 
@@ -193,6 +206,14 @@ mod tests {
         assert_eq!(p.cost_of(f64::NAN), 0.0);
         // Short-term activity leaves the long-term mean out.
         assert!((p.short_term_activity(&activity(0.02, 0.04, 0.08)) - 0.04).abs() < 1e-7);
+        // A present block costs at least presence_cost, more if its activity says so.
+        let present = |s1| BlockActivity {
+            present: 1.0,
+            ..activity(s1, 0.0, 0.0)
+        };
+        assert_eq!(p.block_cost(&present(0.0)), 60);
+        assert_eq!(p.block_cost(&present(1.0)), 90);
+        assert_eq!(p.block_cost(&activity(0.0, 0.0, 0.0)), 0);
     }
 
     #[test]

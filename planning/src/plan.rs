@@ -508,6 +508,7 @@ mod tests {
             cap: 100,
             confirm_cost: 100,
             confirm_radius_m: 0.5,
+            presence_cost: 60,
         }
     }
 

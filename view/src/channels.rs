@@ -7,7 +7,7 @@
 //! |---|---|---|
 //! | `/costmap` | `foxglove.Grid` (`cost`, int8, -1 unknown) in `costmap.frame_id` | the `activity` of every camera with floor points, composed as the bridge does (without the detections' confirmed people) |
 //! | `/scene` | `foxglove.SceneUpdate` in `costmap.frame_id` | route segments and camera footprints on the floor (config), re-sent every 5 s |
-//! | `/<camera>/activity` | `foxglove.Grid` (`s1`, `s2`, `lt_mean`, float32) in frame `<camera>`, cell = one block in pixels | `activity` |
+//! | `/<camera>/activity` | `foxglove.Grid` (`s1`, `s2`, `lt_mean`, `present`, float32) in frame `<camera>`, cell = one block in pixels | `activity` |
 //! | `/<camera>/events` | `foxglove.Log` | `events` |
 //! | `/<camera>/detections` | `foxglove.ImageAnnotations` (boxes and scores, in the published image's pixels) | `detections` |
 //! | `/<camera>/image` | `foxglove.CompressedImage` (JPEG) | `frames`, only with `view.frames = true`, at most `view.frame_rate_hz` |
@@ -293,8 +293,8 @@ impl SiteChannels {
         cam.frame_px = Some((h.frame_width, h.frame_height));
         cam.latest.clear();
         cam.latest.extend_from_slice(blocks);
-        let values = blocks.iter().map(|b| [b.s1, b.s2, b.lt_mean]);
-        let fields = ["s1", "s2", "lt_mean"];
+        let values = blocks.iter().map(|b| [b.s1, b.s2, b.lt_mean, b.present]);
+        let fields = ["s1", "s2", "lt_mean", "present"];
         let grid = block_grid(t, &cam.id, (h.grid_w, h.block_px), fields, values);
         cam.activity.log_with_time(&grid, nanos(t));
         let topic = camera_topic(&cam.id, "activity");
@@ -559,28 +559,29 @@ impl SiteChannels {
 }
 
 /// A camera's per-block grid in its own frame `frame_id` (one cell per block of
-/// `block_px` pixels, `grid_w` blocks a row): three float32 fields, `names`, per
+/// `block_px` pixels, `grid_w` blocks a row): `N` float32 fields, `names`, per
 /// block from `values`.
-fn block_grid(
+fn block_grid<const N: usize>(
     t: i64,
     frame_id: &str,
     (grid_w, block_px): (u32, u32),
-    names: [&str; 3],
-    values: impl Iterator<Item = [f32; 3]>,
+    names: [&str; N],
+    values: impl Iterator<Item = [f32; N]>,
 ) -> Grid {
     let data: Vec<u8> = values.flatten().flat_map(f32::to_le_bytes).collect();
     let bp = block_px as f64;
+    let cell = 4 * N as u32;
     Grid {
         timestamp: Some(timestamp(t)),
         frame_id: frame_id.into(),
         pose: Some(identity()),
         column_count: grid_w,
         cell_size: Some(Vector2 { x: bp, y: bp }),
-        row_stride: grid_w * 12,
-        cell_stride: 12,
+        row_stride: grid_w * cell,
+        cell_stride: cell,
         fields: names
             .into_iter()
-            .zip([0, 4, 8])
+            .zip((0..).step_by(4))
             .map(|(name, offset)| PackedElementField {
                 name: name.into(),
                 offset,

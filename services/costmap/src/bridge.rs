@@ -317,6 +317,7 @@ fn sanitise(b: &mut BlockActivity) -> bool {
         &mut b.s2_dy,
         &mut b.lt_mean,
         &mut b.lt_sigma,
+        &mut b.present,
     ] {
         if !v.is_finite() {
             *v = 0.0;

@@ -134,6 +134,10 @@ pub struct CostmapConfig {
     /// ... to at least this cost, 0 to 100 (100 is lethal in Nav2: warned at
     /// load). Default: `cap`.
     pub confirm_cost: Option<u8>,
+    /// A block of the presence band (something that entered and stays there,
+    /// moving or not; `[presence]`) raises its cells to at least this cost, 0 to
+    /// 100 (100 is lethal in Nav2: warned at load). Default: `confirm_cost`.
+    pub presence_cost: Option<u8>,
     /// Publish -1 (unknown) where no camera sees. Default true: right for a global
     /// costmap with `track_unknown_space` and `use_maximum` (Nav2 skips unknown
     /// cells there), and for a local (rolling) costmap on Nav2 releases whose
@@ -209,6 +213,7 @@ impl Default for CostmapConfig {
             confirm_radius_m: 0.5,
             confirm_hold_s: 15.0,
             confirm_cost: None,
+            presence_cost: None,
             publish_unknown: true,
             stale_s: 10.0,
             snapshot_dir: None,
@@ -247,6 +252,12 @@ impl CostmapConfig {
     /// The cost a confirmed person gives: `confirm_cost`, else `cap`.
     pub fn confirm_cost(&self) -> u8 {
         self.confirm_cost.unwrap_or(self.cap)
+    }
+
+    /// The least cost of a present block's cells: `presence_cost`, else
+    /// [`CostmapConfig::confirm_cost`].
+    pub fn presence_cost(&self) -> u8 {
+        self.presence_cost.unwrap_or_else(|| self.confirm_cost())
     }
 
     /// The speed mask value of a cell of activity cost `cost` (-1: unseen): the
@@ -453,6 +464,9 @@ impl CostmapConfig {
         if let Some(v) = self.confirm_cost {
             check_range("costmap.confirm_cost", v as f64, 0.0, 100.0)?;
         }
+        if let Some(v) = self.presence_cost {
+            check_range("costmap.presence_cost", v as f64, 0.0, 100.0)?;
+        }
         check_range(
             "costmap.speed_busy_from_cost",
             self.speed_busy_from_cost as f64,
@@ -576,6 +590,12 @@ impl CostmapConfig {
             out.push(Invalid::new(
                 "costmap.confirm_cost",
                 "100 makes the cells around a confirmed person lethal in Nav2: use 99 or less unless people must block the way",
+            ));
+        }
+        if self.presence_cost.is_some_and(|c| c >= 100) {
+            out.push(Invalid::new(
+                "costmap.presence_cost",
+                "100 makes present blocks (a person who stopped, a box left there) lethal in Nav2: use 99 or less unless they must block the way",
             ));
         }
         if self.origin_yaw_rad.is_some_and(|y| y != 0.0) {
