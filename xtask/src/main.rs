@@ -168,8 +168,13 @@ const CYCLONEDDS: &str = "cyclonedds==11.0.1";
 const ONNX: &str = "onnx==1.17.0";
 
 /// The other Python test peers: an independent MCAP reader and WebSocket client
-/// for `tests/it/view.rs` (recordings and the live Foxglove view).
-const PY_PEERS: &[(&str, &str)] = &[("mcap", "1.6.0"), ("websockets", "17.4")];
+/// for `tests/it/view.rs` (recordings and the live Foxglove view), and the MCAP
+/// protobuf decoder `tests/presence/band.py` reads the presence band with.
+const PY_PEERS: &[(&str, &str)] = &[
+    ("mcap", "1.6.0"),
+    ("websockets", "17.4"),
+    ("mcap-protobuf-support", "0.5.3"),
+];
 
 /// Makes `target/ros2-venv`, a Python venv with [`CYCLONEDDS`], for
 /// `tests/it/costmap.rs` (an independent ROS 2 subscriber: no ROS install needed),
