@@ -28,7 +28,10 @@ fn defaults_need_no_costmap_section() {
     let m = &c.costmap;
     assert!(!m.has_grid());
     assert_eq!(m.publish_hz, 1.0);
-    assert_eq!(m.cap, 98, "never an obstacle in any Nav2 release by default");
+    assert_eq!(
+        m.cap, 98,
+        "never an obstacle in any Nav2 release by default"
+    );
     assert_eq!(m.frame_id, "map");
     assert_eq!(m.topic, "/isochron/activity_costmap");
     assert_eq!(m.updates_topic(), "/isochron/activity_costmap_updates");

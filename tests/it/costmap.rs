@@ -887,7 +887,11 @@ fn extra_topics() -> Vec<String> {
 
 /// Publishes one detected frame of cam01 with one person whose feet are at floor
 /// point `feet`, captured at `capture_ns`.
-pub(crate) fn send_person(publisher: &mut StreamPublisher<Detections>, feet: [f64; 2], capture_ns: i64) {
+pub(crate) fn send_person(
+    publisher: &mut StreamPublisher<Detections>,
+    feet: [f64; 2],
+    capture_ns: i64,
+) {
     let [u, v] = floor_to_image(feet);
     let d = Detection {
         x: (u - 10.0) as f32,

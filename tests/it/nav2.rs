@@ -20,9 +20,8 @@ use isochron_tests::{TestSite, repo_root, setup_file};
 use serde_json::{Value, json};
 
 use crate::costmap::{
-    HALVES, HOT_BLOCK, assert_plan_status, costmap_site, dds_domain, held_grid,
-    listener_with, messages, python, ros_plan, same_cost, send_person, start_bridge, wait_until,
-    write_store,
+    HALVES, HOT_BLOCK, assert_plan_status, costmap_site, dds_domain, held_grid, listener_with,
+    messages, python, ros_plan, same_cost, send_person, start_bridge, wait_until, write_store,
 };
 
 /// Nav2 releases the StaticLayer model covers.
@@ -42,7 +41,11 @@ fn received_grid(name: &str, extra: &str, busy: i64) -> Value {
     let mut peer = listener_with(domain, 60, &["--updates".to_string()]);
     let capture_ns = parse_rfc3339("2026-03-02T11:00:00.5Z").unwrap();
     // s1 0.5 at cost_scale 0.05: 1000, far above any cap.
-    let hot = [(HOT_BLOCK, 0.5), (HOT_BLOCK + 1, 0.5), (HOT_BLOCK - 20, 0.03)];
+    let hot = [
+        (HOT_BLOCK, 0.5),
+        (HOT_BLOCK + 1, 0.5),
+        (HOT_BLOCK - 20, 0.03),
+    ];
     wait_until(
         &format!("a grid with cells at {busy} and unseen cells"),
         &mut peer,
@@ -54,7 +57,9 @@ fn received_grid(name: &str, extra: &str, busy: i64) -> Value {
         Duration::from_secs(60),
         |msgs| {
             held_grid(msgs).is_some_and(|g| {
-                g.contains(&busy) && g.contains(&-1) && g.iter().filter(|&&c| c == busy).count() > 20
+                g.contains(&busy)
+                    && g.contains(&-1)
+                    && g.iter().filter(|&&c| c == busy).count() > 20
             })
         },
     );
@@ -109,9 +114,21 @@ fn no_default_grid_value_is_an_obstacle_in_any_nav2_release() {
     let model = static_layer(&grid, &[]);
     for release in RELEASES {
         for costmap in COSTMAPS {
-            assert_eq!(count(&model, release, costmap, "obstacles"), 0, "{release} {costmap}: {model}");
-            assert_eq!(count(&model, release, costmap, "wiped"), 0, "{release} {costmap}: {model}");
-            assert_eq!(count(&model, release, costmap, "unknown"), 0, "{release} {costmap}: {model}");
+            assert_eq!(
+                count(&model, release, costmap, "obstacles"),
+                0,
+                "{release} {costmap}: {model}"
+            );
+            assert_eq!(
+                count(&model, release, costmap, "wiped"),
+                0,
+                "{release} {costmap}: {model}"
+            );
+            assert_eq!(
+                count(&model, release, costmap, "unknown"),
+                0,
+                "{release} {costmap}: {model}"
+            );
             assert_eq!(
                 count(&model, release, costmap, "max_cost"),
                 248,
@@ -136,7 +153,10 @@ fn caps_of_99_and_100_are_obstacles_where_nav2_says_so() {
     let inscribed = static_layer(&received_grid("nav2-cap99", "cap = 99", 99), &[]);
     for release in RELEASES {
         for costmap in COSTMAPS {
-            assert!(count(&lethal, release, costmap, "lethal") > 20, "{release}: {lethal}");
+            assert!(
+                count(&lethal, release, costmap, "lethal") > 20,
+                "{release}: {lethal}"
+            );
             let n = count(&inscribed, release, costmap, "inscribed");
             if matches!(release, "lyrical" | "rolling") {
                 assert!(n > 20, "{release}: 99 → INSCRIBED: {inscribed}");
@@ -253,7 +273,10 @@ fn fast_dds_and_cyclone_dds_clients_get_the_same_plans() {
     assert_plan_status(&fast, 0, "");
     assert_eq!(fast["t_star"], 750, "{fast}");
     assert_eq!(fast["t_star"], cyclone["t_star"]);
-    let (f, c) = (fast["routes"].as_array().unwrap(), cyclone["routes"].as_array().unwrap());
+    let (f, c) = (
+        fast["routes"].as_array().unwrap(),
+        cyclone["routes"].as_array().unwrap(),
+    );
     assert_eq!(f.len(), 2, "{fast}");
     assert_eq!(f.len(), c.len());
     for (f, c) in f.iter().zip(c) {
@@ -270,7 +293,10 @@ fn fast_dds_and_cyclone_dds_clients_get_the_same_plans() {
     assert_eq!(fast["curve"].as_array().unwrap().len(), 36, "{fast}");
     assert_eq!(fast["windows"][0]["start_minute"], 720, "{fast}");
     for key in ["windows", "curve"] {
-        let (f, c) = (fast[key].as_array().unwrap(), cyclone[key].as_array().unwrap());
+        let (f, c) = (
+            fast[key].as_array().unwrap(),
+            cyclone[key].as_array().unwrap(),
+        );
         assert_eq!(f.len(), c.len(), "{key}: {fast}\n{cyclone}");
         for (f, c) in f.iter().zip(c) {
             for (k, v) in f.as_object().unwrap() {
@@ -318,7 +344,12 @@ fn malformed_plan_requests_are_answered_and_floods_are_counted() {
     let attacker = |args: &[&str]| -> Value {
         let out = std::process::Command::new(python())
             .arg(repo_root().join("tests/ros2/plan_attacker.py"))
-            .args(["--domain", &domain.to_string(), "--service", "/isochron/plan_now"])
+            .args([
+                "--domain",
+                &domain.to_string(),
+                "--service",
+                "/isochron/plan_now",
+            ])
             .args(args)
             .output()
             .unwrap();
@@ -335,7 +366,10 @@ fn malformed_plan_requests_are_answered_and_floods_are_counted() {
     let no_nul = &garbage["replies"]["no_nul"];
     assert_eq!(no_nul["status"], 1, "{garbage}");
     assert!(
-        no_nul["message"].as_str().unwrap().contains("without its terminating NUL"),
+        no_nul["message"]
+            .as_str()
+            .unwrap()
+            .contains("without its terminating NUL"),
         "{garbage}"
     );
     assert_eq!(garbage["replies"]["count"]["status"], 1, "{garbage}");
@@ -349,7 +383,10 @@ fn malformed_plan_requests_are_answered_and_floods_are_counted() {
 
     // The flood.
     let flood = attacker(&["--wait", "8", "flood", "1000", "3", "nowhere"]);
-    let (sent, replies) = (flood["sent"].as_i64().unwrap(), flood["replies"].as_i64().unwrap());
+    let (sent, replies) = (
+        flood["sent"].as_i64().unwrap(),
+        flood["replies"].as_i64().unwrap(),
+    );
     assert_eq!(sent, 1000);
     assert!(replies >= 16, "some are answered: {flood}");
     assert_eq!(flood["statuses"]["2"], replies, "an unknown route: {flood}");

@@ -55,8 +55,8 @@ use isochron_planning::query::{
 use isochron_shared::stage::Context;
 
 use crate::msgs::{
-    CostPoint, PlanNowRequest, PlanNowResponse, PlanOfflineRequest, PlanOfflineResponse,
-    RouteCost, Window as WindowMsg,
+    CostPoint, PlanNowRequest, PlanNowResponse, PlanOfflineRequest, PlanOfflineResponse, RouteCost,
+    Window as WindowMsg,
 };
 
 /// Requests DDS keeps for a service between two passes of the bridge's loop (at
@@ -496,7 +496,12 @@ impl Service {
             };
             let skipped = self.gaps.seen(sample.writer_guid, sample.sequence_number);
             if skipped > 0 {
-                self.dropped(cx, counts, skipped, "overwritten in DDS before it was taken");
+                self.dropped(
+                    cx,
+                    counts,
+                    skipped,
+                    "overwritten in DDS before it was taken",
+                );
             }
             let related = sample.related_sample_identity();
             let pending = read_request(
@@ -624,7 +629,10 @@ impl Service {
         if let ReplyTo::FastDds(identity) = pending.reply_to {
             options = options.related_sample_identity(identity);
         }
-        if let Err(e) = self.writer.write_with_options(RawReply(bytes), options.build()) {
+        if let Err(e) = self
+            .writer
+            .write_with_options(RawReply(bytes), options.build())
+        {
             let (name, e) = (&self.name, e.forget_data());
             cx.warnings.warn("plan reply failed", || {
                 format!("{name}: a reply could not be sent: {e:?}")
@@ -710,7 +718,7 @@ mod tests {
 
     /// A little-endian CDR string: length with the NUL, bytes, NUL.
     fn cdr_str(out: &mut Vec<u8>, s: &[u8], nul: bool) {
-        while out.len() % 4 != 0 {
+        while !out.len().is_multiple_of(4) {
             out.push(0);
         }
         let len = s.len() + nul as usize;
@@ -725,7 +733,7 @@ mod tests {
     fn offline_body(route: &[u8], nul: bool) -> Vec<u8> {
         let mut b = Vec::new();
         cdr_str(&mut b, route, nul);
-        while b.len() % 2 != 0 {
+        while !b.len().is_multiple_of(2) {
             b.push(0);
         }
         for v in [600u16, 720, 30] {
@@ -744,7 +752,10 @@ mod tests {
 
     #[test]
     fn strings_follow_the_cdr_rules() {
-        assert_eq!(CdrString::from_wire(b"dock\0"), Ok(CdrString("dock".into())));
+        assert_eq!(
+            CdrString::from_wire(b"dock\0"),
+            Ok(CdrString("dock".into()))
+        );
         assert_eq!(CdrString::from_wire(b"\0"), Ok(CdrString(String::new())));
         let no_nul = CdrString::from_wire(b"dock").unwrap_err();
         assert!(no_nul.contains("without its terminating NUL"), "{no_nul}");
@@ -754,9 +765,13 @@ mod tests {
 
         let ok = plan_request(PlanKind::Offline, &offline_body(b"dock", true), false).unwrap();
         assert_eq!(ok.route_names(), vec!["dock".to_string()]);
-        assert_eq!((ok.start_minute, ok.end_minute, ok.step_min, ok.weekday), (600, 720, 30, 7));
+        assert_eq!(
+            (ok.start_minute, ok.end_minute, ok.step_min, ok.weekday),
+            (600, 720, 30, 7)
+        );
         // Without its NUL the name is not "doc": the request is malformed.
-        let err = plan_request(PlanKind::Offline, &offline_body(b"dock", false), false).unwrap_err();
+        let err =
+            plan_request(PlanKind::Offline, &offline_body(b"dock", false), false).unwrap_err();
         assert!(err.contains("without its terminating NUL"), "{err}");
     }
 

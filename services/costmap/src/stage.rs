@@ -437,7 +437,11 @@ impl Stage for CostmapStage {
             .count();
         let c = &self.counters;
         // Only when some happened: the detail is 160 bytes in the status.
-        let plans = self.ros.as_ref().map(|r| r.output.plan_counts()).unwrap_or_default();
+        let plans = self
+            .ros
+            .as_ref()
+            .map(|r| r.output.plan_counts())
+            .unwrap_or_default();
         let refused = if plans.rejected + plans.dropped > 0 {
             format!(
                 " plans_rejected={} plans_dropped={}",
