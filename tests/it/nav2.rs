@@ -247,6 +247,8 @@ fn fastdds_plan(domain: u16, service: &str, args: &[&str]) -> Value {
         "no reply from {service}: {reply}\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    // Answered at once, not after the 2 s a reply waits for an unmatched reader.
+    assert!(reply["reply_ms"].as_i64().unwrap() < 1500, "{reply}");
     reply
 }
 

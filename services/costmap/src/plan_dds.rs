@@ -549,10 +549,11 @@ impl Service {
         counts: &mut PlanCounts,
         answer: &mut impl FnMut(PlanKind, &PlanRequest) -> PlanResponse,
     ) -> usize {
+        // Every pass, so that the writer's status queue never fills up.
+        self.update_matched();
         if self.queue.is_empty() {
             return 0;
         }
-        self.update_matched();
         let now = Instant::now();
         let mut waiting = VecDeque::new();
         let mut n = 0;

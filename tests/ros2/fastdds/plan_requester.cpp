@@ -20,8 +20,9 @@
 // the reply: a server that answers before it has matched our reply reader loses
 // the reply, and this client reports a timeout.
 //
-// Prints one JSON line, as plan_client.py does: {"kind": "reply", ...fields} with
-// costs as numbers, "inf", or null (NaN), {"kind": "unavailable"} when the service
+// Prints one JSON line, as plan_client.py does: {"kind": "reply", ...fields,
+// "reply_ms": time from the request to the reply} with costs as numbers, "inf",
+// or null (NaN), {"kind": "unavailable"} when the service
 // never appeared, or {"kind": "timeout"}. DDS stays on the loopback interface:
 // UDP on 127.0.0.1 only, discovery through unicast initial peers on 127.0.0.1.
 //
@@ -243,6 +244,7 @@ int call(int domain, const std::string& service, double timeout_s, Req& request,
         return 69;
     }
     const SequenceNumber_t sent = params.sample_identity().sequence_number();
+    const auto sent_at = Clock::now();
     std::fprintf(stderr, "plan_requester: request %d.%u sent\n", sent.high, sent.low);
 
     Resp reply;
@@ -253,7 +255,11 @@ int call(int domain, const std::string& service, double timeout_s, Req& request,
             const auto& related = info.related_sample_identity;
             bool ours = related.writer_guid() == reader_guid || related.writer_guid() == writer_guid;
             if (info.valid_data && ours && related.sequence_number() == sent) {
-                emit(reply_json(reply));
+                std::string line = reply_json(reply);
+                const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(
+                    Clock::now() - sent_at).count();
+                line.insert(line.size() - 1, ", \"reply_ms\": " + std::to_string(ms));
+                emit(line);
                 return 0;
             }
             std::fprintf(stderr, "plan_requester: a reply that is not ours (sequence %d.%u)\n",
