@@ -18,8 +18,9 @@
 //! reader is matched with the reply writer, as rmw_fastrtps's server does: a
 //! client that sends at once after discovery would otherwise miss it.
 //!
-//! Requests are decoded by the CDR rules ([`crate::msgs::CdrString`]): a string's length counts
-//! its NUL, and a string without one is malformed (not cut short). A malformed
+//! Requests are decoded by the CDR rules ([`crate::msgs::CdrString`]): a string's
+//! length counts its NUL, and a string without one is malformed (not cut short).
+//! A malformed
 //! request gets `STATUS_BAD_REQUEST` (1) with the reason and is counted as
 //! rejected; one that cannot be answered (no identity) is counted only. Each
 //! service queues at most [`QUEUE`] requests and answers at most
