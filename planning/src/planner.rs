@@ -519,8 +519,8 @@ mod tests {
             ranked[0]
         );
         assert!((ranked[0].cost1 - 20.0).abs() < 1e-3);
-        // via-door: door is all crowded → capped at the default cap, 99.
-        assert!((ranked[1].short_term - (99.0 + 100.0 * west_now / 0.1)).abs() < 1e-3);
+        // via-door: door is all crowded → capped at the default cap, 98.
+        assert!((ranked[1].short_term - (98.0 + 100.0 * west_now / 0.1)).abs() < 1e-3);
         assert!(!ranked[0].estimated);
     }
 

@@ -28,11 +28,14 @@ fn defaults_need_no_costmap_section() {
     let m = &c.costmap;
     assert!(!m.has_grid());
     assert_eq!(m.publish_hz, 1.0);
-    assert_eq!(m.cap, 99, "never lethal in Nav2 by default");
+    assert_eq!(
+        m.cap, 98,
+        "never an obstacle in any Nav2 release by default"
+    );
     assert_eq!(m.frame_id, "map");
     assert_eq!(m.topic, "/isochron/activity_costmap");
     assert_eq!(m.updates_topic(), "/isochron/activity_costmap_updates");
-    assert_eq!(m.confirm_cost(), 99);
+    assert_eq!(m.confirm_cost(), 98);
     assert_eq!((m.w1, m.w2), (1.0, 1.0));
     assert_eq!(c.cameras[0].floor_points.len(), 4);
 }

@@ -117,7 +117,7 @@ stale_s = 120
 }
 
 /// A site with the test camera and `[costmap]` (`extra` added) on DDS domain `domain`.
-fn costmap_site(name: &str, domain: u16, extra: &str) -> TestSite {
+pub(crate) fn costmap_site(name: &str, domain: u16, extra: &str) -> TestSite {
     TestSite::new(
         name,
         &format!("{}{}", camera_toml(), costmap_toml(domain, extra)),
@@ -126,7 +126,7 @@ fn costmap_site(name: &str, domain: u16, extra: &str) -> TestSite {
 
 /// Starts the bridge of `site` with a [`Source`] of cam01's activity from `start`,
 /// once the bridge reads it; the source's `Ipc` comes along to be kept open.
-fn start_bridge(site: &TestSite, start: &str) -> (Ipc, Source, Proc) {
+pub(crate) fn start_bridge(site: &TestSite, start: &str) -> (Ipc, Source, Proc) {
     let ipc = site.ipc("source");
     let source = Source::new(&ipc, start);
     let costmap = site.spawn("isochron-costmap", &[]);
@@ -265,7 +265,7 @@ fn listener(domain: u16, updates: bool, grids: u32, timeout_s: u32) -> Proc {
 }
 
 /// The listener on the grid topic with `extra` arguments.
-fn listener_with(domain: u16, timeout_s: u32, extra: &[String]) -> Proc {
+pub(crate) fn listener_with(domain: u16, timeout_s: u32, extra: &[String]) -> Proc {
     let script = repo_root().join("tests/ros2/costmap_listener.py");
     let mut args = vec![
         script.display().to_string(),
@@ -282,7 +282,7 @@ fn listener_with(domain: u16, timeout_s: u32, extra: &[String]) -> Proc {
 
 /// Calls a planning service of the bridge with the independent Cyclone DDS client
 /// (`tests/ros2/plan_client.py`); its reply as JSON.
-fn ros_plan(domain: u16, service: &str, args: &[&str]) -> Value {
+pub(crate) fn ros_plan(domain: u16, service: &str, args: &[&str]) -> Value {
     let script = repo_root().join("tests/ros2/plan_client.py");
     let out = std::process::Command::new(python())
         .arg(&script)
@@ -302,14 +302,14 @@ fn ros_plan(domain: u16, service: &str, args: &[&str]) -> Value {
 }
 
 /// Asserts a ROS 2 plan reply has `status` and a message holding `says`.
-fn assert_plan_status(reply: &Value, status: u8, says: &str) {
+pub(crate) fn assert_plan_status(reply: &Value, status: u8, says: &str) {
     assert_eq!(reply["status"], status, "{reply}");
     assert!(reply["message"].as_str().unwrap().contains(says), "{reply}");
 }
 
 /// Costs of the CLI's JSON and the ROS 2 reply agree (f32 on the way, 3 decimals
 /// in the CLI's JSON).
-fn same_cost(cli: &Value, ros: &Value) -> bool {
+pub(crate) fn same_cost(cli: &Value, ros: &Value) -> bool {
     match (cli.as_f64(), ros.as_f64()) {
         (Some(a), Some(b)) => (a - b).abs() < 0.01,
         _ => cli == ros,
@@ -338,7 +338,7 @@ fn wait_for_hot_grid(
 }
 
 /// Waits until `f` holds for the listener's messages, feeding the source meanwhile.
-fn wait_until(
+pub(crate) fn wait_until(
     what: &str,
     listener: &mut Proc,
     costmap: &Proc,
@@ -469,7 +469,7 @@ fn a_ros2_subscriber_gets_the_grid_its_updates_and_late_joiners_the_last_grid() 
 
 /// The long-term store of cam01: blocks with x < 160 px (the west half of the
 /// floor, x < 2 m) are busy except 12:00-13:00; the rest is a little busy.
-fn write_store(site: &TestSite) {
+pub(crate) fn write_store(site: &TestSite) {
     let state_dir = site.config().state_dir();
     let meta = StoreMeta::new("cam01", BlockGrid::new(320, 240, 16), Cycle::Daily, 0);
     let mut store = Store::open_or_create(&store_path(&state_dir, "cam01"), &meta).unwrap();
@@ -488,7 +488,7 @@ fn write_store(site: &TestSite) {
 }
 
 /// The west and east halves of the camera's view on the floor, as cost map segments.
-const HALVES: &str = r#"[[costmap.segment]]
+pub(crate) const HALVES: &str = r#"[[costmap.segment]]
 name = "west"
 polygon_m = [[-1, 1.5], [1.6, 1.5], [1.6, 7.5], [-1, 7.5]]
 
@@ -732,12 +732,12 @@ segments = ["east"]
         }
     }
     // West blocks (x < 128 px) are live at s1 0.05 → cost 100, capped at the
-    // default 99 (never lethal in Nav2) where seen.
+    // default 98 (never an obstacle in Nav2) where seen.
     let cells = || (0..60).flat_map(|j| (0..60).map(move |i| (i, j)));
-    let busy = cells().filter(|&(i, j)| cell(i, j) == 99).count();
-    assert!(busy > 100, "{busy} cells at cost 99");
+    let busy = cells().filter(|&(i, j)| cell(i, j) == 98).count();
+    assert!(busy > 100, "{busy} cells at cost 98");
     assert!(
-        cells().all(|(i, j)| cell(i, j) <= 99 || cell(i, j) == 255),
+        cells().all(|(i, j)| cell(i, j) <= 98 || cell(i, j) == 255),
         "no cell above the default cap"
     );
 
@@ -887,7 +887,11 @@ fn extra_topics() -> Vec<String> {
 
 /// Publishes one detected frame of cam01 with one person whose feet are at floor
 /// point `feet`, captured at `capture_ns`.
-fn send_person(publisher: &mut StreamPublisher<Detections>, feet: [f64; 2], capture_ns: i64) {
+pub(crate) fn send_person(
+    publisher: &mut StreamPublisher<Detections>,
+    feet: [f64; 2],
+    capture_ns: i64,
+) {
     let [u, v] = floor_to_image(feet);
     let d = Detection {
         x: (u - 10.0) as f32,
@@ -913,12 +917,12 @@ fn send_person(publisher: &mut StreamPublisher<Detections>, feet: [f64; 2], capt
 }
 
 /// The newest message of `kind`.
-fn last<'a>(msgs: &'a [Value], kind: &str) -> Option<&'a Value> {
+pub(crate) fn last<'a>(msgs: &'a [Value], kind: &str) -> Option<&'a Value> {
     msgs.iter().rev().find(|m| m["kind"] == kind)
 }
 
-/// Cost 60 (busy), 99 (crowded, capped from 100) and 20 (quiet) blocks: the
-/// independent Cyclone DDS peer gets a grid with no cell above 99, the speed
+/// Cost 60 (busy), 98 (crowded, capped from 100) and 20 (quiet) blocks: the
+/// independent Cyclone DDS peer gets a grid with no cell above 98, the speed
 /// filter's info and a mask with the bands' limits, the person as a pose stamped
 /// with the detected frame's capture time, and the latched markers.
 #[test]
@@ -941,7 +945,7 @@ segments = ["west", "east"]
     let costmap = site.spawn("isochron-costmap", &[]);
     source.wait_for_subscriber(&costmap);
     let mut peer = listener_with(domain, 90, &extra_topics());
-    // HOT_BLOCK at cost 60, the block to its right at 100 → 99, two to the left at 20.
+    // HOT_BLOCK at cost 60, the block to its right at 100 → 98, two to the left at 20.
     let hot = [
         (HOT_BLOCK, HOT_S1),
         (HOT_BLOCK + 1, 0.05),
@@ -961,7 +965,7 @@ segments = ["west", "east"]
         Duration::from_secs(60),
         |msgs| {
             let busy_mask = last(msgs, "speed_mask").is_some_and(|m| data(m).contains(&25));
-            let busy_grid = last(msgs, "grid").is_some_and(|m| data(m).contains(&99));
+            let busy_grid = last(msgs, "grid").is_some_and(|m| data(m).contains(&98));
             busy_mask
                 && busy_grid
                 && last(msgs, "filter_info").is_some()
@@ -974,7 +978,7 @@ segments = ["west", "east"]
     let msgs = messages(&mut peer);
 
     let grid = held_grid(&msgs).unwrap();
-    assert!(grid.iter().all(|&c| c <= 99), "a cell above 99");
+    assert!(grid.iter().all(|&c| c <= 98), "a cell above 98");
     let info = last(&msgs, "filter_info").unwrap();
     assert_eq!(info["type"], 1, "{info}");
     assert_eq!(info["filter_mask_topic"], "/isochron/speed_mask");

@@ -17,6 +17,7 @@ mod launcher;
 mod link;
 mod motion;
 mod mqtt;
+mod nav2;
 mod operations;
 mod package;
 mod pipeline;

@@ -1,8 +1,9 @@
 //! Developer tasks: `cargo xtask <setup|demo|test|bench NAME|docs|install|deb>`.
 //!
 //! * `setup`: installs the system packages isochron builds and tests with
-//!   (Debian/Ubuntu, [`PACKAGES`]) if they are missing, and fetches the sample
-//!   video (PETS 2009 `vtest.avi`, from Debian's opencv-doc package) into `data/`;
+//!   (Debian/Ubuntu, [`PACKAGES`]) if they are missing, fetches the sample video
+//!   (PETS 2009 `vtest.avi`, from Debian's opencv-doc package) into `data/`, makes
+//!   the Python venv of the test peers and builds the Fast DDS test client;
 //! * `demo`: setup, release build, `isochron replay` on the sample video with
 //!   `config/demo.toml`, and a report of what every stage did;
 //! * `test`: setup, format and lint checks, build, every test, then every benchmark
@@ -34,8 +35,10 @@ use anyhow::{Context, bail};
 /// network-namespace and DDS socket tests; `prometheus` for promtool, which checks
 /// the exporter's output and the alert rules; `mosquitto`, the broker the MQTT
 /// sink's test publishes to; `dpkg-dev` for `dpkg-shlibdeps`, which gives the
-/// package's `Depends` (`cargo xtask deb`).
-const PACKAGES: [&str; 7] = [
+/// package's `Depends` (`cargo xtask deb`); eProsima Fast DDS, its IDL compiler
+/// and g++ for the Fast DDS client of the planning services' test
+/// ([`fastdds_peer`]).
+const PACKAGES: [&str; 10] = [
     "libopencv-dev",
     "clang",
     "libclang-dev",
@@ -43,6 +46,9 @@ const PACKAGES: [&str; 7] = [
     "prometheus",
     "mosquitto",
     "dpkg-dev",
+    "libfastrtps-dev",
+    "fastddsgen",
+    "g++",
 ];
 
 /// The benchmarks, by bench target name (each unique in the workspace).
@@ -155,7 +161,56 @@ fn setup(root: &Path) -> anyhow::Result<()> {
         run(&mut apt_get(&args))?;
     }
     fetch_vtest(root)?;
-    ros2_venv(root)
+    ros2_venv(root)?;
+    fastdds_peer(root)
+}
+
+/// The sources of the Fast DDS client (`tests/ros2/fastdds/`).
+const FASTDDS_SOURCES: [&str; 2] = ["isochron_msgs.idl", "plan_requester.cpp"];
+
+/// Builds `target/fastdds-peer/plan_requester`, the independent Fast DDS client of
+/// the planning services (`tests/it/nav2.rs`): fastddsgen makes the C++ types of
+/// `tests/ros2/fastdds/isochron_msgs.idl`, g++ links them with
+/// `plan_requester.cpp` against Debian's Fast DDS. Skipped when the binary was
+/// built from the same sources (a hash of them in `sources.hash`).
+fn fastdds_peer(root: &Path) -> anyhow::Result<()> {
+    use std::hash::{DefaultHasher, Hash, Hasher};
+    let src = root.join("tests/ros2/fastdds");
+    let out = root.join("target/fastdds-peer");
+    let mut hasher = DefaultHasher::new();
+    for name in FASTDDS_SOURCES {
+        std::fs::read(src.join(name))
+            .with_context(|| format!("reading {}", src.join(name).display()))?
+            .hash(&mut hasher);
+    }
+    let hash = format!("{:016x}\n", hasher.finish());
+    let (binary, stamp) = (out.join("plan_requester"), out.join("sources.hash"));
+    if binary.is_file() && std::fs::read_to_string(&stamp).is_ok_and(|s| s == hash) {
+        return Ok(());
+    }
+    let t0 = Instant::now();
+    let gen_dir = out.join("gen");
+    let _ = std::fs::remove_dir_all(&out);
+    std::fs::create_dir_all(&gen_dir)?;
+    run(Command::new("fastddsgen")
+        .args(["-replace", "-d"])
+        .arg(&gen_dir)
+        .arg(src.join("isochron_msgs.idl")))?;
+    run(Command::new("g++")
+        .args(["-std=c++17", "-O1", "-w", "-I"])
+        .arg(&gen_dir)
+        .arg(src.join("plan_requester.cpp"))
+        .arg(gen_dir.join("isochron_msgs.cxx"))
+        .arg(gen_dir.join("isochron_msgsPubSubTypes.cxx"))
+        .args(["-lfastrtps", "-lfastcdr", "-o"])
+        .arg(&binary))?;
+    std::fs::write(&stamp, hash)?;
+    eprintln!(
+        "xtask: built {} in {:.0} s",
+        binary.display(),
+        t0.elapsed().as_secs_f64()
+    );
+    Ok(())
 }
 
 /// The Python package the ROS 2 interoperability test subscribes with (Eclipse
@@ -168,12 +223,15 @@ const CYCLONEDDS: &str = "cyclonedds==11.0.1";
 const ONNX: &str = "onnx==1.17.0";
 
 /// The other Python test peers: an independent MCAP reader and WebSocket client
-/// for `tests/it/view.rs` (recordings and the live Foxglove view), and the MCAP
-/// protobuf decoder `tests/presence/band.py` reads the presence band with.
+/// for `tests/it/view.rs` (recordings and the live Foxglove view), the MCAP
+/// protobuf decoder `tests/presence/band.py` reads the presence band with, and
+/// PyYAML for `tests/ros2/nav2_static_layer.py` (it reads the shipped Nav2
+/// snippet).
 const PY_PEERS: &[(&str, &str)] = &[
     ("mcap", "1.6.0"),
     ("websockets", "17.4"),
     ("mcap-protobuf-support", "0.5.3"),
+    ("PyYAML", "6.0.3"),
 ];
 
 /// Makes `target/ros2-venv`, a Python venv with [`CYCLONEDDS`], for

@@ -476,8 +476,8 @@ stale_s = 5
         let cells = b.compose(t0).unwrap();
         assert_eq!(
             cells[grid.index(13, 14)],
-            99,
-            "confirm_cost defaults to cap, 99"
+            98,
+            "confirm_cost defaults to cap, 98"
         );
         assert_eq!(cells[grid.index(20, 20)], 0);
         // 3 s of capture time later the confirmation has expired.
@@ -492,7 +492,7 @@ stale_s = 5
         b.on_detections(0, &detections_at_1000_s(1), &[person_at_feet_105_124()]);
         let grid = b.grid.unwrap();
         let at_feet = |b: &Bridge| b.compose(t0).unwrap()[grid.index(13, 14)];
-        assert_eq!(at_feet(&b), 99);
+        assert_eq!(at_feet(&b), 98);
         // 1 s later a search of the left half finds nobody: the person's feet
         // (105, 124) are elsewhere, so they stay confirmed.
         let mut later = detections_at_1000_s(0);
@@ -503,7 +503,7 @@ stale_s = 5
             ..later
         };
         b.on_detections(0, &left, &[]);
-        assert_eq!(at_feet(&b), 99);
+        assert_eq!(at_feet(&b), 98);
         // A search around them finds nobody: gone, long before `confirm_hold_s`.
         let around = DetectionHeader {
             roi_x: 80,

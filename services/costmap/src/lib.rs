@@ -11,6 +11,8 @@
 //! * [`msgs`], [`ros`]: `nav_msgs/OccupancyGrid`, `map_msgs/OccupancyGridUpdate`,
 //!   people as `geometry_msgs/PoseArray` and site markers over DDS in pure Rust;
 //! * [`markers`]: camera footprints, zones, segments and routes for rviz2;
+//! * [`plan_dds`]: the planning services over ROS 2, in the request/reply layouts
+//!   of rmw_cyclonedds and rmw_fastrtps;
 //! * snapshots (`map_server` PGM + YAML and a PNG picture) are written with
 //!   `isochron_planning::snapshot`, the writer the CLI shares;
 //! * [`stage`]: the service's stage for the runtime (every camera's `activity` and
@@ -23,5 +25,6 @@ pub mod bridge;
 pub mod delta;
 pub mod markers;
 pub mod msgs;
+pub mod plan_dds;
 pub mod ros;
 pub mod stage;

@@ -336,11 +336,63 @@ pub struct RouteCost {
     pub no_long_term: bool,
 }
 
+/// A `string` field read by the CDR rules: a `u32` length that counts the
+/// terminating NUL, then that many bytes, the last one NUL and no other, UTF-8.
+/// `cdr-encoding` (what RustDDS and ros2-client decode with) drops the last byte
+/// whatever it is, so a string sent without its NUL would lose its last character;
+/// this one is an error instead. Written as a plain string.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CdrString(pub String);
+
+impl Serialize for CdrString {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(&self.0)
+    }
+}
+
+impl<'de> Deserialize<'de> for CdrString {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<CdrString, D::Error> {
+        struct Strict;
+        impl serde::de::Visitor<'_> for Strict {
+            type Value = CdrString;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a CDR string")
+            }
+            fn visit_bytes<E: serde::de::Error>(self, b: &[u8]) -> Result<CdrString, E> {
+                CdrString::from_wire(b).map_err(E::custom)
+            }
+        }
+        // A string's wire form is a byte sequence's: length, then the bytes.
+        deserializer.deserialize_bytes(Strict)
+    }
+}
+
+impl CdrString {
+    /// The string of `bytes`, the length's worth of a CDR string (NUL included).
+    pub fn from_wire(bytes: &[u8]) -> Result<CdrString, String> {
+        let Some((&last, text)) = bytes.split_last() else {
+            return Err("a string of length 0 (a CDR string's length counts its NUL)".into());
+        };
+        if last != 0 {
+            return Err(format!(
+                "a string of {} bytes without its terminating NUL",
+                bytes.len()
+            ));
+        }
+        if text.contains(&0) {
+            return Err("a string with a NUL inside".into());
+        }
+        String::from_utf8(text.to_vec())
+            .map(CdrString)
+            .map_err(|_| "a string that is not UTF-8".into())
+    }
+}
+
 /// `isochron_msgs/srv/PlanOffline` request.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PlanOfflineRequest {
     /// Route name.
-    pub route: String,
+    pub route: CdrString,
     /// First minute, 0..1440.
     pub start_minute: u16,
     /// End minute, exclusive, 1..=1440.
@@ -370,7 +422,7 @@ pub struct PlanOfflineResponse {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PlanNowRequest {
     /// Route names.
-    pub routes: Vec<String>,
+    pub routes: Vec<CdrString>,
 }
 
 /// `isochron_msgs/srv/PlanNow` response.
@@ -385,11 +437,6 @@ pub struct PlanNowResponse {
     /// Cheapest first.
     pub routes: Vec<RouteCost>,
 }
-
-impl ros2_client::Message for PlanOfflineRequest {}
-impl ros2_client::Message for PlanOfflineResponse {}
-impl ros2_client::Message for PlanNowRequest {}
-impl ros2_client::Message for PlanNowResponse {}
 
 #[cfg(test)]
 mod tests {

@@ -18,9 +18,9 @@
 //! * `costmap.forecast_topic`: `nav_msgs/msg/OccupancyGrid`, reliable,
 //!   transient-local, keep last 1 — the cost expected `forecast_ahead_min` ahead;
 //! * `costmap.plan_offline_service`, `costmap.plan_now_service`: the services
-//!   `isochron_msgs/srv/PlanOffline` and `PlanNow` (ros/isochron_msgs), in the
-//!   request/reply mapping of rmw_cyclonedds (`rq/<name>Request`,
-//!   `rr/<name>Reply`).
+//!   `isochron_msgs/srv/PlanOffline` and `PlanNow` (ros/isochron_msgs) on
+//!   `rq/<name>Request` and `rr/<name>Reply`, in the request/reply layouts of
+//!   rmw_cyclonedds and rmw_fastrtps ([`crate::plan_dds`]).
 //!
 //! The DDS participant joins `costmap.ros_domain_id` (else `$ROS_DOMAIN_ID`, else 0)
 //! and uses the network interfaces of `costmap.dds_interfaces` (else all; only
@@ -32,24 +32,22 @@
 use std::net::IpAddr;
 use std::time::Duration;
 
-use ros2_client::dds::{DEFAULT_PUBLISHER_QOS, Publisher, Server, ServiceMapping};
-use ros2_client::qos::{Durability, History};
-use ros2_client::{Name, QosProfile, ServiceTypeName};
+use ros2_client::dds::{DEFAULT_PUBLISHER_QOS, Publisher};
+use ros2_client::qos::Durability;
+use ros2_client::{Name, NodeName};
 use rustdds::dds::qos::HasQoSPolicy;
 use rustdds::{QosPolicies, TopicDescription, policy};
 
 use isochron_dds::{DdsError, RosNode, keep_last};
 
-use isochron_planning::plan_service::{offline_plan_of, ranking_of};
-use isochron_planning::query::{
-    PLAN_FLAG_INFINITE, PLAN_MAX_ROUTES, PLAN_NAME_LEN, PlanKind, PlanRequest, PlanResponse,
-    PlanStatus,
-};
+use isochron_planning::query::{PlanKind, PlanRequest, PlanResponse};
+use isochron_shared::stage::Context;
 
-use crate::msgs::{
-    CostPoint, CostmapFilterInfo, MarkerArray, OccupancyGrid, OccupancyGridUpdate, PlanNowRequest,
-    PlanNowResponse, PlanOfflineRequest, PlanOfflineResponse, PoseArray, RouteCost, Window,
-};
+use crate::msgs::{CostmapFilterInfo, MarkerArray, OccupancyGrid, OccupancyGridUpdate, PoseArray};
+use crate::plan_dds::{PlanCounts, PlanServices};
+
+/// The bridge's ROS 2 node: `/isochron/<NODE>`.
+const NODE: &str = "costmap_bridge";
 
 /// Grids kept for late joiners: the current one.
 const GRID_DEPTH: i32 = 1;
@@ -86,9 +84,6 @@ pub struct RosSettings {
     /// The real-time planning service, e.g. `/isochron/plan_now`.
     pub plan_now_service: String,
 }
-
-/// Requests a service keeps for the bridge to answer.
-const SERVICE_DEPTH: usize = 10;
 
 /// Why ROS 2 output could not start.
 #[derive(Debug, thiserror::Error)]
@@ -139,10 +134,8 @@ pub struct RosOutput {
     filter_info: Publisher<CostmapFilterInfo>,
     mask: Publisher<OccupancyGrid>,
     forecast: Publisher<OccupancyGrid>,
-    /// `isochron_msgs/srv/PlanOffline`.
-    plan_offline: Server<PlanOfflineRequest, PlanOfflineResponse>,
-    /// `isochron_msgs/srv/PlanNow`.
-    plan_now: Server<PlanNowRequest, PlanNowResponse>,
+    /// `isochron_msgs/srv/PlanOffline` and `PlanNow`.
+    plans: PlanServices,
     /// The grid topic's DDS name (`rt/...`) and the QoS its writer offers: what
     /// RustDDS matches remote readers against.
     grid_match: (String, QosPolicies),
@@ -153,7 +146,7 @@ impl RosOutput {
     /// Joins the DDS domain and creates the node `/isochron/costmap_bridge` with its
     /// publishers.
     pub fn start(settings: &RosSettings) -> Result<RosOutput, RosError> {
-        let mut ros = RosNode::start(settings.domain_id, &settings.interfaces, "costmap_bridge")?;
+        let mut ros = RosNode::start(settings.domain_id, &settings.interfaces, NODE)?;
 
         let topic = |name: &str, package: &str, type_name: &str, durability, depth| {
             ros.topic(
@@ -238,26 +231,15 @@ impl RosOutput {
         let filter_info = publisher!(filter_info_topic, "speed filter info");
         let mask = publisher!(mask_topic, "speed mask");
         let forecast = publisher!(forecast_topic, "forecast");
-        // Services as rmw_cyclonedds maps them: `rq/<name>Request` and
-        // `rr/<name>Reply`, the client's id in a 16-byte header before the fields.
-        let service_qos = QosProfile::publisher_default().history(History::KeepLast {
-            depth: SERVICE_DEPTH,
-        });
-        macro_rules! server {
-            ($name:expr, $type_name:literal) => {
-                ros.node_mut()
-                    .create_server(
-                        ServiceMapping::Cyclone,
-                        &topic_name($name)?,
-                        &ServiceTypeName::new("isochron_msgs", $type_name),
-                        service_qos.clone(),
-                        service_qos.clone(),
-                    )
-                    .map_err(|e| ros.error(format!("creating the service {}: {e:?}", $name)))?
-            };
-        }
-        let plan_offline = server!(&settings.plan_offline_service, "PlanOffline");
-        let plan_now = server!(&settings.plan_now_service, "PlanNow");
+        let node = NodeName::new("/isochron", NODE)
+            .map_err(|e| ros.error(format!("node name {NODE}: {e:?}")))?;
+        let plans = PlanServices::start(
+            &ros.context().domain_participant(),
+            &node,
+            &topic_name(&settings.plan_offline_service)?,
+            &topic_name(&settings.plan_now_service)?,
+        )
+        .map_err(|e| ros.error(e.to_string()))?;
 
         Ok(RosOutput {
             grid,
@@ -267,8 +249,7 @@ impl RosOutput {
             filter_info,
             mask,
             forecast,
-            plan_offline,
-            plan_now,
+            plans,
             grid_match,
             ros,
         })
@@ -323,61 +304,21 @@ impl RosOutput {
         })
     }
 
-    /// Answers every pending request of both planning services with `answer` —
-    /// the same function that answers `<prefix>/plan` over iceoryx2; returns how
-    /// many were answered. A malformed request (a name too long, minutes out of
-    /// range) gets `STATUS_BAD_REQUEST`; one that cannot be read is skipped
-    /// (logged at debug level). Never blocks: at most [`SERVICE_DEPTH`] per
-    /// service and call.
+    /// Answers the requests of both planning services that are due with
+    /// `answer` — the same function that answers `<prefix>/plan` over iceoryx2;
+    /// returns how many were answered ([`PlanServices::serve`]: malformed requests
+    /// get `STATUS_BAD_REQUEST`, floods are dropped, both counted in `cx`).
     pub fn serve_plans(
-        &self,
-        mut answer: impl FnMut(PlanKind, &PlanRequest) -> PlanResponse,
+        &mut self,
+        cx: &mut Context,
+        answer: impl FnMut(PlanKind, &PlanRequest) -> PlanResponse,
     ) -> usize {
-        let mut n = 0;
-        for _ in 0..SERVICE_DEPTH {
-            match self.plan_offline.receive_request() {
-                Ok(Some((id, request))) => {
-                    let response = match offline_request(&request) {
-                        Ok(r) => offline_response(&answer(PlanKind::Offline, &r)),
-                        Err(message) => PlanOfflineResponse {
-                            status: PlanStatus::BadRequest as u8,
-                            message,
-                            windows: Vec::new(),
-                            curve: Vec::new(),
-                            infinite: false,
-                        },
-                    };
-                    if let Err(e) = self.plan_offline.send_response(id, response) {
-                        tracing::warn!("answering a PlanOffline request failed: {e:?}");
-                    }
-                    n += 1;
-                }
-                Ok(None) => break,
-                Err(e) => tracing::debug!("an unreadable PlanOffline request: {e:?}"),
-            }
-        }
-        for _ in 0..SERVICE_DEPTH {
-            match self.plan_now.receive_request() {
-                Ok(Some((id, request))) => {
-                    let response = match now_request(&request) {
-                        Ok(r) => now_response(&answer(PlanKind::Now, &r)),
-                        Err(message) => PlanNowResponse {
-                            status: PlanStatus::BadRequest as u8,
-                            message,
-                            t_star: 0,
-                            routes: Vec::new(),
-                        },
-                    };
-                    if let Err(e) = self.plan_now.send_response(id, response) {
-                        tracing::warn!("answering a PlanNow request failed: {e:?}");
-                    }
-                    n += 1;
-                }
-                Ok(None) => break,
-                Err(e) => tracing::debug!("an unreadable PlanNow request: {e:?}"),
-            }
-        }
-        n
+        self.plans.serve(cx, answer)
+    }
+
+    /// What the planning services did so far.
+    pub fn plan_counts(&self) -> PlanCounts {
+        self.plans.counts()
     }
 
     /// Subscribers matched with the grid publisher: the remote readers DDS discovery
@@ -401,107 +342,6 @@ impl RosOutput {
                 s.topic_name == *topic && offered.compliance_failure_wrt(&s.qos()).is_none()
             })
             .count()
-    }
-}
-
-/// Route names a ROS 2 request may carry: at most [`PLAN_NAME_LEN`] bytes each.
-fn check_route_name(name: &str) -> Result<(), String> {
-    if name.is_empty() || name.len() > PLAN_NAME_LEN {
-        return Err(format!(
-            "route name '{name}': expected 1 to {PLAN_NAME_LEN} bytes"
-        ));
-    }
-    Ok(())
-}
-
-/// The iceoryx2 request of a `PlanOffline` request, validated like one.
-fn offline_request(r: &PlanOfflineRequest) -> Result<PlanRequest, String> {
-    check_route_name(&r.route)?;
-    let mut request = PlanRequest::new(PlanKind::Offline, &[&r.route]);
-    request.start_minute = r.start_minute as u32;
-    request.end_minute = r.end_minute as u32;
-    request.step_min = r.step_min as u32;
-    request.weekday = r.weekday as u32;
-    request.validate().map_err(|e| e.to_string())?;
-    Ok(request)
-}
-
-/// The iceoryx2 request of a `PlanNow` request, validated like one.
-fn now_request(r: &PlanNowRequest) -> Result<PlanRequest, String> {
-    if r.routes.is_empty() || r.routes.len() > PLAN_MAX_ROUTES {
-        return Err(format!(
-            "expected 1 to {PLAN_MAX_ROUTES} routes, found {}",
-            r.routes.len()
-        ));
-    }
-    for name in &r.routes {
-        check_route_name(name)?;
-    }
-    let names: Vec<&str> = r.routes.iter().map(String::as_str).collect();
-    let request = PlanRequest::new(PlanKind::Now, &names);
-    request.validate().map_err(|e| e.to_string())?;
-    Ok(request)
-}
-
-/// A `PlanOffline` response from the planner's answer.
-fn offline_response(r: &PlanResponse) -> PlanOfflineResponse {
-    if r.status != PlanStatus::Ok as u32 {
-        return PlanOfflineResponse {
-            status: r.status as u8,
-            message: r.message(),
-            windows: Vec::new(),
-            curve: Vec::new(),
-            infinite: false,
-        };
-    }
-    let plan = offline_plan_of(r);
-    PlanOfflineResponse {
-        status: r.status as u8,
-        message: r.message(),
-        windows: plan
-            .windows
-            .iter()
-            .map(|w| Window {
-                start_minute: w.start as u16,
-                end_minute: w.end as u16,
-                cost: w.cost,
-            })
-            .collect(),
-        curve: plan
-            .curve
-            .iter()
-            .map(|p| CostPoint {
-                minute: p.minute as u16,
-                cost: p.cost,
-            })
-            .collect(),
-        infinite: r.route_count > 0 && r.routes[0].flags & PLAN_FLAG_INFINITE != 0,
-    }
-}
-
-/// A `PlanNow` response from the planner's answer.
-fn now_response(r: &PlanResponse) -> PlanNowResponse {
-    let ok = r.status == PlanStatus::Ok as u32;
-    PlanNowResponse {
-        status: r.status as u8,
-        message: r.message(),
-        t_star: if ok { r.t_star as u16 } else { 0 },
-        routes: if ok {
-            ranking_of(r)
-                .into_iter()
-                .map(|x| RouteCost {
-                    route: x.name,
-                    cost2: x.cost2,
-                    cost1: x.cost1,
-                    short_term: x.short_term,
-                    infinite: x.infinite,
-                    estimated: x.estimated,
-                    no_long_term: x.no_long_term,
-                })
-                .collect()
-        } else {
-            Vec::new()
-        },
     }
 }
 

@@ -123,6 +123,9 @@ impl CostmapStage {
             tracing::warn!("{warning}");
         }
         let grid = MapGrid::from_config(loaded).map_err(|e| config_error(e.to_string()))?;
+        if let Some(warning) = grid.as_ref().and_then(|g| nav2_geometry_warning(loaded, g)) {
+            tracing::warn!("{warning}");
+        }
         let bridge =
             Bridge::new(loaded, grid).map_err(|e| Fatal::from(e).context(loaded.path.display()))?;
         let mut planner = Planner::new(loaded).map_err(|e| config_error(e.to_string()))?;
@@ -256,11 +259,11 @@ impl CostmapStage {
 
 impl CostmapStage {
     /// Answers the planning requests that came over ROS 2.
-    fn serve_ros_plans(&mut self) {
-        let Some(ros) = &self.ros else {
+    fn serve_ros_plans(&mut self, cx: &mut Context) {
+        let Some(ros) = &mut self.ros else {
             return;
         };
-        let served = ros.output.serve_plans(|kind, request| {
+        let served = ros.output.serve_plans(cx, |kind, request| {
             self.planning
                 .answer(kind, request, &self.bridge, &mut self.counters)
         });
@@ -319,7 +322,7 @@ impl Stage for CostmapStage {
             &mut rejected,
         )?;
         self.counters.plans += served as u64;
-        self.serve_ros_plans();
+        self.serve_ros_plans(cx);
         for _ in 0..rejected {
             cx.health.rejected();
         }
@@ -327,7 +330,7 @@ impl Stage for CostmapStage {
     }
 
     fn on_tick(&mut self, cx: &mut Context) -> Result<(), Fatal> {
-        self.serve_ros_plans();
+        self.serve_ros_plans(cx);
         let now = Instant::now();
         if now >= self.next_publish {
             self.next_publish += self.period;
@@ -433,8 +436,22 @@ impl Stage for CostmapStage {
             .filter(|&k| bridge.is_live(k, now))
             .count();
         let c = &self.counters;
+        // Only when some happened: the detail is 160 bytes in the status.
+        let plans = self
+            .ros
+            .as_ref()
+            .map(|r| r.output.plan_counts())
+            .unwrap_or_default();
+        let refused = if plans.rejected + plans.dropped > 0 {
+            format!(
+                " plans_rejected={} plans_dropped={}",
+                plans.rejected, plans.dropped
+            )
+        } else {
+            String::new()
+        };
         format!(
-            "cameras_live={live}/{} grids={} updates={} ros_subscribers={} publish_errors={} plans={} snapshots={} confirmed={} people_msgs={} markers={} speed_masks={} forecasts={}",
+            "cameras_live={live}/{} grids={} updates={} ros_subscribers={} publish_errors={} plans={}{refused} snapshots={} confirmed={} people_msgs={} markers={} speed_masks={} forecasts={}",
             bridge.cameras.len(),
             c.grids,
             c.updates,
@@ -448,6 +465,36 @@ impl Stage for CostmapStage {
             c.masks,
             c.forecasts
         )
+    }
+}
+
+/// Why Nav2 may not take the grid as the robots' map, if it may not: a StaticLayer
+/// of a global (not rolling) costmap resizes the whole costmap to a map of another
+/// size, resolution or origin, and the robots' own map is gone. The grid has the
+/// robots' map's geometry only when it comes from their `map_server` YAML
+/// (`costmap.map_yaml`), and Nav2 ignores that YAML's origin yaw.
+pub fn nav2_geometry_warning(loaded: &LoadedConfig, grid: &MapGrid) -> Option<String> {
+    let geometry = |g: &MapGrid| {
+        format!(
+            "{}x{} cells of {} m from ({}, {})",
+            g.width, g.height, g.resolution, g.origin_x, g.origin_y
+        )
+    };
+    match &loaded.config.costmap.map_yaml {
+        None => Some(format!(
+            "{}: costmap: the grid ({}) is set by width_cells/height_cells, and the robots' map is unknown to the bridge (costmap.map_yaml unset): a Nav2 global costmap whose map has another geometry resizes to this grid and loses the robots' map; set costmap.map_yaml to the robots' map_server YAML (a rolling local costmap alone takes any geometry)",
+            loaded.path.display(),
+            geometry(grid)
+        )),
+        Some(yaml) if grid.yaw != 0.0 => Some(format!(
+            "{}: costmap.map_yaml {}: the grid ({}, yaw {} rad) is rotated, but Nav2 places a map unrotated ({}, yaw 0), so the activity lands off its cells; rotate the map frame instead (a static transform) and give the map origin yaw 0",
+            loaded.path.display(),
+            yaml.display(),
+            geometry(grid),
+            grid.yaw,
+            geometry(grid)
+        )),
+        Some(_) => None,
     }
 }
 

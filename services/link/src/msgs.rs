@@ -187,8 +187,8 @@ mod tests {
         );
         // The CDR of the `.msg` files: "box_a" (4 + 6 B, padded to 12), the
         // preamble (76 B: a 24-byte camera, aligned 64-bit fields), the activity
-        // fields (56 B), the blocks' count and 6 blocks of 32 B.
-        assert_eq!(cdr_len(&msg), 12 + 76 + 56 + 4 + 6 * 32);
+        // fields (56 B), the blocks' count and 6 blocks of 36 B.
+        assert_eq!(cdr_len(&msg), 12 + 76 + 56 + 4 + 6 * 36);
     }
 
     #[test]

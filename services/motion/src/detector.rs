@@ -409,14 +409,52 @@ mod tests {
         f
     }
 
+    /// A detector per kernel, motion only (the appearance has its own test).
     fn detector(w: usize, h: usize, mask: &[Polygon]) -> Vec<MotionDetector> {
         let geom = Geometry::new(w, h, 16).unwrap();
+        let params = MotionParams {
+            appearance_hz: 0.0,
+            ..MotionParams::default()
+        };
         Implementation::available()
             .into_iter()
-            .map(|imp| {
-                MotionDetector::with_implementation(geom, MotionParams::default(), imp, mask)
-            })
+            .map(|imp| MotionDetector::with_implementation(geom, params, imp, mask))
             .collect()
+    }
+
+    #[test]
+    fn the_appearance_is_measured_when_due_and_flagged() {
+        let (w, h) = (64, 32);
+        let geom = Geometry::new(w, h, 16).unwrap();
+        let mut d = MotionDetector::with_implementation(
+            geom,
+            MotionParams::default(),
+            Implementation::Portable,
+            &[vec![[0.0, 0.0], [16.0, 0.0], [16.0, 16.0], [0.0, 16.0]]],
+        );
+        let frame = vec![90u8; w * h];
+        let mut out = vec![BlockMotion::default(); geom.blocks()];
+        // 2 Hz: the first frame of each half second of capture time.
+        let flags: Vec<u32> = [0, 100, 400, 500, 600]
+            .iter()
+            .map(|ms| {
+                let report = d.process(&frame, &frame, ms * 1_000_000, &mut out).unwrap();
+                assert_eq!(report.appearance, report.flags & FLAG_APPEARANCE != 0);
+                if report.appearance {
+                    // The masked block is zero, the others their grey level.
+                    assert_eq!(out[0].luma, 0);
+                    assert!(
+                        out[1..]
+                            .iter()
+                            .all(|b| b.luma == 90 * 256 && b.texture == 0)
+                    );
+                } else {
+                    assert!(out.iter().all(|b| b.luma == 0));
+                }
+                report.flags
+            })
+            .collect();
+        assert_eq!(flags, [FLAG_APPEARANCE, 0, 0, FLAG_APPEARANCE, 0]);
     }
 
     fn run(d: &mut MotionDetector, prev: &[u8], cur: &[u8]) -> (FrameReport, Vec<BlockMotion>) {

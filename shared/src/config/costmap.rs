@@ -117,11 +117,14 @@ pub struct CostmapConfig {
     /// PETS demo: a median active cell costs about 10, the busiest 5 % reach 100);
     /// tune per site with `isochron costmap snapshot`.
     pub cost_scale: f64,
-    /// Highest cost activity can give a cell, 1 to 100. Default 99: busy areas are
-    /// expensive but passable. Nav2's StaticLayer reads 100 (`lethal_cost_threshold`
-    /// in the snippet) as LETHAL_OBSTACLE, so `cap = 100` makes a busy aisle a wall
-    /// (the paper's "people cost as much as walls"); it is allowed, with a warning
-    /// at load.
+    /// Highest cost activity can give a cell, 1 to 100. Default 98: busy areas are
+    /// expensive but passable on every Nav2 release — StaticLayer maps 98 to
+    /// 98/100·254 = 248 (Humble to Rolling), while 99 is INSCRIBED (253, a
+    /// collision for NavFn and Smac) on Rolling and Lyrical since
+    /// ros-navigation/navigation2 PR #5781 (`inscribed_obstacle_cost_value`,
+    /// default 99) and 100 is LETHAL everywhere (`lethal_cost_threshold`). `cap =
+    /// 99` and `cap = 100` (a busy aisle is a wall: the paper's "people cost as much
+    /// as walls") are allowed, with a warning at load (docs/nav2.md).
     pub cap: u8,
     /// A person the detector confirmed raises the cells within this radius of their
     /// feet, metres. Default 0.5.
@@ -131,21 +134,23 @@ pub struct CostmapConfig {
     /// (capture time), seconds: a safety expiry for when the gate's re-checks
     /// (`gate.recheck_s`) stop coming. Default 15.
     pub confirm_hold_s: f64,
-    /// ... to at least this cost, 0 to 100 (100 is lethal in Nav2: warned at
-    /// load). Default: `cap`.
+    /// ... to at least this cost, 0 to 100 (99 and 100 are obstacles in Nav2, as
+    /// for `cap`: warned at load). Default: `cap` (98).
     pub confirm_cost: Option<u8>,
     /// A block of the presence band (something that entered and stays there,
     /// moving or not; `[presence]`) raises its cells to at least this cost, 0 to
-    /// 100 (100 is lethal in Nav2: warned at load). Default: `confirm_cost`.
+    /// 100 (99 and 100 are obstacles in Nav2, as for `cap`: warned at load).
+    /// Default: `confirm_cost`.
     pub presence_cost: Option<u8>,
-    /// Publish -1 (unknown) where no camera sees. Default true: right for a global
-    /// costmap with `track_unknown_space` and `use_maximum` (Nav2 skips unknown
-    /// cells there), and for a local (rolling) costmap on Nav2 releases whose
-    /// StaticLayer skips unknown cells in rolling mode too (`main` since
-    /// ros-navigation/navigation2 PR #6516, Sept 2026).
-    /// `false` publishes 0 there instead: for a local costmap on Humble, Iron or
-    /// Jazzy, whose rolling StaticLayer takes `max(cost, 255)` and so would wipe
-    /// the obstacle layer wherever no camera sees (README, "Nav2").
+    /// Publish -1 (unknown) where no camera sees. Default true: right for every
+    /// costmap of `config/nav2-activity-layer.yaml` on every Nav2 release — the
+    /// global costmap (`track_unknown_space: true`) reads -1 as NO_INFORMATION,
+    /// which `use_maximum` skips; the local costmap (`track_unknown_space: false`,
+    /// Nav2's default there) reads it as FREE_SPACE, which `max()` leaves below
+    /// the obstacles. `false` publishes 0 there instead: only for a rolling costmap
+    /// that tracks unknown space, whose StaticLayer on Humble to Lyrical writes
+    /// `max(cost, master)` with unknown = 255 and so would wipe the obstacles
+    /// wherever no camera sees (docs/nav2.md).
     pub publish_unknown: bool,
     /// A camera whose activity stopped arriving this long ago (wall clock) no
     /// longer counts as seeing: its cells turn unknown (-1), seconds. Default 10.
@@ -209,7 +214,7 @@ impl Default for CostmapConfig {
             weight_moving: 1.0,
             weight_long_term: 0.5,
             cost_scale: 0.2,
-            cap: 99,
+            cap: 98,
             confirm_radius_m: 0.5,
             confirm_hold_s: 15.0,
             confirm_cost: None,
@@ -580,23 +585,25 @@ impl CostmapConfig {
     /// as (key, why): logged at load by the cost map bridge.
     pub fn warnings(&self) -> Vec<Invalid> {
         let mut out = Vec::new();
-        if self.cap >= 100 {
-            out.push(Invalid::new(
-                "costmap.cap",
-                "100 makes busy cells lethal in Nav2 (StaticLayer maps 100 to LETHAL_OBSTACLE): a robot with no other way is stuck; use 99 or less unless people must block the way",
-            ));
-        }
-        if self.confirm_cost.is_some_and(|c| c >= 100) {
-            out.push(Invalid::new(
+        for (key, value, what) in [
+            ("costmap.cap", Some(self.cap), "busy cells"),
+            (
                 "costmap.confirm_cost",
-                "100 makes the cells around a confirmed person lethal in Nav2: use 99 or less unless people must block the way",
-            ));
-        }
-        if self.presence_cost.is_some_and(|c| c >= 100) {
-            out.push(Invalid::new(
-                "costmap.presence_cost",
-                "100 makes present blocks (a person who stopped, a box left there) lethal in Nav2: use 99 or less unless they must block the way",
-            ));
+                self.confirm_cost,
+                "the cells around a confirmed person",
+            ),
+        ] {
+            match value {
+                Some(100..) => out.push(Invalid::new(
+                    key,
+                    format!("100 makes {what} lethal in Nav2 (StaticLayer maps 100 to LETHAL_OBSTACLE on every release): a robot with no other way is stuck; use 98 or less unless people must block the way"),
+                )),
+                Some(99) => out.push(Invalid::new(
+                    key,
+                    format!("99 makes {what} an obstacle on Nav2 Rolling and Lyrical (StaticLayer maps 99, inscribed_obstacle_cost_value, to INSCRIBED 253 since navigation2 PR #5781; 251 on Humble to Kilted); use 98 or less for a cost every release passes"),
+                )),
+                _ => {}
+            }
         }
         if self.origin_yaw_rad.is_some_and(|y| y != 0.0) {
             out.push(Invalid::new(

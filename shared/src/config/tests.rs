@@ -212,7 +212,10 @@ fn self_crossing_polygons_are_rejected_with_line_and_key() {
 #[test]
 fn lethal_cap_and_map_yaw_are_warned_with_line_and_key() {
     let c = parse(GOOD).unwrap();
-    assert_eq!(c.costmap.cap, 99, "activity is never lethal by default");
+    assert_eq!(
+        c.costmap.cap, 98,
+        "activity is never an obstacle in Nav2 by default"
+    );
     assert!(c.costmap.publish_unknown);
     assert!(c.costmap.warnings().is_empty());
     let dir = tempfile::tempdir().unwrap();
@@ -244,6 +247,18 @@ fn lethal_cap_and_map_yaw_are_warned_with_line_and_key() {
         "{warnings:?}"
     );
     assert!(parse(&format!("{GOOD}\n[costmap]\ncap = 101\n")).is_err());
+    // 99 is INSCRIBED on Nav2 Rolling and Lyrical: warned, for cap and confirm_cost.
+    let c = parse(&format!("{GOOD}\n[costmap]\ncap = 99\nconfirm_cost = 99\n")).unwrap();
+    let warnings = c.costmap.warnings();
+    assert_eq!(warnings.len(), 2, "{warnings:?}");
+    assert!(warnings.iter().all(|w| w.message.contains("INSCRIBED")));
+    assert!(
+        parse(&format!("{GOOD}\n[costmap]\nconfirm_cost = 98\n"))
+            .unwrap()
+            .costmap
+            .warnings()
+            .is_empty()
+    );
 }
 
 #[test]
