@@ -33,15 +33,19 @@ use anyhow::{Context, bail};
 /// System packages: OpenCV and the bindings' clang; iproute2 (`ip`, `ss`) for the
 /// network-namespace and DDS socket tests; `prometheus` for promtool, which checks
 /// the exporter's output and the alert rules; `mosquitto`, the broker the MQTT
-/// sink's test publishes to; `dpkg-dev` for `dpkg-shlibdeps`, which gives the
-/// package's `Depends` (`cargo xtask deb`).
-const PACKAGES: [&str; 7] = [
+/// sink's test publishes to (and `mosquitto_passwd`), `mosquitto-clients`, whose
+/// `mosquitto_sub` reads the sink's messages back over TLS, and `openssl`, which
+/// makes that test's certificates; `dpkg-dev` for `dpkg-shlibdeps`, which gives
+/// the package's `Depends` (`cargo xtask deb`).
+const PACKAGES: [&str; 9] = [
     "libopencv-dev",
     "clang",
     "libclang-dev",
     "iproute2",
     "prometheus",
     "mosquitto",
+    "mosquitto-clients",
+    "openssl",
     "dpkg-dev",
 ];
 
