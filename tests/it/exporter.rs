@@ -1,15 +1,22 @@
 //! `isochron-exporter`: scraped during a replay, its output passes Prometheus's
 //! own `promtool check metrics` and its counters move; a killed service turns
-//! its `isochron_up` to 0; a taken port is one clear line and exit 78. The
-//! shipped alert rules pass `promtool check rules` and their unit tests, and the
-//! dashboard asks only for metrics the exporter serves.
+//! its `isochron_up` to 0; a taken port is one clear line and exit 78. Hostile
+//! clients (huge request heads, thousands of idle connections, slowloris) get
+//! 431 or are closed while its memory and threads stay bounded and a normal
+//! scrape still passes promtool. The shipped alert rules pass `promtool check
+//! rules` and their unit tests, and the dashboard asks only for metrics the
+//! exporter serves.
 
-use std::io::{Read, Write};
+use std::io::{ErrorKind, Read, Write};
 use std::net::TcpStream;
 use std::path::Path;
 use std::process::{Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use isochron_shared::service::raise_open_file_limit;
 use isochron_tests::{Proc, TestSite, bin, eventually, free_port, repo_root, vtest};
 
 /// `GET path` on 127.0.0.1:`port` with `accept`: the response's head and body.
@@ -277,4 +284,228 @@ fn the_dashboard_and_rules_ask_only_for_served_metrics() {
         }
         assert!(asked > 5, "{file}");
     }
+}
+
+/// `VmRSS` (KiB) and `Threads` of process `pid`, from `/proc/<pid>/status`.
+fn rss_and_threads(pid: u32) -> Option<(u64, u64)> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let field = |name: &str| -> Option<u64> {
+        let line = status.lines().find(|l| l.starts_with(name))?;
+        line[name.len()..].split_whitespace().next()?.parse().ok()
+    };
+    Some((field("VmRSS:")?, field("Threads:")?))
+}
+
+/// The highest `VmRSS` (KiB) and `Threads` of a process, sampled every 20 ms
+/// until [`Peaks::stop`].
+struct Peaks {
+    stop: Arc<AtomicBool>,
+    sampler: JoinHandle<(u64, u64)>,
+}
+
+impl Peaks {
+    fn watch(pid: u32) -> Peaks {
+        let stop = Arc::new(AtomicBool::new(false));
+        let stopped = stop.clone();
+        let sampler = std::thread::spawn(move || {
+            let mut peak = (0, 0);
+            while !stopped.load(Ordering::Relaxed) {
+                if let Some((rss, threads)) = rss_and_threads(pid) {
+                    peak = (peak.0.max(rss), peak.1.max(threads));
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            peak
+        });
+        Peaks { stop, sampler }
+    }
+
+    fn stop(self) -> (u64, u64) {
+        self.stop.store(true, Ordering::Relaxed);
+        self.sampler.join().unwrap()
+    }
+}
+
+/// One client sending a request head of up to `limit` bytes (1 KiB header lines)
+/// for at most `patience`: the bytes the exporter took before it closed the
+/// connection, and the start of what it answered.
+fn huge_head(port: u16, limit: u64, patience: Duration) -> (u64, String) {
+    let mut s = TcpStream::connect(("127.0.0.1", port)).unwrap();
+    s.set_write_timeout(Some(Duration::from_secs(5))).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(2))).unwrap();
+    let line = format!("X-Pad: {}\r\n", "a".repeat(1016));
+    let chunk = line.repeat(64);
+    let end = Instant::now() + patience;
+    let mut sent = s
+        .write(b"GET /metrics HTTP/1.1\r\nHost: localhost\r\n")
+        .unwrap() as u64;
+    while sent < limit && Instant::now() < end {
+        match s.write(chunk.as_bytes()) {
+            Ok(n) => sent += n as u64,
+            Err(_) => break,
+        }
+    }
+    let mut answer = vec![0; 256];
+    let n = s.read(&mut answer).unwrap_or(0);
+    (sent, String::from_utf8_lossy(&answer[..n]).into_owned())
+}
+
+/// True when the exporter closed `s` (end of stream or reset), checked without
+/// waiting.
+fn closed_by_peer(s: &TcpStream) -> bool {
+    s.set_nonblocking(true).unwrap();
+    let mut byte = [0u8; 64];
+    match s.peek(&mut byte) {
+        Ok(0) => true,
+        Ok(_) => false, // an answer (503) waits: closed after it
+        Err(e) if e.kind() == ErrorKind::WouldBlock => false,
+        Err(_) => true,
+    }
+}
+
+/// A normal scrape passes promtool; returns its body.
+fn checked_scrape(port: u16, dir: &Path, during: &str) -> String {
+    let body = scrape(port).unwrap_or_else(|| panic!("no scrape during {during}"));
+    let (ok, lint) = promtool(&["check", "metrics"], &body, dir);
+    assert!(
+        ok && lint.trim().is_empty(),
+        "promtool during {during}: {lint}"
+    );
+    body
+}
+
+#[test]
+fn hostile_http_clients_get_431_or_are_closed_within_bounded_memory_and_threads() {
+    // The attacker holds thousands of sockets.
+    raise_open_file_limit();
+    // The limits are the defaults: max_connections 64, max_header_bytes 8192,
+    // request_timeout_s 10.
+    let (port, site) = exporter_site(
+        "exporter-hostile",
+        "[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\n",
+    );
+    let mut exporter = site.spawn("isochron-exporter", &[]);
+    eventually(Duration::from_secs(30), || scrape(port)).expect("a first scrape");
+    let pid = exporter.pid();
+    std::thread::sleep(Duration::from_millis(500));
+    let (rss0, threads0) = rss_and_threads(pid).unwrap();
+    let peaks = Peaks::watch(pid);
+    let dir = site.dir.path();
+
+    // 1. Four clients each try 400 MiB of request headers.
+    let started = Instant::now();
+    let attackers: Vec<_> = (0..4)
+        .map(|_| std::thread::spawn(move || huge_head(port, 400 << 20, Duration::from_secs(60))))
+        .collect();
+    checked_scrape(port, dir, "the huge request heads");
+    let huge: Vec<(u64, String)> = attackers.into_iter().map(|a| a.join().unwrap()).collect();
+    let huge_s = started.elapsed().as_secs_f64();
+    // One head just over the limit, sent whole before reading: 431.
+    let (_, just_over) = huge_head(port, 16 << 10, Duration::from_secs(10));
+
+    // 2. 3 000 idle connections that never send a byte.
+    let started = Instant::now();
+    let mut idle = Vec::new();
+    let mut not_connected = 0;
+    for _ in 0..3000 {
+        match TcpStream::connect_timeout(&([127, 0, 0, 1], port).into(), Duration::from_secs(1)) {
+            Ok(s) => idle.push(s),
+            Err(_) => not_connected += 1,
+        }
+    }
+    let opened_s = started.elapsed().as_secs_f64();
+    checked_scrape(port, dir, "3 000 idle connections");
+    std::thread::sleep(Duration::from_millis(500));
+    let closed_idle = idle.iter().filter(|s| closed_by_peer(s)).count();
+    let (rss_idle, threads_idle) = rss_and_threads(pid).unwrap();
+    drop(idle);
+
+    // 3. Slowloris: 100 clients sending their request head one byte a second.
+    let started = Instant::now();
+    let mut slow: Vec<TcpStream> = (0..100)
+        .filter_map(|_| TcpStream::connect(("127.0.0.1", port)).ok())
+        .collect();
+    for s in &mut slow {
+        let _ = s.write_all(b"GET /metrics HTTP/1.1\r\nHost: localhost\r\nX-Slow: ");
+    }
+    let mut slow_closed_s = None;
+    while started.elapsed() < Duration::from_secs(20) {
+        std::thread::sleep(Duration::from_secs(1));
+        for s in &mut slow {
+            s.set_nonblocking(false).unwrap();
+            let _ = s.write(b"a");
+        }
+        if slow.iter().all(closed_by_peer) {
+            slow_closed_s = Some(started.elapsed().as_secs_f64());
+            break;
+        }
+        if started.elapsed() > Duration::from_secs(3) && started.elapsed() < Duration::from_secs(5)
+        {
+            checked_scrape(port, dir, "slowloris");
+        }
+    }
+    drop(slow);
+
+    let (rss_peak, threads_peak) = peaks.stop();
+    let after = checked_scrape(port, dir, "after the attack");
+    let refused = |reason: &str| {
+        value(
+            &after,
+            "isochron_exporter_http_refused_total",
+            &format!("reason=\"{reason}\""),
+        )
+        .unwrap_or(0.0)
+    };
+    println!(
+        "exporter under attack: VmRSS {} MiB before, peak {} MiB (+{} MiB), with 3 000 idle connections {} MiB; \
+         threads {threads0} before, peak {threads_peak}, with 3 000 idle connections {threads_idle}; \
+         4 × 400 MiB heads: the exporter took {:?} MiB in {huge_s:.1} s; {} idle connections opened in {opened_s:.1} s \
+         ({not_connected} not), {closed_idle} closed by the exporter; slowloris closed after {slow_closed_s:?} s; \
+         refused: header_size {}, evicted {}, busy {}, timeout {}",
+        rss0 >> 10,
+        rss_peak >> 10,
+        rss_peak.saturating_sub(rss0) >> 10,
+        rss_idle >> 10,
+        huge.iter().map(|(n, _)| n >> 20).collect::<Vec<_>>(),
+        3000 - not_connected,
+        refused("header_size"),
+        refused("evicted"),
+        refused("busy"),
+        refused("timeout"),
+    );
+
+    assert!(
+        just_over.starts_with("HTTP/1.1 431"),
+        "a 16 KiB head: {just_over:?}"
+    );
+    for (sent, answer) in &huge {
+        // The head limit (8 KiB) plus what the sockets' buffers hold.
+        assert!(*sent < 64 << 20, "{sent} bytes taken before the close");
+        assert!(
+            answer.is_empty() || answer.starts_with("HTTP/1.1 431"),
+            "{answer:?}"
+        );
+    }
+    assert!(refused("header_size") >= 5.0, "{after}");
+    assert!(
+        closed_idle >= 3000 - not_connected - 64 - 2,
+        "only {closed_idle} idle connections closed"
+    );
+    assert!(refused("evicted") >= 2900.0, "{after}");
+    assert!(slow_closed_s.is_some(), "slowloris connections still open");
+    // One HTTP thread whatever the clients do; memory: 64 connections × 8 KiB
+    // heads and hyper's per-connection state, with a margin for the allocator.
+    assert!(
+        threads_peak <= threads0 + 1,
+        "threads {threads0} → {threads_peak}"
+    );
+    assert!(
+        rss_peak.saturating_sub(rss0) < 32 << 10,
+        "VmRSS {rss0} KiB → {rss_peak} KiB"
+    );
+    assert!(
+        exporter.wait(Duration::ZERO).is_none(),
+        "{}",
+        exporter.stderr()
+    );
 }

@@ -34,17 +34,21 @@ use anyhow::{Context, bail};
 /// System packages: OpenCV and the bindings' clang; iproute2 (`ip`, `ss`) for the
 /// network-namespace and DDS socket tests; `prometheus` for promtool, which checks
 /// the exporter's output and the alert rules; `mosquitto`, the broker the MQTT
-/// sink's test publishes to; `dpkg-dev` for `dpkg-shlibdeps`, which gives the
-/// package's `Depends` (`cargo xtask deb`); eProsima Fast DDS, its IDL compiler
-/// and g++ for the Fast DDS client of the planning services' test
+/// sink's test publishes to (and `mosquitto_passwd`), `mosquitto-clients`, whose
+/// `mosquitto_sub` reads the sink's messages back over TLS, and `openssl`, which
+/// makes that test's certificates; `dpkg-dev` for `dpkg-shlibdeps`, which gives
+/// the package's `Depends` (`cargo xtask deb`); eProsima Fast DDS, its IDL
+/// compiler and g++ for the Fast DDS client of the planning services' test
 /// ([`fastdds_peer`]).
-const PACKAGES: [&str; 10] = [
+const PACKAGES: [&str; 12] = [
     "libopencv-dev",
     "clang",
     "libclang-dev",
     "iproute2",
     "prometheus",
     "mosquitto",
+    "mosquitto-clients",
+    "openssl",
     "dpkg-dev",
     "libfastrtps-dev",
     "fastddsgen",

@@ -317,6 +317,27 @@ pub const DETAIL_METRICS: &[DetailMetric] = &[
         "Times the MQTT sink connected to its broker again.",
         Kind::Counter,
     ),
+    detail(
+        StageKind::Mqtt,
+        "refused",
+        "isochron_mqtt_refused",
+        "Connection attempts the MQTT broker refused (bad user name or password, not authorized).",
+        Kind::Counter,
+    ),
+    detail(
+        StageKind::Mqtt,
+        "tls_failures",
+        "isochron_mqtt_tls_failures",
+        "Connection attempts to the MQTT broker whose TLS handshake failed.",
+        Kind::Counter,
+    ),
+    detail(
+        StageKind::Mqtt,
+        "events_rejected",
+        "isochron_mqtt_events_rejected",
+        "Zone event records the MQTT sink rejected as impossible (ending before they start) and did not publish.",
+        Kind::Counter,
+    ),
     DetailMetric {
         part: Part::First,
         scale: 1e-3,
@@ -584,12 +605,17 @@ mod tests {
         assert_eq!(by_name("isochron_store_failures").value(d), Some(0.0));
         assert_eq!(by_name("isochron_gate_events").value(d), None);
         assert_eq!(by_name("isochron_store_commits").value("commits=x"), None);
-        let mqtt = "broker=127.0.0.1:1883 connected=1 messages=9 queued=0 queue_dropped=2 reconnects=1 ack_ms=1.5/4.0";
+        let mqtt = "connected=1 messages=9 queued=0 queue_dropped=2 reconnects=1 refused=3 tls_failures=0 events_rejected=4 ack_ms=1.5/4.0 broker=mqtts://127.0.0.1:8883";
         assert_eq!(
             by_name("isochron_mqtt_queue_dropped").value(mqtt),
             Some(2.0)
         );
         assert_eq!(by_name("isochron_mqtt_connected").value(mqtt), Some(1.0));
+        assert_eq!(by_name("isochron_mqtt_refused").value(mqtt), Some(3.0));
+        assert_eq!(
+            by_name("isochron_mqtt_events_rejected").value(mqtt),
+            Some(4.0)
+        );
         let p99 = by_name("isochron_mqtt_ack_latency_p99_seconds").value(mqtt);
         assert!((p99.unwrap() - 0.004).abs() < 1e-12);
     }

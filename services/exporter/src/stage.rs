@@ -1,14 +1,14 @@
 //! The exporter's stage: on every tick (100 ms) it takes the latest status report
-//! of every watched service into the [`Table`], then answers the HTTP requests
-//! that arrived meanwhile (`tiny_http` accepts and parses them on its own
-//! threads; they wait in its queue until the tick).
+//! of every watched service into the [`Table`] that the metrics are made from at
+//! each scrape. The HTTP server ([`crate::http`]) answers scrapes on its own
+//! thread, within the `[exporter]` bounds.
 //!
 //! It watches every pipeline stage of every configured camera, and the site-wide
 //! costmap, whether or not they run: a service that never reported is `up` 0.
 
 use std::net::{SocketAddr, TcpListener};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use isochron_shared::clock::wall_now_ns;
 use isochron_shared::config::{ExporterConfig, LoadedConfig};
@@ -17,28 +17,20 @@ use isochron_shared::ipc::{Ipc, StatusSubscriber};
 use isochron_shared::service::ServiceContext;
 use isochron_shared::stage::{self, Context, Stage, Woken};
 use isochron_shared::topology::StageKind;
-use prometheus_client::metrics::counter::Counter;
 use prometheus_client::registry::Registry;
-use tiny_http::{Header, Method, Request, Response, Server};
 
-use crate::metrics::{Service, StatusCollector, Table, classic_text};
+use crate::http::{HttpMetrics, Limits, Server};
+use crate::metrics::{Service, StatusCollector, Table};
 
-/// How often reports are read and requests answered: the longest a scrape waits.
+/// How often reports are read into the table.
 const TICK: Duration = Duration::from_millis(100);
 
-/// The OpenMetrics text format `prometheus-client` writes, served to scrapers
-/// that ask for it (Prometheus does).
-const OPENMETRICS: &str = "application/openmetrics-text; version=1.0.0; charset=utf-8";
-/// The Prometheus text format, served to every other client.
-const PROMETHEUS_TEXT: &str = "text/plain; version=0.0.4; charset=utf-8";
-
-/// The exporter: readers of every watched service's status, the registry, and
-/// the HTTP server.
+/// The exporter: readers of every watched service's status, and the HTTP server.
 pub struct ExporterStage {
     table: Arc<Table>,
     readers: Vec<StatusSubscriber>,
-    registry: Registry,
-    scrapes: Counter,
+    http: HttpMetrics,
+    answered_reported: u64,
     server: Server,
     listen: SocketAddr,
 }
@@ -82,7 +74,7 @@ impl ExporterStage {
                 format!("{}: key `{}`: {}", loaded.path.display(), e.key, e.message),
             )
         })?;
-        let server = bind(listen, &config, loaded)?;
+        let listener = bind(listen, &config, loaded)?;
         let services = watched(loaded);
         let mut readers = Vec::with_capacity(services.len());
         for s in &services {
@@ -90,22 +82,33 @@ impl ExporterStage {
         }
         let table = Table::new(services, Duration::from_secs_f64(config.stale_after_s));
         let mut registry = Registry::default();
-        let scrapes = Counter::default();
-        registry.register(
-            "isochron_exporter_scrapes",
-            "Scrapes of /metrics this exporter answered",
-            scrapes.clone(),
-        );
+        let http = HttpMetrics::default();
+        http.register(&mut registry);
         registry.register_collector(Box::new(StatusCollector::new(table.clone())));
+        let limits = Limits {
+            max_connections: config.max_connections,
+            max_header_bytes: config.max_header_bytes,
+            request_timeout: Duration::from_secs_f64(config.request_timeout_s),
+        };
+        let server =
+            Server::start(listener, limits, Arc::new(registry), http.clone()).map_err(|e| {
+                Fatal::new(
+                    exit::UNAVAILABLE,
+                    format!("starting the HTTP server on {listen}: {e}"),
+                )
+            })?;
         tracing::info!(
-            "serving the metrics of {} services at http://{listen}/metrics",
-            readers.len()
+            "serving the metrics of {} services at http://{listen}/metrics (at most {} connections, {} B request heads, {} s per request)",
+            readers.len(),
+            limits.max_connections,
+            limits.max_header_bytes,
+            config.request_timeout_s
         );
         Ok(ExporterStage {
             table,
             readers,
-            registry,
-            scrapes,
+            http,
+            answered_reported: 0,
             server,
             listen,
         })
@@ -115,51 +118,6 @@ impl ExporterStage {
     pub fn listen(&self) -> SocketAddr {
         self.listen
     }
-
-    /// Answers one request: the metrics at `/metrics`, a pointer to them at `/`.
-    fn answer(&mut self, request: Request, cx: &mut Context) {
-        let arrived = Instant::now();
-        let path = request.url().split('?').next().unwrap_or("");
-        let response = match (request.method(), path) {
-            (Method::Get, "/metrics") => {
-                self.scrapes.inc();
-                let openmetrics = request.headers().iter().any(|h| {
-                    h.field.equiv("Accept")
-                        && h.value.as_str().contains("application/openmetrics-text")
-                });
-                let mut body = String::new();
-                match prometheus_client::encoding::text::encode(&mut body, &self.registry) {
-                    Ok(()) if openmetrics => text(200, body, OPENMETRICS),
-                    Ok(()) => text(200, classic_text(&body), PROMETHEUS_TEXT),
-                    Err(e) => text(
-                        500,
-                        format!("encoding the metrics failed: {e}\n"),
-                        "text/plain",
-                    ),
-                }
-            }
-            (Method::Get, "/") => text(
-                200,
-                "isochron-exporter: the metrics are at /metrics\n".into(),
-                "text/plain; charset=utf-8",
-            ),
-            (Method::Get, _) => text(404, "not found: try /metrics\n".into(), "text/plain"),
-            _ => text(405, "only GET\n".into(), "text/plain"),
-        };
-        if let Err(e) = request.respond(response) {
-            cx.warnings
-                .warn("respond", || format!("answering a scrape failed: {e}"));
-        }
-        cx.health.sent(Some(arrived), 0);
-    }
-}
-
-/// A text response with `status` and `content_type`.
-fn text(status: u16, body: String, content_type: &str) -> Response<std::io::Cursor<Vec<u8>>> {
-    let header = Header::from_bytes("Content-Type", content_type).expect("a valid header");
-    Response::from_string(body)
-        .with_status_code(status)
-        .with_header(header)
 }
 
 /// Listens on `listen`; a failure is one line naming the key, the address and
@@ -168,8 +126,8 @@ fn bind(
     listen: SocketAddr,
     config: &ExporterConfig,
     loaded: &LoadedConfig,
-) -> Result<Server, Fatal> {
-    let listener = TcpListener::bind(listen).map_err(|e| {
+) -> Result<TcpListener, Fatal> {
+    TcpListener::bind(listen).map_err(|e| {
         let hint = match e.kind() {
             std::io::ErrorKind::AddrInUse => {
                 "; another process listens there: stop it, or choose another port"
@@ -185,12 +143,6 @@ fn bind(
                 loaded.path.display(),
                 config.listen
             ),
-        )
-    })?;
-    Server::from_listener(listener, None).map_err(|e| {
-        Fatal::new(
-            exit::UNAVAILABLE,
-            format!("starting the HTTP server on {listen}: {e}"),
         )
     })
 }
@@ -214,9 +166,22 @@ impl Stage for ExporterStage {
                 }
             }
         }
-        while let Ok(Some(request)) = self.server.try_recv() {
-            self.answer(request, cx);
+        if !self.server.is_running() {
+            return Err(Fatal::new(
+                exit::UNAVAILABLE,
+                format!("the HTTP server on {} stopped", self.listen),
+            ));
         }
+        let answered = self.http.answered();
+        for _ in self.answered_reported..answered {
+            cx.health.sent(None, 0);
+        }
+        self.answered_reported = answered;
+        Ok(())
+    }
+
+    fn on_stop(&mut self, _: &mut Context) -> Result<(), Fatal> {
+        self.server.stop();
         Ok(())
     }
 
@@ -227,9 +192,11 @@ impl Stage for ExporterStage {
     fn detail(&self) -> String {
         let (up, watched) = self.table.count_up(wall_now_ns());
         format!(
-            "listen={} scrapes={} up={up}/{watched}",
+            "listen={} scrapes={} up={up}/{watched} connections={} refused={}",
             self.listen,
-            self.scrapes.get()
+            self.http.scrapes.get(),
+            self.http.connections.get(),
+            self.http.refused_total()
         )
     }
 }

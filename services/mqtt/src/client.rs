@@ -8,6 +8,11 @@
 //!   the front of the outbox (sent again after the reconnection: at least once)
 //!   and the client reconnects with a backoff doubling from 0.5 s to
 //!   `reconnect_max_s`. One warning per outage.
+//! * A broker that refuses the sink (bad user name or password, not authorized)
+//!   or a failed TLS handshake is one error line naming the broker and the
+//!   reason, logged again only when the reason changes (e.g. a broker that
+//!   accepted the sink refuses it after a restart); every refusal and TLS
+//!   failure is counted, and the sink retries with the same backoff.
 //! * Each connection publishes "online" (retained) on the status topic; the last
 //!   will, which the broker publishes if the sink vanishes, is "offline"
 //!   (retained). A clean stop publishes "offline" itself, then disconnects.
@@ -23,9 +28,11 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use rumqttc::{
-    Disconnect, Event, EventLoop, Incoming, LastWill, MqttOptions, Outgoing, Publish, QoS, Request,
+    ConnectReturnCode, ConnectionError, Disconnect, Event, EventLoop, Incoming, LastWill,
+    MqttOptions, Outgoing, Publish, QoS, Request, TlsConfiguration, Transport,
 };
 
+use crate::login::Login;
 use crate::outbox::{Message, Outbox};
 
 /// Messages handed to the connection and not yet acknowledged, at most.
@@ -45,6 +52,8 @@ pub struct Shared {
     stopping: AtomicBool,
     connected: AtomicBool,
     reconnects: AtomicU64,
+    refused: AtomicU64,
+    tls_failures: AtomicU64,
 }
 
 impl Shared {
@@ -56,6 +65,8 @@ impl Shared {
             stopping: AtomicBool::new(false),
             connected: AtomicBool::new(false),
             reconnects: AtomicU64::new(0),
+            refused: AtomicU64::new(0),
+            tls_failures: AtomicU64::new(0),
         })
     }
 
@@ -84,6 +95,16 @@ impl Shared {
     pub fn reconnects(&self) -> u64 {
         self.reconnects.load(Ordering::Relaxed)
     }
+
+    /// Connection attempts the broker refused (its CONNACK said no).
+    pub fn refused(&self) -> u64 {
+        self.refused.load(Ordering::Relaxed)
+    }
+
+    /// Connection attempts whose TLS handshake failed.
+    pub fn tls_failures(&self) -> u64 {
+        self.tls_failures.load(Ordering::Relaxed)
+    }
 }
 
 /// Where and how to connect.
@@ -103,6 +124,78 @@ pub struct Settings {
     pub keepalive: Duration,
     /// Longest backoff.
     pub reconnect_max: Duration,
+    /// TLS (`mqtts://`), or `None` for plain TCP.
+    pub tls: Option<Arc<rustls::ClientConfig>>,
+    /// User name and password, if any.
+    pub login: Option<Login>,
+}
+
+impl Settings {
+    /// Who the sink connects as, for messages (never the password).
+    fn who(&self) -> String {
+        match &self.login {
+            Some(l) => format!("user \"{}\"", l.username),
+            None => "anonymous".into(),
+        }
+    }
+}
+
+/// Why the last connection attempt failed, so that each change is logged once.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Trouble {
+    /// Connected, or not tried yet.
+    None,
+    /// No connection: the broker is down or unreachable, or went away.
+    Unreachable,
+    /// The broker refused the sink (its CONNACK return code).
+    Refused(ConnectReturnCode),
+    /// The TLS handshake failed (certificate, name, protocol).
+    Tls,
+}
+
+impl Trouble {
+    fn of(e: &ConnectionError) -> Self {
+        match e {
+            ConnectionError::ConnectionRefused(code) => Trouble::Refused(*code),
+            ConnectionError::Tls(_) => Trouble::Tls,
+            _ if caused_by_tls(e) => Trouble::Tls,
+            _ => Trouble::Unreachable,
+        }
+    }
+}
+
+/// True when a rustls error is in `e`'s chain: with TLS 1.3 a broker that
+/// rejects the client's certificate says so in an alert the sink reads only
+/// after the handshake, as an I/O error of the MQTT read.
+fn caused_by_tls(e: &ConnectionError) -> bool {
+    let mut cause: Option<&(dyn std::error::Error + 'static)> = Some(e);
+    while let Some(err) = cause {
+        let inner = err
+            .downcast_ref::<std::io::Error>()
+            .and_then(|io| io.get_ref())
+            .map(|inner| inner as &(dyn std::error::Error + 'static));
+        if err.is::<rustls::Error>() || inner.is_some_and(|i| i.is::<rustls::Error>()) {
+            return true;
+        }
+        cause = err.source();
+    }
+    false
+}
+
+/// A broker's refusal in words, with what to check.
+fn refusal_reason(code: ConnectReturnCode) -> &'static str {
+    match code {
+        ConnectReturnCode::BadUserNamePassword => {
+            "bad user name or password (check mqtt.username and the password against the broker's password file)"
+        }
+        ConnectReturnCode::NotAuthorized => {
+            "not authorized (check mqtt.username, the password, and the broker's password file and ACL)"
+        }
+        ConnectReturnCode::BadClientId => "client id rejected (check mqtt.client_id)",
+        ConnectReturnCode::ServiceUnavailable => "service unavailable",
+        ConnectReturnCode::RefusedProtocolVersion => "MQTT 3.1.1 not accepted",
+        ConnectReturnCode::Success => "no reason given",
+    }
 }
 
 /// Starts the client thread.
@@ -141,7 +234,9 @@ struct Client {
     inflight: VecDeque<InFlight>,
     connected: bool,
     ever_connected: bool,
-    warned: bool,
+    trouble: Trouble,
+    /// Refusals and TLS failures since the last connection.
+    failed_since: u64,
 }
 
 impl Client {
@@ -157,6 +252,15 @@ impl Client {
                 QoS::AtLeastOnce,
                 true,
             ));
+        if let Some(tls) = &settings.tls {
+            options.set_transport(Transport::tls_with_config(TlsConfiguration::Rustls(
+                tls.clone(),
+            )));
+        }
+        if let Some(login) = &settings.login {
+            let password = login.password.as_ref().map_or("", |p| p.expose());
+            options.set_credentials(login.username.clone(), password);
+        }
         let mut eventloop = EventLoop::new(options, 1);
         let mut network = eventloop.network_options();
         network.set_connection_timeout(CONNECT_TIMEOUT_S);
@@ -168,7 +272,8 @@ impl Client {
             inflight: VecDeque::new(),
             connected: false,
             ever_connected: false,
-            warned: false,
+            trouble: Trouble::None,
+            failed_since: 0,
         }
     }
 
@@ -266,12 +371,23 @@ impl Client {
                         self.shared.reconnects.fetch_add(1, Ordering::Relaxed);
                     }
                     let queued = self.shared.outbox().len();
+                    let after = match self.failed_since {
+                        0 => String::new(),
+                        n => format!(", after {n} refused or failed attempts"),
+                    };
                     tracing::info!(
-                        "connected to the MQTT broker {} ({queued} messages queued)",
-                        self.settings.url
+                        "connected to the MQTT broker {} as {}{} ({queued} messages queued{after})",
+                        self.settings.url,
+                        self.settings.who(),
+                        if self.settings.tls.is_some() {
+                            " over TLS"
+                        } else {
+                            ""
+                        },
                     );
                     self.ever_connected = true;
-                    self.warned = false;
+                    self.trouble = Trouble::None;
+                    self.failed_since = 0;
                     let topic = self.settings.status_topic.clone();
                     self.publish(&topic, b"online", true, None);
                 }
@@ -296,24 +412,7 @@ impl Client {
                     if deadline.is_some() || self.stopping() {
                         break;
                     }
-                    let capacity_note = "; holding new messages meanwhile (the oldest dropped when the queue is full)";
-                    if !self.warned {
-                        if was_connected {
-                            tracing::warn!(
-                                "lost the MQTT broker {}: {e}; reconnecting{capacity_note}",
-                                self.settings.url
-                            );
-                        } else {
-                            tracing::warn!(
-                                "cannot reach the MQTT broker {}: {e}; retrying every {:.0} s at most{capacity_note}",
-                                self.settings.url,
-                                self.settings.reconnect_max.as_secs_f64()
-                            );
-                        }
-                        self.warned = true;
-                    } else {
-                        tracing::debug!("MQTT broker {}: {e}", self.settings.url);
-                    }
+                    self.failed(&e, was_connected);
                     self.sleep(backoff).await;
                     backoff = (backoff * 2).min(self.settings.reconnect_max);
                 }
@@ -328,6 +427,62 @@ impl Client {
                 self.settings.url
             );
         }
+    }
+
+    /// Counts and logs a failed connection: each change of reason once (an
+    /// error for a refusal or a TLS failure, a warning for an unreachable or
+    /// lost broker), the repeats at debug level.
+    fn failed(&mut self, e: &ConnectionError, was_connected: bool) {
+        let trouble = Trouble::of(e);
+        let url = &self.settings.url;
+        let retry = format!(
+            "retrying every {:.0} s at most; holding new messages meanwhile (the oldest dropped when the queue is full)",
+            self.settings.reconnect_max.as_secs_f64()
+        );
+        let changed = trouble != self.trouble || was_connected;
+        self.trouble = trouble;
+        match trouble {
+            Trouble::Refused(code) => {
+                self.shared.refused.fetch_add(1, Ordering::Relaxed);
+                self.failed_since += 1;
+                if changed {
+                    let before = if self.ever_connected {
+                        " — it accepted the sink before: the broker's users, passwords or ACL changed"
+                    } else {
+                        ""
+                    };
+                    tracing::error!(
+                        "the MQTT broker {url} refused the sink ({}, client id \"{}\"): {}{before}; {retry}",
+                        self.settings.who(),
+                        self.settings.client_id,
+                        refusal_reason(code)
+                    );
+                    return;
+                }
+            }
+            Trouble::Tls => {
+                self.shared.tls_failures.fetch_add(1, Ordering::Relaxed);
+                self.failed_since += 1;
+                if changed {
+                    tracing::error!(
+                        "TLS with the MQTT broker {url} failed: {e} (check mqtt.ca_file, that the broker's certificate names \"{}\", and the client certificate if the broker requires one); {retry}",
+                        self.settings.host
+                    );
+                    return;
+                }
+            }
+            Trouble::Unreachable | Trouble::None => {
+                if was_connected {
+                    tracing::warn!("lost the MQTT broker {url}: {e}; reconnecting; {retry}");
+                    return;
+                }
+                if changed {
+                    tracing::warn!("cannot reach the MQTT broker {url}: {e}; {retry}");
+                    return;
+                }
+            }
+        }
+        tracing::debug!("MQTT broker {url}: {e}");
     }
 
     /// Waits `d`, or less if the sink is asked to stop.

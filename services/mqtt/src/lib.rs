@@ -4,10 +4,14 @@
 //! [`message`] makes the topics and the JSON (the README's schema); [`outbox`] is
 //! the bounded queue between the stage and the client, which drops the oldest
 //! and counts it; [`client`] owns the broker connection on its own thread
-//! (reconnecting with backoff); [`stage`] is the service: a site-wide stage on
-//! the shared runtime that reads every camera's streams into the outbox.
+//! (reconnecting with backoff), over TLS ([`tls`]) and with a user name and
+//! password ([`login`]) when configured; [`stage`] is the service: a site-wide
+//! stage on the shared runtime that reads every camera's streams into the
+//! outbox.
 
 pub mod client;
+pub mod login;
 pub mod message;
 pub mod outbox;
 pub mod stage;
+pub mod tls;

@@ -53,13 +53,44 @@ pub fn event_json(camera: &str, h: &EventHeader, blocks: &[u32]) -> Value {
         "time": format_rfc3339(h.preamble.capture_time_ns),
         "start": format_rfc3339(h.start_ns),
         "end": ended.then(|| format_rfc3339(h.end_ns)),
-        "duration_s": ended.then(|| (h.end_ns - h.start_ns) as f64 / 1e9),
+        "duration_s": ended.then(|| (h.end_ns as f64 - h.start_ns as f64) / 1e9),
         "start_frame": h.start_frame,
         "end_frame": ended.then_some(h.end_frame),
         "peak": h.peak,
         "threshold": h.threshold,
         "blocks": blocks,
     })
+}
+
+/// Why the event record `h` cannot be a real zone event, if it cannot: it ends
+/// before it starts (a negative duration), its last frame comes before its
+/// first, it starts before 1970, or its activity is not a finite number. The
+/// gate never makes such a record; a forged one is not published.
+pub fn implausible_event(h: &EventHeader) -> Option<String> {
+    if h.start_ns < 0 {
+        return Some(format!("it starts before 1970 (start_ns {})", h.start_ns));
+    }
+    if !h.peak.is_finite() || !h.threshold.is_finite() {
+        return Some(format!(
+            "its activity is not finite (peak {}, threshold {})",
+            h.peak, h.threshold
+        ));
+    }
+    if h.phase == EventPhase::End as u32 {
+        if h.end_ns < h.start_ns {
+            return Some(format!(
+                "it ends before it starts (duration {:.3} s)",
+                (h.end_ns as f64 - h.start_ns as f64) / 1e9
+            ));
+        }
+        if h.end_frame < h.start_frame {
+            return Some(format!(
+                "its last frame {} comes before its first {}",
+                h.end_frame, h.start_frame
+            ));
+        }
+    }
+    None
 }
 
 /// The JSON of a detections sample of `camera`: the people the detector found
@@ -120,6 +151,48 @@ mod tests {
         assert_eq!(end["duration_s"], 2.5);
         assert_eq!(end["end"], "1970-01-01T00:00:03.500Z");
         assert_eq!(end["blocks"], json!([4, 5]));
+    }
+
+    #[test]
+    fn an_event_that_ends_before_it_starts_is_implausible() {
+        let mut h = EventHeader {
+            phase: EventPhase::End as u32,
+            start_ns: 5_000_000_000,
+            end_ns: 7_000_000_000,
+            start_frame: 10,
+            end_frame: 30,
+            peak: 0.5,
+            threshold: 0.25,
+            ..Default::default()
+        };
+        assert_eq!(implausible_event(&h), None);
+        h.end_ns = 4_000_000_000;
+        let why = implausible_event(&h).unwrap();
+        assert!(
+            why.contains("ends before it starts (duration -1.000 s)"),
+            "{why}"
+        );
+        h.end_ns = i64::MIN;
+        assert!(implausible_event(&h).is_some());
+        h.end_ns = 7_000_000_000;
+        h.end_frame = 3;
+        assert!(implausible_event(&h).unwrap().contains("last frame 3"));
+        h.end_frame = 30;
+        h.peak = f32::NAN;
+        assert!(implausible_event(&h).is_some());
+        // A start record has no end yet.
+        let start = EventHeader {
+            phase: EventPhase::Start as u32,
+            start_ns: 5_000_000_000,
+            start_frame: 10,
+            ..Default::default()
+        };
+        assert_eq!(implausible_event(&start), None);
+        let before_1970 = EventHeader {
+            start_ns: -1,
+            ..start
+        };
+        assert!(implausible_event(&before_1970).is_some());
     }
 
     #[test]

@@ -3,7 +3,9 @@
 //! [`Outbox`](crate::outbox::Outbox), which the [client](crate::client) thread
 //! publishes. On every tick it reports what the broker acknowledged (as `sent`,
 //! with the time from receiving the gate's sample to the broker's PUBACK as the stage
-//! latency) and what the full queue dropped.
+//! latency) and what the full queue dropped. An event record that cannot be a
+//! real zone event (it ends before it starts) is rejected and counted, never
+//! published.
 
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -18,8 +20,9 @@ use isochron_shared::stage::{self, Context, Input, Stage, Woken};
 use isochron_shared::topology::StageKind;
 
 use crate::client::{self, Settings, Shared};
-use crate::message::{Topics, detections_json, event_json};
+use crate::message::{Topics, detections_json, event_json, implausible_event};
 use crate::outbox::Message;
+use crate::{login, tls};
 
 /// Runs the sink on `ctx`'s site until it is asked to stop. Without `[mqtt]` it
 /// says so and exits (nothing leaves the box unless configured).
@@ -45,6 +48,7 @@ pub struct MqttStage {
     topics: Topics,
     broker: String,
     messages: u64,
+    events_rejected: u64,
     dropped_reported: u64,
     /// Recent PUBACK latencies, ms, for the status's quantiles.
     ack_ms: LatencyWindow,
@@ -52,15 +56,17 @@ pub struct MqttStage {
 
 impl MqttStage {
     /// The sink of `loaded`'s site and its inputs, or `None` without `[mqtt]`. A
-    /// bad `[mqtt]` key is a configuration error (one line: file, line, key,
-    /// expected).
+    /// bad `[mqtt]` key, or a TLS or password file that cannot be read, is a
+    /// configuration error (one line: file, line, key, expected).
     pub fn open(ipc: &Ipc, loaded: &LoadedConfig) -> Result<Option<(Self, MqttInputs)>, Fatal> {
         let Some(config) = loaded.mqtt()? else {
             return Ok(None);
         };
-        let (host, port) = config
-            .broker_addr()
-            .map_err(|e| Fatal::from(loaded.locate(e)))?;
+        let located = |e| Fatal::from(loaded.locate(e));
+        let broker = config.broker_addr().map_err(located)?;
+        let base = loaded.base_dir();
+        let tls_config = tls::client_config(config, &base).map_err(located)?;
+        let credentials = login::login(config, &base).map_err(located)?;
         let site_name = &loaded.config.site.name;
         let topics = Topics::new(&config.topic_prefix, config.site_level(site_name));
         let cameras: Vec<String> = loaded.config.cameras.iter().map(|c| c.id.clone()).collect();
@@ -72,13 +78,15 @@ impl MqttStage {
         }
         let shared = Shared::new(config.queue_len);
         let settings = Settings {
-            host,
-            port,
+            host: broker.host,
+            port: broker.port,
             url: config.broker.clone(),
             client_id: config.client_id(site_name),
             status_topic: topics.status(),
             keepalive: Duration::from_secs(config.keepalive_s),
             reconnect_max: Duration::from_secs_f64(config.reconnect_max_s),
+            tls: tls_config,
+            login: credentials,
         };
         let client = client::spawn(settings, shared.clone()).map_err(|e| {
             Fatal::new(
@@ -101,6 +109,7 @@ impl MqttStage {
             topics,
             broker: config.broker.clone(),
             messages: 0,
+            events_rejected: 0,
             dropped_reported: 0,
             ack_ms: LatencyWindow::default(),
         };
@@ -152,6 +161,18 @@ impl Stage for MqttStage {
                     continue;
                 }
                 let h = sample.header();
+                if let Some(why) = implausible_event(h) {
+                    self.events_rejected += 1;
+                    cx.health.rejected();
+                    let camera = &self.cameras[k];
+                    cx.warnings.warn("implausible-event", || {
+                        format!(
+                            "camera {camera}: event {} (sequence {}) rejected, not published: {why}",
+                            h.event_id, h.preamble.sequence
+                        )
+                    });
+                    continue;
+                }
                 let json = event_json(&self.cameras[k], h, sample.payload());
                 let topic = self.topics.events(&self.cameras[k]);
                 self.queue(topic, json, Instant::now(), h.preamble.origin_wall_ns);
@@ -206,14 +227,18 @@ impl Stage for MqttStage {
             let outbox = self.shared.outbox();
             (outbox.len(), outbox.dropped())
         };
+        // The broker last: a long host name is what the fixed-size detail cuts.
         format!(
-            "broker={} connected={} messages={} queued={queued} queue_dropped={dropped} reconnects={} ack_ms={:.1}/{:.1}",
-            self.broker.trim_start_matches("mqtt://"),
+            "connected={} messages={} queued={queued} queue_dropped={dropped} reconnects={} refused={} tls_failures={} events_rejected={} ack_ms={:.1}/{:.1} broker={}",
             u8::from(self.shared.connected()),
             self.messages,
             self.shared.reconnects(),
+            self.shared.refused(),
+            self.shared.tls_failures(),
+            self.events_rejected,
             self.ack_ms.quantile(0.5),
-            self.ack_ms.quantile(0.99)
+            self.ack_ms.quantile(0.99),
+            self.broker
         )
     }
 }

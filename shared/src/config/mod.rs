@@ -44,7 +44,7 @@ pub use gate::{DetectorConfig, GateConfig};
 pub use ipc::IpcConfig;
 pub use link::{DEFAULT_LINK_NAMESPACE, LinkConfig, is_ros_token};
 pub use motion::{MotionBackend, MotionConfig};
-pub use mqtt::{DEFAULT_MQTT_PORT, MqttConfig, is_topic_level};
+pub use mqtt::{Broker, DEFAULT_MQTT_PORT, DEFAULT_MQTTS_PORT, MqttConfig, is_topic_level};
 pub use presence::PresenceConfig;
 pub use site::SiteConfig;
 pub use view::ViewConfig;
