@@ -624,6 +624,37 @@ pub fn venv_python(modules: &str) -> PathBuf {
     path
 }
 
+/// The `node_modules` of the npm test peers (`target/node-peers`, which `cargo
+/// xtask setup` installs from `tests/view/package.json`), for `NODE_PATH`; fails
+/// saying what to do when they are missing.
+pub fn node_modules() -> PathBuf {
+    let package = setup_file(
+        "ISOCHRON_NODE_PEERS",
+        "target/node-peers/node_modules/@foxglove/ws-protocol/package.json",
+        "(it installs the npm test peers: @foxglove/ws-protocol, ws, protobufjs)",
+    );
+    package
+        .ancestors()
+        .nth(3)
+        .expect("node_modules/@foxglove/ws-protocol/package.json")
+        .to_path_buf()
+}
+
+/// The resident set size of process `pid` (`VmRSS` in `/proc/<pid>/status`),
+/// bytes; `None` once it has gone.
+pub fn rss_bytes(pid: u32) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let kb: u64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))?
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kb * 1024)
+}
+
 /// The camera section for vtest.avi at `speed`, starting at `start`.
 pub fn vtest_camera(speed: &str, start: &str) -> String {
     format!(

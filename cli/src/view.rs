@@ -1,6 +1,7 @@
 //! `isochron view --config site.toml [--listen ADDR]`: the site live in Foxglove —
-//! a Foxglove WebSocket server (subprotocol `foxglove.sdk.v1`, the renamed
-//! `foxglove.websocket.v1`) with the same channels as
+//! a Foxglove WebSocket server (subprotocol `foxglove.websocket.v1` or its new
+//! names `foxglove.sdk.v1[.1]`, each client held to `view.client_budget_mib`) with
+//! the same channels as
 //! `isochron record` ([`isochron_view::channels`]). Listens on `view.listen`
 //! (default 127.0.0.1:8765, loopback) unless `--listen` says otherwise. Open
 //! Foxglove, "Open connection", `ws://127.0.0.1:8765`. It runs as a stage on the
@@ -41,7 +42,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let ctx = Context::new();
     let channels = SiteChannels::new(&loaded, &ctx)?;
     // The port first: a taken one fails before joining the group.
-    let server = isochron_view::live::serve(&ctx, addr, &loaded.config.site.name)?;
+    let limits = isochron_view::live::ClientLimits::of(&loaded.config.view);
+    let server = isochron_view::live::serve(&ctx, addr, &loaded.config.site.name, limits)?;
     let ipc = Ipc::of_site(
         &format!("isochron-view-{}", std::process::id()),
         &loaded.config,

@@ -1,12 +1,16 @@
 //! Looking at what isochron sees: the calibration overlay of `isochron costmap
 //! check --overlay`, drawn on a real frame of vtest.avi with the demo site's
 //! calibration; MCAP recordings read by the Python `mcap` package; the live
-//! Foxglove view, with a Python `websockets` client.
+//! Foxglove view, with the protocol's reference client (`@foxglove/ws-protocol`
+//! under Node.js) and Python `websockets` clients, one of which stops reading.
 
 use std::path::{Path, PathBuf};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
-use isochron_tests::{Proc, TestSite, bin, eventually, free_port, repo_root, venv_python, vtest};
+use isochron_tests::{
+    Proc, TestSite, bin, eventually, free_port, node_modules, repo_root, rss_bytes, venv_python,
+    vtest,
+};
 use serde_json::Value;
 
 /// config/demo.toml without its `[site]` section (the test site has its own), the
@@ -458,6 +462,280 @@ fn the_live_view_serves_foxglove_clients_during_a_replay() {
         "{n} images in 6 s at most 2 per second"
     );
     drop(replay);
+}
+
+/// What `tests/view/foxglove_client.cjs` (the reference client,
+/// `@foxglove/ws-protocol`'s `FoxgloveClient`, under Node.js) got from `port`
+/// within `timeout_s`.
+fn reference_client(port: u16, timeout_s: u32) -> Value {
+    let script = repo_root().join("tests/view/foxglove_client.cjs");
+    let out = std::process::Command::new("node")
+        .arg(&script)
+        .args([format!("ws://127.0.0.1:{port}"), timeout_s.to_string()])
+        .env("NODE_PATH", node_modules())
+        .output()
+        .unwrap_or_else(|e| panic!("node {}: {e}", script.display()));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "foxglove_client.cjs failed: {stderr}");
+    serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("{e}: {}\n{stderr}", String::from_utf8_lossy(&out.stdout)))
+}
+
+/// The status line and `Sec-WebSocket-Protocol` of the view's answer to a
+/// WebSocket handshake offering `protocols`.
+fn handshake(port: u16, protocols: &str) -> (String, Option<String>) {
+    use std::io::{Read, Write};
+    let mut tcp = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+    tcp.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    write!(
+        tcp,
+        "GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: {protocols}\r\n\r\n"
+    )
+    .unwrap();
+    let mut head = Vec::new();
+    let mut byte = [0u8];
+    while !head.ends_with(b"\r\n\r\n") && tcp.read(&mut byte).unwrap() == 1 {
+        head.push(byte[0]);
+    }
+    let head = String::from_utf8_lossy(&head).to_string();
+    let status = head.lines().next().unwrap_or_default().to_string();
+    let protocol = head.lines().find_map(|l| {
+        let (k, v) = l.split_once(':')?;
+        k.eq_ignore_ascii_case("sec-websocket-protocol")
+            .then(|| v.trim().to_string())
+    });
+    (status, protocol)
+}
+
+#[test]
+fn the_reference_foxglove_client_decodes_every_channel_of_the_live_view() {
+    // Images on, so that every schema the view has is advertised.
+    let site = demo_site("live-reference", |b| {
+        format!("[ipc]\nmax_subscribers = 8\n\n{b}\n[view]\nframes = true\n")
+    });
+    let (replay, config) = replay_live(&site);
+    let port = free_port();
+    let mut view = spawn_view(&config, port);
+    wait_for_view(&mut view);
+
+    let got = reference_client(port, 150);
+    let log = view.stderr();
+    assert_eq!(got["opened"], true, "handshake: {got}\n{log}");
+    assert_eq!(got["subprotocol"], "foxglove.websocket.v1", "{got}");
+    assert_eq!(got["server"], "test", "serverInfo: {got}");
+    assert_eq!(got["errors"], serde_json::json!([]), "{got}");
+    assert_eq!(
+        got["missing"],
+        serde_json::json!([]),
+        "a channel gave nothing: {got}"
+    );
+    let channels = got["channels"].as_object().unwrap();
+    for (topic, schema) in CHANNELS.into_iter().chain([
+        ("/cam01/image", "foxglove.CompressedImage"),
+        ("/cam01/status/motion", "foxglove.Log"),
+        ("/cam01/status/gate", "foxglove.Log"),
+        ("/status/costmap", "foxglove.Log"),
+    ]) {
+        let ch = &channels
+            .get(topic)
+            .unwrap_or_else(|| panic!("{topic} not advertised: {got}"));
+        assert_eq!(ch["schema"], schema, "{topic}: {ch}");
+        assert_eq!(ch["schema_encoding"], "protobuf", "{topic}: {ch}");
+        assert!(ch["decoded"].as_u64() > Some(0), "{topic}: {ch}");
+    }
+    // What the messages say, decoded with the advertised schemas: the demo's
+    // 320 × 300 cost grid of int8 cells, per-block grids of 48 × 36 blocks.
+    let first = |topic: &str| &channels[topic]["first"];
+    let costmap = first("/costmap");
+    assert_eq!(
+        (
+            &costmap["columns"],
+            &costmap["rows"],
+            &costmap["cell_stride"]
+        ),
+        (&320.into(), &300.into(), &1.into()),
+        "{costmap}"
+    );
+    assert_eq!(costmap["fields"], serde_json::json!(["cost"]), "{costmap}");
+    assert_eq!(costmap["frame_id"], "map", "{costmap}");
+    let activity = first("/cam01/activity");
+    assert_eq!(
+        activity["fields"],
+        serde_json::json!(["s1", "s2", "lt_mean"]),
+        "{activity}"
+    );
+    assert_eq!(
+        (&activity["columns"], &activity["rows"]),
+        (&48.into(), &36.into())
+    );
+    assert_eq!(
+        first("/cam01/motion")["fields"],
+        serde_json::json!(["density", "dx", "dy"])
+    );
+    assert_eq!(first("/cam01/image")["format"], "jpeg");
+    assert!(first("/scene")["entities"].as_u64() > Some(0), "{got}");
+
+    // Every name of the protocol is accepted, the newest preferred; anything else
+    // is a 400 that names them.
+    for (offered, status, agreed) in [
+        (
+            "foxglove.websocket.v1",
+            "101",
+            Some("foxglove.websocket.v1"),
+        ),
+        ("foxglove.sdk.v1", "101", Some("foxglove.sdk.v1")),
+        (
+            "foxglove.websocket.v1, foxglove.sdk.v1.1",
+            "101",
+            Some("foxglove.sdk.v1.1"),
+        ),
+        ("chat", "400", None),
+    ] {
+        let (line, protocol) = handshake(port, offered);
+        assert!(line.contains(status), "{offered}: {line}");
+        assert_eq!(protocol.as_deref(), agreed, "{offered}: {line}");
+    }
+    assert!(
+        view.wait_for_stderr(
+            "refused (HTTP 400): it offers none of the subprotocols",
+            Duration::from_secs(5)
+        ),
+        "{}",
+        view.stderr()
+    );
+    drop(replay);
+}
+
+/// A 1024 × 1024 cell grid (1 MiB per cost map) over the costmap tests' camera.
+const BIG_GRID: &str = r#"
+[costmap]
+origin_x_m = -1.0
+origin_y_m = 1.5
+resolution_m = 0.005
+width_cells = 1024
+height_cells = 1024
+frame_id = "test_map"
+cost_scale = 0.05
+weight_long_term = 0.0
+"#;
+
+#[test]
+fn a_client_that_stops_reading_costs_the_view_its_budget_and_is_disconnected() {
+    use crate::costmap::{HOT_BLOCK, HOT_S1, Source, camera_toml};
+    const BUDGET_MIB: u64 = 2;
+    const STALL_S: u64 = 6;
+    let site = TestSite::new(
+        "live-budget",
+        &format!(
+            "{}{BIG_GRID}\n[view]\nclient_budget_mib = {BUDGET_MIB}\nclient_stall_s = {STALL_S}\n",
+            camera_toml()
+        ),
+    );
+    let port = free_port();
+    let mut view = spawn_view(&site.config_path(), port);
+    wait_for_view(&mut view);
+    // The test is cam01's cascade: activity as fast as the view composes cost
+    // maps of it, each one 1 MiB to every client that subscribed to /costmap.
+    let ipc = site.ipc("source");
+    let mut source = Source::new(&ipc, "2024-05-06T10:00:00Z");
+    source.wait_for_subscriber(&view);
+    let hot = [(HOT_BLOCK, HOT_S1)];
+    let publish_for = |source: &mut Source, d: Duration, rss: &mut Vec<u64>| {
+        let end = Instant::now() + d;
+        while Instant::now() < end {
+            source.send(&hot, 600);
+            rss.push(rss_bytes(view.pid()).unwrap_or(0));
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    };
+    // A client that reads, for the whole test.
+    let reader = std::thread::spawn(move || ws_client(port, "/costmap", 1_000_000, 30));
+    let mut rss = Vec::new();
+    publish_for(&mut source, Duration::from_secs(4), &mut rss);
+    let baseline = *rss[rss.len() / 2..].iter().max().unwrap();
+
+    // One that subscribes to everything and stops reading.
+    let python = python();
+    let script = repo_root().join("tests/view/stalled_client.py");
+    let url = format!("ws://127.0.0.1:{port}");
+    let stall_arg = (STALL_S + 12).to_string();
+    let mut stalled = Proc::spawn(&python, &[script.to_str().unwrap(), &url, &stall_arg]);
+    let line = stalled
+        .wait_for_line("local_port", Duration::from_secs(30))
+        .unwrap_or_else(|| panic!("the stalled client did not subscribe: {}", stalled.stderr()));
+    let hello: Value = serde_json::from_str(&line).unwrap();
+    assert!(
+        hello["subscribed"]
+            .as_array()
+            .unwrap()
+            .contains(&"/costmap".into()),
+        "{hello}"
+    );
+    let gone = format!(
+        "view: client 127.0.0.1:{} disconnected: over its budget",
+        hello["local_port"]
+    );
+    let mut during = Vec::new();
+    let subscribed = Instant::now();
+    while !view.stderr().contains(&gone) && subscribed.elapsed() < Duration::from_secs(STALL_S + 15)
+    {
+        publish_for(&mut source, Duration::from_millis(500), &mut during);
+    }
+    let took = subscribed.elapsed();
+    let log = view.stderr();
+    // Unbounded, the backlog would grow by 1 MiB per cost map (~20 a second) for
+    // the whole stall. Bounded: the budget, the message being written and the one
+    // being read, plus what the allocator keeps.
+    let peak = *during.iter().max().unwrap();
+    let grown = peak.saturating_sub(baseline);
+    let bound = (BUDGET_MIB + 16) << 20;
+    eprintln!(
+        "view RSS: {} MiB before the stalled client, {} MiB at most in the {took:?} after it subscribed ({} samples)",
+        baseline >> 20,
+        peak >> 20,
+        during.len()
+    );
+    assert!(
+        log.contains(&gone),
+        "never disconnected in {took:?}:\n{log}"
+    );
+    assert!(
+        took >= Duration::from_secs(STALL_S - 1),
+        "disconnected after {took:?}, before view.client_stall_s = {STALL_S}"
+    );
+    assert!(
+        grown < bound,
+        "the view grew by {} MiB for a stalled client (bound {} MiB)",
+        grown >> 20,
+        bound >> 20
+    );
+    assert!(
+        log.contains("reads more slowly than the site publishes"),
+        "{log}"
+    );
+    // Its connection is gone, not just quiet.
+    let end: Value = serde_json::from_str(
+        &stalled
+            .wait_for_line("closed", Duration::from_secs(STALL_S + 40))
+            .unwrap_or_else(|| panic!("{}", stalled.stderr())),
+    )
+    .unwrap();
+    assert_eq!(end["closed"], true, "{end}");
+
+    // The reading client got cost maps all along.
+    publish_for(&mut source, Duration::from_secs(1), &mut during);
+    let got = reader.join().unwrap();
+    assert!(got["received"].as_u64() > Some(40), "{got}");
+    assert!(got["first_bytes"].as_u64() > Some(1 << 20), "{got}");
+    // And the view's status counts what happened.
+    let row = site
+        .status_rows()
+        .into_iter()
+        .find(|r| r["stage"] == "view")
+        .unwrap_or_else(|| panic!("no view row"));
+    let detail = row["detail"].as_str().unwrap();
+    assert!(detail.contains("stalled_clients=1"), "{detail}");
+    assert!(!detail.contains("client_drops=0 "), "{detail}");
 }
 
 fn channels_schema(got: &Value, topic: &str) -> String {

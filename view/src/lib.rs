@@ -9,7 +9,9 @@
 //! * [`stage`]: the view and the recorder as a stage on the stage runtime
 //!   (`StageKind::View`: its own status, the runtime's drop counting);
 //! * [`record`]: the MCAP file, closed cleanly also when the disk runs low;
-//! * [`live`]: the WebSocket server, on loopback unless the site says otherwise;
+//! * [`live`]: the WebSocket server, on loopback unless the site says otherwise,
+//!   for every name of the protocol, each client held to a byte budget
+//!   ([`outbox`]);
 //! * [`jpeg`]: camera frames as small JPEGs (only with `view.frames = true`).
 //!
 //! The `foxglove` crate (and with it tokio) lives here only, so that the services
@@ -21,6 +23,7 @@ pub mod channels;
 pub mod follow;
 pub mod jpeg;
 pub mod live;
+pub mod outbox;
 pub mod record;
 pub mod stage;
 

@@ -17,7 +17,6 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use foxglove::WebSocketServerHandle;
 use isochron_shared::config::LoadedConfig;
 use isochron_shared::exit::Fatal;
 use isochron_shared::ipc::{Ipc, IpcError, StreamType};
@@ -27,6 +26,7 @@ use isochron_shared::wire::StreamHeader;
 
 use crate::channels::SiteChannels;
 use crate::follow::{StatusReader, Streams, ViewInputs, open_inputs, status_readers};
+use crate::live::LiveServer;
 use crate::record::{RecordError, Recording};
 
 /// How often status reports are read and the end conditions checked.
@@ -35,7 +35,7 @@ const TICK: Duration = Duration::from_millis(100);
 /// Where the channels go.
 pub enum Sink {
     /// The live view: a Foxglove WebSocket server.
-    Live(WebSocketServerHandle),
+    Live(LiveServer),
     /// A recording into an MCAP file.
     Record(Recording),
 }
@@ -118,8 +118,7 @@ impl ViewStage {
         counts.sort();
         let file = match self.sink {
             Sink::Live(server) => {
-                // Clients are dropped with the process; nothing to wait for.
-                server.stop().detach_all();
+                server.stop();
                 None
             }
             Sink::Record(recording) => {
@@ -258,10 +257,20 @@ impl Stage for ViewStage {
             Sink::Live(_) => "live",
             Sink::Record(_) => "record",
         };
-        format!(
+        let mut detail = format!(
             "sink={sink} published={} topics={}",
             self.published(),
             self.channels.counts().len()
-        )
+        );
+        if let Sink::Live(server) = &self.sink {
+            let stats = server.stats();
+            detail += &format!(
+                " clients={} client_drops={} stalled_clients={}",
+                stats.connected.load(Ordering::Relaxed),
+                stats.dropped.load(Ordering::Relaxed),
+                stats.stalled.load(Ordering::Relaxed)
+            );
+        }
+        detail
     }
 }

@@ -1,9 +1,10 @@
 //! Developer tasks: `cargo xtask <setup|demo|test|bench NAME|docs|install|deb>`.
 //!
 //! * `setup`: installs the system packages isochron builds and tests with
-//!   (Debian/Ubuntu, [`PACKAGES`]) if they are missing, fetches the sample video
-//!   (PETS 2009 `vtest.avi`, from Debian's opencv-doc package) into `data/`, makes
-//!   the Python venv of the test peers and builds the Fast DDS test client;
+//!   (Debian/Ubuntu, [`PACKAGES`]) if they are missing, fetches the sample
+//!   video (PETS 2009 `vtest.avi`, from Debian's opencv-doc package) into `data/`,
+//!   and installs the test peers: Python packages into `target/ros2-venv`, npm
+//!   packages into `target/node-peers`, and the Fast DDS test client;
 //! * `demo`: setup, release build, `isochron replay` on the sample video with
 //!   `config/demo.toml`, and a report of what every stage did;
 //! * `test`: setup, format and lint checks, build, every test, then every benchmark
@@ -166,6 +167,7 @@ fn setup(root: &Path) -> anyhow::Result<()> {
     }
     fetch_vtest(root)?;
     ros2_venv(root)?;
+    node_peers(root)?;
     fastdds_peer(root)
 }
 
@@ -295,6 +297,60 @@ fn ros2_venv(root: &Path) -> anyhow::Result<()> {
             ONNX,
         ])
         .args(&peers))
+}
+
+/// Installs the npm test peers of `tests/it/view.rs` into `target/node-peers`:
+/// `@foxglove/ws-protocol` (the reference client of the Foxglove WebSocket
+/// protocol), `ws` and `protobufjs`, at the versions `tests/view/package.json` and
+/// its lock pin (`npm ci`, no install scripts). Node.js comes from Debian's
+/// `nodejs` package if there is none (tested with Node 20).
+fn node_peers(root: &Path) -> anyhow::Result<()> {
+    let dir = root.join("target/node-peers");
+    let lock = std::fs::read(root.join("tests/view/package-lock.json"))
+        .context("reading tests/view/package-lock.json")?;
+    let stamp = dir.join("installed-lock.json");
+    if std::fs::read(&stamp).is_ok_and(|installed| installed == lock) {
+        return Ok(());
+    }
+    let runs = |tool: &str| {
+        Command::new(tool)
+            .arg("--version")
+            .output()
+            .is_ok_and(|o| o.status.success())
+    };
+    if !runs("node") || !runs("npm") {
+        eprintln!("xtask: installing nodejs and npm");
+        run(&mut apt_get(&["update", "-qq"]))?;
+        run(&mut apt_get(&[
+            "install",
+            "-y",
+            "-qq",
+            "--no-install-recommends",
+            "nodejs",
+            "npm",
+        ]))?;
+    }
+    eprintln!(
+        "xtask: installing the npm test peers into {}",
+        dir.display()
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir)?;
+    for file in ["package.json", "package-lock.json"] {
+        std::fs::copy(root.join("tests/view").join(file), dir.join(file))
+            .with_context(|| format!("copying tests/view/{file}"))?;
+    }
+    run(Command::new("npm")
+        .args([
+            "ci",
+            "--ignore-scripts",
+            "--no-audit",
+            "--no-fund",
+            "--prefix",
+        ])
+        .arg(&dir))?;
+    std::fs::write(&stamp, lock)?;
+    Ok(())
 }
 
 /// Fetches `data/vtest.avi` from Debian's opencv-doc package (downloaded, not

@@ -299,6 +299,13 @@ fn view_is_off_and_on_loopback_by_default_and_checked() {
     );
     let err = parse(&format!("{GOOD}\n[view]\nframe_rate_hz = 0\n")).unwrap_err();
     assert!(err.to_string().contains("view.frame_rate_hz"), "{err}");
+    // A slow client may cost the view 4 MiB, and is dropped after 10 s stalled.
+    assert_eq!(c.view.client_budget_bytes(), 4 << 20);
+    assert_eq!(c.view.client_stall_s, 10.0);
+    let err = parse(&format!("{GOOD}\n[view]\nclient_budget_mib = 0\n")).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("view.client_budget_mib"), "{err}");
+    let err = parse(&format!("{GOOD}\n[view]\nclient_stall_s = 0.5\n")).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("view.client_stall_s"), "{err}");
 }
 
 #[test]

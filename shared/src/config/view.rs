@@ -24,6 +24,14 @@ pub struct ViewConfig {
     /// Address `isochron view` listens on. Default `"127.0.0.1:8765"`, loopback: a
     /// non-loopback address is the site's explicit choice.
     pub listen: String,
+    /// Bytes the live view may hold for one client that reads more slowly than the
+    /// site publishes, MiB. Past it the client's oldest messages are dropped (and
+    /// counted); a message larger than the whole budget still goes to a client
+    /// with nothing else queued. Default 4.
+    pub client_budget_mib: f64,
+    /// A client over its budget that takes nothing for this long is disconnected,
+    /// seconds. Default 10.
+    pub client_stall_s: f64,
 }
 
 impl Default for ViewConfig {
@@ -34,6 +42,8 @@ impl Default for ViewConfig {
             frame_max_px: 640,
             jpeg_quality: 75,
             listen: "127.0.0.1:8765".into(),
+            client_budget_mib: 4.0,
+            client_stall_s: 10.0,
         }
     }
 }
@@ -44,6 +54,13 @@ impl ViewConfig {
         check_range("view.frame_rate_hz", self.frame_rate_hz, 0.01, 30.0)?;
         check_range("view.frame_max_px", self.frame_max_px as f64, 16.0, 8192.0)?;
         check_range("view.jpeg_quality", self.jpeg_quality as f64, 1.0, 100.0)?;
+        check_range(
+            "view.client_budget_mib",
+            self.client_budget_mib,
+            0.0625,
+            1024.0,
+        )?;
+        check_range("view.client_stall_s", self.client_stall_s, 1.0, 3600.0)?;
         if self.listen.parse::<SocketAddr>().is_err() {
             return Err(Invalid::found(
                 "view.listen",
@@ -52,5 +69,10 @@ impl ViewConfig {
             ));
         }
         Ok(())
+    }
+
+    /// [`ViewConfig::client_budget_mib`] in bytes.
+    pub fn client_budget_bytes(&self) -> usize {
+        (self.client_budget_mib * (1u64 << 20) as f64) as usize
     }
 }

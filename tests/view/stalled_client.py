@@ -1,0 +1,79 @@
+"""A Foxglove WebSocket client that stops reading, for tests/it/view.rs: the
+`websockets` package over a socket with a 4 KiB receive buffer. It completes the
+handshake (subprotocol foxglove.sdk.v1), reads serverInfo and the advertised
+channels, subscribes to all of them, and then reads nothing: `websockets` stops
+taking bytes from the socket once one message waits, so the server's sends back up.
+
+usage: python3 stalled_client.py URL STALL_S
+prints one JSON line as soon as it has subscribed (its local port, the topics),
+then, after STALL_S, reads again and prints a second line: whether the server
+had closed the connection, and how many messages it read before the end (or in
+10 s, if the server did not close it).
+"""
+
+import asyncio
+import json
+import socket
+import sys
+import time
+
+import websockets
+
+
+async def run(url: str, stall_s: float) -> None:
+    host, port = url.removeprefix("ws://").rstrip("/").rsplit(":", 1)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    # Before connecting, so the window the server sees stays small.
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    sock.connect((host, int(port)))
+    sock.setblocking(False)
+    async with websockets.connect(
+        url,
+        sock=sock,
+        subprotocols=["foxglove.sdk.v1"],
+        max_size=None,
+        max_queue=1,
+        ping_interval=None,
+        close_timeout=1,
+    ) as ws:
+        topics = {}
+        deadline = time.monotonic() + 20
+        while not topics and time.monotonic() < deadline:
+            msg = await asyncio.wait_for(ws.recv(), 20)
+            if isinstance(msg, str):
+                m = json.loads(msg)
+                if m.get("op") == "advertise":
+                    for ch in m["channels"]:
+                        topics[ch["topic"]] = ch["id"]
+        subs = [{"id": k, "channelId": cid} for k, cid in enumerate(topics.values())]
+        await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+        print(
+            json.dumps(
+                {"local_port": sock.getsockname()[1], "subscribed": sorted(topics)}
+            ),
+            flush=True,
+        )
+        # Read nothing.
+        await asyncio.sleep(stall_s)
+        # A server that closed it: what was left in the buffers, then the end. One
+        # that did not: messages for as long as one reads (10 s here).
+        waiting, closed = 0, False
+        end = time.monotonic() + 10
+        try:
+            while time.monotonic() < end:
+                await asyncio.wait_for(ws.recv(), max(end - time.monotonic(), 0.01))
+                waiting += 1
+        except websockets.ConnectionClosed:
+            closed = True
+        except (asyncio.TimeoutError, ConnectionError):
+            pass
+        print(json.dumps({"closed": closed, "waiting": waiting}), flush=True)
+
+
+def main() -> int:
+    asyncio.run(run(sys.argv[1], float(sys.argv[2])))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
