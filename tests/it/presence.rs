@@ -839,3 +839,59 @@ fn light_that_steps_or_ramps_raises_no_long_event_and_nothing_present() {
         "present under a light change: {present:?}"
     );
 }
+
+#[test]
+fn on_vtest_the_band_marks_where_people_are() {
+    // PETS09 S2.L1 itself: people walk nearly all the time. Score each second's
+    // band (judged on the second's last appearance, half a second in) against the
+    // MOT15 boxes of the frame half a second in.
+    let site = TestSite::new("presence-vtest", CAMERA);
+    let run = replay_on(&site, &vtest(), &[]);
+    let gt = GroundTruth::parse_mot(
+        &std::fs::read_to_string(repo_root().join("tests/data/pets09-s2l1-gt.txt")).unwrap(),
+    )
+    .unwrap();
+    let (mut boxes, mut boxes_hit, mut present, mut near) = (0, 0, 0, 0);
+    for (t, blocks, _) in run.band() {
+        // The second that ended at t: its frames 10(t−1) .. 10t − 1.
+        let frame = (t * 10.0).round() as u64 - 5;
+        let people: Vec<&PersonBox> = gt.boxes(frame).iter().filter(|b| b.flag == 1).collect();
+        let px = |b: &PersonBox| {
+            (
+                b.left.round() as i32,
+                b.top.round() as i32,
+                b.width.round() as i32,
+                b.height.round() as i32,
+            )
+        };
+        for b in &people {
+            boxes += 1;
+            boxes_hit += blocks_under(px(b)).iter().any(|k| blocks.contains(k)) as usize;
+        }
+        // Within a block of a person's box.
+        let around: Vec<usize> = people
+            .iter()
+            .flat_map(|b| {
+                let (x, y, w, h) = px(b);
+                blocks_under((x - BLOCK, y - BLOCK, w + 2 * BLOCK, h + 2 * BLOCK))
+            })
+            .collect();
+        present += blocks.len();
+        near += blocks.iter().filter(|k| around.contains(k)).count();
+    }
+    let (hit, precise) = (
+        boxes_hit as f64 / boxes.max(1) as f64,
+        near as f64 / present.max(1) as f64,
+    );
+    println!(
+        "presence on vtest: {:.1} % of {boxes} person boxes have a present block under them; \
+         {:.1} % of {present} present blocks lie within a block of a person",
+        hit * 100.0,
+        precise * 100.0
+    );
+    assert!(hit >= 0.75, "{hit:.3} of person boxes");
+    assert!(
+        precise >= 0.65,
+        "{precise:.3} of present blocks near people"
+    );
+}
