@@ -561,7 +561,7 @@ fn the_reference_foxglove_client_decodes_every_channel_of_the_live_view() {
     let activity = first("/cam01/activity");
     assert_eq!(
         activity["fields"],
-        serde_json::json!(["s1", "s2", "lt_mean"]),
+        serde_json::json!(["s1", "s2", "lt_mean", "present"]),
         "{activity}"
     );
     assert_eq!(
