@@ -143,8 +143,8 @@ fn header(camera: CameraId, start: i64, i: i64) -> MotionHeader {
     let k = (GRID_W * GRID_H) as usize;
     let mut preamble = Preamble::new::<BlockMotion>(Stream::Motion, camera, i as u64, k);
     preamble.capture_time_ns = start + i * NS_PER_S / FPS;
-    // The motion stage measures the appearance at 2 Hz.
-    if i % (FPS / 2) == 0 {
+    // The motion stage measures the appearance once a second.
+    if i % FPS == 0 {
         preamble.flags = FLAG_APPEARANCE;
     }
     let g = grid();
@@ -509,7 +509,7 @@ fn main() {
     );
     println!(
         "presence band: {ns_p:.3} ns per block-frame with it, {:+.1} % on the cascade \
-         (appearance on every 15th frame, {present_blocks:.1} blocks present per second on average)",
+         (appearance on every 30th frame, {present_blocks:.1} blocks present per second on average)",
         presence_cost * 100.0
     );
     println!(

@@ -199,6 +199,12 @@ pub struct Presence {
     /// second before.
     arrived: Vec<bool>,
     arrived_before: Vec<bool>,
+    /// Per block, whether it or a neighbour moved (had moving activity) this
+    /// second or the one before; made once a second.
+    moved_near: Vec<bool>,
+    arrived_near: Vec<bool>,
+    /// Scratch of [`dilate`].
+    rows_or: Vec<bool>,
     learn_rate: f32,
     drift_rate: f32,
     noise_rate: f32,
@@ -227,6 +233,9 @@ impl Presence {
             moved_before: vec![false; k],
             arrived: vec![false; k],
             arrived_before: vec![false; k],
+            moved_near: vec![false; k],
+            arrived_near: vec![false; k],
+            rows_or: vec![false; k],
             learn_rate: (1.0 - alpha(LEARN_S, 1.0)) as f32,
             drift_rate: (1.0 - alpha(DRIFT_S, 1.0)) as f32,
             noise_rate: (1.0 - alpha(LEARN_S, 1.0)) as f32,
@@ -292,6 +301,21 @@ impl Presence {
             *a = o.s2 >= ARRIVAL_S2;
         }
         if self.sampled {
+            let (w, h) = (self.grid_w, self.grid_h);
+            dilate(
+                (w, h),
+                &self.moved,
+                &self.moved_before,
+                &mut self.rows_or,
+                &mut self.moved_near,
+            );
+            dilate(
+                (w, h),
+                &self.arrived,
+                &self.arrived_before,
+                &mut self.rows_or,
+                &mut self.arrived_near,
+            );
             self.fold_global_light();
             self.update_blocks(now_s);
             self.update_regions(now_s);
@@ -309,24 +333,6 @@ impl Presence {
         self.sampled = false;
     }
 
-    /// True if block `k` or one of its 8 neighbours moved this second or the one
-    /// before.
-    fn moved_near(&self, k: usize) -> bool {
-        self.near(k, |n| self.moved[n] || self.moved_before[n])
-    }
-
-    /// True if block `k` or one of its 8 neighbours had moving activity this
-    /// second or the one before: something arrived.
-    fn arrived_near(&self, k: usize) -> bool {
-        self.near(k, |n| self.arrived[n] || self.arrived_before[n])
-    }
-
-    /// True if `hit` holds for block `k` or one of its 8 neighbours.
-    fn near(&self, k: usize, hit: impl Fn(usize) -> bool) -> bool {
-        let (x, y) = ((k % self.grid_w) as isize, (k / self.grid_w) as isize);
-        (-1..=1).any(|dy| (-1..=1).any(|dx| self.index(x + dx, y + dy).is_some_and(&hit)))
-    }
-
     fn index(&self, x: isize, y: isize) -> Option<usize> {
         (x >= 0 && y >= 0 && (x as usize) < self.grid_w && (y as usize) < self.grid_h)
             .then(|| y as usize * self.grid_w + x as usize)
@@ -338,7 +344,7 @@ impl Presence {
         self.fit.clear();
         for k in 0..self.blocks.len() {
             let b = &self.blocks[k];
-            if b.state == State::Empty && !self.moved_near(k) {
+            if b.state == State::Empty && !self.moved_near[k] {
                 self.fit.push((b.bg_luma, self.luma[k]));
             }
         }
@@ -360,8 +366,8 @@ impl Presence {
         for k in 0..self.blocks.len() {
             let (a_luma, a_texture) = (self.luma[k], self.texture[k]);
             let moved = self.moved[k];
-            let near = self.moved_near(k);
-            let arrived = self.arrived_near(k);
+            let near = self.moved_near[k];
+            let arrived = self.arrived_near[k];
             let (learn, drift, noise) = (self.learn_rate, self.drift_rate, self.noise_rate);
             let b = &mut self.blocks[k];
             if b.state == State::Unlearned {
@@ -553,6 +559,25 @@ impl Presence {
     }
 }
 
+/// `out[k]` = `a[n] || b[n]` for block `k` or one of its 8 neighbours `n`, on a
+/// `w × h` grid (`rows` is scratch): a 3 × 3 dilation, along rows then columns.
+fn dilate((w, h): (usize, usize), a: &[bool], b: &[bool], rows: &mut [bool], out: &mut [bool]) {
+    for y in 0..h {
+        let line = y * w..(y + 1) * w;
+        let (a, b) = (&a[line.clone()], &b[line.clone()]);
+        for (x, r) in rows[line].iter_mut().enumerate() {
+            let (x0, x1) = (x.saturating_sub(1), (x + 1).min(w - 1));
+            *r = (x0..=x1).any(|i| a[i] || b[i]);
+        }
+    }
+    for y in 0..h {
+        let (y0, y1) = (y.saturating_sub(1), (y + 1).min(h - 1));
+        for x in 0..w {
+            out[y * w + x] = (y0..=y1).any(|j| rows[j * w + x]);
+        }
+    }
+}
+
 /// The global light change `a = g·B + c` from `(B, a)` pairs of empty blocks: a
 /// first line through the medians of the darker and the brighter half, then least
 /// squares over the pairs near that line (what differs for another reason — a
@@ -560,8 +585,9 @@ impl Presence {
 /// blocks are too alike in brightness to tell an offset from a gain. `g` is kept
 /// within 0.2..=5.
 fn fit_light(pairs: &mut [(f32, f32)]) -> (f32, f32) {
-    pairs.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+    // The darker and the brighter half (by B), each in no order.
     let half = pairs.len() / 2;
+    pairs.select_nth_unstable_by(half, |a, b| a.0.total_cmp(&b.0));
     let (b_lo, a_lo) = medians(&mut pairs[..half]);
     let (b_hi, a_hi) = medians(&mut pairs[half..]);
     let spread = b_hi - b_lo >= 16.0;

@@ -7,7 +7,7 @@
 //! * `isochron` — the whole motion stage per frame: brightness offset, fused kernel
 //!   (runtime-dispatched: AVX2 when the CPU has it), block features, illumination
 //!   check, written into a block buffer, and the block appearance for the presence
-//!   band on the frames it is due (`motion.appearance_hz`, 2 Hz: every fifth frame
+//!   band on the frames it is due (`motion.appearance_hz`, 1 Hz: every tenth frame
 //!   of vtest's 10 frames/s, by their capture times);
 //! * `isochron-no-appearance` — the same without the appearance: the band's cost is
 //!   the ratio of the two (`appearance_cost` in the JSON line);
@@ -220,7 +220,7 @@ fn main() -> opencv::Result<()> {
                 "{} kernel + features + illumination check{}",
                 imp.name(),
                 if appearance {
-                    " + appearance at 2 Hz"
+                    " + appearance at 1 Hz"
                 } else {
                     ""
                 }

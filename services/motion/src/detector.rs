@@ -426,9 +426,13 @@ mod tests {
     fn the_appearance_is_measured_when_due_and_flagged() {
         let (w, h) = (64, 32);
         let geom = Geometry::new(w, h, 16).unwrap();
+        let params = MotionParams {
+            appearance_hz: 2.0,
+            ..MotionParams::default()
+        };
         let mut d = MotionDetector::with_implementation(
             geom,
-            MotionParams::default(),
+            params,
             Implementation::Portable,
             &[vec![[0.0, 0.0], [16.0, 0.0], [16.0, 16.0], [0.0, 16.0]]],
         );

@@ -42,8 +42,8 @@ pub struct MotionConfig {
     pub backend: MotionBackend,
     /// Each block's appearance (mean grey level and texture, for the cascade's
     /// presence band, `[presence]`) is measured on at most this many frames per
-    /// second of capture time, Hz; 0 turns it off (and with it the band).
-    /// Default 2.
+    /// second of capture time, Hz; 0 turns it off (and with it the band). The band
+    /// judges each second on the latest measurement in it. Default 1.
     pub appearance_hz: f64,
 }
 
@@ -57,7 +57,7 @@ impl Default for MotionConfig {
             density_threshold: 0.02,
             illumination_fraction: 0.5,
             backend: MotionBackend::MotionFlow,
-            appearance_hz: 2.0,
+            appearance_hz: 1.0,
         }
     }
 }
