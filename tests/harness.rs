@@ -771,6 +771,14 @@ pub fn cpu_ticks(pid: u32) -> Option<u64> {
     Some(utime + stime)
 }
 
+/// Resident memory of process `pid` (`VmRSS` in `/proc/<pid>/status`), bytes.
+pub fn rss_bytes(pid: u32) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
 /// Clock ticks per second.
 pub fn clock_ticks_per_s() -> f64 {
     // SAFETY: sysconf has no preconditions.

@@ -282,7 +282,7 @@ fn listener_with(domain: u16, timeout_s: u32, extra: &[String]) -> Proc {
 
 /// Calls a planning service of the bridge with the independent Cyclone DDS client
 /// (`tests/ros2/plan_client.py`); its reply as JSON.
-fn ros_plan(domain: u16, service: &str, args: &[&str]) -> Value {
+pub(crate) fn ros_plan(domain: u16, service: &str, args: &[&str]) -> Value {
     let script = repo_root().join("tests/ros2/plan_client.py");
     let out = std::process::Command::new(python())
         .arg(&script)

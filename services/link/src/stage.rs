@@ -33,14 +33,15 @@ use ros2_client::dds::{Node, Publisher, Subscription};
 
 use isochron_shared::config::LoadedConfig;
 use isochron_shared::exit;
+use isochron_shared::geometry::BlockGrid;
 use isochron_shared::ipc::{Activity, Detections, Events, Ipc, StatusPublisher, StatusSubscriber};
 use isochron_shared::service::{Fatal, open_files, raise_open_file_limit};
 use isochron_shared::stage::{Context, Input, Output, Stage, Woken};
 use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{CameraId, StreamHeader, fixed_str};
+use isochron_shared::wire::{CameraId, KnownGrid, StreamHeader, fixed_str};
 
 use crate::dds::LinkDds;
-use crate::msgs::{Delivery, LinkStream, Message, Status, cdr_len};
+use crate::msgs::{Delivery, LinkStream, Message, Status, cdr_len, check_box_id, printable};
 
 /// How often the DDS readers are polled: a message waits at most this long on
 /// the importing box.
@@ -107,6 +108,15 @@ fn check_open_files(imports: usize, exports: usize) -> Result<(), Fatal> {
     }
     tracing::info!(open, need, limit, "open files");
     Ok(())
+}
+
+/// The block grid this box's config gives camera `id` (its `[[camera]]` width
+/// and height with `motion.block_px`), if it does.
+fn configured_grid(loaded: &LoadedConfig, id: &str) -> Option<BlockGrid> {
+    let config = &loaded.config;
+    let camera = config.cameras.iter().find(|c| c.id == id)?;
+    let (w, h) = camera.width.zip(camera.height)?;
+    Some(BlockGrid::new(w, h, config.motion.block_px))
 }
 
 /// The stages whose status crosses with a camera.
@@ -242,17 +252,49 @@ struct ImportLane<'ipc, S: LinkStream> {
     reader: Subscription<Message<S>>,
     output: Output<'ipc, S>,
     last_sequence: Option<u64>,
+    /// The camera's grid, as the config gives it or its first activity pinned it.
+    known: KnownGrid,
     counts: Counts,
 }
 
 impl<'ipc, S: LinkStream> ImportLane<'ipc, S> {
-    fn new(dds: &mut LinkDds, ipc: &'ipc Ipc, camera: &str, queue: usize) -> Result<Self, Fatal> {
+    fn new(
+        dds: &mut LinkDds,
+        ipc: &'ipc Ipc,
+        camera: &str,
+        queue: usize,
+        grid: Option<BlockGrid>,
+    ) -> Result<Self, Fatal> {
         Ok(ImportLane {
             reader: dds.stream::<S, _>(camera, queue)?,
             output: Output::new(ipc, camera),
             last_sequence: None,
+            known: KnownGrid::new(grid),
             counts: Counts::default(),
         })
+    }
+
+    /// Checks a valid message's grid (activity) against the camera's known one;
+    /// the first one pins it, with a warning.
+    fn check_grid(&mut self, camera: &str, msg: &Message<S>) -> Result<(), String> {
+        let Some(grid) =
+            S::block_grid(&msg.header).filter(|_| !msg.header.preamble().is_end_of_stream())
+        else {
+            return Ok(());
+        };
+        match self.known.check(grid) {
+            Ok(false) => Ok(()),
+            Ok(true) => {
+                tracing::warn!(
+                    "{camera}: block grid {grid} pinned by the first activity from box '{}'; \
+                     any other grid is refused until the link restarts (set the camera's \
+                     width/height in this box's [[camera]] to fix it)",
+                    msg.box_id
+                );
+                Ok(())
+            }
+            Err(e) => Err(e.to_string()),
+        }
     }
 
     /// Publishes what DDS received (at most `limit` messages this tick).
@@ -277,13 +319,17 @@ impl<'ipc, S: LinkStream> ImportLane<'ipc, S> {
                 }
             };
             let arrived = Instant::now();
-            if let Err(e) = msg.validate(id) {
+            if let Err(e) = msg
+                .validate(id)
+                .map_err(|e| e.to_string())
+                .and_then(|()| self.check_grid(camera, &msg))
+            {
                 cx.health.rejected();
                 cx.warnings.warn("header", || {
                     format!(
-                        "rejected {} of {camera} from box '{}': {e}",
+                        "rejected {} of {camera} from box {}: {e}",
                         S::SUFFIX,
-                        msg.box_id
+                        printable(&msg.box_id)
                     )
                 });
                 continue;
@@ -319,12 +365,23 @@ impl Import<'_> {
     /// Writes the remote stages' status into this box's status services.
     fn receive_status(&mut self, ipc: &Ipc, cx: &mut Context) {
         while let Ok(Some((msg, _))) = self.status_in.take() {
-            let s = msg.status;
-            let stage = StageKind::from_name(&fixed_str(&s.stage)).filter(|k| k.per_camera());
-            let Some(stage) = stage.filter(|_| s.validate().is_ok() && s.camera == self.id) else {
+            let stage =
+                StageKind::from_name(&fixed_str(&msg.status.stage)).filter(|k| k.per_camera());
+            let valid = msg.status.validate().is_ok()
+                && msg.status.camera == self.id
+                && check_box_id(&msg.box_id).is_ok();
+            let Some(stage) = stage.filter(|_| valid) else {
                 cx.health.rejected();
+                cx.warnings.warn("status", || {
+                    format!(
+                        "rejected a status of {} from box {}: not a stage status of this camera",
+                        self.camera,
+                        printable(&msg.box_id)
+                    )
+                });
                 continue;
             };
+            let s = msg.status;
             self.status.messages += 1;
             if !self.status_out.contains_key(&stage) {
                 match ipc.status_publisher(&self.camera, stage) {
@@ -407,12 +464,13 @@ impl<'ipc> LinkStage<'ipc> {
         }
         let mut imports = Vec::new();
         for camera in &link.import {
+            let grid = configured_grid(loaded, camera);
             imports.push(Import {
                 camera: camera.clone(),
                 id: CameraId::new(camera).unwrap_or_default(),
-                activity: ImportLane::new(&mut dds, ipc, camera, queue)?,
-                events: ImportLane::new(&mut dds, ipc, camera, queue)?,
-                detections: ImportLane::new(&mut dds, ipc, camera, queue)?,
+                activity: ImportLane::new(&mut dds, ipc, camera, queue, grid)?,
+                events: ImportLane::new(&mut dds, ipc, camera, queue, grid)?,
+                detections: ImportLane::new(&mut dds, ipc, camera, queue, grid)?,
                 status_in: dds.status(camera)?,
                 status_out: HashMap::new(),
                 status: Counts::default(),

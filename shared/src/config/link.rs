@@ -36,6 +36,9 @@ pub struct LinkConfig {
     pub queue_messages: Option<usize>,
 }
 
+/// Longest `link.box_id`, bytes.
+pub const MAX_BOX_ID_LEN: usize = 64;
+
 /// The default `link.queue_messages`.
 pub const DEFAULT_QUEUE_MESSAGES: usize = 64;
 
@@ -67,10 +70,12 @@ impl LinkConfig {
 
     /// Checks the `link.*` keys against the configured cameras.
     pub(super) fn validate(&self, cameras: &[CameraConfig]) -> Result<(), Invalid> {
-        if !self.box_id.is_empty() && !is_ros_token(&self.box_id) {
+        if !self.box_id.is_empty()
+            && (!is_ros_token(&self.box_id) || self.box_id.len() > MAX_BOX_ID_LEN)
+        {
             return Err(Invalid::found(
                 "link.box_id",
-                "a name of letters, digits and '_' not starting with a digit, such as \"box_a\"",
+                "a name of up to 64 letters, digits and '_' not starting with a digit, such as \"box_a\"",
                 &self.box_id,
             ));
         }

@@ -1,0 +1,331 @@
+//! A hostile site network against the DDS services (issue 27): forged link
+//! messages from an unauthenticated Eclipse Cyclone DDS participant
+//! (`tests/ros2/link_forger.py`) and raw RTPS datagrams from a UDP socket, sent
+//! to the real link and costmap bridge while a real exporting link feeds them.
+//!
+//! Each attack checks that no service exits or stops publishing (the bridge's
+//! grid keeps the exporting box's activity, read by the independent Cyclone DDS
+//! listener), that the forged samples never reach this box's services, that each
+//! is counted as rejected, and that no process grows by more than a bound
+//! (`VmRSS`). DDS stays on the loopback interface, each test on its own domains.
+
+use std::time::{Duration, Instant};
+
+use isochron_shared::ipc::{Events, Ipc, StreamSubscriber};
+use isochron_shared::wire::LAYOUT_VERSION;
+use isochron_tests::{Proc, TestSite, repo_root, rss_bytes};
+use serde_json::Value;
+
+use crate::costmap::{
+    HOT_BLOCK, HOT_S1, Source, camera_toml, costmap_toml, dds_domain, expected_cells, held_grid,
+    messages, python,
+};
+
+const START: &str = "2026-03-02T11:00:00Z";
+const MIB: u64 = 1 << 20;
+
+/// Two boxes on this machine's loopback: A exports cam01 (fed by the test),
+/// B imports it into its bridge, whose grid the Cyclone DDS listener reads.
+struct Lab {
+    link_domain: u16,
+    bridge_domain: u16,
+    site_b: TestSite,
+    _site_a: TestSite,
+    _ipc_a: Ipc,
+    source: Source,
+    last_feed: Option<Instant>,
+    /// A's camera sees nothing (else its hot block).
+    quiet: bool,
+    link_a: Proc,
+    link_b: Proc,
+    bridge: Proc,
+    listener: Proc,
+}
+
+impl Lab {
+    /// Starts both boxes; `b_extra` goes into B's config (after its `[link]`).
+    fn new(name: &str, costmap_extra: &str, b_link_extra: &str) -> Lab {
+        let (link_domain, bridge_domain) = (dds_domain(), dds_domain());
+        let link = |box_id: &str, key: &str, extra: &str| {
+            format!(
+                "\n[link]\nbox_id = \"{box_id}\"\n{key} = [\"cam01\"]\nros_domain_id = {link_domain}\ndds_interfaces = [\"127.0.0.1\"]\n{extra}"
+            )
+        };
+        let site_a = TestSite::new(
+            &format!("{name}-a"),
+            &format!("{}{}", camera_toml(), link("box_a", "export", "")),
+        );
+        let site_b = TestSite::new(
+            &format!("{name}-b"),
+            &format!(
+                "{}{}{}",
+                camera_toml(),
+                costmap_toml(bridge_domain, costmap_extra),
+                link("box_b", "import", b_link_extra)
+            ),
+        );
+        let ipc_a = site_a.ipc("source");
+        let source = Source::new(&ipc_a, START);
+        let link_a = site_a.spawn("isochron-link", &[]);
+        source.wait_for_subscriber(&link_a);
+        let link_b = site_b.spawn("isochron-link", &[]);
+        let bridge = site_b.spawn("isochron-costmap", &[]);
+        let listener = Proc::spawn(
+            &python(),
+            &[
+                repo_root()
+                    .join("tests/ros2/costmap_listener.py")
+                    .display()
+                    .to_string(),
+                "--domain".into(),
+                bridge_domain.to_string(),
+                "--topic".into(),
+                "/isochron_test/activity_costmap".into(),
+                "--updates".into(),
+                "--timeout".into(),
+                "300".into(),
+            ],
+        );
+        let mut lab = Lab {
+            link_domain,
+            bridge_domain,
+            site_b,
+            _site_a: site_a,
+            _ipc_a: ipc_a,
+            source,
+            last_feed: None,
+            quiet: false,
+            link_a,
+            link_b,
+            bridge,
+            listener,
+        };
+        lab.until("A's activity in B's grid", Duration::from_secs(60), |g| {
+            g == expected_cells(true)
+        });
+        lab
+    }
+
+    /// Feeds A's camera at 1 Hz: its hot block active, or all quiet.
+    fn feed(&mut self) {
+        if self
+            .last_feed
+            .is_none_or(|t| t.elapsed() >= Duration::from_secs(1))
+        {
+            let hot: &[(usize, f32)] = if self.quiet {
+                &[]
+            } else {
+                &[(HOT_BLOCK, HOT_S1)]
+            };
+            self.source.send(hot, 660);
+            self.last_feed = Some(Instant::now());
+        }
+    }
+
+    /// The grid B's listener holds now, and how many messages it has received.
+    fn grid(&mut self) -> (Option<Vec<i64>>, usize) {
+        let msgs = messages(&mut self.listener);
+        (held_grid(&msgs), msgs.len())
+    }
+
+    /// Feeds A and reads B until `f` holds for B's grid; fails after `timeout`
+    /// with the services' logs.
+    fn until(&mut self, what: &str, timeout: Duration, mut f: impl FnMut(&[i64]) -> bool) {
+        let begin = Instant::now();
+        loop {
+            self.feed();
+            if self.grid().0.is_some_and(|g| f(&g)) {
+                return;
+            }
+            assert!(
+                begin.elapsed() < timeout,
+                "timed out waiting for {what}\n{}",
+                self.logs()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    fn logs(&mut self) -> String {
+        format!(
+            "link A:\n{}\n-----\nlink B:\n{}\n-----\nbridge B:\n{}\n-----\nlistener:\n{}",
+            tail(&self.link_a.stderr()),
+            tail(&self.link_b.stderr()),
+            tail(&self.bridge.stderr()),
+            tail(&self.listener.stderr())
+        )
+    }
+
+    /// Resident memory of B's link and bridge, bytes.
+    fn rss(&self) -> [u64; 2] {
+        [&self.link_b, &self.bridge].map(|p| rss_bytes(p.pid()).unwrap_or(0))
+    }
+
+    /// Runs the forger (`--forge kind`, `seconds`) against B's link while A's
+    /// feed goes on; its JSON summary.
+    fn forge(&mut self, kind: &str, seconds: u32, extra: &[&str]) -> Value {
+        let mut args = vec![
+            repo_root()
+                .join("tests/ros2/link_forger.py")
+                .display()
+                .to_string(),
+            "--domain".into(),
+            self.link_domain.to_string(),
+            "--forge".into(),
+            kind.into(),
+            "--layout-version".into(),
+            LAYOUT_VERSION.to_string(),
+            "--seconds".into(),
+            seconds.to_string(),
+        ];
+        args.extend(extra.iter().map(|s| s.to_string()));
+        let mut forger = Proc::spawn(&python(), &args);
+        let end = Instant::now() + Duration::from_secs(seconds as u64 + 30);
+        while forger.wait(Duration::ZERO).is_none() {
+            assert!(Instant::now() < end, "the forger did not finish");
+            self.feed();
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        let out = forger.stdout();
+        serde_json::from_str(out.lines().last().unwrap_or("")).unwrap_or_else(|e| {
+            panic!(
+                "link_forger.py --forge {kind}: {e}: {out}\n{}",
+                forger.stderr()
+            )
+        })
+    }
+
+    /// B's link's status row (`isochron status --json` on B).
+    fn link_row(&self) -> Value {
+        self.site_b.status_row("link")
+    }
+
+    /// Every service still runs, and B's grid still follows A after `what`:
+    /// known, then A's hot cell again after a second of quiet.
+    fn still_serving(&mut self, what: &str) {
+        for (name, p) in [
+            ("link A", &mut self.link_a),
+            ("link B", &mut self.link_b),
+            ("bridge B", &mut self.bridge),
+        ] {
+            if let Some(status) = p.wait(Duration::ZERO) {
+                panic!("{name} exited ({status}) after {what}:\n{}", p.stderr());
+            }
+        }
+        // The bridge publishes what changes: A's camera goes quiet, then active.
+        for (quiet, state) in [(true, "quiet"), (false, "active")] {
+            self.quiet = quiet;
+            let cells = expected_cells(!quiet);
+            self.until(
+                &format!("A's camera {state} in B's grid after {what}"),
+                Duration::from_secs(20),
+                |g| g == cells,
+            );
+        }
+    }
+}
+
+/// The last 60 lines of a log.
+fn tail(log: &str) -> String {
+    let lines: Vec<&str> = log.lines().collect();
+    lines[lines.len().saturating_sub(60)..].join("\n")
+}
+
+/// The event records `sub` holds.
+fn drain(sub: &StreamSubscriber<Events>) -> usize {
+    let mut n = 0;
+    while sub.receive().unwrap().is_some() {
+        n += 1;
+    }
+    n
+}
+
+/// The longest line of a log, bytes.
+fn longest_line(log: &str) -> usize {
+    log.lines().map(str::len).max().unwrap_or(0)
+}
+
+/// Forged link messages from an unauthenticated Cyclone DDS participant: a grid
+/// of 0xFFFFFFFF² blocks with one block, a 65 536² grid with no blocks (then a
+/// `plan_now`), a well-formed grid other than the camera's, and event records
+/// that end before they start. No service exits or stops publishing, nothing
+/// forged reaches B's services, each message is counted as rejected, B's link
+/// and bridge grow by less than 32 MiB, and no log line is longer than 2 KiB.
+#[test]
+fn forged_link_messages_never_crash_or_stall_a_service() {
+    python();
+    let routes = "\n[[costmap.segment]]\nname = \"all\"\npolygon_m = [[-1, 1.5], [5, 1.5], [5, 7.5], [-1, 7.5]]\n\n[[costmap.route]]\nname = \"via-all\"\nsegments = [\"all\"]\n";
+    let mut lab = Lab::new("forged", routes, "");
+    let ipc_b = lab.site_b.ipc("probe");
+    let events_b = ipc_b.subscriber::<Events>("cam01").unwrap();
+    let rss0 = lab.rss();
+    let mut rejected = lab.link_row()["rejected"].as_u64().unwrap();
+    for kind in ["huge-grid", "empty-grid", "other-grid", "events"] {
+        let sent = lab.forge(kind, 4, &[]);
+        assert!(
+            sent["matched"].as_u64() >= Some(1) && sent["count"].as_u64() >= Some(10),
+            "the forger reached no reader: {sent}"
+        );
+        lab.still_serving(kind);
+        let now = lab.link_row()["rejected"].as_u64().unwrap();
+        assert!(
+            now > rejected,
+            "{kind}: nothing counted as rejected ({now})"
+        );
+        eprintln!(
+            "MEASURED forged {kind}: {} sent, link B rejected {}",
+            sent["count"],
+            now - rejected
+        );
+        rejected = now;
+        if kind == "empty-grid" {
+            // The bridge answers at once: no work for a grid it never admitted.
+            let t = Instant::now();
+            let reply = crate::costmap::ros_plan(
+                lab.bridge_domain,
+                "/isochron/plan_now",
+                &["now", "via-all"],
+            );
+            eprintln!(
+                "MEASURED plan_now after a forged 65536² grid: answered in {:?}: {}",
+                t.elapsed(),
+                reply["message"]
+            );
+            assert!(t.elapsed() < Duration::from_secs(15));
+        }
+    }
+    assert_eq!(
+        drain(&events_b),
+        0,
+        "a forged event reached B's events service"
+    );
+    let rss1 = lab.rss();
+    eprintln!(
+        "MEASURED RSS under forged messages: link B {:.1} → {:.1} MiB, bridge B {:.1} → {:.1} MiB",
+        rss0[0] as f64 / MIB as f64,
+        rss1[0] as f64 / MIB as f64,
+        rss0[1] as f64 / MIB as f64,
+        rss1[1] as f64 / MIB as f64
+    );
+    for k in 0..2 {
+        assert!(
+            rss1[k] < rss0[k] + 32 * MIB,
+            "grew from {} to {} bytes",
+            rss0[k],
+            rss1[k]
+        );
+    }
+    let (link_log, bridge_log) = (lab.link_b.stderr(), lab.bridge.stderr());
+    assert!(
+        link_log.contains("rejected activity of cam01 from box \"evil\""),
+        "{link_log}"
+    );
+    assert!(link_log.contains("end_ns"), "{link_log}");
+    for (name, log) in [("link B", &link_log), ("bridge B", &bridge_log)] {
+        assert!(
+            longest_line(log) < 2048,
+            "{name} logged a line of {} bytes",
+            longest_line(log)
+        );
+    }
+}
