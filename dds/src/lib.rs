@@ -9,7 +9,7 @@
 //!   keeps the node in the ROS graph;
 //! * [`RosNode::topic`]: the DDS topic (`rt/…`) of a ROS 2 topic and message type;
 //! * [`keep_last`]: the QoS of a bounded topic, whose depth also bounds the
-//!   writer's cache.
+//!   writer's cache; [`bounded`]: the largest sample a reader reassembles.
 
 use std::net::IpAddr;
 
@@ -202,6 +202,16 @@ pub fn keep_last(
             max_samples_per_instance: depth,
         })
         .build()
+}
+
+/// `qos` with a bound on what a reader reassembles: at most `bytes` per sample,
+/// and 4 samples' worth of incomplete ones over all remote writers together
+/// (RustDDS's `max_sample_size`, the patch in `vendor/rustdds`). A DATA_FRAG
+/// claiming a larger sample — from anyone, before discovery or authentication —
+/// is dropped before anything is allocated for it.
+pub fn bounded(qos: QosPolicies, bytes: usize) -> QosPolicies {
+    let bytes = u32::try_from(bytes).unwrap_or(u32::MAX);
+    qos.modify_by(&QosPolicyBuilder::new().max_sample_size(bytes).build())
 }
 
 #[cfg(test)]

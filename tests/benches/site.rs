@@ -214,7 +214,7 @@ fn simulated_box(b: usize, cameras: usize, domain: u16, stop: Arc<AtomicBool>) -
         let ids: Vec<String> = (0..cameras).map(|k| camera_id(b, k)).collect();
         let writers: Vec<_> = ids
             .iter()
-            .map(|id| dds.stream::<Activity, Publisher<_>>(id, 1).unwrap())
+            .map(|id| dds.stream::<Activity, Publisher<_>>(id, 1, None).unwrap())
             .collect();
         let (t0, start_ns) = (Instant::now(), wall_now_ns());
         for second in 0u64.. {

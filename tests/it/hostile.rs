@@ -329,3 +329,120 @@ fn forged_link_messages_never_crash_or_stall_a_service() {
         );
     }
 }
+
+/// One RTPS datagram of one DATA_FRAG submessage to the SPDP reader
+/// (`ENTITYID_SPDP_BUILTIN_PARTICIPANT_READER`), from a participant `prefix`
+/// no one knows, claiming a sample of `sample_size` bytes: 64 bytes of its
+/// first fragment of 1 KiB. 120 bytes on the wire.
+fn data_frag(prefix: [u8; 12], sequence: u32, sample_size: u32) -> Vec<u8> {
+    let mut d = Vec::new();
+    d.extend_from_slice(b"RTPS");
+    d.extend_from_slice(&[2, 3, 0x01, 0x0f]); // version 2.3, a vendor id
+    d.extend_from_slice(&prefix);
+    let mut body = Vec::new();
+    body.extend_from_slice(&0u16.to_le_bytes()); // extraFlags
+    body.extend_from_slice(&28u16.to_le_bytes()); // octetsToInlineQos
+    body.extend_from_slice(&[0x00, 0x01, 0x00, 0xc7]); // readerId: SPDP reader
+    body.extend_from_slice(&[0x00, 0x01, 0x00, 0xc2]); // writerId: SPDP writer
+    body.extend_from_slice(&0i32.to_le_bytes()); // writerSN high
+    body.extend_from_slice(&sequence.to_le_bytes()); // writerSN low
+    body.extend_from_slice(&1u32.to_le_bytes()); // fragmentStartingNum
+    body.extend_from_slice(&1u16.to_le_bytes()); // fragmentsInSubmessage
+    body.extend_from_slice(&1024u16.to_le_bytes()); // fragmentSize
+    body.extend_from_slice(&sample_size.to_le_bytes()); // sampleSize
+    body.extend_from_slice(&[0x00, 0x03, 0x00, 0x00]); // PL_CDR_LE encapsulation
+    body.extend_from_slice(&[0u8; 60]);
+    d.push(0x16); // DATA_FRAG
+    d.push(0x01); // little-endian
+    d.extend_from_slice(&(body.len() as u16).to_le_bytes());
+    d.extend_from_slice(&body);
+    d
+}
+
+/// The unicast discovery (SPDP) ports of participants 0..8 of `domain`
+/// (RTPS 9.6.1.1: 7400 + 250·domain + 10 + 2·participant).
+fn spdp_ports(domain: u16) -> impl Iterator<Item = u16> {
+    (0..8).map(move |p| 7400 + 250 * domain + 10 + 2 * p)
+}
+
+/// Raw RTPS DATA_FRAG datagrams from a UDP socket to every participant's SPDP
+/// reader on the link's and the bridge's domains, before anything is
+/// authenticated: first one datagram per port claiming a 1 GiB sample, then 32
+/// from as many unknown participants claiming 0xFFFFFFF0 bytes and 1 MiB + 1.
+/// Each claim above RustDDS's bound for a built-in reader (1 MiB, 4 MiB of
+/// incomplete samples per reader: `vendor/rustdds`) is dropped before anything
+/// is allocated: B's link and bridge grow by less than 16 MiB, keep serving, and
+/// log the drops rate-limited.
+#[test]
+fn a_data_frag_claiming_a_huge_sample_allocates_nothing() {
+    python();
+    let mut lab = Lab::new("datafrag", "", "");
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let ports: Vec<u16> = spdp_ports(lab.link_domain)
+        .chain(spdp_ports(lab.bridge_domain))
+        .collect();
+    let send = |prefix: [u8; 12], sequence: u32, size: u32| {
+        let datagram = data_frag(prefix, sequence, size);
+        assert!(datagram.len() <= 120);
+        for port in &ports {
+            let _ = socket.send_to(&datagram, ("127.0.0.1", *port));
+        }
+    };
+    let rss0 = lab.rss();
+    send([0xee; 12], 1, 1 << 30);
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(3) {
+        lab.feed();
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let rss1 = lab.rss();
+    eprintln!(
+        "MEASURED one DATA_FRAG claiming 1 GiB: link B {:.1} → {:.1} MiB, bridge B {:.1} → {:.1} MiB",
+        rss0[0] as f64 / MIB as f64,
+        rss1[0] as f64 / MIB as f64,
+        rss0[1] as f64 / MIB as f64,
+        rss1[1] as f64 / MIB as f64
+    );
+    for k in 0..2 {
+        assert!(
+            rss1[k] < rss0[k] + 16 * MIB,
+            "grew from {} to {} bytes\n{}",
+            rss0[k],
+            rss1[k],
+            lab.logs()
+        );
+    }
+    for k in 0..32u8 {
+        let mut prefix = [0xee; 12];
+        prefix[11] = k;
+        send(prefix, 2, 0xFFFF_FFF0);
+        send(prefix, 3, (1 << 20) + 1);
+    }
+    lab.still_serving("DATA_FRAG datagrams");
+    let rss2 = lab.rss();
+    eprintln!(
+        "MEASURED 64 more DATA_FRAGs (0xFFFFFFF0 and 1 MiB + 1 bytes claimed): link B {:.1} MiB, bridge B {:.1} MiB",
+        rss2[0] as f64 / MIB as f64,
+        rss2[1] as f64 / MIB as f64
+    );
+    for k in 0..2 {
+        assert!(
+            rss2[k] < rss0[k] + 16 * MIB,
+            "grew from {} to {} bytes",
+            rss0[k],
+            rss2[k]
+        );
+    }
+    let log = lab.link_b.stderr();
+    assert!(
+        log.contains("exceeds the reader's max_sample_size"),
+        "{}",
+        tail(&log)
+    );
+    let drops = log.matches("max_sample_size").count();
+    assert!(
+        drops <= 12,
+        "{drops} lines for 65 drops: not rate-limited\n{}",
+        tail(&log)
+    );
+}

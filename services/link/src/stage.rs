@@ -171,7 +171,7 @@ struct ExportLane<S: LinkStream> {
 impl<S: LinkStream> ExportLane<S> {
     fn new(dds: &mut LinkDds, camera: &str, queue: usize) -> Result<Self, Fatal> {
         Ok(ExportLane {
-            writer: dds.stream::<S, _>(camera, queue)?,
+            writer: dds.stream::<S, _>(camera, queue, None)?,
             queue: VecDeque::new(),
             last_sequence: None,
             counts: Counts::default(),
@@ -266,7 +266,7 @@ impl<'ipc, S: LinkStream> ImportLane<'ipc, S> {
         grid: Option<BlockGrid>,
     ) -> Result<Self, Fatal> {
         Ok(ImportLane {
-            reader: dds.stream::<S, _>(camera, queue)?,
+            reader: dds.stream::<S, _>(camera, queue, grid.map(|g| g.len()))?,
             output: Output::new(ipc, camera),
             last_sequence: None,
             known: KnownGrid::new(grid),
