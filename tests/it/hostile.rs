@@ -43,8 +43,9 @@ struct Lab {
 }
 
 impl Lab {
-    /// Starts both boxes; `b_extra` goes into B's config (after its `[link]`).
-    fn new(name: &str, costmap_extra: &str, b_link_extra: &str) -> Lab {
+    /// Starts both boxes; B's config starts with `b_sections`, and ends its
+    /// `[costmap]` with `costmap_extra` and its `[link]` with `b_link_extra`.
+    fn new(name: &str, b_sections: &str, costmap_extra: &str, b_link_extra: &str) -> Lab {
         let (link_domain, bridge_domain) = (dds_domain(), dds_domain());
         let link = |box_id: &str, key: &str, extra: &str| {
             format!(
@@ -58,7 +59,7 @@ impl Lab {
         let site_b = TestSite::new(
             &format!("{name}-b"),
             &format!(
-                "{}{}{}",
+                "{b_sections}{}{}{}",
                 camera_toml(),
                 costmap_toml(bridge_domain, costmap_extra),
                 link("box_b", "import", b_link_extra)
@@ -255,7 +256,7 @@ fn longest_line(log: &str) -> usize {
 fn forged_link_messages_never_crash_or_stall_a_service() {
     python();
     let routes = "\n[[costmap.segment]]\nname = \"all\"\npolygon_m = [[-1, 1.5], [5, 1.5], [5, 7.5], [-1, 7.5]]\n\n[[costmap.route]]\nname = \"via-all\"\nsegments = [\"all\"]\n";
-    let mut lab = Lab::new("forged", routes, "");
+    let mut lab = Lab::new("forged", "", routes, "");
     let ipc_b = lab.site_b.ipc("probe");
     let events_b = ipc_b.subscriber::<Events>("cam01").unwrap();
     let rss0 = lab.rss();
@@ -376,7 +377,7 @@ fn spdp_ports(domain: u16) -> impl Iterator<Item = u16> {
 #[test]
 fn a_data_frag_claiming_a_huge_sample_allocates_nothing() {
     python();
-    let mut lab = Lab::new("datafrag", "", "");
+    let mut lab = Lab::new("datafrag", "", "", "");
     let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     let ports: Vec<u16> = spdp_ports(lab.link_domain)
         .chain(spdp_ports(lab.bridge_domain))
@@ -445,4 +446,80 @@ fn a_data_frag_claiming_a_huge_sample_allocates_nothing() {
         "{drops} lines for 65 drops: not rate-limited\n{}",
         tail(&log)
     );
+}
+
+/// `isochron_up{stage, camera}` in the exporter's metrics on 127.0.0.1:`port`.
+fn up(port: u16, stage: &str, camera: &str) -> Option<f64> {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).ok()?;
+    s.set_read_timeout(Some(Duration::from_secs(5))).ok()?;
+    write!(
+        s,
+        "GET /metrics HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n"
+    )
+    .ok()?;
+    let mut text = String::new();
+    s.read_to_string(&mut text).ok()?;
+    let prefix = format!("isochron_up{{stage=\"{stage}\",camera=\"{camera}\"}} ");
+    text.lines()
+        .find_map(|l| l.strip_prefix(&prefix))
+        .and_then(|v| v.trim().parse().ok())
+}
+
+/// The state of `stage` of cam01 in B's `isochron status`, and its pid.
+fn remote_row(site: &TestSite, stage: &str) -> (String, u64) {
+    let rows = site.status_rows();
+    let row = rows
+        .iter()
+        .find(|r| r["stage"] == stage && r["camera"] == "cam01")
+        .unwrap_or_else(|| panic!("no {stage} row for cam01: {rows:?}"));
+    (
+        row["state"].as_str().unwrap_or("").to_string(),
+        row["pid"].as_u64().unwrap_or(0),
+    )
+}
+
+/// A forged status of each stage of cam01 with a report time of 2^62 and pid 1
+/// (an unauthenticated Cyclone DDS participant, box "evil"): B relays it as
+/// what B saw and when — the report time of its arrival, the relaying link's
+/// pid — so once the forger stops, B's `isochron status` shows the stages stale
+/// within 15 s and the exporter's `isochron_up` drops to 0 within its
+/// `stale_after_s` (8 s), instead of "running" for 29 minutes.
+#[test]
+fn a_remote_status_is_live_only_while_it_arrives() {
+    python();
+    let port = isochron_tests::free_port();
+    let exporter = format!("[exporter]\nlisten = \"127.0.0.1:{port}\"\nstale_after_s = 8\n\n");
+    let mut lab = Lab::new("status", &exporter, "", "");
+    let _exporter = lab.site_b.spawn("isochron-exporter", &[]);
+    let sent = lab.forge("status", 4, &[]);
+    assert!(sent["matched"].as_u64() >= Some(1), "{sent}");
+    let stopped = Instant::now();
+    let (state, pid) = remote_row(&lab.site_b, "gate");
+    assert_eq!(state, "running", "the forged report arrived a moment ago");
+    assert_eq!(
+        pid,
+        lab.link_b.pid() as u64,
+        "the relaying link's pid, not the sender's"
+    );
+    assert!(
+        isochron_tests::eventually(Duration::from_secs(10), || {
+            (up(port, "gate", "cam01") == Some(1.0)).then_some(())
+        })
+        .is_some(),
+        "the exporter never saw the relayed status"
+    );
+    let down = isochron_tests::eventually(Duration::from_secs(20), || {
+        (up(port, "gate", "cam01") == Some(0.0)).then(|| stopped.elapsed())
+    })
+    .expect("isochron_up stayed 1 after the sender stopped");
+    let stale = isochron_tests::eventually(Duration::from_secs(25), || {
+        (remote_row(&lab.site_b, "gate").0 == "stale").then(|| stopped.elapsed())
+    })
+    .expect("isochron status kept the forged stage running");
+    eprintln!(
+        "MEASURED forged status (report time 2^62, pid 1) after its sender stopped: isochron_up 0 after {down:?}, isochron status stale after {stale:?}"
+    );
+    assert!(stale < Duration::from_secs(20) && down < Duration::from_secs(14));
+    lab.still_serving("forged status");
 }

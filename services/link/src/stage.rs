@@ -31,6 +31,7 @@ use std::time::{Duration, Instant};
 use ros2_client::WriteError;
 use ros2_client::dds::{Node, Publisher, Subscription};
 
+use isochron_shared::clock::wall_now_ns;
 use isochron_shared::config::LoadedConfig;
 use isochron_shared::exit;
 use isochron_shared::geometry::BlockGrid;
@@ -38,7 +39,7 @@ use isochron_shared::ipc::{Activity, Detections, Events, Ipc, StatusPublisher, S
 use isochron_shared::service::{Fatal, open_files, raise_open_file_limit};
 use isochron_shared::stage::{Context, Input, Output, Stage, Woken};
 use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{CameraId, KnownGrid, StreamHeader, fixed_str};
+use isochron_shared::wire::{CameraId, KnownGrid, StageStatus, StreamHeader, fixed_str};
 
 use crate::dds::LinkDds;
 use crate::msgs::{Delivery, LinkStream, Message, Status, cdr_len, check_box_id, printable};
@@ -362,7 +363,8 @@ struct Import<'ipc> {
 }
 
 impl Import<'_> {
-    /// Writes the remote stages' status into this box's status services.
+    /// Writes the remote stages' status into this box's status services, as
+    /// this box saw it ([`seen_here`]).
     fn receive_status(&mut self, ipc: &Ipc, cx: &mut Context) {
         while let Ok(Some((msg, _))) = self.status_in.take() {
             let stage =
@@ -381,7 +383,7 @@ impl Import<'_> {
                 });
                 continue;
             };
-            let s = msg.status;
+            let s = seen_here(msg.status, wall_now_ns());
             self.status.messages += 1;
             if !self.status_out.contains_key(&stage) {
                 match ipc.status_publisher(&self.camera, stage) {
@@ -403,6 +405,25 @@ impl Import<'_> {
             .values()
             .for_each(StatusPublisher::update_connections);
     }
+}
+
+/// A remote stage's status as this box relays it: its liveness is what this
+/// box saw and when, never the sender's clock or process id. The report time
+/// becomes the time it arrived here (`now_ns`); the start time keeps the uptime
+/// the sender reported (within 0 ..= `now_ns`); the process id becomes the
+/// link's own, the local process whose death ends the relay (a remote pid means
+/// nothing here: `kill(pid, 0)` of a forged pid 1 always succeeds). A sender
+/// that stops is stale here `STALE_AFTER_S` after its last report arrived,
+/// whatever times it wrote.
+pub fn seen_here(mut status: StageStatus, now_ns: i64) -> StageStatus {
+    let uptime_ns = status
+        .report_wall_ns
+        .saturating_sub(status.started_wall_ns)
+        .clamp(0, now_ns.max(0));
+    status.report_wall_ns = now_ns;
+    status.started_wall_ns = now_ns - uptime_ns;
+    status.pid = std::process::id();
+    status
 }
 
 /// The inputs of the exported cameras, in `link.export` order.
@@ -659,5 +680,44 @@ impl Stage for LinkStage<'_> {
             d += &format!(" err={errors}");
         }
         d
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use isochron_shared::wire::{LAYOUT_VERSION, MAGIC, STATUS_DETAIL_LEN};
+
+    #[test]
+    fn a_relayed_status_is_as_fresh_as_its_arrival_and_owned_by_the_link() {
+        let forged = StageStatus {
+            magic: MAGIC,
+            layout_version: LAYOUT_VERSION,
+            reserved: 0,
+            camera: CameraId::new("cam01").unwrap(),
+            stage: isochron_shared::wire::to_fixed("gate"),
+            pid: 1,
+            rate_in: 1.0,
+            started_wall_ns: 1,
+            report_wall_ns: 1 << 62,
+            received: 0,
+            sent: 0,
+            dropped: 0,
+            rejected: 0,
+            rate_out: 0.0,
+            stage_latency_ms: 0.0,
+            e2e_latency_p50_ms: 0.0,
+            e2e_latency_p99_ms: 0.0,
+            detail: [0; STATUS_DETAIL_LEN],
+        };
+        let now = 1_800_000_000_000_000_000;
+        let s = seen_here(forged, now);
+        assert_eq!(s.report_wall_ns, now);
+        assert_eq!(s.pid, std::process::id());
+        // An absurd uptime is clamped: the start is never before 1970.
+        assert_eq!(s.started_wall_ns, 0);
+        let mut honest = forged;
+        (honest.started_wall_ns, honest.report_wall_ns) = (1_000, 61_000_000_000);
+        assert_eq!(seen_here(honest, now).started_wall_ns, now - 60_999_999_000);
     }
 }
