@@ -18,7 +18,7 @@ use serde_json::Value;
 
 use crate::costmap::{
     HOT_BLOCK, HOT_S1, Source, camera_toml, costmap_toml, dds_domain, expected_cells, held_grid,
-    messages, python,
+    messages, netns_pair, python,
 };
 
 const START: &str = "2026-03-02T11:00:00Z";
@@ -522,4 +522,361 @@ fn a_remote_status_is_live_only_while_it_arrives() {
     );
     assert!(stale < Duration::from_secs(20) && down < Duration::from_secs(14));
     lab.still_serving("forged status");
+}
+
+/// Runs `isochron keystore args`, which must succeed.
+fn keystore(args: &[&str]) {
+    let mut p = Proc::spawn(
+        &isochron_tests::bin("isochron"),
+        &[&["keystore"], args].concat(),
+    );
+    let done = p.finish(Duration::from_secs(60));
+    assert!(
+        done.status.success(),
+        "isochron keystore {args:?}: {}",
+        done.stderr
+    );
+}
+
+/// Two boxes in two network namespaces joined by a veth pair, their links with
+/// DDS Security from one keystore made by `isochron keystore` (each box's
+/// permissions: publish what it exports, read what it imports): A's activity
+/// reaches B's grid. An unauthenticated Cyclone DDS participant on B's side of
+/// the veth, forging activity of box "evil", detections of two people and every
+/// stage's status, matches no reader: nothing of it reaches B's link, grid,
+/// services or status.
+#[test]
+fn secured_boxes_exchange_activity_and_ignore_an_unauthenticated_participant() {
+    let Some(pair) = netns_pair(3) else {
+        return;
+    };
+    let (link_domain, bridge_domain) = (dds_domain(), dds_domain());
+    let keys = tempfile::tempdir().unwrap();
+    let dir = keys.path().display().to_string();
+    keystore(&["init", &dir]);
+    let link = |box_id: &str, key: &str, addr: &str| {
+        format!(
+            "\n[link]\nbox_id = \"{box_id}\"\n{key} = [\"cam01\"]\nros_domain_id = {link_domain}\ndds_interfaces = [\"{addr}\"]\nsecurity_dir = \"{dir}/enclaves/{box_id}\"\n"
+        )
+    };
+    let site_a = TestSite::new(
+        "secured-a",
+        &format!(
+            "{}{}",
+            camera_toml(),
+            link("box_a", "export", &pair.addrs[0])
+        ),
+    );
+    let site_b = TestSite::new(
+        "secured-b",
+        &format!(
+            "{}{}{}",
+            camera_toml(),
+            costmap_toml(bridge_domain, ""),
+            link("box_b", "import", &pair.addrs[1])
+        ),
+    );
+    for site in [&site_a, &site_b] {
+        keystore(&[
+            "enclave",
+            &dir,
+            "--config",
+            &site.config_path().display().to_string(),
+        ]);
+    }
+    let permissions =
+        std::fs::read_to_string(keys.path().join("enclaves/box_a/permissions.xml")).unwrap();
+    assert!(
+        permissions.contains("<publish><topics><topic>rt/isochron/link/cam01/*</topic>"),
+        "{permissions}"
+    );
+
+    let ipc_a = site_a.ipc("source");
+    let mut source = Source::new(&ipc_a, START);
+    let (link_bin, bridge_bin) = (
+        isochron_tests::bin("isochron-link"),
+        isochron_tests::bin("isochron-costmap"),
+    );
+    let (config_a, config_b) = (
+        site_a.config_path().display().to_string(),
+        site_b.config_path().display().to_string(),
+    );
+    let mut link_a = pair.spawn(0, &link_bin, &["--config", &config_a]);
+    source.wait_for_subscriber(&link_a);
+    let mut link_b = pair.spawn(1, &link_bin, &["--config", &config_b]);
+    let mut bridge = pair.spawn(1, &bridge_bin, &["--config", &config_b]);
+    let script = repo_root()
+        .join("tests/ros2/costmap_listener.py")
+        .display()
+        .to_string();
+    let mut listener = pair.spawn(
+        1,
+        &python(),
+        &[
+            script,
+            "--domain".into(),
+            bridge_domain.to_string(),
+            "--topic".into(),
+            "/isochron_test/activity_costmap".into(),
+            "--updates".into(),
+            "--timeout".into(),
+            "300".into(),
+        ],
+    );
+    let ipc_b = site_b.ipc("probe");
+    let detections_b = ipc_b
+        .subscriber::<isochron_shared::ipc::Detections>("cam01")
+        .unwrap();
+    let hot = expected_cells(true);
+    let mut last_feed: Option<Instant> = None;
+    let mut follow =
+        |what: &str, timeout: Duration, listener: &mut Proc, logs: &dyn Fn() -> String| {
+            let begin = Instant::now();
+            loop {
+                if last_feed.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
+                    source.send(&[(HOT_BLOCK, HOT_S1)], 660);
+                    last_feed = Some(Instant::now());
+                }
+                if held_grid(&messages(listener)).is_some_and(|g| g == hot) {
+                    eprintln!("{what}: after {:?}", begin.elapsed());
+                    return;
+                }
+                assert!(
+                    begin.elapsed() < timeout,
+                    "timed out waiting for {what}\n{}",
+                    logs()
+                );
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        };
+    let logs = || {
+        format!(
+            "link A:\n{}\n-----\nlink B:\n{}\n-----\nbridge:\n{}",
+            tail(&link_a.stderr()),
+            tail(&link_b.stderr()),
+            tail(&bridge.stderr())
+        )
+    };
+    follow(
+        "MEASURED secured link: A's activity in B's grid",
+        Duration::from_secs(90),
+        &mut listener,
+        &logs,
+    );
+    assert!(link_b.stderr().contains("DDS Security on"));
+
+    let forger_config = format!(
+        "<CycloneDDS><Domain id=\"any\"><General><Interfaces><NetworkInterface address=\"{}\"/></Interfaces><AllowMulticast>true</AllowMulticast></General></Domain></CycloneDDS>",
+        pair.addrs[1]
+    );
+    let forger = repo_root()
+        .join("tests/ros2/link_forger.py")
+        .display()
+        .to_string();
+    let rejected0 = site_b.status_row("link")["rejected"].as_u64().unwrap();
+    for kind in ["evil", "detections", "status"] {
+        let mut p = pair.spawn(
+            1,
+            &python(),
+            &[
+                forger.clone(),
+                "--domain".into(),
+                link_domain.to_string(),
+                "--forge".into(),
+                kind.into(),
+                "--layout-version".into(),
+                LAYOUT_VERSION.to_string(),
+                "--seconds".into(),
+                "5".into(),
+                "--config".into(),
+                forger_config.clone(),
+            ],
+        );
+        let done = p.finish(Duration::from_secs(40));
+        let out: Value = serde_json::from_str(done.stdout.lines().last().unwrap_or(""))
+            .unwrap_or_else(|e| panic!("link_forger.py: {e}: {}\n{}", done.stdout, done.stderr));
+        eprintln!("MEASURED unauthenticated forger ({kind}) against secured links: {out}");
+        assert_eq!(
+            out["matched"], 0,
+            "an unauthenticated participant matched a reader: {out}"
+        );
+        assert!(out["count"].as_u64() >= Some(10), "{out}");
+        follow(
+            &format!("A's activity in B's grid after the forged {kind}"),
+            Duration::from_secs(20),
+            &mut listener,
+            &logs,
+        );
+    }
+    assert!(
+        detections_b.receive().unwrap().is_none(),
+        "a forged detection reached B"
+    );
+    let rows = site_b.status_rows();
+    for row in rows
+        .iter()
+        .filter(|r| r["camera"] == "cam01" && r["stage"] != "costmap")
+    {
+        assert_ne!(row["state"], "running", "a forged status reached B: {row}");
+    }
+    let link_row = rows.iter().find(|r| r["stage"] == "link").unwrap();
+    assert_eq!(
+        link_row["rejected"].as_u64(),
+        Some(rejected0),
+        "forged messages reached B's link: {link_row}"
+    );
+    for (name, p) in [
+        ("link A", &mut link_a),
+        ("link B", &mut link_b),
+        ("bridge B", &mut bridge),
+    ] {
+        assert!(
+            p.wait(Duration::ZERO).is_none(),
+            "{name} exited:\n{}",
+            p.stderr()
+        );
+    }
+}
+
+/// Without DDS Security, a link on an interface other than loopback refuses to
+/// start (exit 78, one line saying what to set) unless `link.insecure = true`.
+#[test]
+fn a_link_off_loopback_refuses_to_run_unauthenticated() {
+    let site = TestSite::new(
+        "unsecured",
+        &format!(
+            "{}\n[link]\nbox_id = \"box_a\"\nexport = [\"cam01\"]\nros_domain_id = {}\n",
+            camera_toml(),
+            dds_domain()
+        ),
+    );
+    let done = site
+        .spawn("isochron-link", &[])
+        .finish(Duration::from_secs(20));
+    let log = done.stderr;
+    assert_eq!(done.status.code(), Some(78), "{log}");
+    assert!(
+        log.contains("without DDS Security on every interface")
+            && log.contains("link.security_dir")
+            && log.contains("link.insecure = true"),
+        "{log}"
+    );
+}
+
+/// A stalled ROS 2 subscriber (the Cyclone DDS listener stopped with SIGSTOP:
+/// it acknowledges nothing) fills the bridge's reliable send window and its
+/// grid publishes fail: the bridge logs them rate-limited, each line short
+/// (before: the whole grid, 325 KB a line), and publishes on (a new
+/// subscriber gets its grid).
+#[test]
+fn a_blocked_grid_publish_logs_a_short_line() {
+    python();
+    let domain = dds_domain();
+    let site = TestSite::new(
+        "blocked",
+        &format!("{}{}", camera_toml(), costmap_toml(domain, "")),
+    );
+    let ipc = site.ipc("source");
+    let mut source = Source::new(&ipc, START);
+    let bridge = site.spawn("isochron-costmap", &[]);
+    source.wait_for_subscriber(&bridge);
+    let script = repo_root()
+        .join("tests/ros2/costmap_listener.py")
+        .display()
+        .to_string();
+    let mut listener = Proc::spawn(
+        &python(),
+        &[
+            script,
+            "--domain".into(),
+            domain.to_string(),
+            "--topic".into(),
+            "/isochron_test/activity_costmap".into(),
+            "--updates".into(),
+            "--timeout".into(),
+            "300".into(),
+        ],
+    );
+    let mut k = 0usize;
+    let mut feed = |source: &mut Source| {
+        // A different hot block every second: every publish is a change.
+        k += 1;
+        source.send(&[(k % 300, HOT_S1)], 660);
+    };
+    let begin = Instant::now();
+    while messages(&mut listener).len() < 3 {
+        assert!(
+            begin.elapsed() < Duration::from_secs(60),
+            "no grid reached the listener\n{}",
+            bridge.stderr()
+        );
+        feed(&mut source);
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    listener.signal(libc::SIGSTOP);
+    let failed = |log: &str| {
+        log.lines()
+            .filter(|l| l.contains("publishing") && l.contains("failed"))
+            .count()
+    };
+    let begin = Instant::now();
+    while failed(&bridge.stderr()) == 0 && begin.elapsed() < Duration::from_secs(60) {
+        feed(&mut source);
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(15) {
+        feed(&mut source);
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    listener.signal(libc::SIGCONT);
+    let log = bridge.stderr();
+    let lines = failed(&log);
+    eprintln!(
+        "MEASURED stalled subscriber: {lines} publish-failure lines in {:?}, the longest log line {} bytes",
+        begin.elapsed(),
+        longest_line(&log)
+    );
+    assert!(
+        lines >= 1,
+        "the stalled subscriber never blocked a publish:\n{}",
+        tail(&log)
+    );
+    assert!(
+        lines <= 14,
+        "{lines} lines: not rate-limited\n{}",
+        tail(&log)
+    );
+    assert!(
+        longest_line(&log) < 2048,
+        "a log line of {} bytes",
+        longest_line(&log)
+    );
+    // The bridge publishes on: a new subscriber gets grids.
+    let script = repo_root()
+        .join("tests/ros2/costmap_listener.py")
+        .display()
+        .to_string();
+    let mut fresh = Proc::spawn(
+        &python(),
+        &[
+            script,
+            "--domain".into(),
+            domain.to_string(),
+            "--topic".into(),
+            "/isochron_test/activity_costmap".into(),
+            "--timeout".into(),
+            "60".into(),
+        ],
+    );
+    let t = Instant::now();
+    while messages(&mut fresh).is_empty() {
+        assert!(
+            t.elapsed() < Duration::from_secs(30),
+            "the bridge published nothing after the stall\n{}",
+            tail(&bridge.stderr())
+        );
+        feed(&mut source);
+        std::thread::sleep(Duration::from_millis(250));
+    }
 }

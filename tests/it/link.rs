@@ -47,7 +47,8 @@ const LINK_B: &str = "link B";
 const BRIDGE: &str = "bridge B";
 
 /// The site of a box: `sections`, then its `[link]` (`box_id`, exporting or
-/// importing cam01 as `key` says, over `addr`) ending in `extra` keys.
+/// importing cam01 as `key` says, over `addr`, without DDS Security: `insecure`;
+/// `hostile.rs` runs boxes secured) ending in `extra` keys.
 fn box_site(
     name: &str,
     sections: &str,
@@ -58,7 +59,7 @@ fn box_site(
     TestSite::new(
         name,
         &format!(
-            "{sections}\n[link]\nbox_id = \"{box_id}\"\n{key} = [\"cam01\"]\nros_domain_id = {domain}\ndds_interfaces = [\"{addr}\"]\n{extra}"
+            "{sections}\n[link]\nbox_id = \"{box_id}\"\n{key} = [\"cam01\"]\nros_domain_id = {domain}\ndds_interfaces = [\"{addr}\"]\ninsecure = true\n{extra}"
         ),
     )
 }

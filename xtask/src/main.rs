@@ -34,8 +34,10 @@ use anyhow::{Context, bail};
 /// network-namespace and DDS socket tests; `prometheus` for promtool, which checks
 /// the exporter's output and the alert rules; `mosquitto`, the broker the MQTT
 /// sink's test publishes to; `dpkg-dev` for `dpkg-shlibdeps`, which gives the
-/// package's `Depends` (`cargo xtask deb`).
-const PACKAGES: [&str; 7] = [
+/// package's `Depends` (`cargo xtask deb`); `libssl-dev` for RustDDS's DDS
+/// Security (the link's authentication and encryption) and `openssl`, which
+/// `isochron keystore` runs.
+const PACKAGES: [&str; 9] = [
     "libopencv-dev",
     "clang",
     "libclang-dev",
@@ -43,6 +45,8 @@ const PACKAGES: [&str; 7] = [
     "prometheus",
     "mosquitto",
     "dpkg-dev",
+    "libssl-dev",
+    "openssl",
 ];
 
 /// The benchmarks, by bench target name (each unique in the workspace).
@@ -896,7 +900,8 @@ fn depends(work: &Path) -> anyhow::Result<String> {
              libopencv-videoio406t64 | libopencv-videoio406, \
              libopencv-video406t64 | libopencv-video406, \
              libopencv-objdetect406t64 | libopencv-objdetect406, \
-             libopencv-dnn406t64 | libopencv-dnn406, libc6, libgcc-s1, libstdc++6, {sysusers}"
+             libopencv-dnn406t64 | libopencv-dnn406, libssl3t64 | libssl3, libc6, libgcc-s1, \
+             libstdc++6, {sysusers}"
         ));
     }
     std::fs::write(

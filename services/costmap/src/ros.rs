@@ -163,7 +163,12 @@ impl RosOutput {
     /// Joins the DDS domain and creates the node `/isochron/costmap_bridge` with its
     /// publishers.
     pub fn start(settings: &RosSettings) -> Result<RosOutput, RosError> {
-        let mut ros = RosNode::start(settings.domain_id, &settings.interfaces, "costmap_bridge")?;
+        let mut ros = RosNode::start(
+            settings.domain_id,
+            &settings.interfaces,
+            "costmap_bridge",
+            None,
+        )?;
 
         let topic = |name: &str, package: &str, type_name: &str, durability, depth| {
             ros.topic(

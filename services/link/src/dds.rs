@@ -7,6 +7,7 @@
 //! `status` reliable, one report per stage. All volatile and bounded.
 
 use std::net::IpAddr;
+use std::path::Path;
 
 use ros2_client::dds::Node;
 /// The writer and reader types [`LinkDds`] makes.
@@ -28,12 +29,12 @@ pub struct LinkDds {
 }
 
 impl LinkDds {
-    /// Joins `domain` on `interfaces` (empty: all) as node `/isochron/link_<box_id>`;
-    /// topics go under `namespace`.
+    /// Joins `domain` on `interfaces` (empty: all) as node `/isochron/link_<box_id>`,
+    /// with DDS Security from `enclave` if given; topics go under `namespace`.
     pub fn start(
         domain: u16,
         interfaces: &[IpAddr],
-        box_id: &str,
+        (box_id, enclave): (&str, Option<&Path>),
         namespace: &str,
     ) -> Result<LinkDds, DdsError> {
         isochron_dds::limit_dds_logging();
@@ -43,7 +44,7 @@ impl LinkDds {
             format!("link_{box_id}")
         };
         Ok(LinkDds {
-            ros: RosNode::start(domain, interfaces, &name)?,
+            ros: RosNode::start(domain, interfaces, &name, enclave)?,
             namespace: namespace.to_string(),
         })
     }

@@ -111,6 +111,52 @@ fn check_open_files(imports: usize, exports: usize) -> Result<(), Fatal> {
     Ok(())
 }
 
+/// This box's DDS Security enclave (`link.security_dir`, relative to the config
+/// file), checked to hold its files. Without one the link runs unauthenticated,
+/// which it refuses on an interface other than loopback unless `link.insecure`
+/// says so.
+fn enclave(loaded: &LoadedConfig) -> Result<Option<std::path::PathBuf>, Fatal> {
+    let link = &loaded.config.link;
+    let Some(dir) = &link.security_dir else {
+        if link.leaves_the_box() && !link.insecure {
+            return Err(Fatal::new(
+                exit::CONFIG,
+                format!(
+                    "{}: the link would run without DDS Security on {}: any participant on that \
+                     network could write into this site. Set link.security_dir to this box's \
+                     enclave (`isochron keystore enclave`), or link.insecure = true to accept that",
+                    loaded.path.display(),
+                    if link.dds_interfaces.is_empty() {
+                        "every interface".to_string()
+                    } else {
+                        format!("[{}]", link.dds_interfaces.join(", "))
+                    }
+                ),
+            ));
+        }
+        if link.leaves_the_box() {
+            tracing::warn!(
+                "link.insecure: DDS Security is off; any participant on the network can write into this site"
+            );
+        }
+        return Ok(None);
+    };
+    let dir = loaded.base_dir().join(dir);
+    if let Some(missing) = isochron_dds::missing_enclave_file(&dir) {
+        return Err(Fatal::new(
+            exit::CONFIG,
+            format!(
+                "{}: link.security_dir: {} is missing (an enclave made by `isochron keystore enclave` holds {})",
+                loaded.path.display(),
+                missing.display(),
+                isochron_dds::ENCLAVE_FILES.join(", ")
+            ),
+        ));
+    }
+    tracing::info!(enclave = %dir.display(), "DDS Security on");
+    Ok(Some(dir))
+}
+
 /// The block grid this box's config gives camera `id` (its `[[camera]]` width
 /// and height with `motion.block_px`), if it does.
 fn configured_grid(loaded: &LoadedConfig, id: &str) -> Option<BlockGrid> {
@@ -461,8 +507,14 @@ impl<'ipc> LinkStage<'ipc> {
             .filter_map(|a| a.parse().ok())
             .collect();
         let queue = link.queue_messages();
+        let enclave = enclave(loaded)?;
         check_open_files(link.import.len(), link.export.len())?;
-        let mut dds = LinkDds::start(domain, &interfaces, &link.box_id, link.namespace())?;
+        let mut dds = LinkDds::start(
+            domain,
+            &interfaces,
+            (&link.box_id, enclave.as_deref()),
+            link.namespace(),
+        )?;
         let mut exports = Vec::new();
         let mut inputs: LinkInputs = Default::default();
         for camera in &link.export {
