@@ -9,6 +9,7 @@ pub mod docs;
 mod doctor;
 mod font;
 mod heatmap;
+mod keystore;
 mod launch;
 mod overlay;
 mod plan;
@@ -61,6 +62,8 @@ enum Command {
     View(view::Args),
     /// Record the site's streams into an MCAP file (opens in Foxglove).
     Record(record::Args),
+    /// Make the DDS Security keystore of the site's links (SROS2 layout, openssl).
+    Keystore(keystore::Args),
 }
 
 /// The whole `main` of the `isochron` binary.
@@ -85,6 +88,7 @@ pub fn main() -> ExitCode {
         Command::Costmap(args) => costmap::run(args),
         Command::View(args) => view::run(args),
         Command::Record(args) => record::run(args),
+        Command::Keystore(args) => keystore::run(args),
     };
     match result {
         Ok(code) => code,

@@ -9,13 +9,17 @@
 //!   keeps the node in the ROS graph;
 //! * [`RosNode::topic`]: the DDS topic (`rt/…`) of a ROS 2 topic and message type;
 //! * [`keep_last`]: the QoS of a bounded topic, whose depth also bounds the
-//!   writer's cache.
+//!   writer's cache; [`bounded`]: the largest sample a reader reassembles.
 
 use std::net::IpAddr;
+use std::path::Path;
 
 use ros2_client::dds::{Context, Node};
 use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions};
-use rustdds::{DomainParticipantBuilder, QosPolicies, QosPolicyBuilder, Topic, TopicKind, policy};
+use rustdds::{
+    DomainParticipantBuilder, DomainParticipantSecurityConfigFiles, QosPolicies, QosPolicyBuilder,
+    Topic, TopicKind, policy,
+};
 
 /// Highest DDS domain id whose RTPS ports fit in 16 bits.
 pub const MAX_DOMAIN_ID: u16 = 232;
@@ -92,12 +96,27 @@ impl RosNode {
     /// Joins `domain` on `interfaces` (empty: all; RustDDS announces and
     /// multicasts only on them, but binds its sockets to 0.0.0.0 regardless) as
     /// the node `/isochron/<name>`, without rosout or parameter services, and
-    /// starts its spinner.
-    pub fn start(domain: u16, interfaces: &[IpAddr], name: &str) -> Result<RosNode, DdsError> {
+    /// starts its spinner. With `enclave` (see [`ENCLAVE_FILES`]) the participant
+    /// runs DDS Security: it authenticates every remote participant against the
+    /// identity CA, checks their permissions per topic and protects what the
+    /// governance says.
+    pub fn start(
+        domain: u16,
+        interfaces: &[IpAddr],
+        name: &str,
+        enclave: Option<&Path>,
+    ) -> Result<RosNode, DdsError> {
         let dds = |detail: String| DdsError { domain, detail };
         let mut builder = DomainParticipantBuilder::new(domain);
         if !interfaces.is_empty() {
             builder = builder.with_only_networks(interfaces.iter().copied());
+        }
+        if let Some(dir) = enclave {
+            // The keystore's private keys are not encrypted (RustDDS reads no
+            // encrypted ones): the enclave's file permissions protect them.
+            builder = builder.builtin_security(
+                DomainParticipantSecurityConfigFiles::with_ros_default_names(dir, String::new()),
+            );
         }
         let participant = builder.build().map_err(|e| dds(format!("{e:?}")))?;
         let context =
@@ -183,6 +202,24 @@ impl RosNode {
     }
 }
 
+/// The files of an SROS2 enclave that DDS Security reads.
+pub const ENCLAVE_FILES: [&str; 6] = [
+    "identity_ca.cert.pem",
+    "cert.pem",
+    "key.pem",
+    "permissions_ca.cert.pem",
+    "governance.p7s",
+    "permissions.p7s",
+];
+
+/// The first of [`ENCLAVE_FILES`] missing from `dir`, if any.
+pub fn missing_enclave_file(dir: &Path) -> Option<std::path::PathBuf> {
+    ENCLAVE_FILES
+        .iter()
+        .map(|f| dir.join(f))
+        .find(|p| !p.is_file())
+}
+
 /// The QoS of a bounded topic: `reliability`, `durability`, keep last `depth`, and
 /// at most `depth` samples in the writer's cache — RustDDS keeps every sample no
 /// reader has acknowledged, so without the limit a writer nobody reads would pile
@@ -202,6 +239,16 @@ pub fn keep_last(
             max_samples_per_instance: depth,
         })
         .build()
+}
+
+/// `qos` with a bound on what a reader reassembles: at most `bytes` per sample,
+/// and 4 samples' worth of incomplete ones over all remote writers together
+/// (RustDDS's `max_sample_size`, the patch in `vendor/rustdds`). A DATA_FRAG
+/// claiming a larger sample — from anyone, before discovery or authentication —
+/// is dropped before anything is allocated for it.
+pub fn bounded(qos: QosPolicies, bytes: usize) -> QosPolicies {
+    let bytes = u32::try_from(bytes).unwrap_or(u32::MAX);
+    qos.modify_by(&QosPolicyBuilder::new().max_sample_size(bytes).build())
 }
 
 #[cfg(test)]

@@ -30,6 +30,20 @@ pub const LAYOUT_VERSION: u16 = 3;
 /// Longest camera id, in bytes.
 pub const CAMERA_ID_LEN: usize = 24;
 
+/// Largest frame side a header may describe, pixels: the limit of `camera.width`
+/// and `camera.height`.
+pub const MAX_FRAME_SIDE: u32 = 8192;
+/// Smallest block edge a header may carry, pixels: the lower limit of `motion.block_px`.
+pub const MIN_BLOCK_PX: u32 = 4;
+/// Largest block edge a header may carry, pixels: the upper limit of `motion.block_px`.
+pub const MAX_BLOCK_PX: u32 = 128;
+/// Most blocks in a camera's grid (a 4K frame in 16-px blocks is 32 400): the
+/// bound on every per-block payload (motion, activity, an event's block list), so
+/// that no sample can make a receiver allocate more than 64 Ki elements.
+pub const MAX_BLOCKS: usize = 1 << 16;
+/// Most detections in one `detections` sample.
+pub const MAX_DETECTIONS: usize = 1024;
+
 /// Header flag: the last sample of a finite source (end of file). Carries no payload.
 pub const FLAG_END_OF_STREAM: u32 = 1 << 0;
 /// Header flag (motion): a global illumination change was detected and suppressed.
@@ -391,6 +405,8 @@ impl FrameHeader {
         self.preamble
             .validate_then::<u8>(Stream::Frames, camera, payload_bytes, || {
                 let format = PixelFormat::from_field(self.pixel_format, "pixel_format")?;
+                check_side("width", self.width)?;
+                check_side("height", self.height)?;
                 let expected = self.width as usize * format.channels();
                 if self.stride as usize != expected {
                     return Err(WireError::Size {
@@ -487,25 +503,30 @@ pub struct MotionHeader {
     pub source_index: u64,
 }
 
-/// The checks the headers of one `E` per block (motion, activity) share: the
-/// preamble, the block grid against the frame size, and a payload of one element
-/// per block (`what` names it in errors).
-fn validate_blocks<E>(
-    preamble: &Preamble,
-    stream: Stream,
-    what: &'static str,
-    camera: &CameraId,
-    blocks: usize,
-    [frame_width, frame_height, block_px, grid_w, grid_h]: [u32; 5],
-) -> Result<(), WireError> {
-    preamble.validate::<E>(stream, camera, blocks)?;
-    if preamble.is_end_of_stream() {
-        return Ok(());
+/// Checks a frame side (`field`) a header carries: 1 to [`MAX_FRAME_SIDE`] pixels.
+fn check_side(field: &'static str, px: u32) -> Result<(), WireError> {
+    if px == 0 || px > MAX_FRAME_SIDE {
+        return Err(WireError::Field {
+            field,
+            reason: format!("{px} px: expected 1 to {MAX_FRAME_SIDE}"),
+        });
     }
-    if block_px == 0 {
+    Ok(())
+}
+
+/// Checks the block grid a header describes — frame size, block edge, and the
+/// grid size derived from them — against the bounds of this file, with no
+/// arithmetic that can overflow: the grid's number of blocks (at most
+/// [`MAX_BLOCKS`]).
+pub fn check_block_grid(
+    [frame_width, frame_height, block_px, grid_w, grid_h]: [u32; 5],
+) -> Result<usize, WireError> {
+    check_side("frame_width", frame_width)?;
+    check_side("frame_height", frame_height)?;
+    if !(MIN_BLOCK_PX..=MAX_BLOCK_PX).contains(&block_px) {
         return Err(WireError::Field {
             field: "block_px",
-            reason: "zero".into(),
+            reason: format!("{block_px}: expected {MIN_BLOCK_PX} to {MAX_BLOCK_PX}"),
         });
     }
     let derived = BlockGrid::new(frame_width, frame_height, block_px);
@@ -517,14 +538,95 @@ fn validate_blocks<E>(
             found: format!("{grid_w}x{grid_h}"),
         });
     }
-    if (grid_w * grid_h) as usize != blocks {
+    // Both sides are at most MAX_FRAME_SIDE / MIN_BLOCK_PX: the product fits.
+    let blocks = w as usize * h as usize;
+    if blocks > MAX_BLOCKS {
+        return Err(WireError::Size {
+            what: "block grid",
+            expected: format!(
+                "at most {MAX_BLOCKS} blocks (a larger motion.block_px or a smaller camera.width/height)"
+            ),
+            found: format!("{w}x{h} = {blocks} blocks"),
+        });
+    }
+    Ok(blocks)
+}
+
+/// The checks the headers of one `E` per block (motion, activity) share: the
+/// preamble, the block grid against the frame size ([`check_block_grid`]), and a
+/// payload of one element per block (`what` names it in errors).
+fn validate_blocks<E>(
+    preamble: &Preamble,
+    stream: Stream,
+    what: &'static str,
+    camera: &CameraId,
+    blocks: usize,
+    grid: [u32; 5],
+) -> Result<(), WireError> {
+    preamble.validate::<E>(stream, camera, blocks)?;
+    if preamble.is_end_of_stream() {
+        return Ok(());
+    }
+    let expected = check_block_grid(grid)?;
+    if expected != blocks {
         return Err(WireError::Size {
             what,
-            expected: format!("{} blocks", grid_w * grid_h),
+            expected: format!("{expected} blocks"),
             found: format!("{blocks} blocks"),
         });
     }
     Ok(())
+}
+
+/// What a receiver knows of a camera's block grid: the one its config gives
+/// (`camera.width`/`height` with `motion.block_px`), or else the grid of the first
+/// valid sample, pinned for the life of the process. A sample of any other grid
+/// is refused ([`KnownGrid::check`]): a forged or foreign sample cannot make the
+/// receiver rebuild what it derives from the grid (footprints, buffers).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct KnownGrid {
+    grid: Option<BlockGrid>,
+    configured: bool,
+}
+
+impl KnownGrid {
+    /// The grid of a camera whose config gives it (`Some`), or one to be pinned
+    /// by its first sample (`None`).
+    pub fn new(configured: Option<BlockGrid>) -> KnownGrid {
+        KnownGrid {
+            grid: configured,
+            configured: configured.is_some(),
+        }
+    }
+
+    /// The grid, once known.
+    pub fn grid(&self) -> Option<BlockGrid> {
+        self.grid
+    }
+
+    /// Checks the grid of a valid sample: `Ok(false)` if it is the known one,
+    /// `Ok(true)` if it was unknown and is pinned now (the caller warns, once),
+    /// an error naming both grids if it is another.
+    pub fn check(&mut self, grid: BlockGrid) -> Result<bool, WireError> {
+        match self.grid {
+            Some(known) if known == grid => Ok(false),
+            Some(known) => Err(WireError::Size {
+                what: "block grid",
+                expected: if self.configured {
+                    format!("{known}, as camera.width/height and motion.block_px give")
+                } else {
+                    format!(
+                        "{known}, pinned by this camera's first sample (set camera.width/height to fix it, restart to pin again)"
+                    )
+                },
+                found: grid.to_string(),
+            }),
+            None => {
+                self.grid = Some(grid);
+                Ok(true)
+            }
+        }
+    }
 }
 
 /// Activity of one block over the last second, and the long-term model at t*.
@@ -717,7 +819,43 @@ impl EventHeader {
         self.preamble
             .validate_then::<u32>(Stream::Events, camera, blocks, || {
                 ActivityKind::from_field(self.kind, "kind")?;
-                EventPhase::from_field(self.phase, "phase")?;
+                let phase = EventPhase::from_field(self.phase, "phase")?;
+                if blocks > MAX_BLOCKS {
+                    return Err(WireError::Size {
+                        what: "event block list",
+                        expected: format!("at most {MAX_BLOCKS} blocks"),
+                        found: format!("{blocks} blocks"),
+                    });
+                }
+                if self.start_ns < 0 {
+                    return Err(WireError::Field {
+                        field: "start_ns",
+                        reason: format!("{}: expected a time at or after 1970", self.start_ns),
+                    });
+                }
+                let end_ok = match phase {
+                    EventPhase::Start => self.end_ns == 0,
+                    EventPhase::End => self.end_ns >= self.start_ns,
+                };
+                if !end_ok {
+                    return Err(WireError::Field {
+                        field: "end_ns",
+                        reason: format!(
+                            "{} in a {} record starting at {}: expected 0 in a start record, not before start_ns in an end record",
+                            self.end_ns,
+                            if phase == EventPhase::Start { "start" } else { "end" },
+                            self.start_ns
+                        ),
+                    });
+                }
+                for (field, v) in [("peak", self.peak), ("threshold", self.threshold)] {
+                    if !v.is_finite() {
+                        return Err(WireError::Field {
+                            field,
+                            reason: format!("{v}: expected a finite number"),
+                        });
+                    }
+                }
                 Ok(())
             })
     }
@@ -803,14 +941,37 @@ impl DetectionHeader {
         self.roi_w == 0
             || (x >= self.roi_x as f32
                 && y >= self.roi_y as f32
-                && x <= (self.roi_x + self.roi_w) as f32
-                && y <= (self.roi_y + self.roi_h) as f32)
+                && x <= self.roi_x.saturating_add(self.roi_w) as f32
+                && y <= self.roi_y.saturating_add(self.roi_h) as f32)
     }
 
-    /// Validates the header against the sample's real payload length.
+    /// Validates the header against the sample's real payload length: at most
+    /// [`MAX_DETECTIONS`], a searched region inside the largest frame.
     pub fn validate(&self, camera: &CameraId, detections: usize) -> Result<(), WireError> {
         self.preamble
-            .validate::<Detection>(Stream::Detections, camera, detections)
+            .validate_then::<Detection>(Stream::Detections, camera, detections, || {
+                if detections > MAX_DETECTIONS {
+                    return Err(WireError::Size {
+                        what: "detections",
+                        expected: format!("at most {MAX_DETECTIONS}"),
+                        found: detections.to_string(),
+                    });
+                }
+                let (x1, y1) = (
+                    self.roi_x as u64 + self.roi_w as u64,
+                    self.roi_y as u64 + self.roi_h as u64,
+                );
+                if x1 > MAX_FRAME_SIDE as u64 || y1 > MAX_FRAME_SIDE as u64 {
+                    return Err(WireError::Field {
+                        field: "roi",
+                        reason: format!(
+                            "{}x{} at ({}, {}): expected inside {MAX_FRAME_SIDE}x{MAX_FRAME_SIDE} px",
+                            self.roi_w, self.roi_h, self.roi_x, self.roi_y
+                        ),
+                    });
+                }
+                Ok(())
+            })
     }
 }
 
@@ -1074,6 +1235,229 @@ mod tests {
         h.preamble.payload_len = 0;
         h.preamble.flags = FLAG_END_OF_STREAM;
         assert_eq!(h.validate(&cam(), 0), Ok(()));
+    }
+
+    #[test]
+    fn a_grid_whose_product_wraps_in_u32_is_refused() {
+        // 0xFFFFFFFF² wraps to 1 in u32 and 65 536² to 0: neither may pass as a
+        // grid of 1 or 0 blocks.
+        let wrapping = [
+            [u32::MAX, u32::MAX, 1, u32::MAX, u32::MAX],
+            [65_536 * 16, 65_536 * 16, 16, 65_536, 65_536],
+        ];
+        for (grid, blocks) in wrapping.into_iter().zip([1, 0]) {
+            let mut p = Preamble::new::<BlockActivity>(Stream::Activity, cam(), 0, blocks);
+            p.capture_time_ns = 1;
+            let h = ActivityHeader {
+                preamble: p,
+                frame_width: grid[0],
+                frame_height: grid[1],
+                block_px: grid[2],
+                grid_w: grid[3],
+                grid_h: grid[4],
+                ..Default::default()
+            };
+            let err = h.validate(&cam(), blocks).unwrap_err();
+            assert!(err.to_string().contains("frame_width"), "{err}");
+        }
+        // The largest grid the bounds allow, and one block more.
+        assert_eq!(check_block_grid([4096, 4096, 16, 256, 256]), Ok(MAX_BLOCKS));
+        let err = check_block_grid([4096, 4112, 16, 256, 257]).unwrap_err();
+        assert!(err.to_string().contains("at most 65536 blocks"), "{err}");
+    }
+
+    #[test]
+    fn a_known_grid_refuses_another() {
+        let (a, b) = (BlockGrid::new(320, 240, 16), BlockGrid::new(640, 480, 16));
+        let mut pinned = KnownGrid::new(None);
+        assert_eq!(pinned.check(a), Ok(true));
+        assert_eq!(pinned.check(a), Ok(false));
+        let err = pinned.check(b).unwrap_err().to_string();
+        assert!(
+            err.contains("pinned by this camera's first sample"),
+            "{err}"
+        );
+        let mut configured = KnownGrid::new(Some(b));
+        assert_eq!(configured.check(b), Ok(false));
+        let err = configured.check(a).unwrap_err().to_string();
+        assert!(err.contains("camera.width/height"), "{err}");
+    }
+
+    fn event_header(phase: EventPhase, start_ns: i64, end_ns: i64) -> EventHeader {
+        let mut preamble = Preamble::new::<u32>(Stream::Events, cam(), 0, 1);
+        preamble.capture_time_ns = 1;
+        EventHeader {
+            preamble,
+            kind: ActivityKind::Moving as u32,
+            phase: phase as u32,
+            start_ns,
+            end_ns,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn an_event_that_ends_before_it_starts_is_refused() {
+        assert_eq!(
+            event_header(EventPhase::End, 10, 20).validate(&cam(), 1),
+            Ok(())
+        );
+        assert_eq!(
+            event_header(EventPhase::Start, 10, 0).validate(&cam(), 1),
+            Ok(())
+        );
+        for (phase, start, end) in [
+            (EventPhase::End, 20, 10),
+            (EventPhase::Start, 10, 5),
+            (EventPhase::End, -5, 10),
+        ] {
+            let err = event_header(phase, start, end).validate(&cam(), 1);
+            assert!(matches!(err, Err(WireError::Field { .. })), "{err:?}");
+        }
+        let mut nan = event_header(EventPhase::End, 10, 20);
+        nan.peak = f32::NAN;
+        assert!(nan.validate(&cam(), 1).is_err());
+    }
+
+    #[test]
+    fn a_detection_region_past_the_largest_frame_is_refused() {
+        let mut h = DetectionHeader {
+            preamble: Preamble::new::<Detection>(Stream::Detections, cam(), 0, 1),
+            roi_x: u32::MAX,
+            roi_w: 1,
+            roi_h: 1,
+            ..Default::default()
+        };
+        assert!(h.validate(&cam(), 1).is_err());
+        assert!(!h.searched(0.0, 0.0), "no overflow");
+        (h.roi_x, h.roi_w) = (100, 50);
+        assert_eq!(h.validate(&cam(), 1), Ok(()));
+        h.preamble.payload_len = MAX_DETECTIONS as u32 + 1;
+        assert!(h.validate(&cam(), MAX_DETECTIONS + 1).is_err());
+    }
+
+    /// A header of type `H` read from arbitrary bytes, as a foreign producer could
+    /// lay it out (every field of these types takes any bit pattern).
+    fn from_bytes<H: Copy>(bytes: &[u8]) -> H {
+        assert!(bytes.len() >= std::mem::size_of::<H>());
+        // SAFETY: the headers are `repr(C)` of integers, floats and byte arrays,
+        // for which every bit pattern is a value; the read is unaligned-safe.
+        unsafe { std::ptr::read_unaligned(bytes.as_ptr().cast::<H>()) }
+    }
+
+    /// Sizes as a forger picks them: the edges of every range, and anything.
+    fn size() -> impl proptest::strategy::Strategy<Value = u32> {
+        use proptest::prelude::*;
+        prop_oneof![
+            Just(0u32),
+            Just(1),
+            Just(MAX_FRAME_SIDE),
+            Just(MAX_FRAME_SIDE + 1),
+            Just(65_536),
+            Just(u32::MAX),
+            0u32..=300,
+            any::<u32>(),
+        ]
+    }
+
+    mod properties {
+        use super::*;
+        use proptest::prelude::*;
+
+        proptest! {
+            #![proptest_config(ProptestConfig::with_cases(2000))]
+
+            /// Any grid a header claims: validation never panics, and what it
+            /// accepts is a grid of at most MAX_BLOCKS blocks that the payload
+            /// matches, whose block count the grid itself computes without overflow.
+            #[test]
+            fn block_headers_accept_only_bounded_consistent_grids(
+                fw in size(), fh in size(), px in size(), gw in size(), gh in size(),
+                blocks in prop_oneof![Just(0usize), Just(1), 0usize..=70_000],
+            ) {
+                let mut p = Preamble::new::<BlockActivity>(Stream::Activity, cam(), 0, blocks);
+                p.capture_time_ns = 1;
+                let h = ActivityHeader {
+                    preamble: p,
+                    frame_width: fw,
+                    frame_height: fh,
+                    block_px: px,
+                    grid_w: gw,
+                    grid_h: gh,
+                    ..Default::default()
+                };
+                if h.validate(&cam(), blocks).is_ok() {
+                    let grid = h.block_grid();
+                    prop_assert!(grid.len() <= MAX_BLOCKS);
+                    prop_assert_eq!(grid.len(), blocks);
+                    prop_assert_eq!((grid.grid_w(), grid.grid_h()), (gw, gh));
+                }
+                let mut m = MotionHeader {
+                    preamble: Preamble::new::<BlockMotion>(Stream::Motion, cam(), 0, blocks),
+                    frame_width: fw,
+                    frame_height: fh,
+                    block_px: px,
+                    grid_w: gw,
+                    grid_h: gh,
+                    changed_fraction: 0.0,
+                    source_index: 0,
+                };
+                m.preamble.capture_time_ns = 1;
+                if m.validate(&cam(), blocks).is_ok() {
+                    prop_assert!(m.block_grid().len() == blocks && blocks <= MAX_BLOCKS);
+                }
+            }
+
+            /// Headers of arbitrary bytes (a foreign or hostile producer) with the
+            /// right magic, version and camera: validation never panics; an
+            /// accepted one is consistent with its payload.
+            #[test]
+            fn arbitrary_headers_never_panic(
+                bytes in proptest::collection::vec(any::<u8>(), 512),
+                len in prop_oneof![Just(0usize), Just(1), 0usize..=100_000],
+                stream in 1u16..=5,
+            ) {
+                let fix = |p: &mut Preamble| {
+                    p.magic = MAGIC;
+                    p.layout_version = LAYOUT_VERSION;
+                    p.stream = stream;
+                    p.camera = cam();
+                    p.payload_len = len as u32;
+                };
+                let mut a: ActivityHeader = from_bytes(&bytes);
+                fix(&mut a.preamble);
+                a.preamble.element_size = std::mem::size_of::<BlockActivity>() as u32;
+                if a.validate(&cam(), len).is_ok() && !a.preamble.is_end_of_stream() {
+                    prop_assert_eq!(a.block_grid().len(), len);
+                }
+                let mut m: MotionHeader = from_bytes(&bytes);
+                fix(&mut m.preamble);
+                m.preamble.element_size = std::mem::size_of::<BlockMotion>() as u32;
+                if m.validate(&cam(), len).is_ok() && !m.preamble.is_end_of_stream() {
+                    prop_assert_eq!(m.block_grid().len(), len);
+                }
+                let mut e: EventHeader = from_bytes(&bytes);
+                fix(&mut e.preamble);
+                e.preamble.element_size = 4;
+                if e.validate(&cam(), len).is_ok() && !e.preamble.is_end_of_stream() {
+                    prop_assert!(len <= MAX_BLOCKS);
+                    prop_assert!(e.phase != EventPhase::End as u32 || e.end_ns >= e.start_ns);
+                }
+                let mut d: DetectionHeader = from_bytes(&bytes);
+                fix(&mut d.preamble);
+                d.preamble.element_size = std::mem::size_of::<Detection>() as u32;
+                if d.validate(&cam(), len).is_ok() && !d.preamble.is_end_of_stream() {
+                    prop_assert!(len <= MAX_DETECTIONS);
+                }
+                d.searched(f32::MAX, f32::MIN);
+                let mut f: FrameHeader = from_bytes(&bytes);
+                fix(&mut f.preamble);
+                f.preamble.element_size = 1;
+                if f.validate(&cam(), len).is_ok() && !f.preamble.is_end_of_stream() {
+                    prop_assert_eq!(f.stride as usize * f.height as usize, len);
+                }
+            }
+        }
     }
 
     #[test]

@@ -209,12 +209,12 @@ fn simulated_box(b: usize, cameras: usize, domain: u16, stop: Arc<AtomicBool>) -
     std::thread::spawn(move || {
         let box_id = format!("box{b}");
         let lo: [IpAddr; 1] = ["127.0.0.1".parse().unwrap()];
-        let mut dds = LinkDds::start(domain, &lo, &box_id, DEFAULT_LINK_NAMESPACE)
+        let mut dds = LinkDds::start(domain, &lo, (&box_id, None), DEFAULT_LINK_NAMESPACE)
             .unwrap_or_else(|e| panic!("{box_id}: {e}"));
         let ids: Vec<String> = (0..cameras).map(|k| camera_id(b, k)).collect();
         let writers: Vec<_> = ids
             .iter()
-            .map(|id| dds.stream::<Activity, Publisher<_>>(id, 1).unwrap())
+            .map(|id| dds.stream::<Activity, Publisher<_>>(id, 1, None).unwrap())
             .collect();
         let (t0, start_ns) = (Instant::now(), wall_now_ns());
         for second in 0u64.. {

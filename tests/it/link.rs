@@ -13,7 +13,8 @@
 //! events and detections cross with their
 //! sequence numbers, and a burst larger than the link's queue is counted as
 //! dropped (A) and as a gap (B), never lost silently; on the real pipeline, A's
-//! gate events reach B and B's `isochron status` lists A's stages. Measured
+//! gate events reach B and B's `isochron status` lists A's stages (relayed by
+//! B's link). Measured
 //! (printed): bytes per second on the link and origin-to-B latency.
 
 use std::time::{Duration, Instant};
@@ -46,7 +47,8 @@ const LINK_B: &str = "link B";
 const BRIDGE: &str = "bridge B";
 
 /// The site of a box: `sections`, then its `[link]` (`box_id`, exporting or
-/// importing cam01 as `key` says, over `addr`) ending in `extra` keys.
+/// importing cam01 as `key` says, over `addr`, without DDS Security: `insecure`;
+/// `hostile.rs` runs boxes secured) ending in `extra` keys.
 fn box_site(
     name: &str,
     sections: &str,
@@ -57,7 +59,7 @@ fn box_site(
     TestSite::new(
         name,
         &format!(
-            "{sections}\n[link]\nbox_id = \"{box_id}\"\n{key} = [\"cam01\"]\nros_domain_id = {domain}\ndds_interfaces = [\"{addr}\"]\n{extra}"
+            "{sections}\n[link]\nbox_id = \"{box_id}\"\n{key} = [\"cam01\"]\nros_domain_id = {domain}\ndds_interfaces = [\"{addr}\"]\ninsecure = true\n{extra}"
         ),
     )
 }
@@ -667,7 +669,9 @@ fn the_real_pipeline_on_one_box_feeds_the_bridge_on_another() {
         on_b.len()
     );
 
-    // B's `isochron status` lists A's stages of cam01, with A's process ids.
+    // B's `isochron status` lists A's stages of cam01 as running, as B's link
+    // relays them: live while reports arrive, under the link's process id.
+    let link_b = scene.proc(LINK_B).pid();
     let status = site_b.isochron(
         &["status", "--json", "--config", &config_b],
         Duration::from_secs(20),
@@ -680,7 +684,7 @@ fn the_real_pipeline_on_one_box_feeds_the_bridge_on_another() {
             .find(|o| o["stage"] == *stage && o["camera"] == "cam01")
             .unwrap_or_else(|| panic!("no {stage} row in B's status:\n{}", status.stdout));
         assert_eq!(row["state"], "running", "{row}");
-        assert_eq!(row["pid"], scene.proc(stage).pid(), "{row}");
+        assert_eq!(row["pid"], link_b, "{row}");
     }
 
     scene.veth_down_and_up("real pipeline", |g| known(g) == 0, |g| known(g) > 100);

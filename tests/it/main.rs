@@ -12,6 +12,7 @@ mod costmap;
 mod doctor;
 mod exporter;
 mod gate;
+mod hostile;
 mod inputs;
 mod launcher;
 mod link;

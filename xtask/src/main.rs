@@ -37,11 +37,12 @@ use anyhow::{Context, bail};
 /// the exporter's output and the alert rules; `mosquitto`, the broker the MQTT
 /// sink's test publishes to (and `mosquitto_passwd`), `mosquitto-clients`, whose
 /// `mosquitto_sub` reads the sink's messages back over TLS, and `openssl`, which
-/// makes that test's certificates; `dpkg-dev` for `dpkg-shlibdeps`, which gives
-/// the package's `Depends` (`cargo xtask deb`); eProsima Fast DDS, its IDL
-/// compiler and g++ for the Fast DDS client of the planning services' test
-/// ([`fastdds_peer`]).
-const PACKAGES: [&str; 12] = [
+/// makes that test's certificates and which `isochron keystore` runs; `dpkg-dev`
+/// for `dpkg-shlibdeps`, which gives the package's `Depends` (`cargo xtask deb`);
+/// eProsima Fast DDS, its IDL compiler and g++ for the Fast DDS client of the
+/// planning services' test ([`fastdds_peer`]); `libssl-dev` for RustDDS's DDS
+/// Security (the link's authentication and encryption).
+const PACKAGES: [&str; 13] = [
     "libopencv-dev",
     "clang",
     "libclang-dev",
@@ -54,6 +55,7 @@ const PACKAGES: [&str; 12] = [
     "libfastrtps-dev",
     "fastddsgen",
     "g++",
+    "libssl-dev",
 ];
 
 /// The benchmarks, by bench target name (each unique in the workspace).
@@ -1019,7 +1021,8 @@ fn depends(work: &Path) -> anyhow::Result<String> {
              libopencv-videoio406t64 | libopencv-videoio406, \
              libopencv-video406t64 | libopencv-video406, \
              libopencv-objdetect406t64 | libopencv-objdetect406, \
-             libopencv-dnn406t64 | libopencv-dnn406, libc6, libgcc-s1, libstdc++6, {sysusers}"
+             libopencv-dnn406t64 | libopencv-dnn406, libssl3t64 | libssl3, libc6, libgcc-s1, \
+             libstdc++6, {sysusers}"
         ));
     }
     std::fs::write(

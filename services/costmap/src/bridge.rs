@@ -13,8 +13,11 @@ use isochron_planning::planner::LiveCamera;
 use isochron_planning::raster::Footprint;
 use isochron_shared::clock::NS_PER_S;
 use isochron_shared::config::{LoadedConfig, Polygon};
+use isochron_shared::geometry::BlockGrid;
 use isochron_shared::stage::Context;
-use isochron_shared::wire::{ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader};
+use isochron_shared::wire::{
+    ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader, KnownGrid, WireError,
+};
 
 /// Class id of a person in [`Detection::class`].
 pub const PERSON: u32 = 0;
@@ -43,6 +46,9 @@ pub struct CameraState {
     pub homography_rms_m: f64,
     /// Masked regions (frame pixels).
     pub masks: Vec<Polygon>,
+    /// Its block grid: from the config (width, height, `motion.block_px`), or
+    /// pinned by its first activity sample.
+    pub known: KnownGrid,
     /// The footprint of its current block grid on the map grid.
     pub footprint: Option<Footprint>,
     /// The latest activity.
@@ -113,6 +119,11 @@ impl Bridge {
                 homography: fitted.map(|(h, _)| h),
                 homography_rms_m: fitted.map_or(0.0, |(_, rms)| rms),
                 masks: cam.mask.clone(),
+                known: KnownGrid::new(
+                    cam.width
+                        .zip(cam.height)
+                        .map(|(w, h)| BlockGrid::new(w, h, config.motion.block_px)),
+                ),
                 footprint: None,
                 latest: None,
                 confirmed: VecDeque::new(),
@@ -126,6 +137,26 @@ impl Bridge {
             stale: Duration::from_secs_f64(c.stale_s),
             confirm_hold_ns: (c.confirm_hold_s * NS_PER_S as f64) as i64,
         })
+    }
+
+    /// Admits camera `k`'s activity sample (validated by the caller) if its grid
+    /// is the camera's known one ([`KnownGrid`]): the first sample of a camera
+    /// whose config gives no size pins it, with a warning. Nothing is built for
+    /// a grid before it is admitted.
+    pub fn admit(&mut self, k: usize, header: &ActivityHeader) -> Result<(), WireError> {
+        let Some(cam) = self.cameras.get_mut(k) else {
+            return Ok(());
+        };
+        let grid = header.block_grid();
+        if cam.known.check(grid)? {
+            tracing::warn!(
+                camera = %cam.id,
+                "block grid {grid} pinned by the camera's first activity sample: any other grid \
+                 is refused until the bridge restarts (set the camera's width and height in the \
+                 config to fix it)"
+            );
+        }
+        Ok(())
     }
 
     /// Takes camera `k`'s activity sample (validated by the caller). A block with

@@ -117,6 +117,16 @@ pub struct PublishError {
     pub detail: String,
 }
 
+impl PublishError {
+    /// What a failed write says, without the sample it carries back (a whole
+    /// grid in a log line).
+    fn of<M>(e: ros2_client::WriteError<M>) -> PublishError {
+        PublishError {
+            detail: e.to_string(),
+        }
+    }
+}
+
 /// Parses a topic name (`/a/b` absolute, `a/b` relative to the node's namespace `/`).
 pub fn topic_name(name: &str) -> Result<Name, RosError> {
     Name::parse(name).map_err(|e| RosError::TopicName {
@@ -146,7 +156,7 @@ impl RosOutput {
     /// Joins the DDS domain and creates the node `/isochron/costmap_bridge` with its
     /// publishers.
     pub fn start(settings: &RosSettings) -> Result<RosOutput, RosError> {
-        let mut ros = RosNode::start(settings.domain_id, &settings.interfaces, NODE)?;
+        let mut ros = RosNode::start(settings.domain_id, &settings.interfaces, NODE, None)?;
 
         let topic = |name: &str, package: &str, type_name: &str, durability, depth| {
             ros.topic(
@@ -257,51 +267,37 @@ impl RosOutput {
 
     /// Publishes a full grid.
     pub fn publish_grid(&self, grid: OccupancyGrid) -> Result<(), PublishError> {
-        self.grid.publish(grid).map_err(|e| PublishError {
-            detail: format!("{e:?}"),
-        })
+        self.grid.publish(grid).map_err(PublishError::of)
     }
 
     /// Publishes a delta.
     pub fn publish_update(&self, update: OccupancyGridUpdate) -> Result<(), PublishError> {
-        self.updates.publish(update).map_err(|e| PublishError {
-            detail: format!("{e:?}"),
-        })
+        self.updates.publish(update).map_err(PublishError::of)
     }
 
     /// Publishes the people of one detected frame.
     pub fn publish_people(&self, people: PoseArray) -> Result<(), PublishError> {
-        self.people.publish(people).map_err(|e| PublishError {
-            detail: format!("{e:?}"),
-        })
+        self.people.publish(people).map_err(PublishError::of)
     }
 
     /// Publishes (and latches) the markers.
     pub fn publish_markers(&self, markers: MarkerArray) -> Result<(), PublishError> {
-        self.markers.publish(markers).map_err(|e| PublishError {
-            detail: format!("{e:?}"),
-        })
+        self.markers.publish(markers).map_err(PublishError::of)
     }
 
     /// Publishes (and latches) the speed filter's info.
     pub fn publish_filter_info(&self, info: CostmapFilterInfo) -> Result<(), PublishError> {
-        self.filter_info.publish(info).map_err(|e| PublishError {
-            detail: format!("{e:?}"),
-        })
+        self.filter_info.publish(info).map_err(PublishError::of)
     }
 
     /// Publishes (and latches) a speed mask.
     pub fn publish_mask(&self, mask: OccupancyGrid) -> Result<(), PublishError> {
-        self.mask.publish(mask).map_err(|e| PublishError {
-            detail: format!("{e:?}"),
-        })
+        self.mask.publish(mask).map_err(PublishError::of)
     }
 
     /// Publishes (and latches) a forecast grid.
     pub fn publish_forecast(&self, grid: OccupancyGrid) -> Result<(), PublishError> {
-        self.forecast.publish(grid).map_err(|e| PublishError {
-            detail: format!("{e:?}"),
-        })
+        self.forecast.publish(grid).map_err(PublishError::of)
     }
 
     /// Answers the requests of both planning services that are due with

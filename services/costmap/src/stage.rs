@@ -17,7 +17,7 @@ use isochron_shared::clock::{Cycle, NS_PER_S, SiteClock, format_rfc3339, timesta
 use isochron_shared::config::LoadedConfig;
 use isochron_shared::exit::{self, Fatal};
 use isochron_shared::ipc::{Activity, Detections, Ipc};
-use isochron_shared::stage::{Context, Input, Notified, Stage, Woken};
+use isochron_shared::stage::{Context, Input, Notified, Stage, Warnings, Woken};
 use isochron_shared::topology::StageKind;
 
 use crate::bridge::{Bridge, count_non_finite};
@@ -36,6 +36,8 @@ const STORE_REFRESH: Duration = Duration::from_secs(60);
 /// Counters for the status line.
 #[derive(Default)]
 struct Counters {
+    /// Publish failures, rate-limited: a stalled DDS fails every tick.
+    warnings: Warnings,
     grids: u64,
     updates: u64,
     publish_errors: u64,
@@ -64,7 +66,8 @@ impl Counters {
             }
             Err(e) => {
                 self.publish_errors += 1;
-                tracing::warn!("publishing {what} failed: {e}");
+                self.warnings
+                    .warn("publish", || format!("publishing {what} failed: {e}"));
                 false
             }
         }
@@ -286,6 +289,13 @@ impl Stage for CostmapStage {
                 let arrived = Instant::now();
                 let h = *sample.header();
                 if h.preamble.is_end_of_stream() {
+                    continue;
+                }
+                if let Err(e) = self.bridge.admit(k, &h) {
+                    cx.health.rejected();
+                    let camera = &self.bridge.cameras[k].id;
+                    cx.warnings
+                        .warn("grid", || format!("rejected {camera}'s activity: {e}"));
                     continue;
                 }
                 let bad = self.bridge.on_activity(k, &h, sample.payload(), arrived);
@@ -625,7 +635,9 @@ fn publish(
         counters.publish_errors += 1;
         // Subscribers must not miss a delta: the next tick sends the full grid.
         ros.tracker.reset();
-        tracing::warn!("publishing to ROS 2 failed: {e}");
+        counters
+            .warnings
+            .warn("publish", || format!("publishing to ROS 2 failed: {e}"));
         return false;
     }
     true

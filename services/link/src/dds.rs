@@ -7,6 +7,7 @@
 //! `status` reliable, one report per stage. All volatile and bounded.
 
 use std::net::IpAddr;
+use std::path::Path;
 
 use ros2_client::dds::Node;
 /// The writer and reader types [`LinkDds`] makes.
@@ -16,7 +17,7 @@ use rustdds::{QosPolicies, policy};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
-use isochron_dds::{DdsError, RosNode, keep_last};
+use isochron_dds::{DdsError, RosNode, bounded, keep_last};
 use isochron_shared::topology::StageKind;
 
 use crate::msgs::{Delivery, LinkStream, Message, Status};
@@ -28,12 +29,12 @@ pub struct LinkDds {
 }
 
 impl LinkDds {
-    /// Joins `domain` on `interfaces` (empty: all) as node `/isochron/link_<box_id>`;
-    /// topics go under `namespace`.
+    /// Joins `domain` on `interfaces` (empty: all) as node `/isochron/link_<box_id>`,
+    /// with DDS Security from `enclave` if given; topics go under `namespace`.
     pub fn start(
         domain: u16,
         interfaces: &[IpAddr],
-        box_id: &str,
+        (box_id, enclave): (&str, Option<&Path>),
         namespace: &str,
     ) -> Result<LinkDds, DdsError> {
         isochron_dds::limit_dds_logging();
@@ -43,7 +44,7 @@ impl LinkDds {
             format!("link_{box_id}")
         };
         Ok(LinkDds {
-            ros: RosNode::start(domain, interfaces, &name)?,
+            ros: RosNode::start(domain, interfaces, &name, enclave)?,
             namespace: namespace.to_string(),
         })
     }
@@ -80,18 +81,22 @@ impl LinkDds {
 
     /// A writer or a reader (as the caller's type says: [`Publisher`] or
     /// [`Subscription`]) of stream `S` of `camera`; `queue` is the depth of a
-    /// queued stream's DDS history.
+    /// queued stream's DDS history. A reader reassembles no message larger than
+    /// the stream's largest for a camera of `blocks` blocks (if known, else of
+    /// the largest grid the wire allows).
     pub fn stream<S: LinkStream, E: Endpoint<Message<S>>>(
         &mut self,
         camera: &str,
         queue: usize,
+        blocks: Option<usize>,
     ) -> Result<E, DdsError> {
-        self.endpoint(camera, (S::SUFFIX, S::MSG), qos(S::DELIVERY, queue))
+        let qos = bounded(qos(S::DELIVERY, queue), Message::<S>::max_cdr_len(blocks));
+        self.endpoint(camera, (S::SUFFIX, S::MSG), qos)
     }
 
     /// The writer or the reader of `camera`'s stages' status.
     pub fn status<E: Endpoint<Status>>(&mut self, camera: &str) -> Result<E, DdsError> {
-        self.endpoint(camera, STATUS, status_qos())
+        self.endpoint(camera, STATUS, bounded(status_qos(), Status::max_cdr_len()))
     }
 }
 

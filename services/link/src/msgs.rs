@@ -9,8 +9,12 @@
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
+use isochron_shared::config::{MAX_BOX_ID_LEN, is_ros_token};
+use isochron_shared::geometry::BlockGrid;
 use isochron_shared::ipc::{Activity, Detections, Events, StreamType};
-use isochron_shared::wire::{CameraId, StageStatus, StreamHeader, WireError};
+use isochron_shared::wire::{
+    CameraId, MAX_BLOCKS, MAX_DETECTIONS, StageStatus, StreamHeader, WireError,
+};
 
 /// How a stream crosses: what DDS keeps and what the link's own queues keep.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -29,7 +33,7 @@ pub enum Delivery {
 pub trait LinkStream:
     StreamType<
         Header: Serialize + DeserializeOwned,
-        Element: Serialize + DeserializeOwned + PartialEq,
+        Element: Serialize + DeserializeOwned + PartialEq + Default,
     > + 'static
 {
     /// Topic `<namespace>/<camera>/<SUFFIX>`; also the stream's short name in
@@ -39,24 +43,46 @@ pub trait LinkStream:
     const MSG: &'static str;
     /// How it crosses.
     const DELIVERY: Delivery;
+
+    /// Most payload elements a message of a camera of `blocks` blocks (if
+    /// known) can carry.
+    fn max_elements(blocks: Option<usize>) -> usize;
+
+    /// The block grid a header describes (activity), to check against what
+    /// the receiver knows of the camera.
+    fn block_grid(_header: &Self::Header) -> Option<BlockGrid> {
+        None
+    }
 }
 
 impl LinkStream for Activity {
     const SUFFIX: &'static str = "activity";
     const MSG: &'static str = "Activity";
     const DELIVERY: Delivery = Delivery::Latest;
+    fn max_elements(blocks: Option<usize>) -> usize {
+        blocks.unwrap_or(MAX_BLOCKS)
+    }
+    fn block_grid(header: &Self::Header) -> Option<BlockGrid> {
+        Some(header.block_grid())
+    }
 }
 
 impl LinkStream for Events {
     const SUFFIX: &'static str = "events";
     const MSG: &'static str = "Event";
     const DELIVERY: Delivery = Delivery::Queued;
+    fn max_elements(blocks: Option<usize>) -> usize {
+        blocks.unwrap_or(MAX_BLOCKS)
+    }
 }
 
 impl LinkStream for Detections {
     const SUFFIX: &'static str = "detections";
     const MSG: &'static str = "Detections";
     const DELIVERY: Delivery = Delivery::Queued;
+    fn max_elements(_blocks: Option<usize>) -> usize {
+        MAX_DETECTIONS
+    }
 }
 
 /// One sample of stream `S` as it crosses: `Activity`, `Event` or `Detections`.
@@ -92,9 +118,49 @@ impl<S: LinkStream> Message<S> {
     }
 
     /// Checks the message as any received sample is checked: a message of
-    /// another camera, or whose sizes disagree, is an error.
+    /// another camera, or whose sizes disagree, is an error, and so is a box id
+    /// that no config accepts.
     pub fn validate(&self, camera: &CameraId) -> Result<(), WireError> {
+        check_box_id(&self.box_id)?;
         self.header.validate(camera, self.payload.len())
+    }
+
+    /// Bytes of the CDR of the largest message of stream `S` of a camera of
+    /// `blocks` blocks (if known): the largest sample its topic carries, which
+    /// bounds what DDS reassembles for the reader.
+    pub fn max_cdr_len(blocks: Option<usize>) -> usize {
+        let header = cdr_len(&Message::<S> {
+            box_id: "b".repeat(MAX_BOX_ID_LEN),
+            header: S::Header::default(),
+            payload: Vec::new(),
+        });
+        let element = cdr_len(&S::Element::default());
+        // The CDR encapsulation header and alignment padding before the elements.
+        4 + header + 8 + S::max_elements(blocks) * element
+    }
+}
+
+/// Checks a received message's `box_id`: a `link.box_id` as the config accepts it.
+pub fn check_box_id(box_id: &str) -> Result<(), WireError> {
+    if box_id.len() > MAX_BOX_ID_LEN || !is_ros_token(box_id) {
+        return Err(WireError::Field {
+            field: "box_id",
+            reason: format!(
+                "{}: expected 1 to {MAX_BOX_ID_LEN} letters, digits and '_'",
+                printable(box_id)
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// A received name for a log line: at most 64 characters, escaped.
+pub fn printable(name: &str) -> String {
+    let head: String = name.chars().take(64).collect();
+    if head.len() < name.len() {
+        format!("{head:?}… ({} bytes)", name.len())
+    } else {
+        format!("{head:?}")
     }
 }
 
@@ -106,6 +172,40 @@ pub struct Status {
     pub box_id: String,
     /// The stage's status as it published it on the exporting box.
     pub status: StageStatus,
+}
+
+impl Status {
+    /// Bytes of the CDR of the largest `Status` (the longest box id).
+    pub fn max_cdr_len() -> usize {
+        4 + cdr_len(&Status {
+            box_id: "b".repeat(MAX_BOX_ID_LEN),
+            status: zeroed_status(),
+        })
+    }
+}
+
+/// An all-zero [`StageStatus`].
+fn zeroed_status() -> StageStatus {
+    StageStatus {
+        magic: 0,
+        layout_version: 0,
+        reserved: 0,
+        camera: CameraId::default(),
+        stage: [0; isochron_shared::wire::STAGE_NAME_LEN],
+        pid: 0,
+        rate_in: 0.0,
+        started_wall_ns: 0,
+        report_wall_ns: 0,
+        received: 0,
+        sent: 0,
+        dropped: 0,
+        rejected: 0,
+        rate_out: 0.0,
+        stage_latency_ms: 0.0,
+        e2e_latency_p50_ms: 0.0,
+        e2e_latency_p99_ms: 0.0,
+        detail: [0; isochron_shared::wire::STATUS_DETAIL_LEN],
+    }
 }
 
 /// Bytes of a message's serialised payload (little-endian CDR, without the
@@ -256,6 +356,86 @@ mod tests {
         back.validate().unwrap();
         assert_eq!(back.detail, status.detail);
         assert_eq!((back.dropped, back.e2e_latency_p99_ms), (5, 10.0));
+    }
+
+    #[test]
+    fn a_message_of_a_forged_box_or_grid_is_refused() {
+        let mut msg = activity();
+        msg.box_id = "x".repeat(1 << 20);
+        let err = msg.validate(&cam()).unwrap_err().to_string();
+        assert!(err.contains("(1048576 bytes)") && err.len() < 300, "{err}");
+        msg.box_id = "evil box".into();
+        assert!(msg.validate(&cam()).is_err());
+        // 0xFFFFFFFF² blocks with one block: refused, never multiplied out.
+        let mut msg = activity();
+        let h = &mut msg.header;
+        (
+            h.grid_w,
+            h.grid_h,
+            h.frame_width,
+            h.frame_height,
+            h.block_px,
+        ) = (u32::MAX, u32::MAX, u32::MAX, u32::MAX, 1);
+        h.preamble.payload_len = 1;
+        msg.payload.truncate(1);
+        assert!(msg.validate(&cam()).is_err());
+    }
+
+    #[test]
+    fn the_largest_message_bounds_what_dds_reassembles() {
+        let msg = activity();
+        // A message of a 6-block camera fits the bound of a 6-block camera.
+        assert!(cdr_len(&msg) + 4 <= Message::<Activity>::max_cdr_len(Some(6)));
+        assert!(Message::<Activity>::max_cdr_len(Some(6)) < 512);
+        assert!(
+            Message::<Activity>::max_cdr_len(None)
+                >= isochron_shared::wire::MAX_BLOCKS * std::mem::size_of::<BlockActivity>()
+        );
+        assert!(Status::max_cdr_len() < 512);
+    }
+
+    mod properties {
+        use super::*;
+        use proptest::prelude::*;
+
+        /// Decodes `bytes` as a message of `S` and checks it as the link does:
+        /// never a panic, and what passes is consistent.
+        fn decode<S: LinkStream>(bytes: &[u8]) -> Option<Message<S>> {
+            let (msg, _) =
+                cdr_encoding::from_bytes::<Message<S>, byteorder::LittleEndian>(bytes).ok()?;
+            msg.validate(&cam()).ok()?;
+            Some(msg)
+        }
+
+        proptest! {
+            #![proptest_config(ProptestConfig::with_cases(1000))]
+
+            /// Arbitrary bytes, and a real message's bytes with some of them
+            /// changed (forged sizes, lengths, grids): decoding and validation
+            /// never panic and never allocate for a length the bytes do not hold.
+            #[test]
+            fn forged_messages_decode_or_fail_cleanly(
+                noise in proptest::collection::vec(any::<u8>(), 0..600),
+                flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 1..12),
+            ) {
+                prop_assert!(decode::<Activity>(&noise).is_none_or(|m| m.payload.len() <= 600));
+                let _ = decode::<Events>(&noise);
+                let _ = decode::<Detections>(&noise);
+                let _ = cdr_encoding::from_bytes::<Status, byteorder::LittleEndian>(&noise);
+                let mut bytes =
+                    cdr_encoding::to_vec::<_, byteorder::LittleEndian>(&activity()).unwrap();
+                for (at, value) in flips {
+                    let k = at % bytes.len();
+                    bytes[k] = value;
+                }
+                if let Some(m) = decode::<Activity>(&bytes)
+                    .filter(|m| !m.header.preamble.is_end_of_stream())
+                {
+                    prop_assert_eq!(m.header.block_grid().len(), m.payload.len());
+                    prop_assert!(m.payload.len() <= isochron_shared::wire::MAX_BLOCKS);
+                }
+            }
+        }
     }
 
     #[test]

@@ -31,16 +31,18 @@ use std::time::{Duration, Instant};
 use ros2_client::WriteError;
 use ros2_client::dds::{Node, Publisher, Subscription};
 
+use isochron_shared::clock::wall_now_ns;
 use isochron_shared::config::LoadedConfig;
 use isochron_shared::exit;
+use isochron_shared::geometry::BlockGrid;
 use isochron_shared::ipc::{Activity, Detections, Events, Ipc, StatusPublisher, StatusSubscriber};
 use isochron_shared::service::{Fatal, open_files, raise_open_file_limit};
 use isochron_shared::stage::{Context, Input, Output, Stage, Woken};
 use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{CameraId, StreamHeader, fixed_str};
+use isochron_shared::wire::{CameraId, KnownGrid, StageStatus, StreamHeader, fixed_str};
 
 use crate::dds::LinkDds;
-use crate::msgs::{Delivery, LinkStream, Message, Status, cdr_len};
+use crate::msgs::{Delivery, LinkStream, Message, Status, cdr_len, check_box_id, printable};
 
 /// How often the DDS readers are polled: a message waits at most this long on
 /// the importing box.
@@ -109,6 +111,61 @@ fn check_open_files(imports: usize, exports: usize) -> Result<(), Fatal> {
     Ok(())
 }
 
+/// This box's DDS Security enclave (`link.security_dir`, relative to the config
+/// file), checked to hold its files. Without one the link runs unauthenticated,
+/// which it refuses on an interface other than loopback unless `link.insecure`
+/// says so.
+fn enclave(loaded: &LoadedConfig) -> Result<Option<std::path::PathBuf>, Fatal> {
+    let link = &loaded.config.link;
+    let Some(dir) = &link.security_dir else {
+        if link.leaves_the_box() && !link.insecure {
+            return Err(Fatal::new(
+                exit::CONFIG,
+                format!(
+                    "{}: the link would run without DDS Security on {}: any participant on that \
+                     network could write into this site. Set link.security_dir to this box's \
+                     enclave (`isochron keystore enclave`), or link.insecure = true to accept that",
+                    loaded.path.display(),
+                    if link.dds_interfaces.is_empty() {
+                        "every interface".to_string()
+                    } else {
+                        format!("[{}]", link.dds_interfaces.join(", "))
+                    }
+                ),
+            ));
+        }
+        if link.leaves_the_box() {
+            tracing::warn!(
+                "link.insecure: DDS Security is off; any participant on the network can write into this site"
+            );
+        }
+        return Ok(None);
+    };
+    let dir = loaded.base_dir().join(dir);
+    if let Some(missing) = isochron_dds::missing_enclave_file(&dir) {
+        return Err(Fatal::new(
+            exit::CONFIG,
+            format!(
+                "{}: link.security_dir: {} is missing (an enclave made by `isochron keystore enclave` holds {})",
+                loaded.path.display(),
+                missing.display(),
+                isochron_dds::ENCLAVE_FILES.join(", ")
+            ),
+        ));
+    }
+    tracing::info!(enclave = %dir.display(), "DDS Security on");
+    Ok(Some(dir))
+}
+
+/// The block grid this box's config gives camera `id` (its `[[camera]]` width
+/// and height with `motion.block_px`), if it does.
+fn configured_grid(loaded: &LoadedConfig, id: &str) -> Option<BlockGrid> {
+    let config = &loaded.config;
+    let camera = config.cameras.iter().find(|c| c.id == id)?;
+    let (w, h) = camera.width.zip(camera.height)?;
+    Some(BlockGrid::new(w, h, config.motion.block_px))
+}
+
 /// The stages whose status crosses with a camera.
 fn camera_stages() -> impl Iterator<Item = StageKind> {
     StageKind::ALL.into_iter().filter(|s| s.per_camera())
@@ -161,7 +218,7 @@ struct ExportLane<S: LinkStream> {
 impl<S: LinkStream> ExportLane<S> {
     fn new(dds: &mut LinkDds, camera: &str, queue: usize) -> Result<Self, Fatal> {
         Ok(ExportLane {
-            writer: dds.stream::<S, _>(camera, queue)?,
+            writer: dds.stream::<S, _>(camera, queue, None)?,
             queue: VecDeque::new(),
             last_sequence: None,
             counts: Counts::default(),
@@ -242,17 +299,49 @@ struct ImportLane<'ipc, S: LinkStream> {
     reader: Subscription<Message<S>>,
     output: Output<'ipc, S>,
     last_sequence: Option<u64>,
+    /// The camera's grid, as the config gives it or its first activity pinned it.
+    known: KnownGrid,
     counts: Counts,
 }
 
 impl<'ipc, S: LinkStream> ImportLane<'ipc, S> {
-    fn new(dds: &mut LinkDds, ipc: &'ipc Ipc, camera: &str, queue: usize) -> Result<Self, Fatal> {
+    fn new(
+        dds: &mut LinkDds,
+        ipc: &'ipc Ipc,
+        camera: &str,
+        queue: usize,
+        grid: Option<BlockGrid>,
+    ) -> Result<Self, Fatal> {
         Ok(ImportLane {
-            reader: dds.stream::<S, _>(camera, queue)?,
+            reader: dds.stream::<S, _>(camera, queue, grid.map(|g| g.len()))?,
             output: Output::new(ipc, camera),
             last_sequence: None,
+            known: KnownGrid::new(grid),
             counts: Counts::default(),
         })
+    }
+
+    /// Checks a valid message's grid (activity) against the camera's known one;
+    /// the first one pins it, with a warning.
+    fn check_grid(&mut self, camera: &str, msg: &Message<S>) -> Result<(), String> {
+        let Some(grid) =
+            S::block_grid(&msg.header).filter(|_| !msg.header.preamble().is_end_of_stream())
+        else {
+            return Ok(());
+        };
+        match self.known.check(grid) {
+            Ok(false) => Ok(()),
+            Ok(true) => {
+                tracing::warn!(
+                    "{camera}: block grid {grid} pinned by the first activity from box '{}'; \
+                     any other grid is refused until the link restarts (set the camera's \
+                     width/height in this box's [[camera]] to fix it)",
+                    msg.box_id
+                );
+                Ok(())
+            }
+            Err(e) => Err(e.to_string()),
+        }
     }
 
     /// Publishes what DDS received (at most `limit` messages this tick).
@@ -277,13 +366,17 @@ impl<'ipc, S: LinkStream> ImportLane<'ipc, S> {
                 }
             };
             let arrived = Instant::now();
-            if let Err(e) = msg.validate(id) {
+            if let Err(e) = msg
+                .validate(id)
+                .map_err(|e| e.to_string())
+                .and_then(|()| self.check_grid(camera, &msg))
+            {
                 cx.health.rejected();
                 cx.warnings.warn("header", || {
                     format!(
-                        "rejected {} of {camera} from box '{}': {e}",
+                        "rejected {} of {camera} from box {}: {e}",
                         S::SUFFIX,
-                        msg.box_id
+                        printable(&msg.box_id)
                     )
                 });
                 continue;
@@ -316,15 +409,27 @@ struct Import<'ipc> {
 }
 
 impl Import<'_> {
-    /// Writes the remote stages' status into this box's status services.
+    /// Writes the remote stages' status into this box's status services, as
+    /// this box saw it ([`seen_here`]).
     fn receive_status(&mut self, ipc: &Ipc, cx: &mut Context) {
         while let Ok(Some((msg, _))) = self.status_in.take() {
-            let s = msg.status;
-            let stage = StageKind::from_name(&fixed_str(&s.stage)).filter(|k| k.per_camera());
-            let Some(stage) = stage.filter(|_| s.validate().is_ok() && s.camera == self.id) else {
+            let stage =
+                StageKind::from_name(&fixed_str(&msg.status.stage)).filter(|k| k.per_camera());
+            let valid = msg.status.validate().is_ok()
+                && msg.status.camera == self.id
+                && check_box_id(&msg.box_id).is_ok();
+            let Some(stage) = stage.filter(|_| valid) else {
                 cx.health.rejected();
+                cx.warnings.warn("status", || {
+                    format!(
+                        "rejected a status of {} from box {}: not a stage status of this camera",
+                        self.camera,
+                        printable(&msg.box_id)
+                    )
+                });
                 continue;
             };
+            let s = seen_here(msg.status, wall_now_ns());
             self.status.messages += 1;
             if !self.status_out.contains_key(&stage) {
                 match ipc.status_publisher(&self.camera, stage) {
@@ -346,6 +451,25 @@ impl Import<'_> {
             .values()
             .for_each(StatusPublisher::update_connections);
     }
+}
+
+/// A remote stage's status as this box relays it: its liveness is what this
+/// box saw and when, never the sender's clock or process id. The report time
+/// becomes the time it arrived here (`now_ns`); the start time keeps the uptime
+/// the sender reported (within 0 ..= `now_ns`); the process id becomes the
+/// link's own, the local process whose death ends the relay (a remote pid means
+/// nothing here: `kill(pid, 0)` of a forged pid 1 always succeeds). A sender
+/// that stops is stale here `STALE_AFTER_S` after its last report arrived,
+/// whatever times it wrote.
+pub fn seen_here(mut status: StageStatus, now_ns: i64) -> StageStatus {
+    let uptime_ns = status
+        .report_wall_ns
+        .saturating_sub(status.started_wall_ns)
+        .clamp(0, now_ns.max(0));
+    status.report_wall_ns = now_ns;
+    status.started_wall_ns = now_ns - uptime_ns;
+    status.pid = std::process::id();
+    status
 }
 
 /// The inputs of the exported cameras, in `link.export` order.
@@ -383,8 +507,14 @@ impl<'ipc> LinkStage<'ipc> {
             .filter_map(|a| a.parse().ok())
             .collect();
         let queue = link.queue_messages();
+        let enclave = enclave(loaded)?;
         check_open_files(link.import.len(), link.export.len())?;
-        let mut dds = LinkDds::start(domain, &interfaces, &link.box_id, link.namespace())?;
+        let mut dds = LinkDds::start(
+            domain,
+            &interfaces,
+            (&link.box_id, enclave.as_deref()),
+            link.namespace(),
+        )?;
         let mut exports = Vec::new();
         let mut inputs: LinkInputs = Default::default();
         for camera in &link.export {
@@ -407,12 +537,13 @@ impl<'ipc> LinkStage<'ipc> {
         }
         let mut imports = Vec::new();
         for camera in &link.import {
+            let grid = configured_grid(loaded, camera);
             imports.push(Import {
                 camera: camera.clone(),
                 id: CameraId::new(camera).unwrap_or_default(),
-                activity: ImportLane::new(&mut dds, ipc, camera, queue)?,
-                events: ImportLane::new(&mut dds, ipc, camera, queue)?,
-                detections: ImportLane::new(&mut dds, ipc, camera, queue)?,
+                activity: ImportLane::new(&mut dds, ipc, camera, queue, grid)?,
+                events: ImportLane::new(&mut dds, ipc, camera, queue, grid)?,
+                detections: ImportLane::new(&mut dds, ipc, camera, queue, grid)?,
                 status_in: dds.status(camera)?,
                 status_out: HashMap::new(),
                 status: Counts::default(),
@@ -601,5 +732,44 @@ impl Stage for LinkStage<'_> {
             d += &format!(" err={errors}");
         }
         d
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use isochron_shared::wire::{LAYOUT_VERSION, MAGIC, STATUS_DETAIL_LEN};
+
+    #[test]
+    fn a_relayed_status_is_as_fresh_as_its_arrival_and_owned_by_the_link() {
+        let forged = StageStatus {
+            magic: MAGIC,
+            layout_version: LAYOUT_VERSION,
+            reserved: 0,
+            camera: CameraId::new("cam01").unwrap(),
+            stage: isochron_shared::wire::to_fixed("gate"),
+            pid: 1,
+            rate_in: 1.0,
+            started_wall_ns: 1,
+            report_wall_ns: 1 << 62,
+            received: 0,
+            sent: 0,
+            dropped: 0,
+            rejected: 0,
+            rate_out: 0.0,
+            stage_latency_ms: 0.0,
+            e2e_latency_p50_ms: 0.0,
+            e2e_latency_p99_ms: 0.0,
+            detail: [0; STATUS_DETAIL_LEN],
+        };
+        let now = 1_800_000_000_000_000_000;
+        let s = seen_here(forged, now);
+        assert_eq!(s.report_wall_ns, now);
+        assert_eq!(s.pid, std::process::id());
+        // An absurd uptime is clamped: the start is never before 1970.
+        assert_eq!(s.started_wall_ns, 0);
+        let mut honest = forged;
+        (honest.started_wall_ns, honest.report_wall_ns) = (1_000, 61_000_000_000);
+        assert_eq!(seen_here(honest, now).started_wall_ns, now - 60_999_999_000);
     }
 }

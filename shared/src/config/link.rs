@@ -34,7 +34,21 @@ pub struct LinkConfig {
     /// queue is full its oldest message is dropped and counted in the link's
     /// status. Default 64.
     pub queue_messages: Option<usize>,
+    /// This box's DDS Security enclave: the directory `isochron keystore enclave`
+    /// makes (an SROS2 enclave: `identity_ca.cert.pem`, `cert.pem`, `key.pem`,
+    /// `permissions_ca.cert.pem`, `governance.p7s`, `permissions.p7s`). With it
+    /// the link authenticates every box, checks its permissions per topic and
+    /// encrypts. Default none.
+    pub security_dir: Option<String>,
+    /// Run without DDS Security on interfaces other than loopback (every box on
+    /// the network can then write into this site). Default false: without
+    /// `security_dir`, the link refuses to start unless `dds_interfaces` are
+    /// all loopback.
+    pub insecure: bool,
 }
+
+/// Longest `link.box_id`, bytes.
+pub const MAX_BOX_ID_LEN: usize = 64;
 
 /// The default `link.queue_messages`.
 pub const DEFAULT_QUEUE_MESSAGES: usize = 64;
@@ -60,6 +74,16 @@ impl LinkConfig {
         self.queue_messages.unwrap_or(DEFAULT_QUEUE_MESSAGES)
     }
 
+    /// True if DDS may use an interface other than loopback (`dds_interfaces`
+    /// empty means all of them).
+    pub fn leaves_the_box(&self) -> bool {
+        self.dds_interfaces.is_empty()
+            || self.dds_interfaces.iter().any(|a| {
+                a.parse::<std::net::IpAddr>()
+                    .is_ok_and(|ip| !ip.is_loopback())
+            })
+    }
+
     /// True if the link has anything to do.
     pub fn is_enabled(&self) -> bool {
         !self.export.is_empty() || !self.import.is_empty()
@@ -67,10 +91,12 @@ impl LinkConfig {
 
     /// Checks the `link.*` keys against the configured cameras.
     pub(super) fn validate(&self, cameras: &[CameraConfig]) -> Result<(), Invalid> {
-        if !self.box_id.is_empty() && !is_ros_token(&self.box_id) {
+        if !self.box_id.is_empty()
+            && (!is_ros_token(&self.box_id) || self.box_id.len() > MAX_BOX_ID_LEN)
+        {
             return Err(Invalid::found(
                 "link.box_id",
-                "a name of letters, digits and '_' not starting with a digit, such as \"box_a\"",
+                "a name of up to 64 letters, digits and '_' not starting with a digit, such as \"box_a\"",
                 &self.box_id,
             ));
         }
@@ -118,6 +144,16 @@ impl LinkConfig {
             check_range("link.queue_messages", q as f64, 1.0, 10_000.0)?;
         }
         check_dds("link", self.ros_domain_id, &self.dds_interfaces, "10.0.0.5")?;
+        if self
+            .security_dir
+            .as_deref()
+            .is_some_and(|d| d.trim().is_empty())
+        {
+            return Err(Invalid::new(
+                "link.security_dir",
+                "expected the directory of this box's enclave (isochron keystore enclave)",
+            ));
+        }
         if let Some(ns) = &self.namespace {
             let ok = ns.starts_with('/') && ns[1..].split('/').all(is_ros_token);
             if !ok {

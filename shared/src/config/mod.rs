@@ -42,7 +42,7 @@ pub use costmap::{
 pub use exporter::ExporterConfig;
 pub use gate::{DetectorConfig, GateConfig};
 pub use ipc::IpcConfig;
-pub use link::{DEFAULT_LINK_NAMESPACE, LinkConfig, is_ros_token};
+pub use link::{DEFAULT_LINK_NAMESPACE, LinkConfig, MAX_BOX_ID_LEN, is_ros_token};
 pub use motion::{MotionBackend, MotionConfig};
 pub use mqtt::{Broker, DEFAULT_MQTT_PORT, DEFAULT_MQTTS_PORT, MqttConfig, is_topic_level};
 pub use presence::PresenceConfig;
