@@ -12,10 +12,10 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::mpsc::{Receiver, channel};
 use std::time::{Duration, Instant};
 
-use isochron_shared::config::{Config, LoadedConfig};
-use isochron_shared::ipc::{Ipc, StreamSubscriber, StreamType};
-use isochron_shared::names::ServiceNames;
-use isochron_shared::wire::{CameraId, StreamHeader};
+use isochron_config::{Config, LoadedConfig};
+use isochron_runtime::ipc::{Ipc, StreamSubscriber, StreamType};
+use isochron_runtime::names::ServiceNames;
+use isochron_wire::{CameraId, StreamHeader};
 
 /// The directory holding the built binaries: `$ISOCHRON_BIN_DIR`, else
 /// `target/<profile>` of the test or bench that calls it.

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use isochron_shared::config::{Config, LoadedConfig};
+use isochron_config::{Config, LoadedConfig};
 
 /// The config file: `--config`, else `$ISOCHRON_CONFIG`, else
 /// `/etc/isochron/isochron.toml`.

@@ -24,6 +24,11 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
+use isochron_config::clock::{
+    Cycle, MINUTES_PER_DAY, SiteClock, format_t_star, parse_hhmm, wall_now_ns,
+};
+use isochron_config::{CameraConfig, LoadedConfig, SourceKind};
+use isochron_exit::UsageError;
 use isochron_planning::calibration::Calibration;
 use isochron_planning::grid::MapGrid;
 use isochron_planning::plan_service::PlanClient;
@@ -31,14 +36,9 @@ use isochron_planning::planner::Planner;
 use isochron_planning::query::{PlanKind, PlanRequest, PlanStatus};
 use isochron_planning::raster::Footprint;
 use isochron_planning::snapshot::{self, Snapshot};
-use isochron_shared::clock::{
-    Cycle, MINUTES_PER_DAY, SiteClock, format_t_star, parse_hhmm, wall_now_ns,
-};
-use isochron_shared::config::{CameraConfig, LoadedConfig, SourceKind};
-use isochron_shared::exit::UsageError;
-use isochron_shared::geometry::BlockGrid;
-use isochron_shared::ipc::Ipc;
-use isochron_shared::store::{Store, store_path};
+use isochron_runtime::ipc::Ipc;
+use isochron_store::{Store, store_path};
+use isochron_wire::geometry::BlockGrid;
 
 use crate::common::{Subcommands, load_config};
 use crate::overlay::{self, FloorPolygon, Frame, Scene};

@@ -1,12 +1,12 @@
 //! Man pages and shell completions of `isochron`, made from its clap definition
 //! ([`crate::command`]), and the man pages of the service binaries
-//! (`isochron-capture.8`, …, from [`isochron_shared::service::command`]), by
+//! (`isochron-capture.8`, …, from [`isochron_runtime::service::command`]), by
 //! `cargo xtask docs` (through the `isochron-docs` example).
 
 use std::path::{Path, PathBuf};
 
 use clap_complete::Shell;
-use isochron_shared::topology::StageKind;
+use isochron_runtime::topology::StageKind;
 
 /// Writes `out/man/isochron.1` and one `isochron-<subcommand>.1` per subcommand
 /// (nested ones too, e.g. `isochron-store-export.1`), one page per service binary
@@ -22,7 +22,7 @@ pub fn write(out: &Path) -> std::io::Result<Vec<PathBuf>> {
     // Section 8, as daemons: `isochron-costmap.8` (the service) beside
     // `isochron-costmap.1` (`isochron costmap`).
     for stage in StageKind::EVERY {
-        let mut service = isochron_shared::service::command(stage);
+        let mut service = isochron_runtime::service::command(stage);
         service.build();
         man_pages(&service, &man, "8", &mut written)?;
     }

@@ -14,13 +14,13 @@ use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+use isochron_config::{Config, LoadedConfig, SourceKind};
+use isochron_exit as exit;
 use isochron_planning::grid::MapGrid;
-use isochron_shared::config::{Config, LoadedConfig, SourceKind};
-use isochron_shared::exit;
-use isochron_shared::ipc::{Ipc, node_census, publisher_segment_bytes};
-use isochron_shared::store::{Store, store_path};
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{BlockActivity, BlockMotion, Stream};
+use isochron_runtime::ipc::{Ipc, node_census, publisher_segment_bytes};
+use isochron_runtime::topology::StageKind;
+use isochron_store::{Store, store_path};
+use isochron_wire::{BlockActivity, BlockMotion, Stream};
 
 use crate::common::config_path;
 use crate::status;
@@ -126,7 +126,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         Ok(l) => l,
         Err(e) => {
             report.say(Level::Fail, "config", e.to_string());
-            return Ok(ExitCode::from(isochron_shared::exit::FAILURE as u8));
+            return Ok(ExitCode::from(isochron_exit::FAILURE as u8));
         }
     };
     let c = &loaded.config;
@@ -156,7 +156,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         report.say(Level::Warn, "services", SKIPPED_FOR_STALE);
     }
     Ok(match report.worst {
-        Level::Fail => ExitCode::from(isochron_shared::exit::FAILURE as u8),
+        Level::Fail => ExitCode::from(isochron_exit::FAILURE as u8),
         _ => ExitCode::SUCCESS,
     })
 }
@@ -553,7 +553,7 @@ fn check_stores(loaded: &LoadedConfig, report: &mut Report) {
 }
 
 /// Frame size of a camera: configured, else assumed 1920×1080 (the worst case).
-fn frame_bytes(cam: &isochron_shared::config::CameraConfig) -> (usize, bool) {
+fn frame_bytes(cam: &isochron_config::CameraConfig) -> (usize, bool) {
     match (cam.width, cam.height) {
         (Some(w), Some(h)) => (w as usize * h as usize * cam.format().channels(), true),
         _ => (1920 * 1080 * cam.format().channels(), false),

@@ -9,9 +9,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context as _, bail};
+use isochron_config::clock::{Cycle, MINUTES_PER_DAY};
 use isochron_planning::profile::daily_profile;
-use isochron_shared::clock::{Cycle, MINUTES_PER_DAY};
-use isochron_shared::store::Model;
+use isochron_store::Model;
 use plotters::prelude::*;
 
 use crate::plot::Daily;

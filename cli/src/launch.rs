@@ -14,9 +14,9 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use isochron_shared::config::LoadedConfig;
-use isochron_shared::exit;
-use isochron_shared::topology::StageKind;
+use isochron_config::LoadedConfig;
+use isochron_exit as exit;
+use isochron_runtime::topology::StageKind;
 
 /// Directory of the service binaries: `$ISOCHRON_BIN_DIR`, else next to this binary.
 pub fn bin_dir() -> PathBuf {

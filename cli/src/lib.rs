@@ -26,7 +26,7 @@ mod view;
 use std::process::ExitCode;
 
 use clap::{CommandFactory, Parser, Subcommand};
-use isochron_shared::exit;
+use isochron_exit as exit;
 
 /// Learn where and when people are active from fixed cameras.
 #[derive(Parser)]
@@ -73,8 +73,8 @@ pub fn main() -> ExitCode {
     // SAFETY: called before any other thread exists.
     unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
     let cli = Cli::parse();
-    isochron_shared::logging::init("isochron");
-    isochron_shared::service::owner_only_files();
+    isochron_runtime::logging::init("isochron");
+    isochron_runtime::service::owner_only_files();
     let result = match cli.command {
         Command::Up(args) => up::run(args),
         Command::Tap(args) => tap::run(args),
@@ -96,8 +96,25 @@ pub fn main() -> ExitCode {
             eprintln!("isochron: {e:#}");
             // The services' table: a config error is 78 here too.
             let chain = e.chain().map(|c| c as &(dyn std::error::Error + 'static));
-            ExitCode::from(exit::code_of_chain(chain) as u8)
+            ExitCode::from(exit::code_of_chain(chain, library_code) as u8)
         }
+    }
+}
+
+/// The exit code of a library error of the chain, if it is one.
+fn library_code(e: &(dyn std::error::Error + 'static)) -> Option<i32> {
+    use isochron_exit::Classify;
+    if let Some(e) = e.downcast_ref::<isochron_config::ConfigError>() {
+        Some(e.exit_code())
+    } else if let Some(e) = e.downcast_ref::<isochron_config::UnknownCamera>() {
+        Some(e.exit_code())
+    } else if let Some(e) = e.downcast_ref::<isochron_store::StoreError>() {
+        Some(e.exit_code())
+    } else if let Some(e) = e.downcast_ref::<isochron_wire::WireError>() {
+        Some(e.exit_code())
+    } else {
+        e.downcast_ref::<isochron_runtime::ipc::IpcError>()
+            .map(Classify::exit_code)
     }
 }
 

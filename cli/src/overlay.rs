@@ -8,9 +8,9 @@
 use std::path::Path;
 
 use anyhow::{Context, bail};
+use isochron_config::{Polygon as PixelPolygon, ZoneConfig};
 use isochron_planning::calibration::Calibration;
 use isochron_planning::homography::Point;
-use isochron_shared::config::{Polygon as PixelPolygon, ZoneConfig};
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 use opencv::{imgproc, videoio};

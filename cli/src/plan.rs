@@ -13,15 +13,15 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{Context, bail};
+use isochron_config::LoadedConfig;
+use isochron_config::clock::{
+    Cycle, MINUTES_PER_DAY, SiteClock, format_t_star, parse_hhmm, wall_now_ns,
+};
 use isochron_planning::plan::{DayRange, OfflinePlan, RouteNow};
 use isochron_planning::plan_service::{PlanClient, ranking_of};
 use isochron_planning::planner::Planner;
 use isochron_planning::query::{PLAN_MAX_ROUTES, PlanKind, PlanRequest, PlanStatus};
-use isochron_shared::clock::{
-    Cycle, MINUTES_PER_DAY, SiteClock, format_t_star, parse_hhmm, wall_now_ns,
-};
-use isochron_shared::config::LoadedConfig;
-use isochron_shared::ipc::Ipc;
+use isochron_runtime::ipc::Ipc;
 use serde_json::json;
 
 use crate::common::{Subcommands, load_config};

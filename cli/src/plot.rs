@@ -16,10 +16,10 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{Context, bail};
+use isochron_config::clock::{Cycle, MINUTES_PER_DAY, format_t_star};
 use isochron_planning::planner::Planner;
 use isochron_planning::profile::ProfilePoint;
-use isochron_shared::clock::{Cycle, MINUTES_PER_DAY, format_t_star};
-use isochron_shared::store::Model;
+use isochron_store::Model;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -195,9 +195,9 @@ impl Daily {
 
 fn daily(args: DailyArgs) -> anyhow::Result<ExitCode> {
     let format = format_of(&args.out)?;
-    let day_start = isochron_shared::clock::parse_hhmm(&args.day_start)
+    let day_start = isochron_config::clock::parse_hhmm(&args.day_start)
         .with_context(|| format!("--day-start: expected HH:MM, found '{}'", args.day_start))?;
-    let day_end = isochron_shared::clock::parse_hhmm(&args.day_end)
+    let day_end = isochron_config::clock::parse_hhmm(&args.day_end)
         .with_context(|| format!("--day-end: expected HH:MM, found '{}'", args.day_end))?;
     if let Some(segment) = &args.segment {
         let (daily, title) = segment_daily(args.config.clone(), segment)?;

@@ -14,8 +14,8 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
-use isochron_shared::config::LoadedConfig;
-use isochron_shared::ipc::Ipc;
+use isochron_config::LoadedConfig;
+use isochron_runtime::ipc::Ipc;
 use isochron_view::Context;
 use isochron_view::channels::SiteChannels;
 use isochron_view::follow::{Streams, ViewInputs};
@@ -64,7 +64,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         sources_end: true,
     };
     let (mut stage, inputs) = open_recorder(&ipc, &loaded, &args.out, streams, until)?;
-    isochron_shared::stage::run(&ipc, "", &mut stage, &inputs)?;
+    isochron_runtime::stage::run(&ipc, "", &mut stage, &inputs)?;
     Ok(report(stage.finish()?))
 }
 
@@ -166,7 +166,7 @@ impl RecorderThread {
                         return Ok(ExitCode::SUCCESS);
                     }
                 };
-                isochron_shared::stage::run(&ipc, "", &mut stage, &inputs)?;
+                isochron_runtime::stage::run(&ipc, "", &mut stage, &inputs)?;
                 Ok(report(stage.finish()?))
             })
             .context("starting the recorder thread")?;

@@ -25,14 +25,14 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use iceoryx2::prelude::*;
-use isochron_shared::clock::format_rfc3339;
-use isochron_shared::config::{Config, LoadedConfig, Speed};
-use isochron_shared::health::InputCompleteness;
-use isochron_shared::ipc::{
+use isochron_config::clock::format_rfc3339;
+use isochron_config::{Config, LoadedConfig, Speed};
+use isochron_runtime::health::InputCompleteness;
+use isochron_runtime::ipc::{
     Activity, Detections, Events, Frames, Ipc, IpcError, Motion, StreamSubscriber, StreamType,
 };
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{ActivityKind, DetectionHeader, EventPhase, Stream, fixed_str};
+use isochron_runtime::topology::StageKind;
+use isochron_wire::{ActivityKind, DetectionHeader, EventPhase, Stream, fixed_str};
 use serde_json::json;
 
 use crate::launch::{ServiceSpec, State, Supervisor, group_specs, installed_stages};
@@ -206,9 +206,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             video.display(),
             input.frames_read,
             input.frames_stated,
-            isochron_shared::exit::DATA
+            isochron_exit::DATA
         );
-        return Ok(ExitCode::from(isochron_shared::exit::DATA as u8));
+        return Ok(ExitCode::from(isochron_exit::DATA as u8));
     }
     if recording_failed {
         return Ok(ExitCode::from(1));

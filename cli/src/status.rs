@@ -5,11 +5,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
-use isochron_shared::clock::wall_now_ns;
-use isochron_shared::config::LoadedConfig;
-use isochron_shared::ipc::Ipc;
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{StageStatus, fixed_str};
+use isochron_config::LoadedConfig;
+use isochron_config::clock::wall_now_ns;
+use isochron_runtime::ipc::Ipc;
+use isochron_runtime::topology::StageKind;
+use isochron_wire::{StageStatus, fixed_str};
 use serde_json::json;
 
 use crate::common::load_config;
@@ -188,6 +188,6 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     Ok(if all_running {
         ExitCode::SUCCESS
     } else {
-        ExitCode::from(isochron_shared::exit::NOT_RUNNING as u8)
+        ExitCode::from(isochron_exit::NOT_RUNNING as u8)
     })
 }

@@ -21,9 +21,9 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{Context, bail};
+use isochron_config::clock::{Cycle, format_rfc3339, format_t_star};
 use isochron_planning::profile::{ProfilePoint, daily_profile};
-use isochron_shared::clock::{Cycle, format_rfc3339, format_t_star};
-use isochron_shared::store::{FILE_SUFFIX, Model, Store};
+use isochron_store::{FILE_SUFFIX, Model, Store};
 use serde_json::json;
 
 use crate::common::Subcommands;
@@ -284,8 +284,8 @@ fn info(args: InfoArgs) -> anyhow::Result<ExitCode> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isochron_shared::geometry::BlockGrid;
-    use isochron_shared::store::{Bin, StoreMeta};
+    use isochron_store::{Bin, StoreMeta};
+    use isochron_wire::geometry::BlockGrid;
 
     fn model() -> Model {
         let meta = StoreMeta::new("c", BlockGrid::new(32, 32, 16), Cycle::Daily, 0);

@@ -25,14 +25,14 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use isochron_shared::clock::{NS_PER_S, format_rfc3339, parse_rfc3339, wall_now_ns};
-use isochron_shared::config::{CameraConfig, Config, IpcConfig};
-use isochron_shared::exit;
-use isochron_shared::ipc::{Activity, Ipc, Motion, StreamPublisher};
-use isochron_shared::names::ServiceNames;
-use isochron_shared::store::{Store, store_path};
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{
+use isochron_config::clock::{NS_PER_S, format_rfc3339, parse_rfc3339, wall_now_ns};
+use isochron_config::{CameraConfig, Config, IpcConfig};
+use isochron_exit as exit;
+use isochron_runtime::ipc::{Activity, Ipc, Motion, StreamPublisher};
+use isochron_runtime::names::ServiceNames;
+use isochron_runtime::topology::StageKind;
+use isochron_store::{Store, store_path};
+use isochron_wire::{
     BlockMotion, CameraId, DIRECTION_NONE, FLAG_END_OF_STREAM, MotionHeader, Preamble, Stream,
     is_valid_camera_id,
 };

@@ -9,11 +9,11 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use isochron_shared::clock::{format_rfc3339, format_t_star};
-use isochron_shared::ipc::{
+use isochron_config::clock::{format_rfc3339, format_t_star};
+use isochron_runtime::ipc::{
     Activity, Detections, Events, Frames, Ipc, Motion, StreamSubscriber, StreamType,
 };
-use isochron_shared::wire::{
+use isochron_wire::{
     ActivityKind, CameraId, DIRECTION_NONE, EventPhase, FLAG_DISCONTINUITY, FLAG_END_OF_STREAM,
     FLAG_ILLUMINATION, Preamble, Stream, StreamHeader,
 };
@@ -122,7 +122,7 @@ fn tap<S: StreamType>(
                 started.elapsed().as_secs_f64(),
                 args.count.map(|n| format!(" of {n}")).unwrap_or_default()
             );
-            return Ok(ExitCode::from(isochron_shared::exit::TEMPFAIL as u8));
+            return Ok(ExitCode::from(isochron_exit::TEMPFAIL as u8));
         }
         subscriber.wait(Duration::from_millis(100));
     }
@@ -180,7 +180,7 @@ fn merge(mut base: Value, extra: Value) -> Value {
 }
 
 fn describe_frame(
-    h: &isochron_shared::wire::FrameHeader,
+    h: &isochron_wire::FrameHeader,
     pixels: &[u8],
     (text, json): (String, Value),
 ) -> Line {
@@ -215,8 +215,8 @@ pub fn crc32(bytes: &[u8]) -> u32 {
 }
 
 fn describe_motion(
-    h: &isochron_shared::wire::MotionHeader,
-    blocks: &[isochron_shared::wire::BlockMotion],
+    h: &isochron_wire::MotionHeader,
+    blocks: &[isochron_wire::BlockMotion],
     (text, json): (String, Value),
 ) -> Line {
     let moving = blocks.iter().filter(|b| b.density > 0.0).count();
@@ -242,8 +242,8 @@ fn describe_motion(
 }
 
 fn describe_activity(
-    h: &isochron_shared::wire::ActivityHeader,
-    blocks: &[isochron_shared::wire::BlockActivity],
+    h: &isochron_wire::ActivityHeader,
+    blocks: &[isochron_wire::BlockActivity],
     (text, json): (String, Value),
 ) -> Line {
     let s1: f32 = blocks.iter().map(|b| b.s1).sum();
@@ -270,7 +270,7 @@ fn describe_activity(
 }
 
 fn describe_event(
-    h: &isochron_shared::wire::EventHeader,
+    h: &isochron_wire::EventHeader,
     blocks: &[u32],
     (text, json): (String, Value),
 ) -> Line {
@@ -318,8 +318,8 @@ fn describe_event(
 }
 
 fn describe_detections(
-    h: &isochron_shared::wire::DetectionHeader,
-    dets: &[isochron_shared::wire::Detection],
+    h: &isochron_wire::DetectionHeader,
+    dets: &[isochron_wire::Detection],
     (text, json): (String, Value),
 ) -> Line {
     let saved = if h.frames_seen > 0 {

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
-use isochron_shared::ipc::Ipc;
+use isochron_runtime::ipc::Ipc;
 
 use crate::common::load_config;
 use crate::launch::{Supervisor, group_specs};

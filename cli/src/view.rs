@@ -13,7 +13,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::bail;
-use isochron_shared::ipc::Ipc;
+use isochron_runtime::ipc::Ipc;
 use isochron_view::Context;
 use isochron_view::channels::SiteChannels;
 use isochron_view::follow::Streams;
@@ -68,7 +68,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         eprintln!("isochron view: listening on {addr}, reachable from the network");
     }
     // Until Ctrl-C or SIGTERM.
-    isochron_shared::stage::run(&ipc, "", &mut stage, &inputs)?;
+    isochron_runtime::stage::run(&ipc, "", &mut stage, &inputs)?;
     stage.finish()?;
     Ok(ExitCode::SUCCESS)
 }

@@ -34,10 +34,10 @@ pub struct DdsError {
     pub detail: String,
 }
 
-impl isochron_shared::exit::Classify for DdsError {
+impl isochron_exit::Classify for DdsError {
     /// DDS did not start (ports, interfaces): the network side is unavailable.
     fn exit_code(&self) -> i32 {
-        isochron_shared::exit::UNAVAILABLE
+        isochron_exit::UNAVAILABLE
     }
 }
 
@@ -49,9 +49,9 @@ pub struct DomainIdError {
     pub value: String,
 }
 
-impl isochron_shared::exit::Classify for DomainIdError {
+impl isochron_exit::Classify for DomainIdError {
     fn exit_code(&self) -> i32 {
-        isochron_shared::exit::CONFIG
+        isochron_exit::CONFIG
     }
 }
 

@@ -11,8 +11,8 @@
 //! least `presence_cost`. For planning, `Cost` is applied unrounded to a
 //! segment's activity `M_p`.
 
-use isochron_shared::config::CostmapConfig;
-use isochron_shared::wire::BlockActivity;
+use isochron_config::CostmapConfig;
+use isochron_wire::BlockActivity;
 
 use crate::grid::MapGrid;
 use crate::raster::{Footprint, NOT_SEEN};
@@ -164,7 +164,7 @@ pub fn compose(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isochron_shared::geometry::BlockGrid;
+    use isochron_wire::geometry::BlockGrid;
 
     fn params() -> CostParams {
         CostParams {

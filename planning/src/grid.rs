@@ -9,7 +9,7 @@
 
 use std::path::{Path, PathBuf};
 
-use isochron_shared::config::{CostmapConfig, LoadedConfig, MAX_GRID_CELLS};
+use isochron_config::{CostmapConfig, LoadedConfig, MAX_GRID_CELLS};
 use serde::Deserialize;
 
 /// A point `[x, y]` in the map frame, metres.
@@ -196,7 +196,7 @@ impl MapGrid {
         };
         for j in j0..=j1 {
             for i in i0..=i1 {
-                if isochron_shared::geometry::point_in_polygon(self.cell_center(i, j), poly) {
+                if isochron_wire::geometry::point_in_polygon(self.cell_center(i, j), poly) {
                     out.push(self.index(i, j));
                 }
             }

@@ -12,7 +12,7 @@
 //! homogeneous `w`; image points with `w ≤ 0` lie on or beyond the horizon of the
 //! floor and have no floor position ([`Homography::apply`] returns `None`).
 
-use isochron_shared::config::{CameraConfig, degenerate_points};
+use isochron_config::{CameraConfig, degenerate_points};
 
 /// A point `[x, y]`.
 pub type Point = [f64; 2];
@@ -438,7 +438,7 @@ mod tests {
     #[test]
     fn the_demo_floor_mapping_matches_the_calibration() {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/demo.toml");
-        let loaded = isochron_shared::config::Config::load(&path).unwrap();
+        let loaded = isochron_config::Config::load(&path).unwrap();
         let cam = &loaded.config.cameras[0];
         let (h, rms) = Homography::of_camera(cam).unwrap().unwrap();
         assert!(rms < 0.25, "rms {rms} m at the calibration points");

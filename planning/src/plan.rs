@@ -22,10 +22,10 @@
 
 use std::collections::BTreeMap;
 
-use isochron_shared::clock::MINUTES_PER_DAY;
-use isochron_shared::config::{CameraConfig, RouteConfig, SegmentConfig};
-use isochron_shared::geometry::{BlockGrid, point_in_polygon};
-use isochron_shared::store::Model;
+use isochron_config::clock::MINUTES_PER_DAY;
+use isochron_config::{CameraConfig, RouteConfig, SegmentConfig};
+use isochron_store::Model;
+use isochron_wire::geometry::{BlockGrid, point_in_polygon};
 
 use crate::cost::CostParams;
 use crate::homography::Homography;
@@ -469,7 +469,7 @@ pub fn plan_now(
 /// cameras with live data (`live[k]`: camera `k`'s latest activity per block).
 pub fn segment_now(
     segment: &SegmentBlocks,
-    live: &[Option<&[isochron_shared::wire::BlockActivity]>],
+    live: &[Option<&[isochron_wire::BlockActivity]>],
     params: &CostParams,
 ) -> Option<f64> {
     let (mut sum, mut n) = (0.0, 0usize);
@@ -495,9 +495,9 @@ pub fn store_block_grid(model: &Model) -> BlockGrid {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isochron_shared::clock::Cycle;
-    use isochron_shared::store::{Bin, StoreMeta};
-    use isochron_shared::wire::BlockActivity;
+    use isochron_config::clock::Cycle;
+    use isochron_store::{Bin, StoreMeta};
+    use isochron_wire::BlockActivity;
 
     fn params() -> CostParams {
         CostParams {

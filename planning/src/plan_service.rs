@@ -18,8 +18,8 @@ use iceoryx2::port::server::Server;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::PortFactory as _;
 use iceoryx2::service::port_factory::request_response::PortFactory;
-use isochron_shared::ipc::{Ipc, Ipc2, IpcError};
-use isochron_shared::wire::{WireError, fixed_str, to_fixed};
+use isochron_runtime::ipc::{Ipc, Ipc2, IpcError};
+use isochron_wire::{WireError, fixed_str, to_fixed};
 
 use crate::plan::{CurvePoint, DayRange, OfflinePlan, RouteNow, Window};
 use crate::query::{

@@ -7,11 +7,11 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use isochron_shared::clock::Cycle;
-use isochron_shared::config::{CostmapConfig, LoadedConfig, RouteConfig};
-use isochron_shared::geometry::BlockGrid;
-use isochron_shared::store::{Model, Store, StoreError, store_path};
-use isochron_shared::wire::BlockActivity;
+use isochron_config::clock::Cycle;
+use isochron_config::{CostmapConfig, LoadedConfig, RouteConfig};
+use isochron_store::{Model, Store, StoreError, store_path};
+use isochron_wire::BlockActivity;
+use isochron_wire::geometry::BlockGrid;
 
 use crate::cost::{CostParams, Layer, compose};
 use crate::grid::MapGrid;
@@ -403,8 +403,8 @@ fn listed<'a>(names: impl Iterator<Item = &'a str>) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isochron_shared::config::Config;
-    use isochron_shared::store::StoreMeta;
+    use isochron_config::Config;
+    use isochron_store::StoreMeta;
 
     /// A site with one camera looking straight down at a 4 m × 3 m floor
     /// (80 px per metre), a 320×240 frame in 16 px blocks (20×15), and a

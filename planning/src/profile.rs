@@ -6,7 +6,7 @@
 //! `M_p(t*)` ([`crate::plan::SegmentProfile`]), `isochron store export` and
 //! `isochron plot daily` (all blocks of a camera, one block, or a segment).
 
-use isochron_shared::store::Model;
+use isochron_store::Model;
 
 /// One bin of a profile.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -68,9 +68,9 @@ pub fn daily_profile(blocks: &[(&Model, &[u32])], bins: usize) -> Vec<ProfilePoi
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isochron_shared::clock::Cycle;
-    use isochron_shared::geometry::BlockGrid;
-    use isochron_shared::store::{Bin, StoreMeta};
+    use isochron_config::clock::Cycle;
+    use isochron_store::{Bin, StoreMeta};
+    use isochron_wire::geometry::BlockGrid;
 
     fn model(cycle: Cycle, t: u32, count: u32, mean: Vec<f32>, var: Vec<f32>) -> Model {
         let meta = StoreMeta::new("c", BlockGrid::new(32, 32, 16), cycle, 0);

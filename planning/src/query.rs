@@ -4,16 +4,16 @@
 //! foreign client read them.
 //!
 //! They share the magic and layout version of the stream headers
-//! (`isochron_shared::wire`), so a foreign or outdated peer is refused with the same
+//! (`isochron_wire`), so a foreign or outdated peer is refused with the same
 //! [`WireError`], and are pinned by `#[type_name]` for iceoryx2's type check.
 
 use iceoryx2::prelude::ZeroCopySend;
-use isochron_shared::u32_enum;
-use isochron_shared::wire::{LAYOUT_VERSION, MAGIC, WireError, check_layout, fixed_str, to_fixed};
+use isochron_wire::u32_enum;
+use isochron_wire::{LAYOUT_VERSION, MAGIC, WireError, check_layout, fixed_str, to_fixed};
 
 /// Longest route or segment name in planning requests and responses, bytes (the
 /// same limit the site config puts on route and segment names).
-pub use isochron_shared::wire::PLAN_NAME_LEN;
+pub use isochron_wire::PLAN_NAME_LEN;
 /// Most routes one planning request may name.
 pub const PLAN_MAX_ROUTES: usize = 16;
 /// Most points of an off-line cost curve (one per minute of the day).

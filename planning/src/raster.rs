@@ -7,8 +7,8 @@
 //! footprints never overlap or leave gaps. Cells behind the camera or beyond the
 //! horizon, outside the frame, or in a masked block are not seen by the camera.
 
-use isochron_shared::config::Polygon;
-use isochron_shared::geometry::BlockGrid;
+use isochron_config::Polygon;
+use isochron_wire::geometry::BlockGrid;
 
 use crate::grid::MapGrid;
 use crate::homography::Homography;

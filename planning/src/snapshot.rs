@@ -22,7 +22,7 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use isochron_shared::config::{CameraConfig, LoadedConfig};
+use isochron_config::{CameraConfig, LoadedConfig};
 
 use crate::font;
 use crate::grid::{MapGrid, pgm_header};

@@ -4,8 +4,8 @@
 
 use std::path::Path;
 
+use isochron_config::{Config, ConfigError};
 use isochron_planning::grid::MapGrid;
-use isochron_shared::config::{Config, ConfigError};
 
 /// One camera looking straight down at a 4 m × 3 m floor, with a zone.
 const CAMERA: &str = concat!(

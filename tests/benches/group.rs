@@ -68,17 +68,17 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use isochron_shared::clock::wall_now_ns;
-use isochron_shared::health::quantile;
-use isochron_shared::ipc::{
+use isochron_config::clock::wall_now_ns;
+use isochron_runtime::health::quantile;
+use isochron_runtime::ipc::{
     Activity, Detections, Events, Ipc, StatusSubscriber, StreamSubscriber, StreamType,
 };
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{EventPhase, StageStatus, StreamHeader};
+use isochron_runtime::topology::StageKind;
 use isochron_tests::{
     Proc, TestSite, bench_args, bench_count, bench_options, bench_secs, bin, clock_ticks_per_s,
     cpu_ticks, repo_root, vtest,
 };
+use isochron_wire::{EventPhase, StageStatus, StreamHeader};
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 use opencv::videoio;
@@ -872,7 +872,7 @@ fn run_group(opts: &Options, mode: Mode, n: usize, video: &Path) -> Run {
 /// Removes what iceoryx2 nodes of dead processes left in shared memory (a killed
 /// process cannot clean up), so that the next run's baseline is clean.
 fn remove_stale_nodes() {
-    match isochron_shared::ipc::node_census(true) {
+    match isochron_runtime::ipc::node_census(true) {
         Ok(census) if !census.dead_removed.is_empty() => eprintln!(
             "group: removed the stale resources of {} dead iceoryx2 node(s)",
             census.dead_removed.len()
@@ -1014,7 +1014,7 @@ struct Probe {
 
 impl Probe {
     fn open(ipc: &Ipc, cameras: &[String]) -> Result<Probe, String> {
-        fn each<S: isochron_shared::ipc::StreamType>(
+        fn each<S: isochron_runtime::ipc::StreamType>(
             ipc: &Ipc,
             cameras: &[String],
         ) -> Result<Vec<StreamSubscriber<S>>, String> {
@@ -1710,7 +1710,7 @@ fn main() {
     };
     // Hundreds of iceoryx2 services in the bench and in the processes it starts
     // (children inherit the limit).
-    isochron_shared::service::raise_open_file_limit();
+    isochron_runtime::service::raise_open_file_limit();
     catch_interrupts();
 
     print_header(&opts, &codec);

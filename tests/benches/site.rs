@@ -36,19 +36,17 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use isochron_config::DEFAULT_LINK_NAMESPACE;
+use isochron_config::clock::{NS_PER_S, wall_now_ns};
 use isochron_link::dds::{LinkDds, Publisher};
 use isochron_link::msgs::{Message, cdr_len};
-use isochron_shared::clock::{NS_PER_S, wall_now_ns};
-use isochron_shared::config::DEFAULT_LINK_NAMESPACE;
-use isochron_shared::ipc::{Activity, Ipc};
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{
-    ActivityHeader, BlockActivity, CameraId, Preamble, StageStatus, Stream,
-};
+use isochron_runtime::ipc::{Activity, Ipc};
+use isochron_runtime::topology::StageKind;
 use isochron_tests::{
     Proc, TestSite, bench_args, bench_count, bench_options, bench_secs, bin, clock_ticks_per_s,
     cpu_ticks,
 };
+use isochron_wire::{ActivityHeader, BlockActivity, CameraId, Preamble, StageStatus, Stream};
 
 /// Cameras per simulated base station.
 const PER_BOX: usize = 48;

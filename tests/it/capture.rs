@@ -2,10 +2,10 @@
 
 use std::time::Duration;
 
-use isochron_shared::clock::{NS_PER_S, parse_rfc3339};
-use isochron_shared::ipc::Frames;
-use isochron_shared::wire::{CameraId, FrameHeader, MAGIC, Preamble, Stream};
+use isochron_config::clock::{NS_PER_S, parse_rfc3339};
+use isochron_runtime::ipc::Frames;
 use isochron_tests::{Proc, TestSite, VTEST_FRAMES, bin, eventually, read_samples, vtest};
+use isochron_wire::{CameraId, FrameHeader, MAGIC, Preamble, Stream};
 use opencv::prelude::*;
 use opencv::{imgproc, videoio};
 

@@ -6,17 +6,17 @@ use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use isochron_shared::clock::{Cycle, NS_PER_S, parse_rfc3339};
-use isochron_shared::config::Config;
-use isochron_shared::geometry::BlockGrid;
-use isochron_shared::ipc::{Activity, Ipc, Motion, StreamPublisher};
-use isochron_shared::names::ServiceNames;
-use isochron_shared::rng::Lcg;
-use isochron_shared::store::{Store, StoreMeta, store_path};
-use isochron_shared::wire::{
+use fastrand::Rng as Lcg;
+use isochron_config::Config;
+use isochron_config::clock::{Cycle, NS_PER_S, parse_rfc3339};
+use isochron_runtime::ipc::{Activity, Ipc, Motion, StreamPublisher};
+use isochron_runtime::names::ServiceNames;
+use isochron_store::{Store, StoreMeta, store_path};
+use isochron_tests::{Proc, TestSite, bin, eventually, read_samples};
+use isochron_wire::geometry::BlockGrid;
+use isochron_wire::{
     ActivityHeader, BlockMotion, CameraId, FLAG_END_OF_STREAM, MotionHeader, Preamble, Stream,
 };
-use isochron_tests::{Proc, TestSite, bin, eventually, read_samples};
 
 /// The office hallway of the paper's figure: activity from 6 am, a lull at lunch, the
 /// busiest time at 4:30 pm, quiet after 9 pm.
@@ -383,7 +383,7 @@ fn killing_the_cascade_at_random_moments_loses_at_most_the_minute_in_progress() 
     let observer = Observer::start(&out.join("synth.toml"));
     let store = store_path(&out, "cam01");
     let seed = std::process::id() as u64;
-    let mut rng = Lcg(seed);
+    let mut rng = Lcg::with_seed(seed);
     let mut kills = 0;
     let mut worst_lag = 0;
     // Activity seen when the current cascade process was started, and how many
@@ -402,9 +402,9 @@ fn killing_the_cascade_at_random_moments_loses_at_most_the_minute_in_progress() 
             .unwrap_or_else(|| panic!("the cascade produces nothing:\n{}", synth.stderr()));
         }
         let wait = if starting {
-            0.3 * rng.next_f64()
+            0.3 * rng.f64()
         } else {
-            0.2 + 1.3 * rng.next_f64()
+            0.2 + 1.3 * rng.f64()
         };
         std::thread::sleep(Duration::from_secs_f64(wait));
         if synth.wait(Duration::ZERO).is_some() {

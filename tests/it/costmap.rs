@@ -12,14 +12,14 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicU16, Ordering};
 use std::time::{Duration, Instant};
 
-use isochron_shared::clock::{Cycle, NS_PER_S, parse_rfc3339, wall_now_ns};
-use isochron_shared::geometry::BlockGrid;
-use isochron_shared::ipc::{Activity, Detections, Ipc, StreamPublisher};
-use isochron_shared::store::{Store, StoreMeta, store_path};
-use isochron_shared::wire::{
+use isochron_config::clock::{Cycle, NS_PER_S, parse_rfc3339, wall_now_ns};
+use isochron_runtime::ipc::{Activity, Detections, Ipc, StreamPublisher};
+use isochron_store::{Store, StoreMeta, store_path};
+use isochron_tests::{NetnsPair, Proc, TestSite, bin, json_list, repo_root, venv_python};
+use isochron_wire::geometry::BlockGrid;
+use isochron_wire::{
     ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader, Preamble, Stream,
 };
-use isochron_tests::{NetnsPair, Proc, TestSite, bin, json_list, repo_root, venv_python};
 use serde_json::Value;
 
 /// The frame: 320×240 in 16-px blocks (20×15).

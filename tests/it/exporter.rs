@@ -16,7 +16,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use isochron_shared::service::raise_open_file_limit;
+use isochron_runtime::service::raise_open_file_limit;
 use isochron_tests::{Proc, TestSite, bin, eventually, free_port, repo_root, vtest};
 
 /// `GET path` on 127.0.0.1:`port` with `accept`: the response's head and body.

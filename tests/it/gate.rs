@@ -3,15 +3,15 @@
 
 use std::time::{Duration, Instant};
 
-use isochron_shared::clock::NS_PER_S;
-use isochron_shared::ipc::{
+use isochron_config::clock::NS_PER_S;
+use isochron_runtime::ipc::{
     Activity, Detections, Events, Frames, Ipc, StreamPublisher, StreamSubscriber,
 };
-use isochron_shared::wire::{
+use isochron_tests::{Proc, TestSite, eventually};
+use isochron_wire::{
     ActivityHeader, BlockActivity, CameraId, EventPhase, FLAG_END_OF_STREAM, FrameHeader,
     PixelFormat, Preamble, Stream,
 };
-use isochron_tests::{Proc, TestSite, eventually};
 
 const BLOCK_PX: u32 = 16;
 

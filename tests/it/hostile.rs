@@ -11,9 +11,9 @@
 
 use std::time::{Duration, Instant};
 
-use isochron_shared::ipc::{Events, Ipc, StreamSubscriber};
-use isochron_shared::wire::LAYOUT_VERSION;
+use isochron_runtime::ipc::{Events, Ipc, StreamSubscriber};
 use isochron_tests::{Proc, TestSite, repo_root, rss_bytes};
+use isochron_wire::LAYOUT_VERSION;
 use serde_json::Value;
 
 use crate::costmap::{
@@ -625,7 +625,7 @@ fn secured_boxes_exchange_activity_and_ignore_an_unauthenticated_participant() {
     );
     let ipc_b = site_b.ipc("probe");
     let detections_b = ipc_b
-        .subscriber::<isochron_shared::ipc::Detections>("cam01")
+        .subscriber::<isochron_runtime::ipc::Detections>("cam01")
         .unwrap();
     let hot = expected_cells(true);
     let mut last_feed: Option<Instant> = None;

@@ -35,7 +35,7 @@ fn replay_of_a_truncated_file_writes_everything_flags_it_and_exits_65() {
     let run = replay(&site, &video);
     assert_eq!(
         run.status.code(),
-        Some(isochron_shared::exit::DATA),
+        Some(isochron_exit::DATA),
         "stdout:\n{}\nstderr:\n{}",
         run.stdout,
         run.stderr

@@ -19,14 +19,14 @@
 
 use std::time::{Duration, Instant};
 
-use isochron_shared::clock::{NS_PER_S, parse_rfc3339, wall_now_ns};
-use isochron_shared::health::detail_value;
-use isochron_shared::ipc::{Activity, Detections, Events, Ipc, StreamSubscriber};
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{
+use isochron_config::clock::{NS_PER_S, parse_rfc3339, wall_now_ns};
+use isochron_runtime::health::detail_value;
+use isochron_runtime::ipc::{Activity, Detections, Events, Ipc, StreamSubscriber};
+use isochron_runtime::topology::StageKind;
+use isochron_tests::{NetnsPair, Proc, TestSite, bin, eventually, repo_root};
+use isochron_wire::{
     CameraId, Detection, DetectionHeader, EventHeader, Preamble, Stream, fixed_str, to_fixed,
 };
-use isochron_tests::{NetnsPair, Proc, TestSite, bin, eventually, repo_root};
 
 use crate::costmap::{
     HOT_BLOCK, HOT_S1, Source, camera_toml, costmap_toml, dds_domain, expected_cells, held_grid,

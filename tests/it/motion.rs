@@ -4,16 +4,16 @@
 
 use std::time::{Duration, Instant};
 
+use isochron_config::MotionConfig;
+use isochron_config::clock::{NS_PER_S, parse_rfc3339};
 use isochron_motion::eval::{GroundTruth, Score};
 use isochron_motion::kernel::Geometry;
-use isochron_shared::clock::{NS_PER_S, parse_rfc3339};
-use isochron_shared::config::MotionConfig;
-use isochron_shared::ipc::{Frames, Motion, StreamPublisher};
-use isochron_shared::wire::{
+use isochron_runtime::ipc::{Frames, Motion, StreamPublisher};
+use isochron_tests::{TestSite, VTEST_FRAMES, eventually, read_samples, repo_root};
+use isochron_wire::{
     BlockMotion, CameraId, DIRECTION_NONE, FLAG_DISCONTINUITY, FLAG_END_OF_STREAM, FrameHeader,
     MAGIC, MotionHeader, PixelFormat, Preamble, Stream,
 };
-use isochron_tests::{TestSite, VTEST_FRAMES, eventually, read_samples, repo_root};
 
 const START: &str = "2026-03-02T07:00:00Z";
 
@@ -29,7 +29,7 @@ struct Received {
 
 /// Reads motion samples until end of stream (inclusive) or `timeout`.
 fn read_until_end_of_stream(
-    motion: &isochron_shared::ipc::StreamSubscriber<Motion>,
+    motion: &isochron_runtime::ipc::StreamSubscriber<Motion>,
     timeout: Duration,
 ) -> (Vec<Received>, bool) {
     let mut out = Vec::new();
@@ -195,7 +195,7 @@ impl Feeder {
         let bytes = (w * h) as usize * format.channels();
         let mut preamble = Preamble::new::<u8>(Stream::Frames, cam(), seq, bytes);
         preamble.capture_time_ns = 1_000 + seq as i64;
-        preamble.origin_wall_ns = isochron_shared::clock::wall_now_ns();
+        preamble.origin_wall_ns = isochron_config::clock::wall_now_ns();
         FrameHeader {
             preamble,
             width: w,

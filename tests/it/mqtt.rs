@@ -20,12 +20,10 @@ use std::sync::mpsc::{Receiver, channel};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use isochron_shared::clock::wall_now_ns;
-use isochron_shared::ipc::Events;
-use isochron_shared::wire::{
-    ActivityKind, CameraId, EventHeader, EventPhase, Preamble, Stream, to_fixed,
-};
+use isochron_config::clock::wall_now_ns;
+use isochron_runtime::ipc::Events;
 use isochron_tests::{Proc, TestSite, bin, eventually, free_port, vtest};
+use isochron_wire::{ActivityKind, CameraId, EventHeader, EventPhase, Preamble, Stream, to_fixed};
 use rumqttc::{Client, Event, Incoming, MqttOptions, QoS};
 use serde_json::Value;
 

@@ -14,8 +14,8 @@
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use isochron_shared::clock::parse_rfc3339;
-use isochron_shared::ipc::Detections;
+use isochron_config::clock::parse_rfc3339;
+use isochron_runtime::ipc::Detections;
 use isochron_tests::{TestSite, repo_root, setup_file};
 use serde_json::{Value, json};
 

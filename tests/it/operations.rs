@@ -13,12 +13,12 @@
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
-use isochron_shared::ipc::{Activity, Events, Frames, Ipc, Motion, StatusSubscriber};
-use isochron_shared::ipc::{StreamSubscriber, StreamType, node_census};
-use isochron_shared::store::{Store, store_path};
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{CameraId, FrameHeader, MAGIC, PixelFormat, Preamble, Stream};
+use isochron_runtime::ipc::{Activity, Events, Frames, Ipc, Motion, StatusSubscriber};
+use isochron_runtime::ipc::{StreamSubscriber, StreamType, node_census};
+use isochron_runtime::topology::StageKind;
+use isochron_store::{Store, store_path};
 use isochron_tests::{Proc, TestSite, eventually, pid_in};
+use isochron_wire::{CameraId, FrameHeader, MAGIC, PixelFormat, Preamble, Stream};
 
 fn up(site: &TestSite, watchdog_s: &str) -> Proc {
     site.up(&["--watchdog-s", watchdog_s])
@@ -226,7 +226,7 @@ fn a_subscriber_that_stops_reading_does_not_slow_its_publisher() {
 }
 
 /// A malformed frames sample: wrong magic, or a header that lies about its size.
-fn send_garbage(publisher: &mut isochron_shared::ipc::StreamPublisher<Frames>, n: u64) {
+fn send_garbage(publisher: &mut isochron_runtime::ipc::StreamPublisher<Frames>, n: u64) {
     let camera = CameraId::new("cam01").unwrap();
     let pixels = vec![9u8; 64 * 48];
     for i in 0..n {
@@ -285,7 +285,7 @@ fn a_foreign_publisher_of_malformed_samples_does_not_crash_consumers() {
     }
 }
 
-fn status_of(ipc: &Ipc, stage: StageKind) -> Option<isochron_shared::wire::StageStatus> {
+fn status_of(ipc: &Ipc, stage: StageKind) -> Option<isochron_wire::StageStatus> {
     let sub: StatusSubscriber = ipc.status_subscriber("cam01", stage).ok()?;
     eventually(Duration::from_secs(8), || {
         sub.latest().filter(|s| s.rejected > 0)

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use isochron_shared::topology::StageKind;
+use isochron_runtime::topology::StageKind;
 use isochron_tests::{Proc, bin, repo_root};
 
 /// Every binary of a site: the CLI and each stage's binary.

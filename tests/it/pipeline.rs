@@ -172,9 +172,9 @@ fn an_empty_scene_raises_one_event_per_interval_of_motion_and_none_elsewhere() {
         (LENGTH_S * FPS) as u64
     );
     let events = read_jsonl(&site.path("out/events.jsonl"));
-    let start = isochron_shared::clock::parse_rfc3339("2026-03-02T07:00:00Z").unwrap();
+    let start = isochron_config::clock::parse_rfc3339("2026-03-02T07:00:00Z").unwrap();
     let seconds = |v: &Value| {
-        (isochron_shared::clock::parse_rfc3339(v.as_str().unwrap()).unwrap() - start) as f64 / 1e9
+        (isochron_config::clock::parse_rfc3339(v.as_str().unwrap()).unwrap() - start) as f64 / 1e9
     };
     println!(
         "events: {:?}",

@@ -467,7 +467,7 @@ fn replay_on(site: &TestSite, video: &Path, cells: &[(usize, usize)]) -> Replaye
     Replayed {
         events: read_jsonl(&out.join("events.jsonl")),
         seconds,
-        start_ns: isochron_shared::clock::parse_rfc3339(start).unwrap(),
+        start_ns: isochron_config::clock::parse_rfc3339(start).unwrap(),
     }
 }
 

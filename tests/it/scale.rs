@@ -4,10 +4,10 @@
 
 use std::time::{Duration, Instant};
 
-use isochron_shared::health::exit;
-use isochron_shared::ipc::{Motion, StreamSubscriber, node_census};
-use isochron_shared::wire::{CameraId, Stream};
+use isochron_runtime::health::exit;
+use isochron_runtime::ipc::{Motion, StreamSubscriber, node_census};
 use isochron_tests::{TestSite, VTEST_FRAMES, eventually, vtest};
+use isochron_wire::{CameraId, Stream};
 
 const START: &str = "2026-03-02T07:00:00Z";
 

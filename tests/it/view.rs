@@ -845,9 +845,9 @@ fn a_recorder_whose_disk_fills_closes_the_file_cleanly() {
 /// A store of `camera` (320×240 in 16-px blocks): the top half of the view busy
 /// from 08:00 to 18:00 (0.04), the bottom half a little (0.01), nights unlearned.
 fn heat_store(path: &Path, camera: &str) {
-    use isochron_shared::clock::Cycle;
-    use isochron_shared::geometry::BlockGrid;
-    use isochron_shared::store::{Store, StoreMeta};
+    use isochron_config::clock::Cycle;
+    use isochron_store::{Store, StoreMeta};
+    use isochron_wire::geometry::BlockGrid;
     let meta = StoreMeta::new(camera, BlockGrid::new(320, 240, 16), Cycle::Daily, 0);
     let mut store = Store::open_or_create(path, &meta).unwrap();
     for t in 6 * 60..20 * 60 {
@@ -1015,13 +1015,13 @@ fn a_snapshot_at_a_time_of_day_draws_what_the_long_term_model_expects() {
     assert!(rows.iter().flatten().all(|&c| c <= 0));
     assert_eq!(quiet["cells_seen"], busy["cells_seen"]);
 
-    // Bad --at: one line, the usage exit code (shared/src/exit.rs).
+    // Bad --at: one line, the usage exit code (crates/exit/src/lib.rs).
     let out = site.path("bad.png");
     let done = snapshot_at("25:00", out.to_str().unwrap());
     assert_usage_error(&done, "--at: expected a time of day HH:MM");
 }
 
-/// A usage error: exit 64 (shared/src/exit.rs) and one line that says `expect`.
+/// A usage error: exit 64 (crates/exit/src/lib.rs) and one line that says `expect`.
 fn assert_usage_error(done: &isochron_tests::Finished, expect: &str) {
     assert_eq!(done.status.code(), Some(64), "{}", done.stderr);
     assert_eq!(done.stderr.lines().count(), 1, "{}", done.stderr);
@@ -1030,9 +1030,9 @@ fn assert_usage_error(done: &isochron_tests::Finished, expect: &str) {
 
 #[test]
 fn a_snapshot_of_a_weekly_store_draws_the_day_asked_for() {
-    use isochron_shared::clock::Cycle;
-    use isochron_shared::geometry::BlockGrid;
-    use isochron_shared::store::{Store, StoreMeta, store_path};
+    use isochron_config::clock::Cycle;
+    use isochron_store::{Store, StoreMeta, store_path};
+    use isochron_wire::geometry::BlockGrid;
     let site = TestSite::new(
         "snapshot-day",
         &format!("[cascade]\ncycle = \"weekly\"\n\n{SNAPSHOT_SITE}"),

@@ -27,14 +27,14 @@ use foxglove::messages::{
     TextPrimitive, Timestamp, Vector2, Vector3,
 };
 use foxglove::{Channel, Context};
+use isochron_config::{LoadedConfig, ViewConfig};
 use isochron_planning::cost::{CostParams, Layer, compose};
 use isochron_planning::grid::MapGrid;
 use isochron_planning::homography::Homography;
 use isochron_planning::raster::Footprint;
-use isochron_shared::config::{LoadedConfig, ViewConfig};
-use isochron_shared::geometry::BlockGrid;
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{
+use isochron_runtime::topology::StageKind;
+use isochron_wire::geometry::BlockGrid;
+use isochron_wire::{
     ActivityHeader, ActivityKind, BlockActivity, BlockMotion, Detection, DetectionHeader,
     EventHeader, EventPhase, FrameHeader, MotionHeader, PixelFormat, StageStatus, fixed_str,
 };

@@ -6,13 +6,13 @@
 //! `view.frames = true`. Each pipeline service's status is read as
 //! `isochron status` reads it (the newest report, history 1).
 
-use isochron_shared::config::LoadedConfig;
-use isochron_shared::ipc::{
+use isochron_config::LoadedConfig;
+use isochron_runtime::ipc::{
     Activity, Detections, Events, Frames, Ipc, IpcError, Motion, StatusSubscriber, StreamType,
 };
-use isochron_shared::stage::Input;
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::Stream;
+use isochron_runtime::stage::Input;
+use isochron_runtime::topology::StageKind;
+use isochron_wire::Stream;
 
 /// Which streams to follow (the cost map and scene come with `activity`; `status`
 /// is not a stream but every service's status service).

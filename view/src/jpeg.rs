@@ -2,7 +2,7 @@
 
 use image::ColorType;
 use image::codecs::jpeg::JpegEncoder;
-use isochron_shared::wire::PixelFormat;
+use isochron_wire::PixelFormat;
 
 /// The whole factor a `w × h` frame is divided by so that its longer side is at
 /// most `max_px` (1: as it is).

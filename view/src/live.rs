@@ -31,8 +31,8 @@ use std::time::{Duration, Instant};
 
 use foxglove::{Context, WebSocketServer, WebSocketServerHandle};
 use futures_util::{SinkExt, StreamExt};
-use isochron_shared::config::ViewConfig;
-use isochron_shared::stage::Warnings;
+use isochron_config::ViewConfig;
+use isochron_runtime::stage::Warnings;
 use parking_lot::Mutex;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::watch;

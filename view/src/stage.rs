@@ -1,5 +1,5 @@
 //! The view and the recorder as a stage on the stage runtime
-//! ([`isochron_shared::stage`]), `StageKind::View`: the runtime wakes it when a
+//! ([`isochron_runtime::stage`]), `StageKind::View`: the runtime wakes it when a
 //! followed stream has samples, checks and counts every sample, and publishes its
 //! status (`<prefix>/status/view`, so `isochron status` lists it while it runs).
 //!
@@ -17,12 +17,12 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use isochron_shared::config::LoadedConfig;
-use isochron_shared::exit::Fatal;
-use isochron_shared::ipc::{Ipc, IpcError, StreamType};
-use isochron_shared::stage::{Context, Input, Stage, Woken};
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::StreamHeader;
+use isochron_config::LoadedConfig;
+use isochron_exit::Fatal;
+use isochron_runtime::ipc::{Ipc, IpcError, StreamType};
+use isochron_runtime::stage::{Context, Input, Stage, Woken};
+use isochron_runtime::topology::StageKind;
+use isochron_wire::StreamHeader;
 
 use crate::channels::SiteChannels;
 use crate::follow::{StatusReader, Streams, ViewInputs, open_inputs, status_readers};
@@ -80,7 +80,7 @@ pub struct Summary {
 impl ViewStage {
     /// Follows `streams` of `loaded`'s site into `channels` and `sink` (whose
     /// context the channels are on): the stage and its inputs, for
-    /// [`isochron_shared::stage::run`].
+    /// [`isochron_runtime::stage::run`].
     pub fn open(
         ipc: &Ipc,
         loaded: &LoadedConfig,

@@ -12,7 +12,7 @@ pub mod stage;
 
 use std::time::{Duration, Instant};
 
-use isochron_shared::clock::{NS_PER_S, wall_now_ns};
+use isochron_config::clock::{NS_PER_S, wall_now_ns};
 
 /// Assigns capture times to frames.
 #[derive(Debug, Clone)]

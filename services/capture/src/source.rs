@@ -10,8 +10,8 @@ use std::sync::Arc;
 
 use parking_lot::Mutex;
 
-use isochron_shared::config::SourceKind;
-use isochron_shared::wire::PixelFormat;
+use isochron_config::SourceKind;
+use isochron_wire::PixelFormat;
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 use opencv::{imgproc, videoio};
@@ -39,10 +39,10 @@ pub enum SourceError {
     OpenCv(#[from] opencv::Error),
 }
 
-impl isochron_shared::exit::Classify for SourceError {
+impl isochron_exit::Classify for SourceError {
     /// A missing or undecodable file is permanent; a camera may come back.
     fn exit_code(&self) -> i32 {
-        use isochron_shared::exit;
+        use isochron_exit as exit;
         match self {
             SourceError::Missing(_) => exit::NO_INPUT,
             SourceError::Undecodable(_) => exit::DATA,

@@ -4,14 +4,14 @@
 
 use std::time::{Duration, Instant};
 
-use isochron_shared::clock::{format_rfc3339, parse_rfc3339, wall_now_ns};
-use isochron_shared::config::{SourceKind, Speed};
-use isochron_shared::exit::{self, Fatal};
-use isochron_shared::health::{Health, InputCompleteness, notify_ready};
-use isochron_shared::ipc::{Frames, Ipc, StreamPublisher};
-use isochron_shared::service::ServiceContext;
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{
+use isochron_config::clock::{format_rfc3339, parse_rfc3339, wall_now_ns};
+use isochron_config::{SourceKind, Speed};
+use isochron_exit::{self as exit, Fatal};
+use isochron_runtime::health::{Health, InputCompleteness, notify_ready};
+use isochron_runtime::ipc::{Frames, Ipc, StreamPublisher};
+use isochron_runtime::service::ServiceContext;
+use isochron_runtime::topology::StageKind;
+use isochron_wire::{
     CameraId, FLAG_DISCONTINUITY, FLAG_END_OF_STREAM, FrameHeader, Preamble, Stream,
 };
 
@@ -285,7 +285,7 @@ impl Source {
         dst: *mut u8,
         width: u32,
         height: u32,
-        format: isochron_shared::wire::PixelFormat,
+        format: isochron_wire::PixelFormat,
     ) -> Result<ReadOutcome, SourceError> {
         match self {
             // SAFETY: forwarded from the caller.

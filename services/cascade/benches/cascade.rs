@@ -33,11 +33,11 @@ use std::time::{Duration, Instant};
 
 use isochron_cascade::filters::{CascadeBank, Counted, FilterBank, NonCascadeBank, OpCount};
 use isochron_cascade::{Cascade, LongTerm, MemoryModel, Params, SecondOut};
-use isochron_shared::clock::{Cycle, NS_PER_S, SiteClock, parse_rfc3339};
-use isochron_shared::config::Config;
-use isochron_shared::geometry::BlockGrid;
-use isochron_shared::store::{Baseline, Bin, MinuteCommit, Store, StoreMeta, store_path};
-use isochron_shared::wire::{
+use isochron_config::Config;
+use isochron_config::clock::{Cycle, NS_PER_S, SiteClock, parse_rfc3339};
+use isochron_store::{Baseline, Bin, MinuteCommit, Store, StoreMeta, store_path};
+use isochron_wire::geometry::BlockGrid;
+use isochron_wire::{
     APPEARANCE_SCALE, BlockActivity, BlockMotion, CameraId, FLAG_APPEARANCE, MotionHeader,
     Preamble, Stream,
 };

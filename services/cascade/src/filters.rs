@@ -48,7 +48,7 @@ use std::cell::Cell;
 use std::fmt::Debug;
 use std::ops::{Add, AddAssign, Div, Mul, MulAssign, Sub};
 
-use isochron_shared::wire::{BlockActivity, BlockMotion};
+use isochron_wire::{BlockActivity, BlockMotion};
 
 /// The number type the filters compute in: `f32`, or [`Counted`] to count the
 /// operations. State is kept in `T` too (a `Counted` is an `f32` in memory).
@@ -689,7 +689,7 @@ impl RateEstimator {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isochron_shared::rng::Lcg;
+    use fastrand::Rng as Lcg;
 
     fn close(a: f64, b: f64, tol: f64) -> bool {
         (a - b).abs() <= tol
@@ -858,9 +858,9 @@ mod tests {
     fn random_frame(rng: &mut Lcg, blocks: usize) -> Vec<BlockMotion> {
         (0..blocks)
             .map(|_| {
-                let on = rng.next_f32() < 0.3;
-                let d = if on { rng.next_f32() } else { 0.0 };
-                let (ux, uy) = (rng.next_f32() * 2.0 - 1.0, rng.next_f32() * 2.0 - 1.0);
+                let on = rng.f32() < 0.3;
+                let d = if on { rng.f32() } else { 0.0 };
+                let (ux, uy) = (rng.f32() * 2.0 - 1.0, rng.f32() * 2.0 - 1.0);
                 BlockMotion {
                     density: d,
                     dx: d * ux * 0.7,
@@ -874,7 +874,7 @@ mod tests {
     #[test]
     fn cascade_and_non_cascade_banks_agree_and_the_cascade_is_cheaper() {
         let blocks = 37;
-        let mut rng = Lcg(7);
+        let mut rng = Lcg::with_seed(7);
         // Both on the counting number type: each bank's operations are counted as it
         // runs (on this thread, one bank at a time).
         let mut c = CascadeBank::<Counted>::new(blocks);

@@ -43,12 +43,12 @@ use crate::filters::{
     CascadeBank, FilterBank, RateEstimator, SecondInput, alpha, f_l2, warmup_weight,
 };
 use crate::presence::{Presence, PresenceParams, PresenceStats};
-use isochron_shared::clock::{NS_PER_S, SiteClock};
-use isochron_shared::config::{CascadeConfig, Config};
-use isochron_shared::geometry::BlockGrid;
-use isochron_shared::health::quantile;
-use isochron_shared::store::{Baseline, Bin, MinuteCommit, Progress, Store, StoreError};
-use isochron_shared::wire::{
+use isochron_config::clock::{NS_PER_S, SiteClock};
+use isochron_config::{CascadeConfig, Config};
+use isochron_runtime::health::quantile;
+use isochron_store::{Baseline, Bin, MinuteCommit, Progress, Store, StoreError};
+use isochron_wire::geometry::BlockGrid;
+use isochron_wire::{
     ActivityHeader, BlockActivity, BlockMotion, CameraId, MotionHeader, WireError,
 };
 

@@ -47,7 +47,7 @@
 //! ([`Presence::frame`]) and asks for the band once a second
 //! ([`Presence::second`]).
 
-use isochron_shared::wire::{APPEARANCE_SCALE, BlockActivity, BlockMotion, FLAG_APPEARANCE};
+use isochron_wire::{APPEARANCE_SCALE, BlockActivity, BlockMotion, FLAG_APPEARANCE};
 
 use crate::filters::alpha;
 

@@ -1,20 +1,20 @@
 //! The cascade stage: `motion` in, 1-Hz `activity` out, the long-term store
 //! updated once per completed minute — run by the stage runtime
-//! ([`isochron_shared::stage`]).
+//! ([`isochron_runtime::stage`]).
 
 use std::path::PathBuf;
 use std::time::Instant;
 
-use isochron_shared::clock::{SiteClock, wall_now_ns};
-use isochron_shared::config::{CameraConfig, LoadedConfig};
-use isochron_shared::exit::{self, Classify, Fatal};
-use isochron_shared::geometry::BlockGrid;
-use isochron_shared::ipc::{Activity, Ipc, Motion};
-use isochron_shared::service::ServiceContext;
-use isochron_shared::stage::{self, Context, Input, Output, Stage, Woken};
-use isochron_shared::store::{Store, StoreMeta, store_path};
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{CameraId, MotionHeader};
+use isochron_config::clock::{SiteClock, wall_now_ns};
+use isochron_config::{CameraConfig, LoadedConfig};
+use isochron_exit::{self as exit, Classify, Fatal};
+use isochron_runtime::ipc::{Activity, Ipc, Motion};
+use isochron_runtime::service::ServiceContext;
+use isochron_runtime::stage::{self, Context, Input, Output, Stage, Woken};
+use isochron_runtime::topology::StageKind;
+use isochron_store::{Store, StoreMeta, store_path};
+use isochron_wire::geometry::BlockGrid;
+use isochron_wire::{CameraId, MotionHeader};
 
 use crate::{Cascade, Params, PushError, Reject, SecondOut, TimedStore};
 
@@ -23,7 +23,7 @@ use crate::{Cascade, Params, PushError, Reject, SecondOut, TimedStore};
 pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
     let camera = ctx.camera();
     let (mut cascade, motion) = CascadeStage::open(&ctx.ipc, &ctx.config, camera)?;
-    isochron_shared::stage::run(&ctx.ipc, &camera.id, &mut cascade, &motion)
+    isochron_runtime::stage::run(&ctx.ipc, &camera.id, &mut cascade, &motion)
 }
 
 /// Consecutive samples of another grid after which the cascade gives up: motion runs
@@ -36,10 +36,10 @@ pub struct CascadeStage<'ipc> {
     camera_id: CameraId,
     params: Params,
     clock: SiteClock,
-    cycle: isochron_shared::clock::Cycle,
+    cycle: isochron_config::clock::Cycle,
     path: PathBuf,
     store: Option<TimedStore>,
-    resume: Option<isochron_shared::store::Baseline>,
+    resume: Option<isochron_store::Baseline>,
     cascade: Option<Cascade>,
     output: Output<'ipc, Activity>,
     grid_mismatches: u32,
@@ -164,7 +164,7 @@ impl<'ipc> CascadeStage<'ipc> {
     fn on_motion(
         &mut self,
         header: &MotionHeader,
-        blocks: &[isochron_shared::wire::BlockMotion],
+        blocks: &[isochron_wire::BlockMotion],
         cx: &mut Context,
     ) -> Result<(), Fatal> {
         let arrived = Instant::now();
@@ -356,9 +356,9 @@ impl Stage for CascadeStage<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isochron_shared::config::Config;
-    use isochron_shared::stage::{Owned, step};
-    use isochron_shared::wire::{BlockMotion, Preamble, Stream};
+    use isochron_config::Config;
+    use isochron_runtime::stage::{Owned, step};
+    use isochron_wire::{BlockMotion, Preamble, Stream};
 
     fn motion(sequence: u64, (frame_width, frame_height): (u32, u32)) -> Owned<Motion> {
         let grid = BlockGrid::new(frame_width, frame_height, 16);

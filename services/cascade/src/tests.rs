@@ -2,10 +2,10 @@
 
 use super::*;
 use crate::filters::Counted;
-use isochron_shared::clock::{Cycle, parse_rfc3339};
-use isochron_shared::rng::Lcg;
-use isochron_shared::store::{StoreMeta, store_path};
-use isochron_shared::wire::{FLAG_END_OF_STREAM, Preamble, Stream};
+use fastrand::Rng as Lcg;
+use isochron_config::clock::{Cycle, parse_rfc3339};
+use isochron_store::{StoreMeta, store_path};
+use isochron_wire::{FLAG_END_OF_STREAM, Preamble, Stream};
 
 const CAM: &str = "cam01";
 
@@ -265,7 +265,7 @@ fn cascade_and_non_cascade_give_the_same_outputs_on_a_long_random_stream() {
     let (mut mc, mut mn) = (MemoryModel::default(), MemoryModel::default());
     let (mut oc, mut on) = (Vec::new(), Vec::new());
     let mut feed = Feed::new(g);
-    let mut rng = Lcg(42);
+    let mut rng = Lcg::with_seed(42);
     let mut blocks = vec![BlockMotion::default(); k];
     let mut t;
     // Three "days" of 40 minutes each (t* repeats only if we wrap the day, so jump a
@@ -276,15 +276,15 @@ fn cascade_and_non_cascade_give_the_same_outputs_on_a_long_random_stream() {
         let end = t + 40 * 60 * NS_PER_S;
         while t < end {
             // A gap of 20 s now and then, a 3-minute outage once a day.
-            if rng.next_f64() < 0.0005 {
+            if rng.f64() < 0.0005 {
                 t += 20 * NS_PER_S;
             }
-            if rng.next_f64() < 0.0001 {
+            if rng.f64() < 0.0001 {
                 t += 180 * NS_PER_S;
             }
-            if rng.next_f64() < 0.02 {
-                let y = rng.next_f64() * 4.0;
-                people.push((0.0, y, 0.3 + rng.next_f64(), rng.next_f64() - 0.5));
+            if rng.f64() < 0.02 {
+                let y = rng.f64() * 4.0;
+                people.push((0.0, y, 0.3 + rng.f64(), rng.f64() - 0.5));
             }
             blocks.fill(BlockMotion::default());
             for p in &mut people {
@@ -297,8 +297,8 @@ fn cascade_and_non_cascade_give_the_same_outputs_on_a_long_random_stream() {
             }
             people.retain(|p| p.0 < 6.0);
             for b in blocks.iter_mut() {
-                if rng.next_f64() < 0.05 {
-                    b.density = (b.density + rng.next_f64() as f32 * 0.2).min(1.0);
+                if rng.f64() < 0.05 {
+                    b.density = (b.density + rng.f64() as f32 * 0.2).min(1.0);
                 }
             }
             let h = feed.header(t, k);
@@ -307,7 +307,7 @@ fn cascade_and_non_cascade_give_the_same_outputs_on_a_long_random_stream() {
             ops_c += Counted::take().total();
             push(&mut n, &h, &blocks, &mut mn, &mut on);
             ops_n += Counted::take().total();
-            t += (125_000_000.0 * (0.9 + 0.2 * rng.next_f64())) as i64;
+            t += (125_000_000.0 * (0.9 + 0.2 * rng.f64())) as i64;
         }
         let h = feed.end(t);
         push(&mut c, &h, &[], &mut mc, &mut oc);

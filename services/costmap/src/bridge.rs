@@ -6,16 +6,16 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
+use isochron_config::clock::NS_PER_S;
+use isochron_config::{LoadedConfig, Polygon};
 use isochron_planning::cost::{CostParams, Layer, compose};
 use isochron_planning::grid::MapGrid;
 use isochron_planning::homography::{Homography, HomographyError};
 use isochron_planning::planner::LiveCamera;
 use isochron_planning::raster::Footprint;
-use isochron_shared::clock::NS_PER_S;
-use isochron_shared::config::{LoadedConfig, Polygon};
-use isochron_shared::geometry::BlockGrid;
-use isochron_shared::stage::Context;
-use isochron_shared::wire::{
+use isochron_runtime::stage::Context;
+use isochron_wire::geometry::BlockGrid;
+use isochron_wire::{
     ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader, KnownGrid, WireError,
 };
 
@@ -92,9 +92,9 @@ pub enum BridgeError {
     },
 }
 
-impl isochron_shared::exit::Classify for BridgeError {
+impl isochron_exit::Classify for BridgeError {
     fn exit_code(&self) -> i32 {
-        isochron_shared::exit::CONFIG
+        isochron_exit::CONFIG
     }
 }
 
@@ -377,8 +377,8 @@ pub fn count_non_finite(cx: &mut Context, bridge: &Bridge, k: usize, what: &str,
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isochron_shared::config::Config;
-    use isochron_shared::wire::{Preamble, Stream};
+    use isochron_config::Config;
+    use isochron_wire::{Preamble, Stream};
 
     /// The camera of the planning tests, over a 5 m × 4 m grid.
     const SITE: &str = concat!(
@@ -580,7 +580,7 @@ stale_s = 5
         assert_eq!(b.on_detections(0, &dh, &[person, nan, inf]), (1, 2));
 
         // The caller counts them as rejected.
-        let mut cx = Context::new(isochron_shared::topology::StageKind::Costmap, "", None);
+        let mut cx = Context::new(isochron_runtime::topology::StageKind::Costmap, "", None);
         count_non_finite(&mut cx, &b, 0, "activity blocks", 3);
         count_non_finite(&mut cx, &b, 0, "detection boxes", 2);
         count_non_finite(&mut cx, &b, 0, "detection boxes", 0);

@@ -5,9 +5,9 @@
 use std::process::ExitCode;
 
 use isochron_costmap::stage::CostmapStage;
-use isochron_shared::service::main_site_wide;
-use isochron_shared::stage;
-use isochron_shared::topology::StageKind;
+use isochron_runtime::service::main_site_wide;
+use isochron_runtime::stage;
+use isochron_runtime::topology::StageKind;
 
 fn main() -> ExitCode {
     main_site_wide(StageKind::Costmap, |ctx| {

@@ -7,7 +7,7 @@
 //! centres of a route's segments, in order). The first marker deletes what an
 //! earlier array drew, so a republished array replaces the last one.
 
-use isochron_shared::config::{LoadedConfig, SegmentConfig};
+use isochron_config::{LoadedConfig, SegmentConfig};
 
 use crate::bridge::Bridge;
 use crate::msgs::{ColorRGBA, Header, Marker, MarkerArray, Point, Pose, Vector3};

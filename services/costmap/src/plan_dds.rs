@@ -53,7 +53,7 @@ use isochron_planning::query::{
     PLAN_FLAG_INFINITE, PLAN_MAX_ROUTES, PLAN_NAME_LEN, PlanKind, PlanRequest, PlanResponse,
     PlanStatus,
 };
-use isochron_shared::stage::Context;
+use isochron_runtime::stage::Context;
 
 use crate::msgs::{
     CostPoint, PlanNowRequest, PlanNowResponse, PlanOfflineRequest, PlanOfflineResponse, RouteCost,

@@ -41,7 +41,7 @@ use rustdds::{QosPolicies, TopicDescription, policy};
 use isochron_dds::{DdsError, RosNode, keep_last};
 
 use isochron_planning::query::{PlanKind, PlanRequest, PlanResponse};
-use isochron_shared::stage::Context;
+use isochron_runtime::stage::Context;
 
 use crate::msgs::{CostmapFilterInfo, MarkerArray, OccupancyGrid, OccupancyGridUpdate, PoseArray};
 use crate::plan_dds::{PlanCounts, PlanServices};
@@ -101,11 +101,11 @@ pub enum RosError {
     Dds(#[from] DdsError),
 }
 
-impl isochron_shared::exit::Classify for RosError {
+impl isochron_exit::Classify for RosError {
     /// DDS did not start (ports, interfaces, a name it refused): the network side
     /// is unavailable.
     fn exit_code(&self) -> i32 {
-        isochron_shared::exit::UNAVAILABLE
+        isochron_exit::UNAVAILABLE
     }
 }
 

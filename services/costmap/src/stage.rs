@@ -1,24 +1,24 @@
 //! The cost-map stage: `activity` and `detections` of every camera in, the ROS 2
 //! `OccupancyGrid` (+ updates) out, snapshots, and `<prefix>/plan` answered — run
-//! by the stage runtime ([`isochron_shared::stage`]). Runs once per site.
+//! by the stage runtime ([`isochron_runtime::stage`]). Runs once per site.
 
 use std::hash::{Hash, Hasher};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
+use isochron_config::LoadedConfig;
+use isochron_config::clock::{Cycle, NS_PER_S, SiteClock, format_rfc3339, timestamp, wall_now_ns};
 use isochron_dds::{domain_id, limit_dds_logging};
+use isochron_exit::{self as exit, Fatal};
 use isochron_planning::grid::MapGrid;
 use isochron_planning::plan::{DayRange, PlanError};
 use isochron_planning::plan_service::{PlanServer, answer_now, answer_offline};
 use isochron_planning::planner::Planner;
 use isochron_planning::query::{PlanKind, PlanRequest, PlanResponse, PlanStatus};
 use isochron_planning::raster::Footprint;
-use isochron_shared::clock::{Cycle, NS_PER_S, SiteClock, format_rfc3339, timestamp, wall_now_ns};
-use isochron_shared::config::LoadedConfig;
-use isochron_shared::exit::{self, Fatal};
-use isochron_shared::ipc::{Activity, Detections, Ipc};
-use isochron_shared::stage::{Context, Input, Notified, Stage, Warnings, Woken};
-use isochron_shared::topology::StageKind;
+use isochron_runtime::ipc::{Activity, Detections, Ipc};
+use isochron_runtime::stage::{Context, Input, Notified, Stage, Warnings, Woken};
+use isochron_runtime::topology::StageKind;
 
 use crate::bridge::{Bridge, count_non_finite};
 use crate::delta::{DeltaTracker, Output};

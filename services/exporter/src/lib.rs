@@ -7,7 +7,7 @@
 //! within bounds on connections, request size and time; [`stage`] is the
 //! service: a stage on the shared runtime that reads the reports on its timer.
 //!
-//! [`StageStatus`]: isochron_shared::wire::StageStatus
+//! [`StageStatus`]: isochron_wire::StageStatus
 
 pub mod http;
 pub mod metrics;

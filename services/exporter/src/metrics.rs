@@ -10,10 +10,10 @@
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use isochron_shared::clock::wall_now_ns;
-use isochron_shared::health::detail_value;
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{StageStatus, fixed_str};
+use isochron_config::clock::wall_now_ns;
+use isochron_runtime::health::detail_value;
+use isochron_runtime::topology::StageKind;
+use isochron_wire::{StageStatus, fixed_str};
 use prometheus_client::collector::Collector;
 use prometheus_client::encoding::{DescriptorEncoder, NoLabelSet};
 use prometheus_client::metrics::MetricType;
@@ -565,7 +565,7 @@ pub fn classic_text(openmetrics: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isochron_shared::wire::{
+    use isochron_wire::{
         CameraId, LAYOUT_VERSION, MAGIC, STAGE_NAME_LEN, STATUS_DETAIL_LEN, to_fixed,
     };
     use prometheus_client::registry::Registry;

@@ -10,13 +10,13 @@ use std::net::{SocketAddr, TcpListener};
 use std::sync::Arc;
 use std::time::Duration;
 
-use isochron_shared::clock::wall_now_ns;
-use isochron_shared::config::{ExporterConfig, LoadedConfig};
-use isochron_shared::exit::{self, Fatal};
-use isochron_shared::ipc::{Ipc, StatusSubscriber};
-use isochron_shared::service::ServiceContext;
-use isochron_shared::stage::{self, Context, Stage, Woken};
-use isochron_shared::topology::StageKind;
+use isochron_config::clock::wall_now_ns;
+use isochron_config::{ExporterConfig, LoadedConfig};
+use isochron_exit::{self as exit, Fatal};
+use isochron_runtime::ipc::{Ipc, StatusSubscriber};
+use isochron_runtime::service::ServiceContext;
+use isochron_runtime::stage::{self, Context, Stage, Woken};
+use isochron_runtime::topology::StageKind;
 use prometheus_client::registry::Registry;
 
 use crate::http::{HttpMetrics, Limits, Server};

@@ -21,9 +21,9 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Instant;
 
+use isochron_config::Config;
 use isochron_gate::detector::Detector;
 use isochron_gate::worker::Region;
-use isochron_shared::config::Config;
 use isochron_tests::{bin_dir, mjpg_writer, repo_root};
 use opencv::core::Size;
 use opencv::prelude::*;

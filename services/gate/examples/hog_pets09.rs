@@ -21,14 +21,14 @@ use std::collections::BTreeSet;
 use std::path::PathBuf;
 use std::time::Instant;
 
+use isochron_config::{DetectorConfig, MotionConfig};
 use isochron_gate::detector::Detector;
 use isochron_gate::gate::crop_region;
 use isochron_gate::worker::Region;
 use isochron_motion::detector::MotionDetector;
 use isochron_motion::eval::{GroundTruth, PersonBox};
-use isochron_shared::config::{DetectorConfig, MotionConfig};
-use isochron_shared::geometry::BlockGrid;
-use isochron_shared::wire::{BlockMotion, Detection};
+use isochron_wire::geometry::BlockGrid;
+use isochron_wire::{BlockMotion, Detection};
 use opencv::core::Mat;
 use opencv::prelude::*;
 use opencv::{imgproc, videoio};

@@ -15,8 +15,8 @@
 
 use std::path::{Path, PathBuf};
 
-use isochron_shared::config::DetectorConfig;
-use isochron_shared::wire::Detection;
+use isochron_config::DetectorConfig;
+use isochron_wire::Detection;
 use opencv::core::{Mat, Rect, Scalar, Size, Vector};
 use opencv::prelude::*;
 use opencv::{dnn, imgproc, objdetect};
@@ -96,11 +96,11 @@ pub enum DetectorError {
     ThreadDied,
 }
 
-impl isochron_shared::exit::Classify for DetectorError {
+impl isochron_exit::Classify for DetectorError {
     /// A model that cannot be loaded is a configuration error; a thread that
     /// cannot start may start next time.
     fn exit_code(&self) -> i32 {
-        use isochron_shared::exit;
+        use isochron_exit as exit;
         match self {
             DetectorError::Thread(_) | DetectorError::ThreadDied => exit::UNAVAILABLE,
             _ => exit::CONFIG,

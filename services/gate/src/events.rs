@@ -8,7 +8,7 @@
 //! last frame a person was confirmed in ([`EventTracker::extend`]), whichever is
 //! later.
 
-use isochron_shared::wire::ActivityKind;
+use isochron_wire::ActivityKind;
 
 /// One second of activity, as the cascade reported it.
 #[derive(Debug, Clone, Copy, PartialEq)]

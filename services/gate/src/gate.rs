@@ -34,10 +34,10 @@
 
 use std::collections::HashMap;
 
-use isochron_shared::clock::NS_PER_S;
-use isochron_shared::config::{GateConfig, ZoneConfig};
-use isochron_shared::geometry::BlockGrid;
-use isochron_shared::wire::{ActivityHeader, ActivityKind, BlockActivity, Detection, EventPhase};
+use isochron_config::clock::NS_PER_S;
+use isochron_config::{GateConfig, ZoneConfig};
+use isochron_wire::geometry::BlockGrid;
+use isochron_wire::{ActivityHeader, ActivityKind, BlockActivity, Detection, EventPhase};
 
 use crate::events::{Change, Event, EventTracker, Second, threshold};
 use crate::worker::{Job, Region};
@@ -631,7 +631,7 @@ fn schedule(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isochron_shared::wire::{CameraId, Preamble, Stream};
+    use isochron_wire::{CameraId, Preamble, Stream};
 
     const GRID: (u32, u32) = (4, 2); // 64x32 px at 16 px blocks
 
@@ -1075,7 +1075,7 @@ mod tests {
         assert_eq!(crop_region(&grid, &[0, 7], &[], 0), Region::WHOLE, "all");
         // The gate's jobs carry it: moving activity in block 1 only.
         let mut g = gate(GateConfig {
-            detector: isochron_shared::config::DetectorConfig {
+            detector: isochron_config::DetectorConfig {
                 crop_margin_px: 8,
                 ..Default::default()
             },
@@ -1088,7 +1088,7 @@ mod tests {
         assert_eq!((job.region.x, job.region.w), (8, 32));
         // Without the crop: the whole frame.
         let mut g = gate(GateConfig {
-            detector: isochron_shared::config::DetectorConfig {
+            detector: isochron_config::DetectorConfig {
                 crop: false,
                 ..Default::default()
             },

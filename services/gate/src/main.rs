@@ -5,8 +5,8 @@
 use std::process::ExitCode;
 
 use isochron_gate::stage;
-use isochron_shared::service::main_per_camera;
-use isochron_shared::topology::StageKind;
+use isochron_runtime::service::main_per_camera;
+use isochron_runtime::topology::StageKind;
 
 fn main() -> ExitCode {
     main_per_camera(StageKind::Gate, stage::run)

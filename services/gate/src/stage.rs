@@ -1,18 +1,18 @@
 //! The gate stage: `frames` and `activity` in, `events` and `detections` out — run
-//! by the stage runtime ([`isochron_shared::stage`]). Frames go into the ring;
+//! by the stage runtime ([`isochron_runtime::stage`]). Frames go into the ring;
 //! activity drives the event trackers; the detector thread runs on gated frames.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use isochron_shared::clock::NS_PER_S;
-use isochron_shared::config::{CameraConfig, LoadedConfig};
-use isochron_shared::exit::{self, Fatal};
-use isochron_shared::ipc::{Activity, Detections, Events, Frames, Ipc};
-use isochron_shared::service::ServiceContext;
-use isochron_shared::stage::{Context, Input, Output, Received, Stage, Woken};
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{
+use isochron_config::clock::NS_PER_S;
+use isochron_config::{CameraConfig, LoadedConfig};
+use isochron_exit::{self as exit, Fatal};
+use isochron_runtime::ipc::{Activity, Detections, Events, Frames, Ipc};
+use isochron_runtime::service::ServiceContext;
+use isochron_runtime::stage::{Context, Input, Output, Received, Stage, Woken};
+use isochron_runtime::topology::StageKind;
+use isochron_wire::{
     DetectionHeader, EventHeader, EventPhase, PixelFormat, Preamble, ZONE_NAME_LEN, to_fixed,
 };
 use parking_lot::Mutex;
@@ -28,7 +28,7 @@ use crate::worker::{DetectorSlots, Job, Outcome, Report, Worker};
 pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
     let camera = ctx.camera();
     let (mut gate, inputs) = GateStage::open(&ctx.ipc, &ctx.config, camera)?;
-    isochron_shared::stage::run(&ctx.ipc, &camera.id, &mut gate, &inputs)
+    isochron_runtime::stage::run(&ctx.ipc, &camera.id, &mut gate, &inputs)
 }
 
 /// Most detections published for one frame.

@@ -13,7 +13,7 @@ use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, TrySendError, sync_cha
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use isochron_shared::wire::Detection;
+use isochron_wire::Detection;
 use parking_lot::Mutex;
 
 use crate::detector::{Detector, DetectorError};
@@ -427,7 +427,7 @@ mod tests {
         let slots = Arc::new(test_slots("abandon", 1));
         let held = slots.acquire(Some(Duration::ZERO)).expect("the only slot");
         // At upscale 1: a shorter test, and the point is the same.
-        let config = isochron_shared::config::DetectorConfig {
+        let config = isochron_config::DetectorConfig {
             hog_upscale: 1.0,
             ..Default::default()
         };

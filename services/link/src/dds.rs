@@ -18,7 +18,7 @@ use serde::Serialize;
 use serde::de::DeserializeOwned;
 
 use isochron_dds::{DdsError, RosNode, bounded, keep_last};
-use isochron_shared::topology::StageKind;
+use isochron_runtime::topology::StageKind;
 
 use crate::msgs::{Delivery, LinkStream, Message, Status};
 

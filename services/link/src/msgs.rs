@@ -1,6 +1,6 @@
 //! The messages between base stations: `isochron_msgs/msg/Activity`, `Event`,
 //! `Detections` and `Status` (ros/isochron_msgs/msg). Each is the box that sent
-//! it, the iceoryx2 header exactly as `shared/src/wire.rs` lays it out, and the
+//! it, the iceoryx2 header exactly as `crates/wire/src/lib.rs` lays it out, and the
 //! payload: the wire types themselves derive serde, so this file adds no layout
 //! of its own and the crossing loses nothing (sequence, capture and origin times
 //! included). Serialised in field order they are the CDR every ROS 2 middleware
@@ -9,12 +9,10 @@
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
-use isochron_shared::config::{MAX_BOX_ID_LEN, is_ros_token};
-use isochron_shared::geometry::BlockGrid;
-use isochron_shared::ipc::{Activity, Detections, Events, StreamType};
-use isochron_shared::wire::{
-    CameraId, MAX_BLOCKS, MAX_DETECTIONS, StageStatus, StreamHeader, WireError,
-};
+use isochron_config::{MAX_BOX_ID_LEN, is_ros_token};
+use isochron_runtime::ipc::{Activity, Detections, Events, StreamType};
+use isochron_wire::geometry::BlockGrid;
+use isochron_wire::{CameraId, MAX_BLOCKS, MAX_DETECTIONS, StageStatus, StreamHeader, WireError};
 
 /// How a stream crosses: what DDS keeps and what the link's own queues keep.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -191,7 +189,7 @@ fn zeroed_status() -> StageStatus {
         layout_version: 0,
         reserved: 0,
         camera: CameraId::default(),
-        stage: [0; isochron_shared::wire::STAGE_NAME_LEN],
+        stage: [0; isochron_wire::STAGE_NAME_LEN],
         pid: 0,
         rate_in: 0.0,
         started_wall_ns: 0,
@@ -204,7 +202,7 @@ fn zeroed_status() -> StageStatus {
         stage_latency_ms: 0.0,
         e2e_latency_p50_ms: 0.0,
         e2e_latency_p99_ms: 0.0,
-        detail: [0; isochron_shared::wire::STATUS_DETAIL_LEN],
+        detail: [0; isochron_wire::STATUS_DETAIL_LEN],
     }
 }
 
@@ -217,7 +215,7 @@ pub fn cdr_len<M: Serialize>(msg: &M) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isochron_shared::wire::{
+    use isochron_wire::{
         ActivityHeader, BlockActivity, Detection, DetectionHeader, EventHeader, Preamble, Stream,
         to_fixed,
     };
@@ -328,8 +326,8 @@ mod tests {
         assert_eq!((back.header.roi_w, back.payload), (20, vec![person]));
 
         let mut status = StageStatus {
-            magic: isochron_shared::wire::MAGIC,
-            layout_version: isochron_shared::wire::LAYOUT_VERSION,
+            magic: isochron_wire::MAGIC,
+            layout_version: isochron_wire::LAYOUT_VERSION,
             reserved: 0,
             camera: cam(),
             stage: to_fixed("gate"),
@@ -345,7 +343,7 @@ mod tests {
             stage_latency_ms: 8.0,
             e2e_latency_p50_ms: 9.0,
             e2e_latency_p99_ms: 10.0,
-            detail: [0; isochron_shared::wire::STATUS_DETAIL_LEN],
+            detail: [0; isochron_wire::STATUS_DETAIL_LEN],
         };
         status.detail[..5].copy_from_slice(b"a=1 b");
         let back = round_trip(&Status {
@@ -389,7 +387,7 @@ mod tests {
         assert!(Message::<Activity>::max_cdr_len(Some(6)) < 512);
         assert!(
             Message::<Activity>::max_cdr_len(None)
-                >= isochron_shared::wire::MAX_BLOCKS * std::mem::size_of::<BlockActivity>()
+                >= isochron_wire::MAX_BLOCKS * std::mem::size_of::<BlockActivity>()
         );
         assert!(Status::max_cdr_len() < 512);
     }
@@ -432,7 +430,7 @@ mod tests {
                     .filter(|m| !m.header.preamble.is_end_of_stream())
                 {
                     prop_assert_eq!(m.header.block_grid().len(), m.payload.len());
-                    prop_assert!(m.payload.len() <= isochron_shared::wire::MAX_BLOCKS);
+                    prop_assert!(m.payload.len() <= isochron_wire::MAX_BLOCKS);
                 }
             }
         }

@@ -31,15 +31,15 @@ use std::time::{Duration, Instant};
 use ros2_client::WriteError;
 use ros2_client::dds::{Node, Publisher, Subscription};
 
-use isochron_shared::clock::wall_now_ns;
-use isochron_shared::config::LoadedConfig;
-use isochron_shared::exit;
-use isochron_shared::geometry::BlockGrid;
-use isochron_shared::ipc::{Activity, Detections, Events, Ipc, StatusPublisher, StatusSubscriber};
-use isochron_shared::service::{Fatal, open_files, raise_open_file_limit};
-use isochron_shared::stage::{Context, Input, Output, Stage, Woken};
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{CameraId, KnownGrid, StageStatus, StreamHeader, fixed_str};
+use isochron_config::LoadedConfig;
+use isochron_config::clock::wall_now_ns;
+use isochron_exit as exit;
+use isochron_runtime::ipc::{Activity, Detections, Events, Ipc, StatusPublisher, StatusSubscriber};
+use isochron_runtime::service::{Fatal, open_files, raise_open_file_limit};
+use isochron_runtime::stage::{Context, Input, Output, Stage, Woken};
+use isochron_runtime::topology::StageKind;
+use isochron_wire::geometry::BlockGrid;
+use isochron_wire::{CameraId, KnownGrid, StageStatus, StreamHeader, fixed_str};
 
 use crate::dds::LinkDds;
 use crate::msgs::{Delivery, LinkStream, Message, Status, cdr_len, check_box_id, printable};
@@ -701,7 +701,7 @@ impl Stage for LinkStage<'_> {
 
     fn timer(&self) -> Duration {
         if self.imports.is_empty() && self.exports.is_empty() {
-            isochron_shared::stage::IDLE_TICK
+            isochron_runtime::stage::IDLE_TICK
         } else {
             POLL
         }
@@ -738,7 +738,7 @@ impl Stage for LinkStage<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isochron_shared::wire::{LAYOUT_VERSION, MAGIC, STATUS_DETAIL_LEN};
+    use isochron_wire::{LAYOUT_VERSION, MAGIC, STATUS_DETAIL_LEN};
 
     #[test]
     fn a_relayed_status_is_as_fresh_as_its_arrival_and_owned_by_the_link() {
@@ -747,7 +747,7 @@ mod tests {
             layout_version: LAYOUT_VERSION,
             reserved: 0,
             camera: CameraId::new("cam01").unwrap(),
-            stage: isochron_shared::wire::to_fixed("gate"),
+            stage: isochron_wire::to_fixed("gate"),
             pid: 1,
             rate_in: 1.0,
             started_wall_ns: 1,

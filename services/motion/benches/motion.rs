@@ -35,7 +35,7 @@ use std::path::PathBuf;
 
 use isochron_motion::detector::{MotionDetector, MotionParams};
 use isochron_motion::kernel::{Geometry, Implementation};
-use isochron_shared::wire::BlockMotion;
+use isochron_wire::BlockMotion;
 use opencv::core::{Mat, Ptr, Size};
 use opencv::prelude::*;
 use opencv::{core, imgproc, video, videoio};

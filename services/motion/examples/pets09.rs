@@ -7,10 +7,10 @@
 
 use std::path::PathBuf;
 
+use isochron_config::{MotionBackend, MotionConfig};
 use isochron_motion::detector::MotionDetector;
 use isochron_motion::eval::{GroundTruth, Score};
-use isochron_shared::config::{MotionBackend, MotionConfig};
-use isochron_shared::wire::BlockMotion;
+use isochron_wire::BlockMotion;
 use opencv::core::Mat;
 use opencv::prelude::*;
 use opencv::{imgproc, videoio};

@@ -23,7 +23,7 @@
 //! x86-64, once more with AVX2 enabled and chosen at run time; the same code runs
 //! on ARM. [`reference`] is the per-pixel specification.
 
-use isochron_shared::wire::{APPEARANCE_SCALE, BlockMotion};
+use isochron_wire::{APPEARANCE_SCALE, BlockMotion};
 
 use crate::kernel::Geometry;
 

@@ -27,8 +27,8 @@
 
 use std::mem::MaybeUninit;
 
-use isochron_shared::config::{MotionBackend, MotionConfig, Polygon};
-use isochron_shared::wire::{BlockMotion, DIRECTION_NONE, FLAG_APPEARANCE, FLAG_ILLUMINATION};
+use isochron_config::{MotionBackend, MotionConfig, Polygon};
+use isochron_wire::{BlockMotion, DIRECTION_NONE, FLAG_APPEARANCE, FLAG_ILLUMINATION};
 
 use crate::appearance::{Appearance, AppearanceSampler};
 use crate::dis::DisFlow;
@@ -340,7 +340,7 @@ impl MotionDetector {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isochron_shared::wire::FLAG_ILLUMINATION;
+    use isochron_wire::FLAG_ILLUMINATION;
 
     /// A smooth random texture, isotropic at block scale: a sum of 8 sinusoids
     /// (wavelengths 12–28 px) with random orientations and phases, values in

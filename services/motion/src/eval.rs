@@ -18,7 +18,7 @@
 
 use std::collections::HashMap;
 
-use isochron_shared::wire::BlockMotion;
+use isochron_wire::BlockMotion;
 
 use crate::kernel::Geometry;
 

@@ -19,7 +19,7 @@
 //!   every filter (an average of angles is wrong at the wrap-around); the label is
 //!   derived last.
 
-use isochron_shared::wire::{BlockMotion, DIRECTION_NONE};
+use isochron_wire::{BlockMotion, DIRECTION_NONE};
 
 use crate::kernel::{BlockSums, GRADIENT_SATURATION};
 

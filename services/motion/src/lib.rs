@@ -19,8 +19,8 @@
 //!
 //! ```
 //! use isochron_motion::detector::MotionDetector;
-//! use isochron_shared::config::MotionConfig;
-//! use isochron_shared::wire::BlockMotion;
+//! use isochron_config::MotionConfig;
+//! use isochron_wire::BlockMotion;
 //!
 //! let (w, h) = (64, 48);
 //! let mut detector = MotionDetector::new(&MotionConfig::default(), w, h, &[]).unwrap();

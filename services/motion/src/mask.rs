@@ -3,7 +3,7 @@
 //! even-odd rule, union over the polygons) lie inside a mask polygon; masked blocks
 //! are never computed and always report zero motion.
 
-use isochron_shared::config::Polygon;
+use isochron_config::Polygon;
 
 use crate::kernel::Geometry;
 

@@ -6,7 +6,7 @@
 //! sequence number that does not increase (the publisher restarted) and a change of
 //! frame size all start a new run: no motion sample, the frame is only remembered.
 
-use isochron_shared::wire::{FLAG_DISCONTINUITY, FrameHeader};
+use isochron_wire::{FLAG_DISCONTINUITY, FrameHeader};
 
 /// What the service needs to know about a frame to pair it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

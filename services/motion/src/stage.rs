@@ -1,15 +1,15 @@
 //! The motion stage: `frames` in, per-block `motion` out, one sample per frame pair,
-//! run by the stage runtime ([`isochron_shared::stage`]).
+//! run by the stage runtime ([`isochron_runtime::stage`]).
 
 use std::time::Instant;
 
-use isochron_shared::config::{CameraConfig, MotionConfig, Polygon};
-use isochron_shared::exit::{self, Fatal};
-use isochron_shared::ipc::{Frames, Ipc, Motion};
-use isochron_shared::service::ServiceContext;
-use isochron_shared::stage::{self, Context, Input, Output, Received, SendError, Stage, Woken};
-use isochron_shared::topology::StageKind;
-use isochron_shared::wire::{FLAG_ILLUMINATION, FrameHeader, MotionHeader, PixelFormat};
+use isochron_config::{CameraConfig, MotionConfig, Polygon};
+use isochron_exit::{self as exit, Fatal};
+use isochron_runtime::ipc::{Frames, Ipc, Motion};
+use isochron_runtime::service::ServiceContext;
+use isochron_runtime::stage::{self, Context, Input, Output, Received, SendError, Stage, Woken};
+use isochron_runtime::topology::StageKind;
+use isochron_wire::{FLAG_ILLUMINATION, FrameHeader, MotionHeader, PixelFormat};
 
 use crate::detector::MotionDetector;
 use crate::pairing::{FrameInfo, Pairing, pair};
@@ -19,7 +19,7 @@ use crate::pairing::{FrameInfo, Pairing, pair};
 pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
     let camera = ctx.camera();
     let (mut motion, frames) = MotionStage::open(&ctx.ipc, camera, &ctx.config.config.motion)?;
-    isochron_shared::stage::run(&ctx.ipc, &camera.id, &mut motion, &frames)
+    isochron_runtime::stage::run(&ctx.ipc, &camera.id, &mut motion, &frames)
 }
 
 /// The motion stage of one camera: the previous frame, the detector for the current
@@ -270,9 +270,9 @@ mod tests {
     use super::*;
     use std::path::Path;
 
-    use isochron_shared::config::Config;
-    use isochron_shared::stage::{Owned, Queue, step};
-    use isochron_shared::wire::{CameraId, FLAG_END_OF_STREAM, Preamble, Stream};
+    use isochron_config::Config;
+    use isochron_runtime::stage::{Owned, Queue, step};
+    use isochron_wire::{CameraId, FLAG_END_OF_STREAM, Preamble, Stream};
 
     fn frame(sequence: u64, index: u64, fill: impl Fn(usize, usize) -> u8) -> Owned<Frames> {
         let (w, h) = (128usize, 64usize);

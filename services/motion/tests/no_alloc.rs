@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use isochron_motion::detector::{MotionDetector, MotionParams};
 use isochron_motion::kernel::{Geometry, Implementation};
-use isochron_shared::wire::BlockMotion;
+use isochron_wire::BlockMotion;
 
 /// The system allocator, counting allocations.
 struct Counting;

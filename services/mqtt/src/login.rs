@@ -6,7 +6,7 @@
 use std::fmt;
 use std::path::Path;
 
-use isochron_shared::config::{Invalid, MqttConfig};
+use isochron_config::{Invalid, MqttConfig};
 
 use crate::tls::{resolve, warn_if_readable_by_others};
 

@@ -5,8 +5,8 @@
 use std::process::ExitCode;
 
 use isochron_mqtt::stage;
-use isochron_shared::service::main_site_wide;
-use isochron_shared::topology::StageKind;
+use isochron_runtime::service::main_site_wide;
+use isochron_runtime::topology::StageKind;
 
 fn main() -> ExitCode {
     main_site_wide(StageKind::Mqtt, stage::run)

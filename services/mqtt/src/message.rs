@@ -1,8 +1,8 @@
 //! What the sink publishes: the topics, and the JSON of a zone event record or a
 //! detections sample (the schema the README documents). Pure: no I/O.
 
-use isochron_shared::clock::format_rfc3339;
-use isochron_shared::wire::{ActivityKind, Detection, DetectionHeader, EventHeader, EventPhase};
+use isochron_config::clock::format_rfc3339;
+use isochron_wire::{ActivityKind, Detection, DetectionHeader, EventHeader, EventPhase};
 use serde_json::{Value, json};
 
 /// The topics of one site: `<prefix>/<site>/status` and, per camera,
@@ -113,7 +113,7 @@ pub fn detections_json(camera: &str, h: &DetectionHeader, found: &[Detection]) -
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isochron_shared::wire::{CameraId, Preamble, Stream, ZONE_NAME_LEN, to_fixed};
+    use isochron_wire::{CameraId, Preamble, Stream, ZONE_NAME_LEN, to_fixed};
 
     #[test]
     fn topics() {

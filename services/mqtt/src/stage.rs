@@ -11,13 +11,13 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use isochron_shared::config::LoadedConfig;
-use isochron_shared::exit::{self, Fatal};
-use isochron_shared::health::LatencyWindow;
-use isochron_shared::ipc::{Detections, Events, Ipc};
-use isochron_shared::service::ServiceContext;
-use isochron_shared::stage::{self, Context, Input, Stage, Woken};
-use isochron_shared::topology::StageKind;
+use isochron_config::LoadedConfig;
+use isochron_exit::{self as exit, Fatal};
+use isochron_runtime::health::LatencyWindow;
+use isochron_runtime::ipc::{Detections, Events, Ipc};
+use isochron_runtime::service::ServiceContext;
+use isochron_runtime::stage::{self, Context, Input, Stage, Woken};
+use isochron_runtime::topology::StageKind;
 
 use crate::client::{self, Settings, Shared};
 use crate::message::{Topics, detections_json, event_json, implausible_event};

@@ -2,7 +2,7 @@
 //! with motion, stay, leave; light changes; ghosts.
 
 use super::*;
-use isochron_shared::wire::{APPEARANCE_SCALE, BlockMotion, FLAG_APPEARANCE};
+use isochron_wire::{APPEARANCE_SCALE, BlockMotion, FLAG_APPEARANCE};
 
 const W: usize = 12;
 const H: usize = 8;

@@ -2,7 +2,7 @@
 //! motion-pixel test and a block's sums (the definition is in the
 //! [`kernel`](super) module documentation).
 
-use isochron_shared::geometry::BlockGrid;
+use isochron_wire::geometry::BlockGrid;
 
 /// Lanes of one chunk: a 16-pixel block row, one 256-bit register of `i16`.
 pub const LANES: usize = 16;

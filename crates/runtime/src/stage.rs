@@ -34,12 +34,12 @@ use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
 
-use crate::exit::Fatal;
 use crate::health::{Health, notify_ready};
 use crate::ipc::{Ipc, Ipc2, IpcError, ReceivedSample, StreamPublisher, StreamSubscriber};
 use crate::ipc::{StreamType, stop_requested_by};
 use crate::topology::StageKind;
-use crate::wire::{CameraId, FLAG_END_OF_STREAM, Preamble, StreamHeader};
+use isochron_exit::Fatal;
+use isochron_wire::{CameraId, FLAG_END_OF_STREAM, Preamble, StreamHeader};
 
 /// The longest the loop sleeps when nothing arrives: health reports and the
 /// watchdog tick at least this often.
@@ -716,7 +716,7 @@ impl Warnings {
 mod tests {
     use super::*;
     use crate::ipc::Detections;
-    use crate::wire::{Detection, DetectionHeader, Stream};
+    use isochron_wire::{Detection, DetectionHeader, Stream};
 
     /// A detections sample of cam01 numbered `sequence` (of `camera` if given).
     fn sample(sequence: u64, camera: &str) -> Owned<Detections> {

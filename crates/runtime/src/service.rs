@@ -4,12 +4,12 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use crate::config::{CameraConfig, Config, LoadedConfig};
-use crate::exit;
 use crate::ipc::Ipc;
 use crate::topology::StageKind;
+use isochron_config::{CameraConfig, Config, LoadedConfig};
+use isochron_exit as exit;
 
-pub use crate::exit::Fatal;
+pub use isochron_exit::Fatal;
 
 /// The started service: its config, its camera (if per-camera) and its node.
 pub struct ServiceContext {

@@ -89,69 +89,45 @@ impl<E: Classify> From<E> for Fatal {
 #[error("{0}")]
 pub struct UsageError(pub String);
 
-/// `Classify` for errors that always end with the same code.
-macro_rules! always {
+impl Classify for UsageError {
+    fn exit_code(&self) -> i32 {
+        USAGE
+    }
+}
+
+/// `Classify` for error types that always end with the same code, for the
+/// libraries that define them: `always_exits_with!(CONFIG: ConfigError, ...);`.
+#[macro_export]
+macro_rules! always_exits_with {
     ($($code:ident: $($error:ty),+;)+) => {$($(
-        impl Classify for $error {
+        impl $crate::Classify for $error {
             fn exit_code(&self) -> i32 {
-                $code
+                $crate::$code
             }
         }
     )+)+};
 }
 
-always! {
-    USAGE: UsageError;
-    UNAVAILABLE: crate::ipc::IpcError;
-    DATA: crate::wire::WireError;
-    CONFIG: crate::config::ConfigError, crate::config::UnknownCamera;
-}
-
 /// The exit code of a command that failed with `error` and the errors it was
 /// caused by (context layers of `anyhow` and the like): the code of the first
-/// one this module classifies, else [`FAILURE`].
+/// one that is a [`Fatal`], a [`UsageError`] or that `classify` knows (the
+/// libraries' error types), else [`FAILURE`].
 pub fn code_of_chain<'a>(
     chain: impl IntoIterator<Item = &'a (dyn std::error::Error + 'static)>,
+    classify: impl Fn(&(dyn std::error::Error + 'static)) -> Option<i32>,
 ) -> i32 {
     chain
         .into_iter()
         .find_map(|e| {
-            use crate::config::{ConfigError, UnknownCamera};
-            if let Some(e) = e.downcast_ref::<ConfigError>() {
-                Some(e.exit_code())
-            } else if let Some(e) = e.downcast_ref::<UsageError>() {
-                Some(e.exit_code())
-            } else if let Some(e) = e.downcast_ref::<UnknownCamera>() {
-                Some(e.exit_code())
-            } else if let Some(e) = e.downcast_ref::<crate::store::StoreError>() {
-                Some(e.exit_code())
-            } else if let Some(e) = e.downcast_ref::<crate::wire::WireError>() {
-                Some(e.exit_code())
-            } else if let Some(e) = e.downcast_ref::<Fatal>() {
-                Some(e.code)
+            if let Some(f) = e.downcast_ref::<Fatal>() {
+                Some(f.code)
+            } else if let Some(u) = e.downcast_ref::<UsageError>() {
+                Some(u.exit_code())
             } else {
-                e.downcast_ref::<crate::ipc::IpcError>()
-                    .map(Classify::exit_code)
+                classify(e)
             }
         })
         .unwrap_or(FAILURE)
-}
-
-impl Classify for crate::store::StoreError {
-    /// Foreign, damaged or mismatched files are permanent (restarting cannot
-    /// help); I/O may pass.
-    fn exit_code(&self) -> i32 {
-        use crate::store::StoreError as E;
-        match self {
-            E::Damaged { .. } | E::NotSqlite { .. } => DATA,
-            E::Foreign { .. }
-            | E::Version { .. }
-            | E::Camera { .. }
-            | E::Grid { .. }
-            | E::Cycle { .. } => CONFIG,
-            E::Io { .. } | E::NotFound { .. } | E::ReadOnly { .. } => UNAVAILABLE,
-        }
-    }
 }
 
 #[cfg(test)]
@@ -166,36 +142,35 @@ mod tests {
         assert!(!is_permanent(UNAVAILABLE));
     }
 
+    #[derive(Debug, thiserror::Error)]
+    #[error("the disk is gone")]
+    struct Gone;
+    always_exits_with!(UNAVAILABLE: Gone;);
+
     #[test]
     fn a_chain_takes_the_code_of_its_first_known_error() {
-        let config = crate::config::ConfigError {
-            file: "site.toml".into(),
-            line: Some(3),
-            key: Some("camera[0].fps".into()),
-            message: "expected a number > 0".into(),
-        };
         let io = std::io::Error::other("x");
-        let chain: Vec<&(dyn std::error::Error + 'static)> = vec![&io, &config];
-        assert_eq!(code_of_chain(chain), CONFIG);
+        let none = |_: &(dyn std::error::Error + 'static)| None;
         let chain: Vec<&(dyn std::error::Error + 'static)> = vec![&io];
-        assert_eq!(code_of_chain(chain), FAILURE);
+        assert_eq!(code_of_chain(chain, none), FAILURE);
         let usage = UsageError("--at: expected HH:MM".into());
-        let chain: Vec<&(dyn std::error::Error + 'static)> = vec![&usage];
-        assert_eq!(code_of_chain(chain), USAGE);
+        let chain: Vec<&(dyn std::error::Error + 'static)> = vec![&io, &usage];
+        assert_eq!(code_of_chain(chain, none), USAGE);
+        let chain: Vec<&(dyn std::error::Error + 'static)> = vec![&io, &Gone];
+        let known = |e: &(dyn std::error::Error + 'static)| {
+            e.downcast_ref::<Gone>().map(Classify::exit_code)
+        };
+        assert_eq!(code_of_chain(chain, known), UNAVAILABLE);
     }
 
     #[test]
     fn library_errors_become_fatal_with_their_code() {
-        let e = crate::ipc::IpcError {
-            context: "opening".into(),
-            detail: "x".into(),
-        };
-        let f: Fatal = e.into();
+        let f: Fatal = Gone.into();
         assert_eq!(f.code, UNAVAILABLE);
-        assert_eq!(f.message, "iceoryx2: opening: x");
+        assert_eq!(f.message, "the disk is gone");
         assert_eq!(
             f.context("camera 'a'").message,
-            "camera 'a': iceoryx2: opening: x"
+            "camera 'a': the disk is gone"
         );
     }
 }

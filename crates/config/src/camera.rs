@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::{Invalid, check_at_least, check_polygon, check_range};
-use crate::wire::{PixelFormat, is_valid_camera_id};
+use isochron_wire::{PixelFormat, is_valid_camera_id};
 
 /// Playback speed of a file source.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -359,7 +359,7 @@ impl CameraConfig {
         }
         for (j, zone) in self.zones.iter().enumerate() {
             let zkey = format!("camera[{i}].zone[{j}]");
-            if zone.name.is_empty() || zone.name.len() > crate::wire::ZONE_NAME_LEN {
+            if zone.name.is_empty() || zone.name.len() > isochron_wire::ZONE_NAME_LEN {
                 return Err(Invalid::new(
                     format!("{zkey}.name"),
                     "expected a name of 1 to 32 bytes",

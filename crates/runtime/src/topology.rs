@@ -4,7 +4,7 @@
 //! The launcher (`isochron up`), `isochron replay`, health reports and node names
 //! take their stage names from here instead of string literals.
 
-use crate::wire::Stream;
+use isochron_wire::Stream;
 
 /// One service of the process group.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]

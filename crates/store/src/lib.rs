@@ -47,8 +47,8 @@ use std::time::Duration;
 
 use rusqlite::{Connection, ErrorCode, OpenFlags, OptionalExtension, TransactionBehavior, params};
 
-use crate::clock::{Cycle, format_rfc3339};
-use crate::geometry::BlockGrid;
+use isochron_config::clock::{Cycle, format_rfc3339};
+use isochron_wire::geometry::BlockGrid;
 
 /// File name suffix of a store: `<camera>.isochron.sqlite`.
 pub const FILE_SUFFIX: &str = ".isochron.sqlite";
@@ -1086,10 +1086,28 @@ fn sql_err(path: &Path, e: rusqlite::Error) -> StoreError {
     }
 }
 
+impl isochron_exit::Classify for StoreError {
+    /// Foreign, damaged or mismatched files are permanent (restarting cannot
+    /// help); I/O may pass.
+    fn exit_code(&self) -> i32 {
+        use StoreError as E;
+        use isochron_exit::{CONFIG, DATA, UNAVAILABLE};
+        match self {
+            E::Damaged { .. } | E::NotSqlite { .. } => DATA,
+            E::Foreign { .. }
+            | E::Version { .. }
+            | E::Camera { .. }
+            | E::Grid { .. }
+            | E::Cycle { .. } => CONFIG,
+            E::Io { .. } | E::NotFound { .. } | E::ReadOnly { .. } => UNAVAILABLE,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::exit::Classify;
+    use isochron_exit::Classify;
 
     /// Commits one minute, which must succeed.
     fn commit(store: &mut Store, minute: i64, bin: Option<&Bin>, baseline: Option<&Baseline>) {

@@ -5,14 +5,14 @@ use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, OnceLock, Weak};
 use std::time::{Duration, Instant};
 
-use crate::clock::wall_now_ns;
 use crate::ipc::{Ipc, StatusPublisher};
 use crate::topology::StageKind;
-use crate::wire::{
+use isochron_config::clock::wall_now_ns;
+use isochron_wire::{
     CameraId, LAYOUT_VERSION, MAGIC, STAGE_NAME_LEN, STATUS_DETAIL_LEN, StageStatus, to_fixed,
 };
 
-pub use crate::exit;
+pub use isochron_exit as exit;
 
 /// Loops that still have to call [`notify_ready`] before the process is ready.
 static READY_PENDING: AtomicUsize = AtomicUsize::new(1);

@@ -18,6 +18,10 @@
 use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
 
+pub mod geometry;
+
+isochron_exit::always_exits_with!(DATA: WireError;);
+
 use crate::geometry::BlockGrid;
 
 /// Magic at the start of every isochron header: the bytes `ISOC`.
@@ -349,8 +353,8 @@ macro_rules! u32_enum {
             pub fn from_field(
                 v: u32,
                 field: &'static str,
-            ) -> Result<$name, $crate::wire::WireError> {
-                $name::from_u32(v).ok_or_else(|| $crate::wire::WireError::Field {
+            ) -> Result<$name, $crate::WireError> {
+                $name::from_u32(v).ok_or_else(|| $crate::WireError::Field {
                     field,
                     reason: format!("unknown value {v}"),
                 })

@@ -321,7 +321,7 @@ pub struct RouteConfig {
 }
 
 /// Longest segment or route name, in bytes (the planning service's fixed width).
-pub const PLAN_NAME_LEN: usize = crate::wire::PLAN_NAME_LEN;
+pub const PLAN_NAME_LEN: usize = isochron_wire::PLAN_NAME_LEN;
 
 /// Most cells of a grid: 1 MB per `OccupancyGrid` message.
 pub const MAX_GRID_CELLS: u64 = 1 << 20;

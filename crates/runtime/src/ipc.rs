@@ -17,6 +17,8 @@
 //!   waits for room, up to `ipc.lossless_timeout_s` per stalled subscriber, so a
 //!   recording runs as fast as the slowest stage and loses nothing.
 
+isochron_exit::always_exits_with!(UNAVAILABLE: IpcError;);
+
 use std::fmt::Debug;
 use std::mem::MaybeUninit;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -37,10 +39,10 @@ use iceoryx2::service::port_factory::event::PortFactory as PortFactoryEvent;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use iceoryx2::waitset::WaitSetRunResult;
 
-use crate::config::{Config, IpcConfig};
 use crate::names::ServiceNames;
 use crate::topology::StageKind;
-use crate::wire::{
+use isochron_config::{Config, IpcConfig};
+use isochron_wire::{
     ActivityHeader, BlockActivity, BlockMotion, Detection, DetectionHeader, EventHeader,
     FrameHeader, MotionHeader, StageStatus, Stream, StreamHeader,
 };

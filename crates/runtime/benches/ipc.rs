@@ -18,10 +18,10 @@ use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use iceoryx2::prelude::*;
-use isochron_shared::config::IpcConfig;
-use isochron_shared::ipc::{Frames, Ipc};
-use isochron_shared::names::ServiceNames;
-use isochron_shared::wire::{CameraId, FrameHeader, PixelFormat, Preamble, Stream};
+use isochron_config::IpcConfig;
+use isochron_runtime::ipc::{Frames, Ipc};
+use isochron_runtime::names::ServiceNames;
+use isochron_wire::{CameraId, FrameHeader, PixelFormat, Preamble, Stream};
 
 /// Frames measured per case (after warm-up).
 const FRAMES: usize = 1000;

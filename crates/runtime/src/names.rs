@@ -5,10 +5,8 @@
 //! tests and replays run side by side without ever meeting.
 
 use crate::topology::StageKind;
-use crate::wire::Stream;
-
-/// The default service prefix.
-pub const DEFAULT_PREFIX: &str = "isochron";
+pub use isochron_config::{DEFAULT_PREFIX, is_valid_prefix};
+use isochron_wire::Stream;
 
 /// Service names under one prefix.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -49,17 +47,6 @@ impl ServiceNames {
     pub fn plan(&self) -> String {
         format!("{}/plan", self.prefix)
     }
-}
-
-/// True if `prefix` can start a service name: non-empty, no leading or trailing `/`,
-/// and only `[A-Za-z0-9_./-]`.
-pub fn is_valid_prefix(prefix: &str) -> bool {
-    !prefix.is_empty()
-        && !prefix.starts_with('/')
-        && !prefix.ends_with('/')
-        && prefix
-            .bytes()
-            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.' | b'/'))
 }
 
 #[cfg(test)]

@@ -108,12 +108,12 @@ impl LinkConfig {
         }
         for (key, list) in [("export", &self.export), ("import", &self.import)] {
             for (i, id) in list.iter().enumerate() {
-                if !is_ros_token(id) || id.len() > crate::wire::CAMERA_ID_LEN {
+                if !is_ros_token(id) || id.len() > isochron_wire::CAMERA_ID_LEN {
                     return Err(Invalid::new(
                         format!("link.{key}[{i}]"),
                         format!(
                             "expected a camera id of 1 to {} letters, digits and '_' not starting with a digit (a ROS 2 name token), found \"{id}\"",
-                            crate::wire::CAMERA_ID_LEN
+                            isochron_wire::CAMERA_ID_LEN
                         ),
                     ));
                 }

@@ -5,7 +5,6 @@ use std::path::PathBuf;
 use serde::{Deserialize, Serialize};
 
 use super::{Invalid, check_range};
-use crate::names::is_valid_prefix;
 
 /// `[site]`: settings for the whole site.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -31,7 +30,7 @@ impl Default for SiteConfig {
         SiteConfig {
             name: "site".into(),
             time_zone: "UTC".into(),
-            service_prefix: crate::names::DEFAULT_PREFIX.into(),
+            service_prefix: DEFAULT_PREFIX.into(),
             state_dir: PathBuf::from("/var/lib/isochron"),
             cameras_per_process: 1,
         }
@@ -62,4 +61,18 @@ impl SiteConfig {
             1024.0,
         )
     }
+}
+
+/// The default service prefix.
+pub const DEFAULT_PREFIX: &str = "isochron";
+
+/// True if `prefix` can start a service name: non-empty, no leading or trailing `/`,
+/// and only `[A-Za-z0-9_./-]`.
+pub fn is_valid_prefix(prefix: &str) -> bool {
+    !prefix.is_empty()
+        && !prefix.starts_with('/')
+        && !prefix.ends_with('/')
+        && prefix
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.' | b'/'))
 }

@@ -12,6 +12,7 @@
 mod camera;
 mod cascade;
 mod check;
+pub mod clock;
 mod costmap;
 mod exporter;
 mod gate;
@@ -24,6 +25,8 @@ mod site;
 #[cfg(test)]
 mod tests;
 mod view;
+
+isochron_exit::always_exits_with!(CONFIG: ConfigError, UnknownCamera;);
 
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -46,7 +49,7 @@ pub use link::{DEFAULT_LINK_NAMESPACE, LinkConfig, MAX_BOX_ID_LEN, is_ros_token}
 pub use motion::{MotionBackend, MotionConfig};
 pub use mqtt::{Broker, DEFAULT_MQTT_PORT, DEFAULT_MQTTS_PORT, MqttConfig, is_topic_level};
 pub use presence::PresenceConfig;
-pub use site::SiteConfig;
+pub use site::{DEFAULT_PREFIX, SiteConfig, is_valid_prefix};
 pub use view::ViewConfig;
 
 /// A configuration error located in its file.
