@@ -86,8 +86,9 @@ fn defaults(mut cargo: Command) -> anyhow::Result<Value> {
         DEFAULTS_EXAMPLE,
         "--message-format=json-render-diagnostics",
     ]);
-    cargo.stdout(Stdio::piped());
+    cargo.stdout(Stdio::piped()).stderr(Stdio::inherit());
     let shown = format!("{cargo:?}");
+    eprintln!("xtask: {shown}");
     let out = cargo.output().with_context(|| format!("running {shown}"))?;
     if !out.status.success() {
         bail!(
