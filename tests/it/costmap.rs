@@ -818,12 +818,12 @@ fn the_bridge_logs_no_error_and_counts_its_subscribers() {
     assert!(errors.is_empty(), "errors logged:\n{}", errors.join("\n"));
 }
 
-/// What the bridge binds with `dds_interfaces = ["127.0.0.1"]`, as the README's
-/// "DDS sockets" paragraph says: RustDDS 0.15 binds every socket to 0.0.0.0 (the
+/// What the bridge binds with `dds_interfaces = ["127.0.0.1"]`, as
+/// docs/security.md's "DDS sockets and interfaces" says: RustDDS 0.15 binds every socket to 0.0.0.0 (the
 /// setting limits what it announces and where it multicasts, not the bind
 /// address), on the RTPS ports of the domain. If this fails because the sockets
 /// are now bound to 127.0.0.1, RustDDS has learnt to bind the configured
-/// interfaces: update the README and docs/ARCHITECTURE.md, and make this test
+/// interfaces: update docs/security.md and docs/ARCHITECTURE.md, and make this test
 /// assert that no socket is on 0.0.0.0.
 #[test]
 fn the_bridge_binds_the_documented_dds_sockets() {
