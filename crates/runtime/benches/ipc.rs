@@ -91,8 +91,9 @@ fn monotonic_ns() -> i64 {
 
 /// User + system CPU time of this process, microseconds.
 fn cpu_us() -> f64 {
-    // SAFETY: getrusage fills the struct.
+    // SAFETY: rusage is plain integers, for which all-zero bytes are a valid value.
     let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: `ru` is a writable rusage and getrusage(2) writes only it.
     unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut ru) };
     let tv = |t: libc::timeval| t.tv_sec as f64 * 1e6 + t.tv_usec as f64;
     tv(ru.ru_utime) + tv(ru.ru_stime)

@@ -115,8 +115,10 @@ fn stderr_is_journal() -> bool {
     let Some(value) = std::env::var_os("JOURNAL_STREAM") else {
         return false;
     };
-    // SAFETY: fstat fills the zeroed struct for a descriptor we only inspect.
+    // SAFETY: stat is plain integers, for which all-zero bytes are a valid value.
     let mut st: libc::stat = unsafe { std::mem::zeroed() };
+    // SAFETY: `st` is a writable stat and fstat(2) writes only it; any descriptor
+    // number is safe to pass (a closed one is an error, EBADF).
     if unsafe { libc::fstat(libc::STDERR_FILENO, &mut st) } != 0 {
         return false;
     }

@@ -277,8 +277,10 @@ fn filesystem_of(path: &Path) -> String {
     let Ok(c_path) = std::ffi::CString::new(path.as_os_str().as_bytes()) else {
         return "unknown".into();
     };
-    // SAFETY: a zeroed statfs is a valid out-parameter; the path is NUL-terminated.
+    // SAFETY: statfs is plain integers, for which all-zero bytes are a valid value.
     let mut st: libc::statfs = unsafe { std::mem::zeroed() };
+    // SAFETY: `c_path` is a NUL-terminated string that outlives the call and `st` a
+    // writable statfs; statfs(2) reads the one and writes only the other.
     if unsafe { libc::statfs(c_path.as_ptr(), &mut st) } != 0 {
         return "unknown".into();
     }
