@@ -13,9 +13,9 @@
 
 use std::collections::HashMap;
 use std::io::IsTerminal;
-use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
+use parking_lot::Mutex;
 use tracing::field::{Field, Visit};
 use tracing_subscriber::EnvFilter;
 use tracing_subscriber::layer::{Context, Layer, SubscriberExt};
@@ -69,7 +69,7 @@ impl LibraryLogLimit {
     /// True if a record of `module` may pass now; the number held back since the
     /// last one that passed, if any.
     fn admit(&self, module: &str, now: Instant) -> (bool, u64) {
-        let mut modules = self.modules.lock().unwrap_or_else(|e| e.into_inner());
+        let mut modules = self.modules.lock();
         let held = modules.entry(module.to_string()).or_default();
         if held.issued >= LOG_BURST && held.last.is_some_and(|t| now - t < LOG_EVERY) {
             held.held_back += 1;

@@ -7,13 +7,14 @@
 //! counter reset. Stage-specific counters come from the status detail
 //! (`key=value` words, see each stage's `detail`), named in [`DETAIL_METRICS`].
 
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Duration;
 
 use isochron_config::clock::wall_now_ns;
 use isochron_runtime::health::detail_value;
 use isochron_runtime::topology::StageKind;
 use isochron_wire::{StageStatus, fixed_str};
+use parking_lot::{Mutex, MutexGuard};
 use prometheus_client::collector::Collector;
 use prometheus_client::encoding::{DescriptorEncoder, NoLabelSet};
 use prometheus_client::metrics::MetricType;
@@ -69,8 +70,8 @@ impl Table {
         (up, services.len())
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, Vec<Service>> {
-        self.services.lock().unwrap_or_else(|e| e.into_inner())
+    fn lock(&self) -> MutexGuard<'_, Vec<Service>> {
+        self.services.lock()
     }
 }
 

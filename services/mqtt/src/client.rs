@@ -23,10 +23,11 @@
 //! unacknowledged publishes, and the outbox sends them again.
 
 use std::collections::VecDeque;
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
+use parking_lot::{Mutex, MutexGuard};
 use rumqttc::{
     ConnectReturnCode, ConnectionError, Disconnect, Event, EventLoop, Incoming, LastWill,
     MqttOptions, Outgoing, Publish, QoS, Request, TlsConfiguration, Transport,
@@ -72,7 +73,7 @@ impl Shared {
 
     /// The outbox.
     pub fn outbox(&self) -> MutexGuard<'_, Outbox> {
-        self.outbox.lock().unwrap_or_else(|e| e.into_inner())
+        self.outbox.lock()
     }
 
     /// Tells the client that messages are waiting.
