@@ -377,7 +377,7 @@ impl Proc {
             .unwrap_or_else(|e| panic!("starting {}: {e}", program.display()));
         let (tx, rx) = channel();
         let out = child.stdout.take().expect("piped stdout");
-        std::thread::spawn(move || {
+        named_thread("stdout-lines", move || {
             for line in BufReader::new(out).lines().map_while(Result::ok) {
                 if tx.send(line).is_err() {
                     break;
@@ -544,6 +544,17 @@ pub fn read_samples<S: StreamType>(
         }
     }
     false
+}
+
+/// Runs `f` on a new thread named `name`: a panic in it, and a debugger, say which.
+pub fn named_thread<T: Send + 'static>(
+    name: &str,
+    f: impl FnOnce() -> T + Send + 'static,
+) -> std::thread::JoinHandle<T> {
+    std::thread::Builder::new()
+        .name(name.to_string())
+        .spawn(f)
+        .unwrap_or_else(|e| panic!("spawning thread {name}: {e}"))
 }
 
 /// Polls `f` every 20 ms until it returns `Some` or `timeout` passes.

@@ -786,7 +786,8 @@ impl ActivityTally {
         let (ready_tx, ready_rx) = mpsc::channel::<anyhow::Result<()>>();
         let (prefix, camera) = (prefix.to_string(), camera.to_string());
         let (e, s, st) = (ended.clone(), seconds.clone(), stop.clone());
-        let thread = std::thread::spawn(move || {
+        let thread = std::thread::Builder::new().name("activity-tally".into());
+        let thread = thread.spawn(move || {
             let opened = Ipc::new(
                 "isochron-synth-activity",
                 ServiceNames::new(&prefix),
@@ -821,7 +822,7 @@ impl ActivityTally {
                     }
                 }
             }
-        });
+        })?;
         ready_rx
             .recv()
             .context("the activity reader thread died")??;

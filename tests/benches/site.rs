@@ -204,15 +204,20 @@ fn activity(box_id: &str, id: &str, second: u64, start_ns: i64) -> Message<Activ
 /// A simulated base station: its link's DDS participant sending its cameras'
 /// activity at 1 Hz, camera `k` at `k / PER_BOX` of each second.
 fn simulated_box(b: usize, cameras: usize, domain: u16, stop: Arc<AtomicBool>) -> JoinHandle<()> {
-    std::thread::spawn(move || {
-        let box_id = format!("box{b}");
-        let lo: [IpAddr; 1] = ["127.0.0.1".parse().unwrap()];
+    let name = format!("box{b}");
+    let thread = std::thread::Builder::new().name(name.clone());
+    let spawned = thread.spawn(move || {
+        let box_id = name;
+        let lo = [IpAddr::V4(std::net::Ipv4Addr::LOCALHOST)];
         let mut dds = LinkDds::start(domain, &lo, (&box_id, None), DEFAULT_LINK_NAMESPACE)
             .unwrap_or_else(|e| panic!("{box_id}: {e}"));
         let ids: Vec<String> = (0..cameras).map(|k| camera_id(b, k)).collect();
         let writers: Vec<_> = ids
             .iter()
-            .map(|id| dds.stream::<Activity, Publisher<_>>(id, 1, None).unwrap())
+            .map(|id| {
+                dds.stream::<Activity, Publisher<_>>(id, 1, None)
+                    .unwrap_or_else(|e| panic!("{box_id}: a writer for {id}: {e}"))
+            })
             .collect();
         let (t0, start_ns) = (Instant::now(), wall_now_ns());
         for second in 0u64.. {
@@ -227,7 +232,8 @@ fn simulated_box(b: usize, cameras: usize, domain: u16, stop: Arc<AtomicBool>) -
                 let _ = writer.publish(activity(&box_id, id, second, start_ns));
             }
         }
-    })
+    });
+    spawned.expect("a thread for a simulated box")
 }
 
 /// The result for one camera count.

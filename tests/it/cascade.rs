@@ -12,7 +12,7 @@ use isochron_config::clock::{Cycle, NS_PER_S, parse_rfc3339};
 use isochron_runtime::ipc::{Activity, Ipc, Motion, StreamPublisher};
 use isochron_runtime::names::ServiceNames;
 use isochron_store::{Store, StoreMeta, store_path};
-use isochron_tests::{Proc, TestSite, bin, eventually, read_samples};
+use isochron_tests::{Proc, TestSite, bin, eventually, named_thread, read_samples};
 use isochron_wire::geometry::BlockGrid;
 use isochron_wire::{
     ActivityHeader, BlockMotion, CameraId, FLAG_END_OF_STREAM, MotionHeader, Preamble, Stream,
@@ -302,7 +302,7 @@ impl Observer {
         );
         let config = config.to_path_buf();
         let (ready_tx, ready_rx) = std::sync::mpsc::channel();
-        let thread = std::thread::spawn(move || {
+        let thread = named_thread("observer", move || {
             let loaded = Config::load(&config).unwrap();
             let ipc = Ipc::new(
                 "test-observer",

@@ -481,7 +481,8 @@ mod tests {
         let held = slots.acquire(Some(Duration::ZERO)).expect("slot");
         let waiter = {
             let slots = slots.clone();
-            std::thread::spawn(move || slots.acquire(None).is_some())
+            let waiter = std::thread::Builder::new().name("waiter".into());
+            waiter.spawn(move || slots.acquire(None).is_some()).unwrap()
         };
         std::thread::sleep(Duration::from_millis(50));
         assert!(!waiter.is_finished(), "it waits while the slot is taken");
