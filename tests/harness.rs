@@ -151,7 +151,9 @@ impl TestSite {
             &format!("[ipc]\nlossless = true\n\n{}", vtest_camera("max", start)),
         );
         let ipc = site.ipc("subscriber");
-        let subscriber = ipc.subscriber::<S>("cam01").unwrap();
+        let subscriber = ipc
+            .subscriber::<S>("cam01")
+            .expect("a subscriber on the test site");
         (site, ipc, subscriber)
     }
 
@@ -235,11 +237,11 @@ impl TestSite {
         self.isochron(
             &[
                 "replay",
-                video.to_str().unwrap(),
+                video.to_str().expect("a UTF-8 video path"),
                 "--out",
-                out.to_str().unwrap(),
+                out.to_str().expect("a UTF-8 output path"),
                 "--config",
-                self.config_path().to_str().unwrap(),
+                self.config_path().to_str().expect("a UTF-8 site directory"),
                 "--start",
                 start,
             ],
@@ -529,11 +531,11 @@ pub fn read_samples<S: StreamType>(
     timeout: Duration,
     mut each: impl FnMut(&S::Header, &[S::Element]) -> bool,
 ) -> bool {
-    let camera = CameraId::new(camera).unwrap();
+    let camera = CameraId::new(camera).unwrap_or_else(|| panic!("not a camera id: {camera:?}"));
     let deadline = Instant::now() + timeout;
     while Instant::now() < deadline {
         subscriber.wait(Duration::from_millis(50));
-        while let Some(sample) = subscriber.receive().unwrap() {
+        while let Some(sample) = subscriber.receive().expect("receiving from the subscriber") {
             let header = sample.user_header();
             header
                 .validate(&camera, sample.payload().len())
@@ -580,14 +582,17 @@ pub fn mjpg_writer(
     use opencv::prelude::*;
     use opencv::videoio::VideoWriter;
     let writer = VideoWriter::new(
-        path.to_str().unwrap(),
-        VideoWriter::fourcc('M', 'J', 'P', 'G').unwrap(),
+        path.to_str().expect("a UTF-8 video path"),
+        VideoWriter::fourcc('M', 'J', 'P', 'G').expect("the MJPG fourcc"),
         fps,
         size,
         true,
     )
-    .unwrap();
-    assert!(writer.is_opened().unwrap(), "OpenCV cannot write MJPG");
+    .unwrap_or_else(|e| panic!("an MJPG writer at {}: {e}", path.display()));
+    assert!(
+        writer.is_opened().unwrap_or(false),
+        "OpenCV cannot write MJPG"
+    );
     writer
 }
 
@@ -596,7 +601,7 @@ pub fn read_jsonl(path: &Path) -> Vec<serde_json::Value> {
     std::fs::read_to_string(path)
         .unwrap_or_default()
         .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{}: {e}: {l}", path.display())))
         .collect()
 }
 

@@ -175,9 +175,9 @@ fn run<B: FilterBank>(
     presence: bool,
     keep: bool,
 ) -> RunResult {
-    let camera = CameraId::new("bench").unwrap();
-    let clock = SiteClock::new("UTC", Cycle::Daily).unwrap();
-    let start = parse_rfc3339("2026-03-02T08:00:00Z").unwrap();
+    let camera = CameraId::new("bench").expect("a valid camera id");
+    let clock = SiteClock::new("UTC", Cycle::Daily).expect("UTC is a time zone");
+    let start = parse_rfc3339("2026-03-02T08:00:00Z").expect("a valid RFC 3339 time");
     let mut params = Params::default();
     params.presence.enabled = presence;
     let mut cascade: Cascade<B> = Cascade::new(camera, params, clock, grid(), None);

@@ -138,7 +138,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // The sampled frames, with the blocks the motion stage saw active in the
     // second before each.
     let mut cap = videoio::VideoCapture::from_file(
-        root.join("data/vtest.avi").to_str().unwrap(),
+        root.join("data/vtest.avi")
+            .to_str()
+            .ok_or("a UTF-8 checkout path")?,
         videoio::CAP_ANY,
     )?;
     let fps = cap.get(videoio::CAP_PROP_FPS)?;
