@@ -104,7 +104,10 @@ fn push<B: FilterBank>(
 
 /// Feeds `seconds` seconds at `fps` starting at `start_ns`, blocks from `f(frame time
 /// in s since start, frame)`.
-#[allow(clippy::too_many_arguments)]
+#[allow(
+    clippy::too_many_arguments,
+    reason = "a test driver: every knob of a run"
+)]
 fn run<B: FilterBank>(
     c: &mut Cascade<B>,
     feed: &mut Feed,

@@ -102,7 +102,7 @@ pub struct DetectorSlots {
 }
 
 /// A running detection's slot, given back when dropped (closing the file unlocks).
-pub struct Slot(#[allow(dead_code)] File);
+pub struct Slot(#[allow(dead_code, reason = "held for its lock, never read")] File);
 
 impl DetectorSlots {
     /// How often a job that waits for a slot tries again.
