@@ -22,8 +22,7 @@ use std::process::Command;
 use std::time::Instant;
 
 use isochron_config::Config;
-use isochron_gate::detector::Detector;
-use isochron_gate::worker::Region;
+use isochron_gate::detector::{Detector, Region};
 use isochron_tests::{bin_dir, mjpg_writer, repo_root};
 use opencv::core::Size;
 use opencv::prelude::*;

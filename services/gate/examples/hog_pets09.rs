@@ -22,9 +22,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use isochron_config::{DetectorConfig, MotionConfig};
-use isochron_gate::detector::Detector;
+use isochron_gate::detector::{Detector, Region};
 use isochron_gate::gate::crop_region;
-use isochron_gate::worker::Region;
 use isochron_motion::detector::MotionDetector;
 use isochron_motion::eval::{GroundTruth, PersonBox};
 use isochron_wire::geometry::BlockGrid;

@@ -21,7 +21,42 @@ use opencv::core::{Mat, Rect, Scalar, Size, Vector};
 use opencv::prelude::*;
 use opencv::{dnn, imgproc, objdetect};
 
-use crate::worker::Region;
+/// A rectangle of the frame, pixels; width 0 means the whole frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Region {
+    /// Left edge.
+    pub x: u32,
+    /// Top edge.
+    pub y: u32,
+    /// Width (0: the whole frame).
+    pub w: u32,
+    /// Height.
+    pub h: u32,
+}
+
+impl Region {
+    /// The whole frame.
+    pub const WHOLE: Region = Region {
+        x: 0,
+        y: 0,
+        w: 0,
+        h: 0,
+    };
+
+    /// True for the whole frame.
+    pub fn is_whole(&self) -> bool {
+        self.w == 0
+    }
+
+    /// True if the point `(x, y)` lies in the region.
+    pub fn contains(&self, x: f32, y: f32) -> bool {
+        self.is_whole()
+            || (x >= self.x as f32
+                && y >= self.y as f32
+                && x <= (self.x + self.w) as f32
+                && y <= (self.y + self.h) as f32)
+    }
+}
 
 /// Fraction of a HOG window's width left and right of the person.
 const HOG_MARGIN_X: f32 = 0.1;

@@ -39,8 +39,9 @@ use isochron_config::{GateConfig, ZoneConfig};
 use isochron_wire::geometry::BlockGrid;
 use isochron_wire::{ActivityHeader, ActivityKind, BlockActivity, Detection, EventPhase};
 
+use crate::detector::Region;
 use crate::events::{Change, Event, EventTracker, Second, threshold};
-use crate::worker::{Job, Region};
+use crate::worker::Job;
 
 /// A block counts as involved in an event when its own activity is at least this.
 pub const BLOCK_ACTIVE: f32 = 0.01;
