@@ -14,7 +14,7 @@ use isochron_planning::profile::daily_profile;
 use isochron_store::Model;
 use plotters::prelude::*;
 
-use crate::plot::Daily;
+use crate::daily::Daily;
 use crate::store::{StoreArgs, open};
 
 /// Most block rows drawn; more blocks are averaged in groups.

@@ -5,6 +5,7 @@
 
 mod common;
 mod costmap;
+mod daily;
 pub mod docs;
 mod doctor;
 mod font;
