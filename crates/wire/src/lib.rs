@@ -14,12 +14,11 @@
 //! also derive serde: serialised in field order they are the CDR of the ROS 2
 //! messages of the same names in `ros/isochron_msgs/msg`, which mirror this crate
 //! field for field (a test in `isochron-link` pins the sizes).
-
 //!
 //! One module per stream (`frame`, `motion`, `activity`, `event`, `detection`,
-//! `status`), the `preamble` they share, the grid checks of the per-block streams
-//! (`blocks`), [`geometry`] and the zero-padded text fields (`fixed`); every type
-//! is re-exported at the crate root.
+//! `status`), their numbers and names (`stream`), the `preamble` they share, the
+//! grid checks of the per-block streams (`blocks`), [`geometry`] and the
+//! zero-padded text fields (`fixed`); every type is re-exported at the crate root.
 
 mod activity;
 mod blocks;
@@ -32,6 +31,7 @@ pub mod geometry;
 mod motion;
 mod preamble;
 mod status;
+mod stream;
 #[cfg(test)]
 mod tests;
 
@@ -43,8 +43,9 @@ pub use event::{ActivityKind, EventHeader, EventPhase, ZONE_NAME_LEN};
 pub use fixed::{fixed_str, to_fixed};
 pub use frame::{FrameHeader, PixelFormat};
 pub use motion::{BlockMotion, DIRECTION_NONE, MotionHeader};
-pub use preamble::{CameraId, Preamble, Stream, check_layout, is_valid_camera_id};
+pub use preamble::{CameraId, Preamble, check_layout, is_valid_camera_id};
 pub use status::{STAGE_NAME_LEN, STATUS_DETAIL_LEN, StageStatus};
+pub use stream::Stream;
 
 isochron_exit::always_exits_with!(DATA: WireError;);
 
