@@ -3,7 +3,7 @@
 //! benchmark in quick mode.
 
 use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Instant;
 
@@ -15,8 +15,9 @@ use crate::{cargo, run};
 pub(crate) const BENCHES: [&str; 6] = ["ipc", "motion", "cascade", "gate", "group", "site"];
 
 /// The checks and tests CI runs, in order.
-pub(crate) fn test() -> anyhow::Result<()> {
+pub(crate) fn test(root: &Path) -> anyhow::Result<()> {
     run(cargo().args(["fmt", "--all", "--", "--check"]))?;
+    crate::structure::check(root)?;
     // Lint and build every target in one pass (clippy --all-targets, but building).
     run(linted_cargo()?.args(["test", "--workspace", "--all-targets", "--no-run"]))?;
     run(linted_cargo()?.args(["build", "--workspace", "--bins"]))?;

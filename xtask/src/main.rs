@@ -1,4 +1,4 @@
-//! Developer tasks: `cargo xtask <setup|demo|test|bench NAME|docs|install|deb>`.
+//! Developer tasks: `cargo xtask <setup|demo|test|structure|bench NAME|docs|install|deb>`.
 //!
 //! * `setup`: installs the system packages isochron builds and tests with
 //!   (Debian/Ubuntu, [`setup::PACKAGES`]) if they are missing, fetches the sample
@@ -7,8 +7,10 @@
 //!   packages into `target/node-peers`, and the Fast DDS test client;
 //! * `demo`: setup, release build, `isochron replay` on the sample video with
 //!   `config/demo.toml`, and a report of what every stage did;
-//! * `test`: setup, format and lint checks, build, every test, then every benchmark
-//!   in quick mode (dev profile), each checked for its closing JSON line;
+//! * `test`: setup, format, structure and lint checks, build, every test, then every
+//!   benchmark in quick mode (dev profile), each checked for its closing JSON line;
+//! * `structure`: no source file over 700 lines but tests, no module cycles
+//!   (`structure.rs`);
 //! * `bench NAME`: setup and one benchmark (motion, cascade, gate, ipc, group);
 //!   `bench NAME --quick`: the same code with few iterations, in the dev profile (no
 //!   release build), checked for its closing JSON line as `test` does;
@@ -35,6 +37,7 @@ mod deb;
 mod demo;
 mod install;
 mod setup;
+mod structure;
 
 use ci::{BENCHES, bench, quick_bench};
 
@@ -50,7 +53,7 @@ fn main() -> anyhow::Result<()> {
         }
         Some("test") => {
             setup::setup(&root)?;
-            ci::test()
+            ci::test(&root)
         }
         Some("bench") => {
             let name = args.get(1).map(String::as_str).unwrap_or("");
@@ -75,10 +78,11 @@ fn main() -> anyhow::Result<()> {
                 .map_or_else(|| root.join("target/docs"), PathBuf::from);
             install::docs(&out, false)
         }
+        Some("structure") => structure::check(&root),
         Some("install") => install::install(&root, &args[1..]),
         Some("deb") => deb::deb(&root, &args[1..]),
         _ => bail!(
-            "usage: cargo xtask <setup|demo|test|bench NAME|docs [OUT]|install [--prefix P] [--destdir D]|deb [--profile dev|release] [--no-build] [--out DIR]>"
+            "usage: cargo xtask <setup|demo|test|structure|bench NAME|docs [OUT]|install [--prefix P] [--destdir D]|deb [--profile dev|release] [--no-build] [--out DIR]>"
         ),
     }
 }
