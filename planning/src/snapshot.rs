@@ -418,6 +418,29 @@ impl Canvas {
     }
 }
 
+/// Left edge of the cost scale and the legend, picture pixels.
+const LEFT: usize = 8;
+
+/// Where things go in a snapshot's picture, pixels.
+struct Layout {
+    /// Grid cells across.
+    w: usize,
+    /// Grid cells down.
+    h: usize,
+    /// Picture pixels per cell.
+    scale: usize,
+    /// Picture width.
+    iw: usize,
+    /// Text scale: 2 on wide pictures, else 1.
+    ts: usize,
+    /// Height of a line of text.
+    line: usize,
+    /// Top of the map (below the caption).
+    top: usize,
+    /// Bottom of the map.
+    map_bottom: usize,
+}
+
 /// The picture for people, as PNG bytes.
 pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
     let (w, h) = (s.grid.width as usize, s.grid.height as usize);
@@ -428,6 +451,16 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
     let line = (font::HEIGHT + 3) * ts;
     let top = if s.caption.is_empty() { 0 } else { line + 6 };
     let map_bottom = top + h * scale;
+    let l = Layout {
+        w,
+        h,
+        scale,
+        iw,
+        ts,
+        line,
+        top,
+        map_bottom,
+    };
     // Below the map: the colour bar, its labels, the legend.
     let ih = map_bottom + 6 + 12 + 4 + line + 4 + line + 4;
     let mut img = Canvas {
@@ -435,12 +468,35 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
         h: ih,
         rgb: vec![255u8; iw * ih * 3],
     };
+    draw_cells(&mut img, s, &l);
+    draw_coverage(&mut img, s, &l);
+    draw_outlines(&mut img, s, &l);
+    if !s.caption.is_empty() {
+        img.text(4, 4, s.caption, ts);
+    }
+    let legend_y = draw_cost_scale(&mut img, &l);
+    draw_legend(&mut img, s, &l, legend_y);
+    let mut out = Vec::new();
+    {
+        let mut encoder = png::Encoder::new(&mut out, iw as u32, ih as u32);
+        encoder.set_color(png::ColorType::Rgb);
+        encoder.set_depth(png::BitDepth::Eight);
+        let mut writer = encoder.write_header()?;
+        writer.write_image_data(&img.rgb)?;
+    }
+    Ok(out)
+}
+
+/// The cells: their cost over the floor plan (or plain floor), hatched where no
+/// camera sees.
+fn draw_cells(img: &mut Canvas, s: &Snapshot<'_>, l: &Layout) {
+    let (w, h, scale) = (l.w, l.h, l.scale);
     let plan = s
         .floor_plan
         .filter(|p| p.width as usize == w && p.height as usize == h);
     for gy in 0..h {
         // Image row 0 is the grid's last row.
-        let py0 = top + (h - 1 - gy) * scale;
+        let py0 = l.top + (h - 1 - gy) * scale;
         for gx in 0..w {
             let k = gy * w + gx;
             let base = match plan {
@@ -465,7 +521,11 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
             }
         }
     }
-    // Camera coverage outlines: seen cells with an unseen 4-neighbour.
+}
+
+/// Camera coverage outlines: seen cells with an unseen 4-neighbour.
+fn draw_coverage(img: &mut Canvas, s: &Snapshot<'_>, l: &Layout) {
+    let (w, h, scale) = (l.w, l.h, l.scale);
     for (n, cover) in s.coverage.iter().enumerate() {
         if cover.len() != w * h {
             continue;
@@ -486,34 +546,40 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
                         && seen(gx, gy - 1)
                         && seen(gx, gy + 1))
                 {
-                    let py0 = top + (h - 1 - gy as usize) * scale;
+                    let py0 = l.top + (h - 1 - gy as usize) * scale;
                     img.fill(gx as usize * scale, py0, scale, scale, colour);
                 }
             }
         }
     }
-    // Zone and segment outlines, in picture pixels.
+}
+
+/// Zone and segment outlines.
+fn draw_outlines(img: &mut Canvas, s: &Snapshot<'_>, l: &Layout) {
+    // In picture pixels.
     let to_px = |p: &[f64; 2]| {
         let g = s.grid.to_grid(*p);
         (
-            g[0] * scale as f64,
-            top as f64 + (h as f64 - g[1]) * scale as f64,
+            g[0] * l.scale as f64,
+            l.top as f64 + (l.h as f64 - g[1]) * l.scale as f64,
         )
     };
     for zone in s.zones {
         let points: Vec<(f64, f64)> = zone.iter().map(to_px).collect();
-        img.outline(&points, top, map_bottom, ZONE_COLOUR, true);
+        img.outline(&points, l.top, l.map_bottom, ZONE_COLOUR, true);
     }
     for poly in s.segments {
         let points: Vec<(f64, f64)> = poly.iter().map(to_px).collect();
-        img.outline(&points, top, map_bottom, SEGMENT_COLOUR, false);
+        img.outline(&points, l.top, l.map_bottom, SEGMENT_COLOUR, false);
     }
-    if !s.caption.is_empty() {
-        img.text(4, 4, s.caption, ts);
-    }
-    // Cost scale: 0 (left) to 100 (right), labelled every 25.
-    let bar_y = map_bottom + 6;
-    let (x0, bar_w) = (8, iw - 16);
+}
+
+/// The cost scale below the map: 0 (left) to 100 (right), labelled every 25.
+/// Returns the top of the legend below it.
+fn draw_cost_scale(img: &mut Canvas, l: &Layout) -> usize {
+    let (iw, ts) = (l.iw, l.ts);
+    let bar_y = l.map_bottom + 6;
+    let (x0, bar_w) = (LEFT, iw - 2 * LEFT);
     for x in 0..bar_w {
         let cost = (x * 100 / bar_w.max(1)) as u8;
         img.fill(
@@ -544,48 +610,38 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
         };
         img.text(lx, label_y, &label, ts);
     }
-    // Legend: what the outlines and the hatching mean.
-    let mut x = x0;
-    let legend_y = label_y + line + 4;
+    label_y + l.line + 4
+}
+
+/// The legend at `legend_y`: what the outlines and the hatching mean.
+fn draw_legend(img: &mut Canvas, s: &Snapshot<'_>, l: &Layout, legend_y: usize) {
+    let ts = l.ts;
+    let mut x = LEFT;
     let swatch = font::HEIGHT * ts;
-    let entry = |img: &mut Canvas, x: &mut usize, colour: Option<[u8; 3]>, label: &str| {
+    let mut entry = |colour: Option<[u8; 3]>, label: &str| {
         match colour {
-            Some(c) => img.fill(*x, legend_y, swatch, swatch, c),
+            Some(c) => img.fill(x, legend_y, swatch, swatch, c),
             None => {
                 for dy in 0..swatch {
                     for dx in 0..swatch {
-                        img.put(*x + dx, legend_y + dy, hatch(dx + dy, [250, 250, 250]));
+                        img.put(x + dx, legend_y + dy, hatch(dx + dy, [250, 250, 250]));
                     }
                 }
             }
         }
-        img.text(*x + swatch + 3, legend_y, label, ts);
-        *x += swatch + 3 + font::width(label, ts) + 4 * ts;
+        img.text(x + swatch + 3, legend_y, label, ts);
+        x += swatch + 3 + font::width(label, ts) + 4 * ts;
     };
-    entry(&mut img, &mut x, None, "UNSEEN");
+    entry(None, "UNSEEN");
     if !s.segments.is_empty() {
-        entry(&mut img, &mut x, Some(SEGMENT_COLOUR), "SEGMENT");
+        entry(Some(SEGMENT_COLOUR), "SEGMENT");
     }
     if !s.zones.is_empty() {
-        entry(&mut img, &mut x, Some(ZONE_COLOUR), "ZONE");
+        entry(Some(ZONE_COLOUR), "ZONE");
     }
     for (n, id) in s.camera_ids.iter().enumerate() {
-        entry(
-            &mut img,
-            &mut x,
-            Some(CAMERA_COLOURS[n % CAMERA_COLOURS.len()]),
-            id,
-        );
+        entry(Some(CAMERA_COLOURS[n % CAMERA_COLOURS.len()]), id);
     }
-    let mut out = Vec::new();
-    {
-        let mut encoder = png::Encoder::new(&mut out, iw as u32, ih as u32);
-        encoder.set_color(png::ColorType::Rgb);
-        encoder.set_depth(png::BitDepth::Eight);
-        let mut writer = encoder.write_header()?;
-        writer.write_image_data(&img.rgb)?;
-    }
-    Ok(out)
 }
 
 /// The hatching of cells no camera sees, at diagonal position `d`.
