@@ -4,7 +4,7 @@ use super::*;
 use crate::filters::Counted;
 use fastrand::Rng as Lcg;
 use isochron_config::clock::{Cycle, parse_rfc3339};
-use isochron_store::{StoreMeta, store_path};
+use isochron_store::{Store, StoreMeta, store_path};
 use isochron_wire::{FLAG_END_OF_STREAM, Preamble, Stream};
 
 const CAM: &str = "cam01";
