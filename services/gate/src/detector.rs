@@ -71,39 +71,45 @@ const HOG_WINDOW: (i32, i32) = (64, 128);
 /// A ready detector.
 pub enum Detector {
     /// OpenCV HOG + linear SVM for people.
-    Hog {
-        /// The descriptor with the people SVM set.
-        hog: objdetect::HOGDescriptor,
-        /// Upscale factor applied first.
-        upscale: f64,
-        /// SVM hit threshold.
-        hit_threshold: f64,
-        /// Window stride, upscaled pixels.
-        win_stride: i32,
-        /// Pyramid scale step.
-        scale_step: f64,
-        /// `groupRectangles` threshold; 0: non-maximum suppression instead.
-        group_threshold: u32,
-        /// NMS overlap threshold (with `group_threshold` 0).
-        nms_threshold: f32,
-        /// Reused buffer for the upscaled frame.
-        scaled: Mat,
-    },
+    Hog(HogDetector),
     /// A YOLO ONNX model through OpenCV dnn.
-    Onnx {
-        /// The network.
-        net: dnn::Net,
-        /// Square input size.
-        input_px: i32,
-        /// Input channels (1 or 3).
-        channels: u32,
-        /// Lowest kept class score.
-        score_threshold: f32,
-        /// NMS overlap threshold.
-        nms_threshold: f32,
-        /// Reused buffers: the scaled frame, the letterboxed input, its colour version.
-        buffers: [Mat; 3],
-    },
+    Onnx(OnnxDetector),
+}
+
+/// OpenCV's HOG people detector and its settings.
+pub struct HogDetector {
+    /// The descriptor with the people SVM set.
+    pub hog: objdetect::HOGDescriptor,
+    /// Upscale factor applied first.
+    pub upscale: f64,
+    /// SVM hit threshold.
+    pub hit_threshold: f64,
+    /// Window stride, upscaled pixels.
+    pub win_stride: i32,
+    /// Pyramid scale step.
+    pub scale_step: f64,
+    /// `groupRectangles` threshold; 0: non-maximum suppression instead.
+    pub group_threshold: u32,
+    /// NMS overlap threshold (with `group_threshold` 0).
+    pub nms_threshold: f32,
+    /// Reused buffer for the upscaled frame.
+    pub scaled: Mat,
+}
+
+/// A YOLO ONNX model through OpenCV dnn, and its settings.
+pub struct OnnxDetector {
+    /// The network.
+    pub net: dnn::Net,
+    /// Square input size.
+    pub input_px: i32,
+    /// Input channels (1 or 3).
+    pub channels: u32,
+    /// Lowest kept class score.
+    pub score_threshold: f32,
+    /// NMS overlap threshold.
+    pub nms_threshold: f32,
+    /// Reused buffers: the scaled frame, the letterboxed input, its colour version.
+    pub buffers: [Mat; 3],
 }
 
 /// Why the detector could not be built or started.
@@ -152,7 +158,7 @@ impl Detector {
                 let svm = objdetect::HOGDescriptor::get_default_people_detector()
                     .map_err(DetectorError::Hog)?;
                 hog.set_svm_detector(svm);
-                Ok(Detector::Hog {
+                Ok(Detector::Hog(HogDetector {
                     hog,
                     upscale: config.hog_upscale,
                     hit_threshold: config.hog_hit_threshold,
@@ -161,7 +167,7 @@ impl Detector {
                     group_threshold: config.hog_group_threshold,
                     nms_threshold: config.nms_threshold,
                     scaled: Mat::default(),
-                })
+                }))
             }
             Some(model) => {
                 let path = if model.is_absolute() {
@@ -176,14 +182,14 @@ impl Detector {
                     Ok(net) => net,
                     Err(source) => return Err(DetectorError::Model { path, source }),
                 };
-                Ok(Detector::Onnx {
+                Ok(Detector::Onnx(OnnxDetector {
                     net,
                     input_px: config.input_px as i32,
                     channels: config.input_channels,
                     score_threshold: config.score_threshold,
                     nms_threshold: config.nms_threshold,
                     buffers: Default::default(),
-                })
+                }))
             }
         }
     }
@@ -191,8 +197,8 @@ impl Detector {
     /// Short name for logs.
     pub fn name(&self) -> &'static str {
         match self {
-            Detector::Hog { .. } => "hog",
-            Detector::Onnx { .. } => "onnx",
+            Detector::Hog(_) => "hog",
+            Detector::Onnx(_) => "onnx",
         }
     }
 
@@ -213,11 +219,11 @@ impl Detector {
             ));
         }
         let min = match self {
-            Detector::Hog { upscale, .. } => (
-                (HOG_WINDOW.0 as f64 / *upscale).ceil() as u32,
-                (HOG_WINDOW.1 as f64 / *upscale).ceil() as u32,
+            Detector::Hog(hog) => (
+                (HOG_WINDOW.0 as f64 / hog.upscale).ceil() as u32,
+                (HOG_WINDOW.1 as f64 / hog.upscale).ceil() as u32,
             ),
-            Detector::Onnx { .. } => (32, 32),
+            Detector::Onnx(_) => (32, 32),
         };
         let r = search_rect(region, width, height, min);
         // SAFETY: `gray` holds width × height bytes (checked above) and outlives
@@ -235,137 +241,141 @@ impl Detector {
                 width as usize,
             )?
         };
+        let found = match self {
+            Detector::Hog(hog) => hog.detect(&crop, r)?,
+            Detector::Onnx(onnx) => onnx.detect(&crop, r)?,
+        };
+        Ok(found)
+    }
+}
+
+impl HogDetector {
+    /// People in `crop`, the part `r` of the frame; boxes in frame pixels.
+    fn detect(&mut self, crop: &Mat, r: Rect) -> opencv::Result<Vec<Detection>> {
         let (ox, oy) = (r.x as f32, r.y as f32);
-        match self {
-            Detector::Hog {
-                hog,
-                upscale,
-                hit_threshold,
-                win_stride,
-                scale_step,
-                group_threshold,
-                nms_threshold,
-                scaled,
-            } => {
-                let mut rects = Vector::<Rect>::new();
-                let mut weights = Vector::<f64>::new();
-                let mut run = |image: &Mat| {
-                    hog.detect_multi_scale_weights(
-                        image,
-                        &mut rects,
-                        &mut weights,
-                        *hit_threshold,
-                        Size::new(*win_stride, *win_stride),
-                        Size::new(8, 8),
-                        *scale_step,
-                        *group_threshold as f64,
-                        false,
-                    )
-                };
-                if (*upscale - 1.0).abs() > 1e-6 {
-                    let size = Size::new(
-                        (r.width as f64 * *upscale).round() as i32,
-                        (r.height as f64 * *upscale).round() as i32,
-                    );
-                    imgproc::resize(&crop, scaled, size, 0.0, 0.0, imgproc::INTER_LINEAR)?;
-                    run(scaled)?;
-                } else {
-                    run(&crop)?;
-                }
-                let mut boxes: Vec<(Rect, f32)> = rects
-                    .iter()
-                    .zip(weights.iter())
-                    .map(|(r, w)| (r, w as f32))
-                    .collect();
-                if *group_threshold == 0 && boxes.len() > 1 {
-                    let rects: Vector<Rect> = boxes.iter().map(|b| b.0).collect();
-                    let scores: Vector<f32> = boxes.iter().map(|b| b.1).collect();
-                    let mut keep = Vector::<i32>::new();
-                    dnn::nms_boxes(
-                        &rects,
-                        &scores,
-                        hit_threshold.max(0.0) as f32,
-                        *nms_threshold,
-                        &mut keep,
-                        1.0,
-                        0,
-                    )?;
-                    boxes = keep.iter().map(|i| boxes[i as usize]).collect();
-                }
-                let s = *upscale as f32;
-                // HOG's window has a margin around the person (64×128 for a
-                // person about 50×100): the box is shrunk to the person, so it
-                // overlaps an annotation as tightly and its bottom is at the feet.
-                Ok(boxes
-                    .into_iter()
-                    .map(|(r, w)| {
-                        let (rw, rh) = (r.width as f32, r.height as f32);
-                        Detection {
-                            x: ox + (r.x as f32 + HOG_MARGIN_X * rw) / s,
-                            y: oy + (r.y as f32 + HOG_MARGIN_TOP * rh) / s,
-                            w: rw * (1.0 - 2.0 * HOG_MARGIN_X) / s,
-                            h: rh * (1.0 - HOG_MARGIN_TOP - HOG_MARGIN_BOTTOM) / s,
-                            score: w,
-                            class: 0,
-                        }
-                    })
-                    .collect())
-            }
-            Detector::Onnx {
-                net,
-                input_px,
-                channels,
-                score_threshold,
-                nms_threshold,
-                buffers: [scaled, boxed, bgr],
-            } => {
-                let fit = Letterbox::new(r.width as u32, r.height as u32, *input_px);
-                imgproc::resize(
-                    &crop,
-                    scaled,
-                    Size::new(fit.width, fit.height),
-                    0.0,
-                    0.0,
-                    imgproc::INTER_LINEAR,
-                )?;
-                let (left, top) = (fit.pad_x as i32, fit.pad_y as i32);
-                opencv::core::copy_make_border(
-                    scaled,
-                    boxed,
-                    top,
-                    *input_px - fit.height - top,
-                    left,
-                    *input_px - fit.width - left,
-                    opencv::core::BORDER_CONSTANT,
-                    Scalar::all(114.0),
-                )?;
-                let input = if *channels == 3 {
-                    imgproc::cvt_color(boxed, bgr, imgproc::COLOR_GRAY2BGR, 0)?;
-                    &*bgr
-                } else {
-                    &*boxed
-                };
-                let blob = dnn::blob_from_image(
-                    input,
-                    1.0 / 255.0,
-                    Size::new(*input_px, *input_px),
-                    Scalar::default(),
-                    *channels == 3,
-                    false,
-                    opencv::core::CV_32F,
-                )?;
-                net.set_input(&blob, "", 1.0, Scalar::default())?;
-                let out = net.forward_single("")?;
-                let candidates = parse_yolo(&out, *score_threshold)?;
-                let mut found =
-                    non_max_suppression(candidates, *score_threshold, *nms_threshold, &fit)?;
-                for d in &mut found {
-                    d.x += ox;
-                    d.y += oy;
-                }
-                Ok(found)
-            }
+        let mut rects = Vector::<Rect>::new();
+        let mut weights = Vector::<f64>::new();
+        let mut run = |image: &Mat| {
+            self.hog.detect_multi_scale_weights(
+                image,
+                &mut rects,
+                &mut weights,
+                self.hit_threshold,
+                Size::new(self.win_stride, self.win_stride),
+                Size::new(8, 8),
+                self.scale_step,
+                self.group_threshold as f64,
+                false,
+            )
+        };
+        if (self.upscale - 1.0).abs() > 1e-6 {
+            let size = Size::new(
+                (r.width as f64 * self.upscale).round() as i32,
+                (r.height as f64 * self.upscale).round() as i32,
+            );
+            imgproc::resize(
+                crop,
+                &mut self.scaled,
+                size,
+                0.0,
+                0.0,
+                imgproc::INTER_LINEAR,
+            )?;
+            run(&self.scaled)?;
+        } else {
+            run(crop)?;
         }
+        let mut boxes: Vec<(Rect, f32)> = rects
+            .iter()
+            .zip(weights.iter())
+            .map(|(r, w)| (r, w as f32))
+            .collect();
+        if self.group_threshold == 0 && boxes.len() > 1 {
+            let rects: Vector<Rect> = boxes.iter().map(|b| b.0).collect();
+            let scores: Vector<f32> = boxes.iter().map(|b| b.1).collect();
+            let mut keep = Vector::<i32>::new();
+            dnn::nms_boxes(
+                &rects,
+                &scores,
+                self.hit_threshold.max(0.0) as f32,
+                self.nms_threshold,
+                &mut keep,
+                1.0,
+                0,
+            )?;
+            boxes = keep.iter().map(|i| boxes[i as usize]).collect();
+        }
+        let s = self.upscale as f32;
+        // HOG's window has a margin around the person (64×128 for a
+        // person about 50×100): the box is shrunk to the person, so it
+        // overlaps an annotation as tightly and its bottom is at the feet.
+        Ok(boxes
+            .into_iter()
+            .map(|(r, w)| {
+                let (rw, rh) = (r.width as f32, r.height as f32);
+                Detection {
+                    x: ox + (r.x as f32 + HOG_MARGIN_X * rw) / s,
+                    y: oy + (r.y as f32 + HOG_MARGIN_TOP * rh) / s,
+                    w: rw * (1.0 - 2.0 * HOG_MARGIN_X) / s,
+                    h: rh * (1.0 - HOG_MARGIN_TOP - HOG_MARGIN_BOTTOM) / s,
+                    score: w,
+                    class: 0,
+                }
+            })
+            .collect())
+    }
+}
+
+impl OnnxDetector {
+    /// People in `crop`, the part `r` of the frame; boxes in frame pixels.
+    fn detect(&mut self, crop: &Mat, r: Rect) -> opencv::Result<Vec<Detection>> {
+        let (ox, oy) = (r.x as f32, r.y as f32);
+        let [scaled, boxed, bgr] = &mut self.buffers;
+        let fit = Letterbox::new(r.width as u32, r.height as u32, self.input_px);
+        imgproc::resize(
+            crop,
+            scaled,
+            Size::new(fit.width, fit.height),
+            0.0,
+            0.0,
+            imgproc::INTER_LINEAR,
+        )?;
+        let (left, top) = (fit.pad_x as i32, fit.pad_y as i32);
+        opencv::core::copy_make_border(
+            scaled,
+            boxed,
+            top,
+            self.input_px - fit.height - top,
+            left,
+            self.input_px - fit.width - left,
+            opencv::core::BORDER_CONSTANT,
+            Scalar::all(114.0),
+        )?;
+        let input = if self.channels == 3 {
+            imgproc::cvt_color(boxed, bgr, imgproc::COLOR_GRAY2BGR, 0)?;
+            &*bgr
+        } else {
+            &*boxed
+        };
+        let blob = dnn::blob_from_image(
+            input,
+            1.0 / 255.0,
+            Size::new(self.input_px, self.input_px),
+            Scalar::default(),
+            self.channels == 3,
+            false,
+            opencv::core::CV_32F,
+        )?;
+        self.net.set_input(&blob, "", 1.0, Scalar::default())?;
+        let out = self.net.forward_single("")?;
+        let candidates = parse_yolo(&out, self.score_threshold)?;
+        let mut found =
+            non_max_suppression(candidates, self.score_threshold, self.nms_threshold, &fit)?;
+        for d in &mut found {
+            d.x += ox;
+            d.y += oy;
+        }
+        Ok(found)
     }
 }
 
