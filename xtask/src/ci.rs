@@ -18,6 +18,7 @@ pub(crate) const BENCHES: [&str; 6] = ["ipc", "motion", "cascade", "gate", "grou
 pub(crate) fn test(root: &Path) -> anyhow::Result<()> {
     run(cargo().args(["fmt", "--all", "--", "--check"]))?;
     crate::structure::check(root)?;
+    crate::config_ref::check(root, linted_cargo()?)?;
     // Lint and build every target in one pass (clippy --all-targets, but building).
     run(linted_cargo()?.args(["test", "--workspace", "--all-targets", "--no-run"]))?;
     run(linted_cargo()?.args(["build", "--workspace", "--bins"]))?;

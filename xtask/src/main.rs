@@ -18,6 +18,9 @@
 //!   binaries (`OUT/man/*.8`), and bash, zsh and fish completions (`OUT/completions/`) of
 //!   `isochron`, made from their clap definitions with clap_mangen and
 //!   clap_complete (default `OUT` = `target/docs`);
+//! * `docs config [--check]`: `docs/configuration.md`, the configuration reference,
+//!   from the config structs' field docs and defaults ([`config_ref`]); `--check`
+//!   fails if it is stale (`test` runs it);
 //! * `install [--prefix P] [--destdir D]`: release build, then binaries, systemd
 //!   units, sysusers/tmpfiles entries, an example config, the README, the man
 //!   pages and completions installed under `D/P` (default `P` = `/usr/local`), and
@@ -33,6 +36,7 @@ use std::process::Command;
 use anyhow::{Context, bail};
 
 mod ci;
+mod config_ref;
 mod deb;
 mod demo;
 mod install;
@@ -72,6 +76,9 @@ fn main() -> anyhow::Result<()> {
                 bench(target, extra)
             }
         }
+        Some("docs") if args.get(1).is_some_and(|a| a == "config") => {
+            config_ref::run(&root, cargo(), &args[2..])
+        }
         Some("docs") => {
             let out = args
                 .get(1)
@@ -82,7 +89,7 @@ fn main() -> anyhow::Result<()> {
         Some("install") => install::install(&root, &args[1..]),
         Some("deb") => deb::deb(&root, &args[1..]),
         _ => bail!(
-            "usage: cargo xtask <setup|demo|test|structure|bench NAME|docs [OUT]|install [--prefix P] [--destdir D]|deb [--profile dev|release] [--no-build] [--out DIR]>"
+            "usage: cargo xtask <setup|demo|test|structure|bench NAME|docs [OUT]|docs config [--check]|install [--prefix P] [--destdir D]|deb [--profile dev|release] [--no-build] [--out DIR]>"
         ),
     }
 }

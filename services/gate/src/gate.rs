@@ -5,8 +5,10 @@
 //! **Presence.** A zone's events stay open while its activity is above the
 //! threshold (or was, within `hold_s`), while the presence band has a block
 //! present in the zone (something that entered stays there, moving or not: the
-//! cascade's `presence` module; the event lasts at least to the end of every such
-//! second), and while the detector holds a person confirmed there:
+//! cascade's `presence` module, whose own hold is that a block leaves only once
+//! it matched its empty appearance for 2 s; the event lasts at least to the end
+//! of every such second, without a further `hold_s`), and while the detector
+//! holds a person confirmed there:
 //!
 //! * a detection creates a confirmed person where a person box overlaps a block
 //!   that was active in the detected second (a detector hit on a background that
@@ -345,10 +347,11 @@ impl Gate {
         let (wanted, quiet) =
             self.track_events(zone, t, [sums.s1, sums.s2], (thr, hold_open), actions);
         // Something stays in the zone (the presence band): its events last at
-        // least to the end of this second.
+        // least to the end of this second, and end once nothing is present and
+        // the activity has been quiet for the hold.
         if sums.present {
             for tracker in &mut zone.trackers {
-                tracker.extend(t.second.end_ns, t.second.last_frame);
+                tracker.cover(t.second);
             }
         }
         let asks = Asks {

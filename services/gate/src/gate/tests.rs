@@ -104,6 +104,33 @@ fn floor_before_warm_and_k_sigma_after() {
 }
 
 #[test]
+fn a_present_block_holds_the_event_which_ends_when_nothing_is_present() {
+    let mut g = gate(GateConfig {
+        detector: isochron_config::DetectorConfig {
+            enabled: false,
+            ..Default::default()
+        },
+        ..GateConfig::default()
+    });
+    let mut all = Vec::new();
+    for s in 0..40 {
+        // Moving 5..8 s, then still but present until 30 s.
+        let mut b = blocks(if (5..8).contains(&s) { 1.0 } else { 0.0 }, 0.0, 0.0);
+        if (5..30).contains(&s) {
+            b[1].present = 1.0;
+        }
+        all.extend(g.on_activity(&header(s, 0), &b));
+    }
+    // No detector: no jobs; one event, ended at the first second with nothing
+    // present (its activity was quiet for longer than the hold).
+    assert_eq!(kinds(&all), ["Start#0", "End#0"]);
+    let Action::Event { event, .. } = &all[1] else {
+        panic!()
+    };
+    assert_eq!((event.start_frame, event.end_frame), (50, 299));
+}
+
+#[test]
 fn one_detection_per_event_by_default_and_none_without_events() {
     let mut g = gate(GateConfig::default());
     let mut all = Vec::new();
