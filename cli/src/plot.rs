@@ -20,6 +20,7 @@ use isochron_config::clock::{Cycle, format_t_star};
 use isochron_planning::planner::Planner;
 use isochron_store::Model;
 use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use crate::common::{Subcommands, load_config};
@@ -303,29 +304,7 @@ where
             });
         }
     }
-    for (i, &m) in quiet.iter().enumerate() {
-        let x = m as f64 / 60.0;
-        let series = chart
-            .draw_series(std::iter::once(PathElement::new(
-                vec![(x, 0.0), (x, y_max)],
-                RED.stroke_width(2),
-            )))
-            .map_err(e)?;
-        if i == 0 {
-            series
-                .label("quiet time to plan a robot's pass")
-                .legend(|(x, y)| {
-                    PathElement::new(vec![(x + 10, y - 6), (x + 10, y + 6)], RED.stroke_width(2))
-                });
-        }
-        chart
-            .draw_series(std::iter::once(Text::new(
-                format_t_star(m),
-                (x + 0.1, y_max * 0.97),
-                ("sans-serif", 15).into_font().color(&RED),
-            )))
-            .map_err(e)?;
-    }
+    draw_quiet(&mut chart, quiet, y_max).map_err(e)?;
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperLeft)
@@ -334,6 +313,34 @@ where
         .label_font(("sans-serif", 14))
         .draw()
         .map_err(e)?;
+    Ok(())
+}
+
+/// The quiet times: a red line each, labelled with its time.
+fn draw_quiet<DB: DrawingBackend>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    quiet: &[u32],
+    y_max: f64,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    for (i, &m) in quiet.iter().enumerate() {
+        let x = m as f64 / 60.0;
+        let series = chart.draw_series(std::iter::once(PathElement::new(
+            vec![(x, 0.0), (x, y_max)],
+            RED.stroke_width(2),
+        )))?;
+        if i == 0 {
+            series
+                .label("quiet time to plan a robot's pass")
+                .legend(|(x, y)| {
+                    PathElement::new(vec![(x + 10, y - 6), (x + 10, y + 6)], RED.stroke_width(2))
+                });
+        }
+        chart.draw_series(std::iter::once(Text::new(
+            format_t_star(m),
+            (x + 0.1, y_max * 0.97),
+            ("sans-serif", 15).into_font().color(&RED),
+        )))?;
+    }
     Ok(())
 }
 
