@@ -1,4 +1,8 @@
 //! Unit tests of the cascade state machine (no shared memory).
+#![allow(
+    clippy::too_many_lines,
+    reason = "a test is one scenario, read top to bottom"
+)]
 
 use super::*;
 use crate::filters::Counted;
