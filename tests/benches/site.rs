@@ -366,7 +366,15 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
         held: true,
         reason: String::new(),
     };
-    let dead: Vec<String> = [("link", &mut link), ("bridge", &mut bridge)]
+    judge(&mut r, n, &mut link, &mut bridge);
+    r
+}
+
+/// Whether the run held (both processes alive, the bridge took every camera's
+/// samples, the grid's p99 under a second), and both processes stopped; their
+/// last log lines where it did not hold.
+fn judge(r: &mut Run, n: usize, link: &mut Proc, bridge: &mut Proc) {
+    let dead: Vec<String> = [("link", &mut *link), ("bridge", &mut *bridge)]
         .into_iter()
         .filter_map(|(name, p)| {
             p.wait(Duration::ZERO)
@@ -391,7 +399,7 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
     if r.grid_p99_ms.is_nan() || r.grid_p99_ms >= 1000.0 {
         fail(format!("origin → grid p99 {:.0} ms", r.grid_p99_ms));
     }
-    for (name, p) in [("link", &mut link), ("bridge", &mut bridge)] {
+    for (name, p) in [("link", &mut *link), ("bridge", &mut *bridge)] {
         if !r.held {
             let log = p.stderr();
             let tail: Vec<&str> = log.lines().rev().take(6).collect();
@@ -407,7 +415,6 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
             }
         }
     }
-    r
 }
 
 fn main() {
