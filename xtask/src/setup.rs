@@ -69,14 +69,19 @@ fn missing_packages() -> Vec<&'static str> {
         .collect()
 }
 
+/// Installs Debian `packages` (after `apt-get update`), saying so.
+fn apt_install(packages: &[&str]) -> anyhow::Result<()> {
+    eprintln!("xtask: installing {}", packages.join(" "));
+    run(&mut apt_get(&["update", "-qq"]))?;
+    let mut args = vec!["install", "-y", "-qq", "--no-install-recommends"];
+    args.extend(packages);
+    run(&mut apt_get(&args))
+}
+
 pub(crate) fn setup(root: &Path) -> anyhow::Result<()> {
     let missing = missing_packages();
     if !missing.is_empty() {
-        eprintln!("xtask: installing {}", missing.join(" "));
-        run(&mut apt_get(&["update", "-qq"]))?;
-        let mut args = vec!["install", "-y", "-qq", "--no-install-recommends"];
-        args.extend(&missing);
-        run(&mut apt_get(&args))?;
+        apt_install(&missing)?;
     }
     fetch_vtest(root)?;
     ros2_venv(root)?;
@@ -181,16 +186,7 @@ fn ros2_venv(root: &Path) -> anyhow::Result<()> {
         .output()
         .is_ok_and(|o| o.status.success());
     if !has_venv {
-        eprintln!("xtask: installing python3 and python3-venv");
-        run(&mut apt_get(&["update", "-qq"]))?;
-        run(&mut apt_get(&[
-            "install",
-            "-y",
-            "-qq",
-            "--no-install-recommends",
-            "python3",
-            "python3-venv",
-        ]))?;
+        apt_install(&["python3", "python3-venv"])?;
     }
     eprintln!(
         "xtask: making {} with {CYCLONEDDS} and {ONNX}",
@@ -232,16 +228,7 @@ fn node_peers(root: &Path) -> anyhow::Result<()> {
             .is_ok_and(|o| o.status.success())
     };
     if !runs("node") || !runs("npm") {
-        eprintln!("xtask: installing nodejs and npm");
-        run(&mut apt_get(&["update", "-qq"]))?;
-        run(&mut apt_get(&[
-            "install",
-            "-y",
-            "-qq",
-            "--no-install-recommends",
-            "nodejs",
-            "npm",
-        ]))?;
+        apt_install(&["nodejs", "npm"])?;
     }
     eprintln!(
         "xtask: installing the npm test peers into {}",
