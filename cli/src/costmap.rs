@@ -165,10 +165,82 @@ fn expected_snapshot(args: SnapshotArgs, at: &str) -> anyhow::Result<ExitCode> {
             "--at: expected a time of day HH:MM from 00:00 to 23:59, found '{at}'"
         ))
     })?;
-    let out = args
-        .out
-        .clone()
-        .ok_or_else(|| UsageError("--at needs --out FILE.png".into()))?;
+    let (out, stem) = png_out(args.out.as_deref())?;
+    let day = match &args.day {
+        Some(d) => Some(
+            parse_day(d)
+                .ok_or_else(|| UsageError(format!("--day: expected mon .. sun, found '{d}'")))?,
+        ),
+        None => None,
+    };
+    let loaded = load_config(args.config)?;
+    let started = Instant::now();
+    let (day, note) = cycle_day(&loaded, day)?;
+    if let Some(note) = &note {
+        eprintln!("isochron: {note}");
+    }
+    let t_star = day.unwrap_or(0) * MINUTES_PER_DAY + minute;
+    let e = expected(&loaded, t_star)?;
+    let when = match day {
+        Some(d) => format!("{} {}", DAYS[d as usize], format_t_star(minute)),
+        None => format_t_star(minute),
+    };
+    let caption = format!(
+        "{}: expected cost at {when} ({} days learned)",
+        loaded.config.site.name, e.days
+    );
+    let floor_plan = snapshot::floor_plan_of(&loaded, Some(&e.grid));
+    let dir = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let coverage: Vec<&[u32]> = e
+        .footprints
+        .iter()
+        .flatten()
+        .map(|f| f.cell_block.as_slice())
+        .collect();
+    let camera_ids: Vec<&str> = e
+        .footprints
+        .iter()
+        .zip(&e.cameras)
+        .filter(|(f, _)| f.is_some())
+        .map(|(_, c)| c.0.as_str())
+        .collect();
+    let segments: Vec<&[[f64; 2]]> = loaded.config.costmap.segment_polygons();
+    let files = snapshot::write(
+        &dir,
+        &stem,
+        &Snapshot {
+            grid: &e.grid,
+            cells: &e.cells,
+            floor_plan: floor_plan.as_ref(),
+            coverage: &coverage,
+            camera_ids: &camera_ids,
+            segments: &segments,
+            zones: &snapshot::floor_zones(&loaded.config.cameras),
+            caption: &caption,
+            stamp: &format!("{when} (t* {t_star}), expected by the long-term model"),
+        },
+    )
+    .with_context(|| format!("--out {}", out.display()))?;
+    let render_ms = started.elapsed().as_secs_f64() * 1e3;
+    if args.json {
+        let cycle = match loaded.config.cascade.cycle {
+            Cycle::Daily => "daily",
+            Cycle::Weekly => "weekly",
+        };
+        let at = (format_t_star(minute), day.map(|d| DAYS[d as usize]), cycle);
+        println!("{}", expected_json(&e, at, note, &files, render_ms));
+    } else {
+        print_expected(&e, &when, &files, render_ms);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `--out FILE.png` of `costmap snapshot --at`, and its stem.
+fn png_out(out: Option<&Path>) -> anyhow::Result<(PathBuf, String)> {
+    let out = out.ok_or_else(|| UsageError("--at needs --out FILE.png".into()))?;
     let stem = out
         .file_stem()
         .and_then(|s| s.to_str())
@@ -180,16 +252,17 @@ fn expected_snapshot(args: SnapshotArgs, at: &str) -> anyhow::Result<ExitCode> {
             ))
         })?
         .to_string();
-    let day = match &args.day {
-        Some(d) => Some(
-            parse_day(d)
-                .ok_or_else(|| UsageError(format!("--day: expected mon .. sun, found '{d}'")))?,
-        ),
-        None => None,
-    };
-    let loaded = load_config(args.config)?;
-    let started = Instant::now();
-    let (day, note) = match (loaded.config.cascade.cycle, day) {
+    Ok((out.to_path_buf(), stem))
+}
+
+/// The day of the week to draw (`None` for a daily cycle: one model for every
+/// day), and a note when `--day` means nothing for this site. Without `--day`, a
+/// weekly cycle draws today.
+fn cycle_day(
+    loaded: &LoadedConfig,
+    day: Option<u32>,
+) -> anyhow::Result<(Option<u32>, Option<String>)> {
+    Ok(match (loaded.config.cascade.cycle, day) {
         (Cycle::Daily, None) => (None, None),
         (Cycle::Daily, Some(d)) => (
             None,
@@ -203,15 +276,33 @@ fn expected_snapshot(args: SnapshotArgs, at: &str) -> anyhow::Result<ExitCode> {
             let clock = SiteClock::new(&loaded.config.site.time_zone, Cycle::Weekly)?;
             (Some(clock.t_star(wall_now_ns()) / MINUTES_PER_DAY), None)
         }
-    };
-    if let Some(note) = &note {
-        eprintln!("isochron: {note}");
-    }
-    let t_star = day.unwrap_or(0) * MINUTES_PER_DAY + minute;
-    let grid = MapGrid::from_config(&loaded)?.context(
+    })
+}
+
+/// The cost map the long-term model expects at `t_star`, and what went into it.
+struct Expected {
+    grid: MapGrid,
+    /// Its cells (0..=100, -1 unseen).
+    cells: Vec<i8>,
+    /// Each camera's footprint on the grid (`None`: not on the floor, or no store).
+    footprints: Vec<Option<Footprint>>,
+    /// Each camera: id, has a store, has floor points.
+    cameras: Vec<(String, bool, bool)>,
+    /// Each camera: its model learned anything at `t_star`.
+    learned: Vec<bool>,
+    /// Days the model has learned.
+    days: u32,
+    /// The minute of the cycle drawn.
+    t_star: u32,
+}
+
+/// What the site's long-term stores expect at `t_star`; an error when no camera
+/// has a store.
+fn expected(loaded: &LoadedConfig, t_star: u32) -> anyhow::Result<Expected> {
+    let grid = MapGrid::from_config(loaded)?.context(
         "no [costmap] grid is configured (map_yaml, or width_cells and height_cells): nothing to draw",
     )?;
-    let mut planner = Planner::new(&loaded)?;
+    let mut planner = Planner::new(loaded)?;
     let mut footprints = Vec::new();
     let cells = planner.expected_costmap(&grid, t_star, &mut footprints)?;
     let learned: Vec<bool> = planner
@@ -226,101 +317,78 @@ fn expected_snapshot(args: SnapshotArgs, at: &str) -> anyhow::Result<ExitCode> {
     if !cameras.iter().any(|c| c.1) {
         return Err(planner.missing_stores().into());
     }
-    let coverage: Vec<&[u32]> = footprints
-        .iter()
-        .flatten()
-        .map(|f| f.cell_block.as_slice())
-        .collect();
-    let camera_ids: Vec<&str> = footprints
-        .iter()
-        .zip(&cameras)
-        .filter(|(f, _)| f.is_some())
-        .map(|(_, c)| c.0.as_str())
-        .collect();
-    let segments: Vec<&[[f64; 2]]> = loaded.config.costmap.segment_polygons();
-    let when = match day {
-        Some(d) => format!("{} {}", DAYS[d as usize], format_t_star(minute)),
-        None => format_t_star(minute),
-    };
-    let caption = format!(
-        "{}: expected cost at {when} ({} days learned)",
-        loaded.config.site.name,
-        planner.days()
-    );
-    let floor_plan = snapshot::floor_plan_of(&loaded, Some(&grid));
-    let dir = match out.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let files = snapshot::write(
-        &dir,
-        &stem,
-        &Snapshot {
-            grid: &grid,
-            cells: &cells,
-            floor_plan: floor_plan.as_ref(),
-            coverage: &coverage,
-            camera_ids: &camera_ids,
-            segments: &segments,
-            zones: &snapshot::floor_zones(&loaded.config.cameras),
-            caption: &caption,
-            stamp: &format!("{when} (t* {t_star}), expected by the long-term model"),
+    Ok(Expected {
+        grid,
+        cells,
+        footprints,
+        cameras,
+        learned,
+        days: planner.days(),
+        t_star,
+    })
+}
+
+/// `costmap snapshot --at --json`: the grid, its cells and the files as one
+/// object; `at` is the time of day, the day and the cycle.
+fn expected_json(
+    e: &Expected,
+    (at, day, cycle): (String, Option<&str>, &str),
+    note: Option<String>,
+    files: &snapshot::SnapshotFiles,
+    render_ms: f64,
+) -> serde_json::Value {
+    let (grid, cells) = (&e.grid, &e.cells);
+    let rows: Vec<&[i8]> = cells.chunks((grid.width as usize).max(1)).collect();
+    serde_json::json!({
+        "at": at,
+        "day": day,
+        "t_star": e.t_star,
+        "cycle": cycle,
+        "note": note,
+        "grid": {
+            "width_cells": grid.width,
+            "height_cells": grid.height,
+            "resolution_m": grid.resolution,
+            "origin_m": [grid.origin_x, grid.origin_y],
+            "yaw_rad": grid.yaw,
         },
-    )
-    .with_context(|| format!("--out {}", out.display()))?;
-    let render_ms = started.elapsed().as_secs_f64() * 1e3;
+        "cameras": e.cameras.iter().zip(&e.learned).map(|((id, store, floor), learned)| serde_json::json!({
+            "id": id, "store": store, "floor_points": floor, "learned_at_t_star": learned,
+        })).collect::<Vec<_>>(),
+        "cells_seen": cells.iter().filter(|&&c| c >= 0).count(),
+        "cells_above_zero": cells.iter().filter(|&&c| c > 0).count(),
+        "highest_cost": cells.iter().copied().max().unwrap_or(-1),
+        "cells": rows,
+        "files": { "png": files.png, "pgm": files.pgm, "yaml": files.yaml },
+        "render_ms": (render_ms * 10.0).round() / 10.0,
+    })
+}
+
+/// `costmap snapshot --at`: what was drawn, camera by camera, and the files.
+fn print_expected(e: &Expected, when: &str, files: &snapshot::SnapshotFiles, render_ms: f64) {
+    let cells = &e.cells;
     let seen = cells.iter().filter(|&&c| c >= 0).count();
     let busy = cells.iter().filter(|&&c| c > 0).count();
     let highest = cells.iter().copied().max().unwrap_or(-1);
-    if args.json {
-        let w = grid.width as usize;
-        let rows: Vec<&[i8]> = cells.chunks(w.max(1)).collect();
-        let json = serde_json::json!({
-            "at": format_t_star(minute),
-            "day": day.map(|d| DAYS[d as usize]),
-            "t_star": t_star,
-            "cycle": match loaded.config.cascade.cycle { Cycle::Daily => "daily", Cycle::Weekly => "weekly" },
-            "note": note,
-            "grid": {
-                "width_cells": grid.width,
-                "height_cells": grid.height,
-                "resolution_m": grid.resolution,
-                "origin_m": [grid.origin_x, grid.origin_y],
-                "yaw_rad": grid.yaw,
-            },
-            "cameras": cameras.iter().zip(&learned).map(|((id, store, floor), learned)| serde_json::json!({
-                "id": id, "store": store, "floor_points": floor, "learned_at_t_star": learned,
-            })).collect::<Vec<_>>(),
-            "cells_seen": seen,
-            "cells_above_zero": busy,
-            "highest_cost": highest,
-            "cells": rows,
-            "files": { "png": files.png, "pgm": files.pgm, "yaml": files.yaml },
-            "render_ms": (render_ms * 10.0).round() / 10.0,
-        });
-        println!("{json}");
-    } else {
-        println!(
-            "snapshot: expected cost at {when}: {seen} of {} cells seen, {busy} above 0, highest {highest} (rows from the origin, -1 = no camera with a learned model sees)",
-            cells.len()
-        );
-        for ((id, store, floor), learned) in cameras.iter().zip(&learned) {
-            let state = match (store, floor, learned) {
-                (false, _, _) => "no long-term store",
-                (_, false, _) => "no floor_points, not on the map",
-                (_, _, false) => "nothing learned at this time",
-                _ => "drawn",
-            };
-            println!("  {id}: {state}");
-        }
-        println!(
-            "wrote {}, {}, {} in {render_ms:.0} ms",
-            files.png.display(),
-            files.pgm.display(),
-            files.yaml.display()
-        );
+    println!(
+        "snapshot: expected cost at {when}: {seen} of {} cells seen, {busy} above 0, highest {highest} (rows from the origin, -1 = no camera with a learned model sees)",
+        cells.len()
+    );
+    for ((id, store, floor), learned) in e.cameras.iter().zip(&e.learned) {
+        let state = match (store, floor, learned) {
+            (false, _, _) => "no long-term store",
+            (_, false, _) => "no floor_points, not on the map",
+            (_, _, false) => "nothing learned at this time",
+            _ => "drawn",
+        };
+        println!("  {id}: {state}");
     }
-    Ok(ExitCode::SUCCESS)
+    println!(
+        "wrote {}, {}, {} in {render_ms:.0} ms",
+        files.png.display(),
+        files.pgm.display(),
+        files.yaml.display()
+    );
 }
 
 fn check(args: CheckArgs) -> anyhow::Result<ExitCode> {

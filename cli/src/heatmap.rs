@@ -14,7 +14,7 @@ use isochron_planning::profile::daily_profile;
 use isochron_store::Model;
 use plotters::prelude::*;
 
-use crate::plot::Daily;
+use crate::daily::Daily;
 use crate::store::{StoreArgs, open};
 
 /// Most block rows drawn; more blocks are averaged in groups.
@@ -168,26 +168,7 @@ fn draw(out: &std::path::Path, heat: &Heat, title: &str) -> anyhow::Result<()> {
     root.draw(&Text::new(title.to_string(), (10, 12), font.clone()))
         .map_err(e)?;
     let top = heat.top();
-    let grey = RGBColor(200, 200, 200);
-    let mut pixels = vec![0u8; cols * heat.rows * row_px * 3];
-    for r in 0..heat.rows {
-        for c in 0..cols {
-            let pair = [
-                heat.values[r * minutes + 2 * c],
-                heat.values[r * minutes + 2 * c + 1],
-            ];
-            let learned: Vec<f64> = pair.iter().flatten().copied().collect();
-            let RGBColor(red, green, blue) = if learned.is_empty() {
-                grey
-            } else {
-                colour(learned.iter().sum::<f64>() / learned.len() as f64 / top)
-            };
-            for dy in 0..row_px {
-                let i = ((r * row_px + dy) * cols + c) * 3;
-                pixels[i..i + 3].copy_from_slice(&[red, green, blue]);
-            }
-        }
-    }
+    let pixels = heat_pixels(heat, cols, row_px);
     let area = root.margin(top_m as i32, bottom as i32, left as i32, right as i32);
     area.draw(
         &BitMapElement::with_owned_buffer(
@@ -230,33 +211,65 @@ fn draw(out: &std::path::Path, heat: &Heat, title: &str) -> anyhow::Result<()> {
         small.clone(),
     ))
     .map_err(e)?;
-    // Colour scale.
-    let sx = (left + cols as u32 + 20) as i32;
-    let sh = (heat.rows * row_px) as i32;
+    let scale_x = (left + cols as u32 + 20) as i32;
+    let scale_h = (heat.rows * row_px) as i32;
+    draw_scale(&root, (scale_x, top_m as i32), scale_h, top).map_err(e)?;
+    root.present()
+        .map_err(|err| anyhow::anyhow!("writing {}: {err}", out.display()))?;
+    Ok(())
+}
+
+/// The heat map's pixels (RGB, `cols` × `heat.rows · row_px`): each column the
+/// mean of two minutes, grey where nothing was learned.
+fn heat_pixels(heat: &Heat, cols: usize, row_px: usize) -> Vec<u8> {
+    let minutes = MINUTES_PER_DAY as usize;
+    let top = heat.top();
+    let grey = RGBColor(200, 200, 200);
+    let mut pixels = vec![0u8; cols * heat.rows * row_px * 3];
+    for r in 0..heat.rows {
+        for c in 0..cols {
+            let pair = [
+                heat.values[r * minutes + 2 * c],
+                heat.values[r * minutes + 2 * c + 1],
+            ];
+            let learned: Vec<f64> = pair.iter().flatten().copied().collect();
+            let RGBColor(red, green, blue) = if learned.is_empty() {
+                grey
+            } else {
+                colour(learned.iter().sum::<f64>() / learned.len() as f64 / top)
+            };
+            for dy in 0..row_px {
+                let i = ((r * row_px + dy) * cols + c) * 3;
+                pixels[i..i + 3].copy_from_slice(&[red, green, blue]);
+            }
+        }
+    }
+    pixels
+}
+
+/// The colour scale at `(sx, top_m)`, `sh` pixels high, from 0 to `top`.
+fn draw_scale<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    (sx, top_m): (i32, i32),
+    sh: i32,
+    top: f64,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let small = ("sans-serif", 13).into_font();
     for y in 0..sh {
         let v = 1.0 - y as f64 / sh.max(1) as f64;
         root.draw(&PathElement::new(
-            vec![(sx, top_m as i32 + y), (sx + 16, top_m as i32 + y)],
+            vec![(sx, top_m + y), (sx + 16, top_m + y)],
             colour(v),
-        ))
-        .map_err(e)?;
+        ))?;
     }
     for (v, y) in [(top, 0), (top / 2.0, sh / 2), (0.0, sh)] {
         root.draw(&Text::new(
             format!("{v:.3}"),
-            (sx + 20, top_m as i32 + y - 6),
+            (sx + 20, top_m + y - 6),
             small.clone(),
-        ))
-        .map_err(e)?;
+        ))?;
     }
-    root.draw(&Text::new(
-        "mean".to_string(),
-        (sx, top_m as i32 - 18),
-        small,
-    ))
-    .map_err(e)?;
-    root.present()
-        .map_err(|err| anyhow::anyhow!("writing {}: {err}", out.display()))?;
+    root.draw(&Text::new("mean".to_string(), (sx, top_m - 18), small))?;
     Ok(())
 }
 

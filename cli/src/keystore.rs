@@ -107,6 +107,27 @@ fn openssl(args: &[&str]) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `openssl req` with a new P-256 key into `key`, its request (or with `-x509` in
+/// `extra`, its self-signed certificate) into `out`, for `subject`.
+fn new_key((key, out): (&Path, &Path), subject: &str, extra: &[&str]) -> anyhow::Result<()> {
+    let mut args = vec!["req"];
+    args.extend(extra);
+    args.extend([
+        "-newkey",
+        "ec",
+        "-pkeyopt",
+        "ec_paramgen_curve:prime256v1",
+        "-nodes",
+        "-keyout",
+        path(key)?,
+        "-out",
+        path(out)?,
+        "-subj",
+        subject,
+    ]);
+    openssl(&args)
+}
+
 fn path(p: &Path) -> anyhow::Result<&str> {
     p.to_str()
         .with_context(|| format!("{}: not a UTF-8 path", p.display()))
@@ -128,23 +149,11 @@ fn init(dir: &Path) -> anyhow::Result<()> {
         std::fs::create_dir_all(dir.join(sub))
             .with_context(|| format!("creating {}", dir.join(sub).display()))?;
     }
-    openssl(&[
-        "req",
-        "-x509",
-        "-newkey",
-        "ec",
-        "-pkeyopt",
-        "ec_paramgen_curve:prime256v1",
-        "-nodes",
-        "-keyout",
-        path(&key)?,
-        "-out",
-        path(&cert)?,
-        "-days",
-        "36500",
-        "-subj",
+    new_key(
+        (&key, &cert),
         &format!("/O={ORGANISATION}/CN=isochron site CA"),
-    ])?;
+        &["-x509", "-days", "36500"],
+    )?;
     let xml = dir.join("enclaves/governance.xml");
     std::fs::write(&xml, governance()).with_context(|| format!("writing {}", xml.display()))?;
     sign(dir, &xml, &dir.join("enclaves/governance.p7s"))?;
@@ -295,20 +304,11 @@ pub fn enclave(dir: &Path, grant: &Grant, days: u32) -> anyhow::Result<PathBuf> 
     std::fs::copy(&governance, out.join("governance.p7s"))
         .with_context(|| format!("copying the governance into {}", out.display()))?;
     let request = out.join("cert.csr.pem");
-    openssl(&[
-        "req",
-        "-newkey",
-        "ec",
-        "-pkeyopt",
-        "ec_paramgen_curve:prime256v1",
-        "-nodes",
-        "-keyout",
-        path(&out.join("key.pem"))?,
-        "-out",
-        path(&request)?,
-        "-subj",
+    new_key(
+        (&out.join("key.pem"), &request),
         &format!("/O={ORGANISATION}/CN={}", grant.box_id),
-    ])?;
+        &[],
+    )?;
     let serial = format!(
         "{}",
         std::time::SystemTime::now()

@@ -242,25 +242,7 @@ impl Supervisor {
         let now = Instant::now();
         for i in 0..self.services.len() {
             let m = &mut self.services[i];
-            // Notifications: READY=1, WATCHDOG=1, STATUS=...
-            let mut buf = [0u8; 4096];
-            while let Ok(n) = m.notify.recv(&mut buf) {
-                for line in String::from_utf8_lossy(&buf[..n]).lines() {
-                    match line.split_once('=') {
-                        Some(("READY", "1")) if m.state == State::Starting => {
-                            m.state = State::Running;
-                            changes.push(Change {
-                                name: m.spec.name.clone(),
-                                what: "ready".into(),
-                            });
-                        }
-                        Some(("WATCHDOG", "1")) => m.last_ping = now,
-                        Some(("STATUS", s)) => m.status = s.to_string(),
-                        _ => {}
-                    }
-                }
-                m.last_ping = now;
-            }
+            read_notifications(m, now, &mut changes);
             // Exits.
             if let Some(child) = &mut m.child
                 && let Ok(Some(status)) = child.try_wait()
@@ -447,6 +429,29 @@ impl Drop for Supervisor {
             let _ = std::fs::remove_file(&m.notify_path);
         }
         let _ = std::fs::remove_dir(&self.dir);
+    }
+}
+
+/// Reads `m`'s notifications (READY=1, WATCHDOG=1, STATUS=...): any of them is a
+/// sign of life.
+fn read_notifications(m: &mut Managed, now: Instant, changes: &mut Vec<Change>) {
+    let mut buf = [0u8; 4096];
+    while let Ok(n) = m.notify.recv(&mut buf) {
+        for line in String::from_utf8_lossy(&buf[..n]).lines() {
+            match line.split_once('=') {
+                Some(("READY", "1")) if m.state == State::Starting => {
+                    m.state = State::Running;
+                    changes.push(Change {
+                        name: m.spec.name.clone(),
+                        what: "ready".into(),
+                    });
+                }
+                Some(("WATCHDOG", "1")) => m.last_ping = now,
+                Some(("STATUS", s)) => m.status = s.to_string(),
+                _ => {}
+            }
+        }
+        m.last_ping = now;
     }
 }
 

@@ -102,6 +102,10 @@ pub struct Scene<'a> {
     pub segments: &'a [FloorPolygon],
 }
 
+/// Where the overlay is drawn, and the error drawing on it gives.
+type Area<DB> = DrawingArea<DB, plotters::coord::Shift>;
+type Drawn<DB> = Result<(), DrawingAreaErrorKind<<DB as DrawingBackend>::ErrorType>>;
+
 /// Draws `scene` over `frame` into the PNG `out`.
 pub fn draw(out: &Path, frame: &Frame, scene: &Scene) -> anyhow::Result<()> {
     crate::font::load()?;
@@ -112,145 +116,177 @@ pub fn draw(out: &Path, frame: &Frame, scene: &Scene) -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("drawing the frame: {e:?}"))?;
     let root = backend.into_drawing_area();
     let e = |e: DrawingAreaErrorKind<_>| anyhow::anyhow!("drawing the overlay: {e:?}");
-    let px = |p: Point| (p[0].round() as i32, p[1].round() as i32);
+    draw_image_layers(&root, scene, (w, h)).map_err(e)?;
+    if let Some(cal) = scene.calibration
+        && let Some(inv) = cal.homography.inverse()
+    {
+        let to_image = |q: Point| inv.apply(q).filter(|p| in_reach(*p, w, h));
+        if let Some(extent) = scene.floor_extent {
+            draw_floor_grid(&root, extent, &to_image).map_err(e)?;
+        }
+        draw_segments(&root, scene.segments, &to_image).map_err(e)?;
+        draw_floor_points(&root, cal).map_err(e)?;
+    }
+    draw_legend(&root, scene).map_err(e)?;
+    root.present()
+        .map_err(|err| anyhow::anyhow!("writing {}: {err}", out.display()))?;
+    Ok(())
+}
 
-    // Block grid.
+/// A point as the pixel it falls in.
+fn px(p: Point) -> (i32, i32) {
+    (p[0].round() as i32, p[1].round() as i32)
+}
+
+/// What lies in the image plane: the block grid, the masks (darkened) and the
+/// zones (outlined, named).
+fn draw_image_layers<DB: DrawingBackend>(
+    root: &Area<DB>,
+    scene: &Scene,
+    (w, h): (u32, u32),
+) -> Drawn<DB> {
     let grid = WHITE.mix(0.25);
     let b = scene.block_px.max(1);
     for x in (0..w).step_by(b as usize).skip(1) {
         root.draw(&PathElement::new(
             vec![(x as i32, 0), (x as i32, h as i32)],
             grid,
-        ))
-        .map_err(e)?;
+        ))?;
     }
     for y in (0..h).step_by(b as usize).skip(1) {
         root.draw(&PathElement::new(
             vec![(0, y as i32), (w as i32, y as i32)],
             grid,
-        ))
-        .map_err(e)?;
+        ))?;
     }
-    // Masks: darkened.
     for m in scene.masks {
         let pts: Vec<(i32, i32)> = m.iter().map(|p| px(*p)).collect();
-        root.draw(&Polygon::new(pts.clone(), BLACK.mix(0.55).filled()))
-            .map_err(e)?;
-        root.draw(&PathElement::new(closed(pts), BLACK.stroke_width(2)))
-            .map_err(e)?;
+        root.draw(&Polygon::new(pts.clone(), BLACK.mix(0.55).filled()))?;
+        root.draw(&PathElement::new(closed(pts), BLACK.stroke_width(2)))?;
     }
-    // Zones: outlined, named.
     let zone_color = RGBColor(255, 200, 0);
     for z in scene.zones {
         let pts: Vec<(i32, i32)> = z.polygon.iter().map(|p| px(*p)).collect();
         root.draw(&PathElement::new(
             closed(pts.clone()),
             zone_color.stroke_width(2),
-        ))
-        .map_err(e)?;
+        ))?;
         if let Some(&first) = pts.first() {
             label(
-                &root,
+                root,
                 &format!("zone {}", z.name),
                 (first.0 + 4, first.1 + 4),
                 &zone_color,
-            )
-            .map_err(e)?;
+            )?;
         }
     }
+    Ok(())
+}
 
-    if let Some(cal) = scene.calibration
-        && let Some(inv) = cal.homography.inverse()
-    {
-        let to_image = |q: Point| inv.apply(q).filter(|p| in_reach(*p, w, h));
-        // Floor grid, 1 m lines; the axes through the origin brighter.
-        if let Some([lo, hi]) = scene.floor_extent {
-            let floor = RGBColor(0, 230, 255);
-            for (axis, (from, to), (along_lo, along_hi)) in [
-                (0, (lo[0], hi[0]), (lo[1], hi[1])),
-                (1, (lo[1], hi[1]), (lo[0], hi[0])),
-            ] {
-                for k in (from.ceil() as i64)..=(to.floor() as i64) {
-                    let v = k as f64;
-                    let at = |s: f64| if axis == 0 { [v, s] } else { [s, v] };
-                    let style = if k == 0 {
-                        floor.stroke_width(2)
-                    } else if k % 5 == 0 {
-                        floor.mix(0.8).stroke_width(1)
-                    } else {
-                        floor.mix(0.4).stroke_width(1)
-                    };
-                    for run in projected_runs(along_lo, along_hi, &|s| to_image(at(s))) {
-                        root.draw(&PathElement::new(run, style)).map_err(e)?;
-                    }
-                }
-            }
-            // Labels at the 5 m crossings.
-            let step = |a: f64| (a / 5.0).ceil() as i64 * 5;
-            let mut x = step(lo[0]);
-            while (x as f64) <= hi[0] {
-                let mut y = step(lo[1]);
-                while (y as f64) <= hi[1] {
-                    if let Some(p) = to_image([x as f64, y as f64]).filter(|p| inside(*p, w, h)) {
-                        label(
-                            &root,
-                            &format!("({x},{y}) m"),
-                            (px(p).0 + 3, px(p).1 - 14),
-                            &floor,
-                        )
-                        .map_err(e)?;
-                    }
-                    y += 5;
-                }
-                x += 5;
-            }
-        }
-        // Route segments on the floor.
-        let seg_color = RGBColor(80, 255, 80);
-        for s in scene.segments {
-            let n = s.polygon_m.len();
-            for i in 0..n {
-                let (a, b) = (s.polygon_m[i], s.polygon_m[(i + 1) % n]);
-                let edge = |t: f64| to_image([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]);
-                for run in projected_runs(0.0, 1.0, &edge) {
-                    root.draw(&PathElement::new(run, seg_color.stroke_width(3)))
-                        .map_err(e)?;
-                }
-            }
-            let c = centroid(&s.polygon_m);
-            if let Some(p) = to_image(c).filter(|p| inside(*p, w, h)) {
-                label(&root, &format!("segment {}", s.name), px(p), &seg_color).map_err(e)?;
-            }
-        }
-        // Calibration points: a ring at the image point, a cross where the fit puts
-        // the floor point, a line between them, and the residuals.
-        for p in &cal.points {
-            let color = if p.flagged {
-                RGBColor(255, 40, 40)
+/// The floor grid over `[lo, hi]` (metres), 1 m lines, the axes through the
+/// origin brighter, labelled at the 5 m crossings; `to_image` maps a floor point
+/// into the image (`None` out of reach).
+fn draw_floor_grid<DB: DrawingBackend>(
+    root: &Area<DB>,
+    [lo, hi]: [Point; 2],
+    to_image: &dyn Fn(Point) -> Option<Point>,
+) -> Drawn<DB> {
+    let (w, h) = root.dim_in_pixel();
+    let floor = RGBColor(0, 230, 255);
+    for (axis, (from, to), (along_lo, along_hi)) in [
+        (0, (lo[0], hi[0]), (lo[1], hi[1])),
+        (1, (lo[1], hi[1]), (lo[0], hi[0])),
+    ] {
+        for k in (from.ceil() as i64)..=(to.floor() as i64) {
+            let v = k as f64;
+            let at = |s: f64| if axis == 0 { [v, s] } else { [s, v] };
+            let style = if k == 0 {
+                floor.stroke_width(2)
+            } else if k % 5 == 0 {
+                floor.mix(0.8).stroke_width(1)
             } else {
-                RGBColor(255, 0, 255)
+                floor.mix(0.4).stroke_width(1)
             };
-            let at = px(p.image_px);
-            root.draw(&Circle::new(at, 6, color.stroke_width(2)))
-                .map_err(e)?;
-            if let Some(m) = p.mapped_image_px.filter(|m| in_reach(*m, w, h)) {
-                root.draw(&PathElement::new(vec![at, px(m)], color.stroke_width(2)))
-                    .map_err(e)?;
-                root.draw(&Cross::new(px(m), 4, color.stroke_width(2)))
-                    .map_err(e)?;
+            for run in projected_runs(along_lo, along_hi, &|s| to_image(at(s))) {
+                root.draw(&PathElement::new(run, style))?;
             }
-            let text = format!(
-                "#{} {:.2} m {:.1} px{}",
-                p.index,
-                p.residual_m,
-                p.residual_px,
-                if p.flagged { " OUTLIER" } else { "" }
-            );
-            label(&root, &text, (at.0 + 8, at.1 + 6), &color).map_err(e)?;
         }
     }
+    let step = |a: f64| (a / 5.0).ceil() as i64 * 5;
+    let mut x = step(lo[0]);
+    while (x as f64) <= hi[0] {
+        let mut y = step(lo[1]);
+        while (y as f64) <= hi[1] {
+            if let Some(p) = to_image([x as f64, y as f64]).filter(|p| inside(*p, w, h)) {
+                label(
+                    root,
+                    &format!("({x},{y}) m"),
+                    (px(p).0 + 3, px(p).1 - 14),
+                    &floor,
+                )?;
+            }
+            y += 5;
+        }
+        x += 5;
+    }
+    Ok(())
+}
 
-    // Legend.
+/// The route segments on the floor, outlined and named.
+fn draw_segments<DB: DrawingBackend>(
+    root: &Area<DB>,
+    segments: &[FloorPolygon],
+    to_image: &dyn Fn(Point) -> Option<Point>,
+) -> Drawn<DB> {
+    let (w, h) = root.dim_in_pixel();
+    let seg_color = RGBColor(80, 255, 80);
+    for s in segments {
+        let n = s.polygon_m.len();
+        for i in 0..n {
+            let (a, b) = (s.polygon_m[i], s.polygon_m[(i + 1) % n]);
+            let edge = |t: f64| to_image([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]);
+            for run in projected_runs(0.0, 1.0, &edge) {
+                root.draw(&PathElement::new(run, seg_color.stroke_width(3)))?;
+            }
+        }
+        let c = centroid(&s.polygon_m);
+        if let Some(p) = to_image(c).filter(|p| inside(*p, w, h)) {
+            label(root, &format!("segment {}", s.name), px(p), &seg_color)?;
+        }
+    }
+    Ok(())
+}
+
+/// The calibration points: a ring at the image point, a cross where the fit puts
+/// the floor point, a line between them, and the residuals.
+fn draw_floor_points<DB: DrawingBackend>(root: &Area<DB>, cal: &Calibration) -> Drawn<DB> {
+    let (w, h) = root.dim_in_pixel();
+    for p in &cal.points {
+        let color = if p.flagged {
+            RGBColor(255, 40, 40)
+        } else {
+            RGBColor(255, 0, 255)
+        };
+        let at = px(p.image_px);
+        root.draw(&Circle::new(at, 6, color.stroke_width(2)))?;
+        if let Some(m) = p.mapped_image_px.filter(|m| in_reach(*m, w, h)) {
+            root.draw(&PathElement::new(vec![at, px(m)], color.stroke_width(2)))?;
+            root.draw(&Cross::new(px(m), 4, color.stroke_width(2)))?;
+        }
+        let text = format!(
+            "#{} {:.2} m {:.1} px{}",
+            p.index,
+            p.residual_m,
+            p.residual_px,
+            if p.flagged { " OUTLIER" } else { "" }
+        );
+        label(root, &text, (at.0 + 8, at.1 + 6), &color)?;
+    }
+    Ok(())
+}
+
+/// The legend: the camera and the quality of its floor mapping.
+fn draw_legend<DB: DrawingBackend>(root: &Area<DB>, scene: &Scene) -> Drawn<DB> {
     let mut lines = vec![format!("camera {}", scene.camera)];
     match scene.calibration {
         Some(c) => {
@@ -280,22 +316,20 @@ pub fn draw(out: &Path, frame: &Frame, scene: &Scene) -> anyhow::Result<()> {
     root.draw(&Rectangle::new(
         [(0, 0), (430, height)],
         BLACK.mix(0.6).filled(),
-    ))
-    .map_err(e)?;
+    ))?;
     for (i, l) in lines.iter().enumerate() {
-        label(&root, l, (6, 4 + 18 * i as i32), &WHITE).map_err(e)?;
+        label(root, l, (6, 4 + 18 * i as i32), &WHITE)?;
     }
-    root.present()
-        .map_err(|err| anyhow::anyhow!("writing {}: {err}", out.display()))?;
     Ok(())
 }
 
+/// `text` at `at` in `color` on a dark shadow, kept inside the picture.
 fn label<DB: DrawingBackend>(
-    root: &DrawingArea<DB, plotters::coord::Shift>,
+    root: &Area<DB>,
     text: &str,
     at: (i32, i32),
     color: &RGBColor,
-) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+) -> Drawn<DB> {
     let style = ("sans-serif", 14).into_font().color(color);
     // A dark shadow keeps text readable on any background.
     let shadow = ("sans-serif", 14).into_font().color(&BLACK);

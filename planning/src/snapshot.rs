@@ -418,6 +418,29 @@ impl Canvas {
     }
 }
 
+/// Left edge of the cost scale and the legend, picture pixels.
+const LEFT: usize = 8;
+
+/// Where things go in a snapshot's picture, pixels.
+struct Layout {
+    /// Grid cells across.
+    w: usize,
+    /// Grid cells down.
+    h: usize,
+    /// Picture pixels per cell.
+    scale: usize,
+    /// Picture width.
+    iw: usize,
+    /// Text scale: 2 on wide pictures, else 1.
+    ts: usize,
+    /// Height of a line of text.
+    line: usize,
+    /// Top of the map (below the caption).
+    top: usize,
+    /// Bottom of the map.
+    map_bottom: usize,
+}
+
 /// The picture for people, as PNG bytes.
 pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
     let (w, h) = (s.grid.width as usize, s.grid.height as usize);
@@ -428,6 +451,16 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
     let line = (font::HEIGHT + 3) * ts;
     let top = if s.caption.is_empty() { 0 } else { line + 6 };
     let map_bottom = top + h * scale;
+    let l = Layout {
+        w,
+        h,
+        scale,
+        iw,
+        ts,
+        line,
+        top,
+        map_bottom,
+    };
     // Below the map: the colour bar, its labels, the legend.
     let ih = map_bottom + 6 + 12 + 4 + line + 4 + line + 4;
     let mut img = Canvas {
@@ -435,12 +468,35 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
         h: ih,
         rgb: vec![255u8; iw * ih * 3],
     };
+    draw_cells(&mut img, s, &l);
+    draw_coverage(&mut img, s, &l);
+    draw_outlines(&mut img, s, &l);
+    if !s.caption.is_empty() {
+        img.text(4, 4, s.caption, ts);
+    }
+    let legend_y = draw_cost_scale(&mut img, &l);
+    draw_legend(&mut img, s, &l, legend_y);
+    let mut out = Vec::new();
+    {
+        let mut encoder = png::Encoder::new(&mut out, iw as u32, ih as u32);
+        encoder.set_color(png::ColorType::Rgb);
+        encoder.set_depth(png::BitDepth::Eight);
+        let mut writer = encoder.write_header()?;
+        writer.write_image_data(&img.rgb)?;
+    }
+    Ok(out)
+}
+
+/// The cells: their cost over the floor plan (or plain floor), hatched where no
+/// camera sees.
+fn draw_cells(img: &mut Canvas, s: &Snapshot<'_>, l: &Layout) {
+    let (w, h, scale) = (l.w, l.h, l.scale);
     let plan = s
         .floor_plan
         .filter(|p| p.width as usize == w && p.height as usize == h);
     for gy in 0..h {
         // Image row 0 is the grid's last row.
-        let py0 = top + (h - 1 - gy) * scale;
+        let py0 = l.top + (h - 1 - gy) * scale;
         for gx in 0..w {
             let k = gy * w + gx;
             let base = match plan {
@@ -465,7 +521,11 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
             }
         }
     }
-    // Camera coverage outlines: seen cells with an unseen 4-neighbour.
+}
+
+/// Camera coverage outlines: seen cells with an unseen 4-neighbour.
+fn draw_coverage(img: &mut Canvas, s: &Snapshot<'_>, l: &Layout) {
+    let (w, h, scale) = (l.w, l.h, l.scale);
     for (n, cover) in s.coverage.iter().enumerate() {
         if cover.len() != w * h {
             continue;
@@ -486,34 +546,40 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
                         && seen(gx, gy - 1)
                         && seen(gx, gy + 1))
                 {
-                    let py0 = top + (h - 1 - gy as usize) * scale;
+                    let py0 = l.top + (h - 1 - gy as usize) * scale;
                     img.fill(gx as usize * scale, py0, scale, scale, colour);
                 }
             }
         }
     }
-    // Zone and segment outlines, in picture pixels.
+}
+
+/// Zone and segment outlines.
+fn draw_outlines(img: &mut Canvas, s: &Snapshot<'_>, l: &Layout) {
+    // In picture pixels.
     let to_px = |p: &[f64; 2]| {
         let g = s.grid.to_grid(*p);
         (
-            g[0] * scale as f64,
-            top as f64 + (h as f64 - g[1]) * scale as f64,
+            g[0] * l.scale as f64,
+            l.top as f64 + (l.h as f64 - g[1]) * l.scale as f64,
         )
     };
     for zone in s.zones {
         let points: Vec<(f64, f64)> = zone.iter().map(to_px).collect();
-        img.outline(&points, top, map_bottom, ZONE_COLOUR, true);
+        img.outline(&points, l.top, l.map_bottom, ZONE_COLOUR, true);
     }
     for poly in s.segments {
         let points: Vec<(f64, f64)> = poly.iter().map(to_px).collect();
-        img.outline(&points, top, map_bottom, SEGMENT_COLOUR, false);
+        img.outline(&points, l.top, l.map_bottom, SEGMENT_COLOUR, false);
     }
-    if !s.caption.is_empty() {
-        img.text(4, 4, s.caption, ts);
-    }
-    // Cost scale: 0 (left) to 100 (right), labelled every 25.
-    let bar_y = map_bottom + 6;
-    let (x0, bar_w) = (8, iw - 16);
+}
+
+/// The cost scale below the map: 0 (left) to 100 (right), labelled every 25.
+/// Returns the top of the legend below it.
+fn draw_cost_scale(img: &mut Canvas, l: &Layout) -> usize {
+    let (iw, ts) = (l.iw, l.ts);
+    let bar_y = l.map_bottom + 6;
+    let (x0, bar_w) = (LEFT, iw - 2 * LEFT);
     for x in 0..bar_w {
         let cost = (x * 100 / bar_w.max(1)) as u8;
         img.fill(
@@ -544,48 +610,38 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
         };
         img.text(lx, label_y, &label, ts);
     }
-    // Legend: what the outlines and the hatching mean.
-    let mut x = x0;
-    let legend_y = label_y + line + 4;
+    label_y + l.line + 4
+}
+
+/// The legend at `legend_y`: what the outlines and the hatching mean.
+fn draw_legend(img: &mut Canvas, s: &Snapshot<'_>, l: &Layout, legend_y: usize) {
+    let ts = l.ts;
+    let mut x = LEFT;
     let swatch = font::HEIGHT * ts;
-    let entry = |img: &mut Canvas, x: &mut usize, colour: Option<[u8; 3]>, label: &str| {
+    let mut entry = |colour: Option<[u8; 3]>, label: &str| {
         match colour {
-            Some(c) => img.fill(*x, legend_y, swatch, swatch, c),
+            Some(c) => img.fill(x, legend_y, swatch, swatch, c),
             None => {
                 for dy in 0..swatch {
                     for dx in 0..swatch {
-                        img.put(*x + dx, legend_y + dy, hatch(dx + dy, [250, 250, 250]));
+                        img.put(x + dx, legend_y + dy, hatch(dx + dy, [250, 250, 250]));
                     }
                 }
             }
         }
-        img.text(*x + swatch + 3, legend_y, label, ts);
-        *x += swatch + 3 + font::width(label, ts) + 4 * ts;
+        img.text(x + swatch + 3, legend_y, label, ts);
+        x += swatch + 3 + font::width(label, ts) + 4 * ts;
     };
-    entry(&mut img, &mut x, None, "UNSEEN");
+    entry(None, "UNSEEN");
     if !s.segments.is_empty() {
-        entry(&mut img, &mut x, Some(SEGMENT_COLOUR), "SEGMENT");
+        entry(Some(SEGMENT_COLOUR), "SEGMENT");
     }
     if !s.zones.is_empty() {
-        entry(&mut img, &mut x, Some(ZONE_COLOUR), "ZONE");
+        entry(Some(ZONE_COLOUR), "ZONE");
     }
     for (n, id) in s.camera_ids.iter().enumerate() {
-        entry(
-            &mut img,
-            &mut x,
-            Some(CAMERA_COLOURS[n % CAMERA_COLOURS.len()]),
-            id,
-        );
+        entry(Some(CAMERA_COLOURS[n % CAMERA_COLOURS.len()]), id);
     }
-    let mut out = Vec::new();
-    {
-        let mut encoder = png::Encoder::new(&mut out, iw as u32, ih as u32);
-        encoder.set_color(png::ColorType::Rgb);
-        encoder.set_depth(png::BitDepth::Eight);
-        let mut writer = encoder.write_header()?;
-        writer.write_image_data(&img.rgb)?;
-    }
-    Ok(out)
 }
 
 /// The hatching of cells no camera sees, at diagonal position `d`.
@@ -612,106 +668,4 @@ fn blend(a: [u8; 3], b: [u8; 3], t: f64) -> [u8; 3] {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn grid() -> MapGrid {
-        MapGrid {
-            origin_x: -1.0,
-            origin_y: 2.0,
-            yaw: 0.0,
-            resolution: 0.5,
-            width: 3,
-            height: 2,
-        }
-    }
-
-    #[test]
-    fn pgm_round_trips_through_map_server_raw_mode() {
-        // Row 0 (at the origin) = [0, 50, -1]; row 1 = [100, 7, 0].
-        let cells = [0i8, 50, -1, 100, 7, 0];
-        let bytes = pgm_bytes(&grid(), &cells);
-        let h = pgm_header(&bytes).unwrap();
-        assert_eq!((h.width, h.height, h.max), (3, 2, 255));
-        let px = &bytes[h.data_offset..];
-        // Top image row is the grid's last row.
-        assert_eq!(px, &[100, 7, 0, 0, 50, 255]);
-        // Read back the way map_server does in raw mode.
-        let mut back = vec![0i8; 6];
-        for y in 0..2 {
-            for x in 0..3 {
-                let v = px[y * 3 + x];
-                back[3 * (2 - y - 1) + x] = if v <= 100 { v as i8 } else { -1 };
-            }
-        }
-        assert_eq!(back, cells);
-        let yaml = map_yaml(&grid(), "a.pgm", "t");
-        assert!(
-            yaml.contains("mode: raw") && yaml.contains("origin: [-1, 2, 0]"),
-            "{yaml}"
-        );
-        assert!(yaml.contains("resolution: 0.5"));
-    }
-
-    #[test]
-    fn snapshot_files_are_written_and_pruned() {
-        let dir = tempfile::tempdir().unwrap();
-        let cells = [0i8, 50, -1, 100, 7, 0];
-        let cover: Vec<u32> = vec![0, 0, NOT_SEEN, 1, 1, 1];
-        let seg: &[[f64; 2]] = &[[-1.0, 2.0], [0.0, 2.0], [0.0, 3.0]];
-        let s = Snapshot {
-            grid: &grid(),
-            cells: &cells,
-            floor_plan: None,
-            coverage: &[&cover],
-            camera_ids: &["cam01"],
-            segments: &[seg],
-            zones: &[vec![[-1.0, 2.0], [0.0, 2.0], [0.0, 3.0]]],
-            caption: "expected cost at 08:30",
-            stamp: "2026-03-02T07:00:00Z",
-        };
-        for stem in ["activity-1", "activity-2", "activity-3"] {
-            let files = write(dir.path(), stem, &s).unwrap();
-            assert!(files.yaml.is_file() && files.pgm.is_file());
-            let png = std::fs::read(&files.png).unwrap();
-            assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
-        }
-        // The map_server YAML loads as a grid of the same geometry.
-        let g = MapGrid::from_map_yaml(&dir.path().join("activity-3.yaml")).unwrap();
-        assert_eq!(g, grid());
-        assert_eq!(prune(dir.path(), "activity-", 2).unwrap(), 1);
-        assert!(!dir.path().join("activity-1.yaml").exists());
-        assert!(dir.path().join("activity-3.pgm").exists());
-        // No temporary files are left behind.
-        assert!(
-            std::fs::read_dir(dir.path()).unwrap().all(|e| !e
-                .unwrap()
-                .file_name()
-                .to_string_lossy()
-                .contains(".tmp-"))
-        );
-    }
-
-    #[test]
-    fn floor_plans_load_from_pgm_and_png() {
-        let dir = tempfile::tempdir().unwrap();
-        let pgm = dir.path().join("f.pgm");
-        std::fs::write(&pgm, b"P5\n2 1\n255\n\x00\xff").unwrap();
-        let p = FloorPlan::load(&pgm).unwrap();
-        assert_eq!((p.width, p.height, p.grey.clone()), (2, 1, vec![0, 255]));
-        let png_path = dir.path().join("f.png");
-        let mut out = Vec::new();
-        {
-            let mut e = png::Encoder::new(&mut out, 2, 1);
-            e.set_color(png::ColorType::Rgb);
-            e.set_depth(png::BitDepth::Eight);
-            e.write_header()
-                .unwrap()
-                .write_image_data(&[0, 0, 0, 30, 60, 90])
-                .unwrap();
-        }
-        std::fs::write(&png_path, out).unwrap();
-        let p = FloorPlan::load(&png_path).unwrap();
-        assert_eq!(p.grey, vec![0, 60]);
-    }
-}
+mod tests;

@@ -204,15 +204,20 @@ fn activity(box_id: &str, id: &str, second: u64, start_ns: i64) -> Message<Activ
 /// A simulated base station: its link's DDS participant sending its cameras'
 /// activity at 1 Hz, camera `k` at `k / PER_BOX` of each second.
 fn simulated_box(b: usize, cameras: usize, domain: u16, stop: Arc<AtomicBool>) -> JoinHandle<()> {
-    std::thread::spawn(move || {
-        let box_id = format!("box{b}");
-        let lo: [IpAddr; 1] = ["127.0.0.1".parse().unwrap()];
+    let name = format!("box{b}");
+    let thread = std::thread::Builder::new().name(name.clone());
+    let spawned = thread.spawn(move || {
+        let box_id = name;
+        let lo = [IpAddr::V4(std::net::Ipv4Addr::LOCALHOST)];
         let mut dds = LinkDds::start(domain, &lo, (&box_id, None), DEFAULT_LINK_NAMESPACE)
             .unwrap_or_else(|e| panic!("{box_id}: {e}"));
         let ids: Vec<String> = (0..cameras).map(|k| camera_id(b, k)).collect();
         let writers: Vec<_> = ids
             .iter()
-            .map(|id| dds.stream::<Activity, Publisher<_>>(id, 1, None).unwrap())
+            .map(|id| {
+                dds.stream::<Activity, Publisher<_>>(id, 1, None)
+                    .unwrap_or_else(|e| panic!("{box_id}: a writer for {id}: {e}"))
+            })
             .collect();
         let (t0, start_ns) = (Instant::now(), wall_now_ns());
         for second in 0u64.. {
@@ -227,7 +232,8 @@ fn simulated_box(b: usize, cameras: usize, domain: u16, stop: Arc<AtomicBool>) -
                 let _ = writer.publish(activity(&box_id, id, second, start_ns));
             }
         }
-    })
+    });
+    spawned.expect("a thread for a simulated box")
 }
 
 /// The result for one camera count.
@@ -360,7 +366,15 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
         held: true,
         reason: String::new(),
     };
-    let dead: Vec<String> = [("link", &mut link), ("bridge", &mut bridge)]
+    judge(&mut r, n, &mut link, &mut bridge);
+    r
+}
+
+/// Whether the run held (both processes alive, the bridge took every camera's
+/// samples, the grid's p99 under a second), and both processes stopped; their
+/// last log lines where it did not hold.
+fn judge(r: &mut Run, n: usize, link: &mut Proc, bridge: &mut Proc) {
+    let dead: Vec<String> = [("link", &mut *link), ("bridge", &mut *bridge)]
         .into_iter()
         .filter_map(|(name, p)| {
             p.wait(Duration::ZERO)
@@ -385,7 +399,7 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
     if r.grid_p99_ms.is_nan() || r.grid_p99_ms >= 1000.0 {
         fail(format!("origin → grid p99 {:.0} ms", r.grid_p99_ms));
     }
-    for (name, p) in [("link", &mut link), ("bridge", &mut bridge)] {
+    for (name, p) in [("link", &mut *link), ("bridge", &mut *bridge)] {
         if !r.held {
             let log = p.stderr();
             let tail: Vec<&str> = log.lines().rev().take(6).collect();
@@ -401,7 +415,6 @@ fn run(n: usize, opts: &Options, domains: (u16, u16)) -> Run {
             }
         }
     }
-    r
 }
 
 fn main() {

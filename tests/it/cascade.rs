@@ -2,8 +2,8 @@
 //! killed at random moments, restarted, and read through its store.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use fastrand::Rng as Lcg;
@@ -12,11 +12,12 @@ use isochron_config::clock::{Cycle, NS_PER_S, parse_rfc3339};
 use isochron_runtime::ipc::{Activity, Ipc, Motion, StreamPublisher};
 use isochron_runtime::names::ServiceNames;
 use isochron_store::{Store, StoreMeta, store_path};
-use isochron_tests::{Proc, TestSite, bin, eventually, read_samples};
+use isochron_tests::{Proc, TestSite, bin, eventually, named_thread, read_samples};
 use isochron_wire::geometry::BlockGrid;
 use isochron_wire::{
     ActivityHeader, BlockMotion, CameraId, FLAG_END_OF_STREAM, MotionHeader, Preamble, Stream,
 };
+use parking_lot::Mutex;
 
 /// The office hallway of the paper's figure: activity from 6 am, a lull at lunch, the
 /// busiest time at 4:30 pm, quiet after 9 pm.
@@ -301,7 +302,7 @@ impl Observer {
         );
         let config = config.to_path_buf();
         let (ready_tx, ready_rx) = std::sync::mpsc::channel();
-        let thread = std::thread::spawn(move || {
+        let thread = named_thread("observer", move || {
             let loaded = Config::load(&config).unwrap();
             let ipc = Ipc::new(
                 "test-observer",
@@ -325,7 +326,7 @@ impl Observer {
                     l.fetch_max(second, Ordering::AcqRel);
                     s.fetch_add(1, Ordering::Relaxed);
                     if second % 60 == 30 {
-                        d.lock().unwrap().push((second, h.model_days));
+                        d.lock().push((second, h.model_days));
                     }
                 }
             }
@@ -504,7 +505,7 @@ fn killing_the_cascade_at_random_moments_loses_at_most_the_minute_in_progress() 
     // The model the cascade reported after the first day comes from the store: the
     // bins of day 1 were seen as known on days 2..4, whatever restarts happened.
     let start_s = parse_rfc3339("2026-03-02T06:00:00Z").unwrap() / NS_PER_S;
-    let days = observer.days_seen.lock().unwrap().clone();
+    let days = observer.days_seen.lock().clone();
     let later: Vec<_> = days
         .iter()
         .filter(|(s, _)| *s >= start_s + 86_400)

@@ -284,8 +284,19 @@ pub(crate) fn listener_with(domain: u16, timeout_s: u32, extra: &[String]) -> Pr
 /// (`tests/ros2/plan_client.py`); its reply as JSON.
 pub(crate) fn ros_plan(domain: u16, service: &str, args: &[&str]) -> Value {
     let script = repo_root().join("tests/ros2/plan_client.py");
-    let out = std::process::Command::new(python())
-        .arg(&script)
+    let mut client = std::process::Command::new(python());
+    client.arg(&script);
+    plan_reply("plan_client.py", client, (domain, service, args))
+}
+
+/// Runs the planning services' `client` (named `name`) with the domain, the
+/// service and `args`; its reply, a JSON line of kind "reply".
+pub(crate) fn plan_reply(
+    name: &str,
+    mut client: std::process::Command,
+    (domain, service, args): (u16, &str, &[&str]),
+) -> Value {
+    let out = client
         .args(["--domain", &domain.to_string(), "--service", service])
         .args(args)
         .output()
@@ -293,12 +304,29 @@ pub(crate) fn ros_plan(domain: u16, service: &str, args: &[&str]) -> Value {
     let stdout = String::from_utf8_lossy(&out.stdout);
     let reply: Value = serde_json::from_str(stdout.trim()).unwrap_or_else(|e| {
         panic!(
-            "plan_client.py: {e}: {stdout}\n{}",
+            "{name}: {e}: {stdout}\n{}",
             String::from_utf8_lossy(&out.stderr)
         )
     });
-    assert_eq!(reply["kind"], "reply", "no reply from {service}: {reply}");
+    assert_eq!(
+        reply["kind"],
+        "reply",
+        "no reply from {service}: {reply}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     reply
+}
+
+/// Asserts that a client of the planning services (`plan(service, args)`) gets
+/// an unknown route and a time outside the day back as a status with the reason.
+pub(crate) fn assert_plan_errors(plan: impl Fn(&str, &[&str]) -> Value) {
+    let unknown = plan("/isochron/plan_now", &["now", "nowhere"]);
+    assert_plan_status(&unknown, 2, "via-west");
+    let late = plan(
+        "/isochron/plan_offline",
+        &["offline", "via-west", "1500", "1440", "5"],
+    );
+    assert_plan_status(&late, 1, "outside the day");
 }
 
 /// Asserts a ROS 2 plan reply has `status` and a message holding `says`.
@@ -652,20 +680,13 @@ segments = ["east"]
         assert!(same_cost(&c["cost"], &r["cost"]), "{c} {r}");
     }
     // Errors come back as a status with the reason, at once.
-    let unknown = ros_plan(domain, "/isochron/plan_now", &["now", "nowhere"]);
-    assert_plan_status(&unknown, 2, "via-west");
+    assert_plan_errors(|service, args| ros_plan(domain, service, args));
     let unknown = ros_plan(
         domain,
         "/isochron/plan_offline",
         &["offline", "nowhere", "0", "1440", "5"],
     );
     assert_plan_status(&unknown, 2, "");
-    let late = ros_plan(
-        domain,
-        "/isochron/plan_offline",
-        &["offline", "via-west", "1500", "1440", "5"],
-    );
-    assert_plan_status(&late, 1, "outside the day");
     let long = "x".repeat(40);
     let bad = ros_plan(domain, "/isochron/plan_now", &["now", &long]);
     assert_plan_status(&bad, 1, "");
@@ -1107,9 +1128,10 @@ fn a_ros2_peer_gets_the_forecast_of_the_long_term_model() {
     // clock (no camera is live); those forecasts are not the ones asked for here,
     // and between 10:00 and 15:00 UTC the store's minutes would even match them.
     let in_site_time = |m: &Value| {
-        let stamp = m["stamp"][0].as_i64().unwrap();
         m["kind"] == "forecast"
-            && (start_ns / NS_PER_S + 15 * 60..start_ns / NS_PER_S + 3600).contains(&stamp)
+            && m["stamp"][0].as_i64().is_some_and(|stamp| {
+                (start_ns / NS_PER_S + 15 * 60..start_ns / NS_PER_S + 3600).contains(&stamp)
+            })
     };
     wait_until(
         "the forecast at 11:55",

@@ -17,7 +17,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use isochron_runtime::service::raise_open_file_limit;
-use isochron_tests::{Proc, TestSite, bin, eventually, free_port, repo_root, vtest};
+use isochron_tests::{Proc, TestSite, bin, eventually, free_port, named_thread, repo_root, vtest};
 
 /// `GET path` on 127.0.0.1:`port` with `accept`: the response's head and body.
 fn get(port: u16, path: &str, accept: &str) -> Option<(String, String)> {
@@ -307,7 +307,7 @@ impl Peaks {
     fn watch(pid: u32) -> Peaks {
         let stop = Arc::new(AtomicBool::new(false));
         let stopped = stop.clone();
-        let sampler = std::thread::spawn(move || {
+        let sampler = named_thread("sampler", move || {
             let mut peak = (0, 0);
             while !stopped.load(Ordering::Relaxed) {
                 if let Some((rss, threads)) = rss_and_threads(pid) {
@@ -395,7 +395,11 @@ fn hostile_http_clients_get_431_or_are_closed_within_bounded_memory_and_threads(
     // 1. Four clients each try 400 MiB of request headers.
     let started = Instant::now();
     let attackers: Vec<_> = (0..4)
-        .map(|_| std::thread::spawn(move || huge_head(port, 400 << 20, Duration::from_secs(60))))
+        .map(|_| {
+            named_thread("attacker", move || {
+                huge_head(port, 400 << 20, Duration::from_secs(60))
+            })
+        })
         .collect();
     checked_scrape(port, dir, "the huge request heads");
     let huge: Vec<(u64, String)> = attackers.into_iter().map(|a| a.join().unwrap()).collect();

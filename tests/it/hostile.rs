@@ -18,7 +18,7 @@ use serde_json::Value;
 
 use crate::costmap::{
     HOT_BLOCK, HOT_S1, Source, camera_toml, costmap_toml, dds_domain, expected_cells, held_grid,
-    messages, netns_pair, python,
+    listener_with, messages, netns_pair, python,
 };
 
 const START: &str = "2026-03-02T11:00:00Z";
@@ -71,22 +71,7 @@ impl Lab {
         source.wait_for_subscriber(&link_a);
         let link_b = site_b.spawn("isochron-link", &[]);
         let bridge = site_b.spawn("isochron-costmap", &[]);
-        let listener = Proc::spawn(
-            &python(),
-            &[
-                repo_root()
-                    .join("tests/ros2/costmap_listener.py")
-                    .display()
-                    .to_string(),
-                "--domain".into(),
-                bridge_domain.to_string(),
-                "--topic".into(),
-                "/isochron_test/activity_costmap".into(),
-                "--updates".into(),
-                "--timeout".into(),
-                "300".into(),
-            ],
-        );
+        let listener = listener_with(bridge_domain, 300, &["--updates".into()]);
         let mut lab = Lab {
             link_domain,
             bridge_domain,
@@ -160,6 +145,28 @@ impl Lab {
     /// Resident memory of B's link and bridge, bytes.
     fn rss(&self) -> [u64; 2] {
         [&self.link_b, &self.bridge].map(|p| rss_bytes(p.pid()).unwrap_or(0))
+    }
+
+    /// B's link and bridge grew by less than `limit_mib` since `before` (their
+    /// [`Lab::rss`]), measured `what`: both printed, with the logs if not.
+    fn assert_rss_within(&mut self, what: &str, before: [u64; 2], limit_mib: u64) {
+        let after = self.rss();
+        eprintln!(
+            "MEASURED RSS {what}: link B {:.1} → {:.1} MiB, bridge B {:.1} → {:.1} MiB",
+            before[0] as f64 / MIB as f64,
+            after[0] as f64 / MIB as f64,
+            before[1] as f64 / MIB as f64,
+            after[1] as f64 / MIB as f64
+        );
+        for k in 0..2 {
+            assert!(
+                after[k] < before[k] + limit_mib * MIB,
+                "grew from {} to {} bytes\n{}",
+                before[k],
+                after[k],
+                self.logs()
+            );
+        }
     }
 
     /// Runs the forger (`--forge kind`, `seconds`) against B's link while A's
@@ -300,22 +307,7 @@ fn forged_link_messages_never_crash_or_stall_a_service() {
         0,
         "a forged event reached B's events service"
     );
-    let rss1 = lab.rss();
-    eprintln!(
-        "MEASURED RSS under forged messages: link B {:.1} → {:.1} MiB, bridge B {:.1} → {:.1} MiB",
-        rss0[0] as f64 / MIB as f64,
-        rss1[0] as f64 / MIB as f64,
-        rss0[1] as f64 / MIB as f64,
-        rss1[1] as f64 / MIB as f64
-    );
-    for k in 0..2 {
-        assert!(
-            rss1[k] < rss0[k] + 32 * MIB,
-            "grew from {} to {} bytes",
-            rss0[k],
-            rss1[k]
-        );
-    }
+    lab.assert_rss_within("under forged messages", rss0, 32);
     let (link_log, bridge_log) = (lab.link_b.stderr(), lab.bridge.stderr());
     assert!(
         link_log.contains("rejected activity of cam01 from box \"evil\""),
@@ -396,23 +388,7 @@ fn a_data_frag_claiming_a_huge_sample_allocates_nothing() {
         lab.feed();
         std::thread::sleep(Duration::from_millis(100));
     }
-    let rss1 = lab.rss();
-    eprintln!(
-        "MEASURED one DATA_FRAG claiming 1 GiB: link B {:.1} → {:.1} MiB, bridge B {:.1} → {:.1} MiB",
-        rss0[0] as f64 / MIB as f64,
-        rss1[0] as f64 / MIB as f64,
-        rss0[1] as f64 / MIB as f64,
-        rss1[1] as f64 / MIB as f64
-    );
-    for k in 0..2 {
-        assert!(
-            rss1[k] < rss0[k] + 16 * MIB,
-            "grew from {} to {} bytes\n{}",
-            rss0[k],
-            rss1[k],
-            lab.logs()
-        );
-    }
+    lab.assert_rss_within("after one DATA_FRAG claiming 1 GiB", rss0, 16);
     for k in 0..32u8 {
         let mut prefix = [0xee; 12];
         prefix[11] = k;
@@ -420,20 +396,11 @@ fn a_data_frag_claiming_a_huge_sample_allocates_nothing() {
         send(prefix, 3, (1 << 20) + 1);
     }
     lab.still_serving("DATA_FRAG datagrams");
-    let rss2 = lab.rss();
-    eprintln!(
-        "MEASURED 64 more DATA_FRAGs (0xFFFFFFF0 and 1 MiB + 1 bytes claimed): link B {:.1} MiB, bridge B {:.1} MiB",
-        rss2[0] as f64 / MIB as f64,
-        rss2[1] as f64 / MIB as f64
+    lab.assert_rss_within(
+        "after 64 more DATA_FRAGs (0xFFFFFFF0 and 1 MiB + 1 bytes claimed)",
+        rss0,
+        16,
     );
-    for k in 0..2 {
-        assert!(
-            rss2[k] < rss0[k] + 16 * MIB,
-            "grew from {} to {} bytes",
-            rss0[k],
-            rss2[k]
-        );
-    }
     let log = lab.link_b.stderr();
     assert!(
         log.contains("exceeds the reader's max_sample_size"),
@@ -780,23 +747,7 @@ fn a_blocked_grid_publish_logs_a_short_line() {
     let mut source = Source::new(&ipc, START);
     let bridge = site.spawn("isochron-costmap", &[]);
     source.wait_for_subscriber(&bridge);
-    let script = repo_root()
-        .join("tests/ros2/costmap_listener.py")
-        .display()
-        .to_string();
-    let mut listener = Proc::spawn(
-        &python(),
-        &[
-            script,
-            "--domain".into(),
-            domain.to_string(),
-            "--topic".into(),
-            "/isochron_test/activity_costmap".into(),
-            "--updates".into(),
-            "--timeout".into(),
-            "300".into(),
-        ],
-    );
+    let mut listener = listener_with(domain, 300, &["--updates".into()]);
     let mut k = 0usize;
     let mut feed = |source: &mut Source| {
         // A different hot block every second: every publish is a change.
@@ -853,22 +804,7 @@ fn a_blocked_grid_publish_logs_a_short_line() {
         longest_line(&log)
     );
     // The bridge publishes on: a new subscriber gets grids.
-    let script = repo_root()
-        .join("tests/ros2/costmap_listener.py")
-        .display()
-        .to_string();
-    let mut fresh = Proc::spawn(
-        &python(),
-        &[
-            script,
-            "--domain".into(),
-            domain.to_string(),
-            "--topic".into(),
-            "/isochron_test/activity_costmap".into(),
-            "--timeout".into(),
-            "60".into(),
-        ],
-    );
+    let mut fresh = listener_with(domain, 60, &[]);
     let t = Instant::now();
     while messages(&mut fresh).is_empty() {
         assert!(

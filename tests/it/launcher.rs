@@ -2,7 +2,7 @@
 
 use std::time::{Duration, Instant};
 
-use isochron_tests::{TestSite, pid_in};
+use isochron_tests::{TestSite, named_thread, pid_in};
 
 fn tap_frames(site: &TestSite, count: u32, timeout_s: u32) -> bool {
     let out = site.isochron(
@@ -70,7 +70,7 @@ impl StandInJournal {
         let Ok(socket) = std::os::unix::net::UnixDatagram::bind(path) else {
             return none;
         };
-        std::thread::spawn(move || {
+        named_thread("notify-socket", move || {
             let mut buf = vec![0u8; 1 << 16];
             while socket.recv(&mut buf).is_ok() {}
         });

@@ -66,6 +66,18 @@
 //!   --info`/`--contents`; where `CI=true`, installed with `dpkg -i`, its user,
 //!   files and `--version` checked, nothing enabled, purged.
 
+// The tests' helpers fail their test when they unwrap, as the tests themselves may
+// (clippy's allow-unwrap-in-tests covers only #[test] functions); a test reads as one
+// scenario from start to end, however long.
+#![allow(
+    clippy::unwrap_used,
+    reason = "helpers of tests: a failure panics the test"
+)]
+#![allow(
+    clippy::too_many_lines,
+    reason = "a test is one scenario, read top to bottom"
+)]
+
 mod capture;
 mod cascade;
 mod conventions;

@@ -16,14 +16,15 @@ use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::Arc;
 use std::sync::mpsc::{Receiver, channel};
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use isochron_config::clock::wall_now_ns;
 use isochron_runtime::ipc::Events;
-use isochron_tests::{Proc, TestSite, bin, eventually, free_port, vtest};
+use isochron_tests::{Proc, TestSite, bin, eventually, free_port, named_thread, vtest};
 use isochron_wire::{ActivityKind, CameraId, EventHeader, EventPhase, Preamble, Stream, to_fixed};
+use parking_lot::Mutex;
 use rumqttc::{Client, Event, Incoming, MqttOptions, QoS};
 use serde_json::Value;
 
@@ -116,7 +117,7 @@ fn subscribe(port: u16, filter: &str) -> Receiver<Option<Received>> {
         .set_clean_session(false)
         .set_keep_alive(Duration::from_secs(5));
     let (client, mut connection) = Client::new(options, 16);
-    std::thread::spawn(move || {
+    named_thread("mqtt-connection", move || {
         for event in connection.iter() {
             match event {
                 Ok(Event::Incoming(Incoming::ConnAck(_))) => {
@@ -517,7 +518,7 @@ fn recording_relay(port: u16) -> (u16, Arc<Mutex<Vec<u8>>>) {
     let relay_port = listener.local_addr().unwrap().port();
     let recorded = Arc::new(Mutex::new(Vec::new()));
     let record = recorded.clone();
-    std::thread::spawn(move || {
+    named_thread("relay-accept", move || {
         for client in listener.incoming() {
             let Ok(mut client) = client else { return };
             let Ok(mut upstream) = TcpStream::connect(("127.0.0.1", port)) else {
@@ -526,17 +527,17 @@ fn recording_relay(port: u16) -> (u16, Arc<Mutex<Vec<u8>>>) {
             let (mut client_r, mut upstream_w) =
                 (client.try_clone().unwrap(), upstream.try_clone().unwrap());
             let record = record.clone();
-            std::thread::spawn(move || {
+            named_thread("relay-to-broker", move || {
                 let mut buf = [0u8; 16 << 10];
                 while let Ok(n) = client_r.read(&mut buf) {
                     if n == 0 || upstream_w.write_all(&buf[..n]).is_err() {
                         break;
                     }
-                    record.lock().unwrap().extend_from_slice(&buf[..n]);
+                    record.lock().extend_from_slice(&buf[..n]);
                 }
                 let _ = upstream_w.shutdown(std::net::Shutdown::Write);
             });
-            std::thread::spawn(move || {
+            named_thread("relay-to-client", move || {
                 let _ = std::io::copy(&mut upstream, &mut client);
                 let _ = client.shutdown(std::net::Shutdown::Write);
             });
@@ -732,7 +733,7 @@ fn events_cross_mutual_tls_with_a_password_and_a_forged_event_is_never_published
     );
 
     // Nothing in clear: the relay saw a TLS handshake, not MQTT.
-    let bytes = recorded.lock().unwrap().clone();
+    let bytes = recorded.lock().clone();
     let text = String::from_utf8_lossy(&bytes);
     println!(
         "relay: {} bytes from the sink, first {:02x?}",

@@ -20,8 +20,9 @@ use isochron_tests::{TestSite, repo_root, setup_file};
 use serde_json::{Value, json};
 
 use crate::costmap::{
-    HALVES, HOT_BLOCK, assert_plan_status, costmap_site, dds_domain, held_grid, listener_with,
-    messages, python, ros_plan, same_cost, send_person, start_bridge, wait_until, write_store,
+    HALVES, HOT_BLOCK, assert_plan_errors, assert_plan_status, costmap_site, dds_domain, held_grid,
+    listener_with, messages, plan_reply, python, ros_plan, same_cost, send_person, start_bridge,
+    wait_until, write_store,
 };
 
 /// Nav2 releases the StaticLayer model covers.
@@ -229,24 +230,8 @@ fn fastdds_requester() -> PathBuf {
 
 /// Calls a planning service with the Fast DDS client; its JSON line.
 fn fastdds_plan(domain: u16, service: &str, args: &[&str]) -> Value {
-    let out = std::process::Command::new(fastdds_requester())
-        .args(["--domain", &domain.to_string(), "--service", service])
-        .args(args)
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let reply: Value = serde_json::from_str(stdout.trim()).unwrap_or_else(|e| {
-        panic!(
-            "plan_requester: {e}: {stdout}\n{}",
-            String::from_utf8_lossy(&out.stderr)
-        )
-    });
-    assert_eq!(
-        reply["kind"],
-        "reply",
-        "no reply from {service}: {reply}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let client = std::process::Command::new(fastdds_requester());
+    let reply = plan_reply("plan_requester", client, (domain, service, args));
     // Answered at once, not after the 2 s a reply waits for an unmatched reader.
     assert!(reply["reply_ms"].as_i64().unwrap() < 1500, "{reply}");
     reply
@@ -308,14 +293,7 @@ fn fast_dds_and_cyclone_dds_clients_get_the_same_plans() {
     }
 
     // Errors come back over Fast DDS too.
-    let unknown = fastdds_plan(domain, "/isochron/plan_now", &["now", "nowhere"]);
-    assert_plan_status(&unknown, 2, "via-west");
-    let late = fastdds_plan(
-        domain,
-        "/isochron/plan_offline",
-        &["offline", "via-west", "1500", "1440", "5"],
-    );
-    assert_plan_status(&late, 1, "outside the day");
+    assert_plan_errors(|service, args| fastdds_plan(domain, service, args));
     assert!(costmap.stderr().contains("plans="), "{}", costmap.stderr());
 }
 

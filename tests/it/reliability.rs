@@ -177,6 +177,7 @@ fn killing_up_with_sigkill_stops_its_services() {
     up.signal(libc::SIGKILL);
     let gone = eventually(Duration::from_secs(10), || {
         pids.iter()
+            // SAFETY: signal 0 sends nothing: kill(2) only checks that `pid` exists.
             .all(|&pid| unsafe { libc::kill(pid as i32, 0) } != 0)
             .then_some(())
     });

@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use isochron_tests::{
-    Proc, TestSite, bin, eventually, free_port, node_modules, repo_root, rss_bytes, venv_python,
-    vtest,
+    Proc, TestSite, bin, eventually, free_port, named_thread, node_modules, repo_root, rss_bytes,
+    venv_python, vtest,
 };
 use serde_json::Value;
 
@@ -649,7 +649,9 @@ fn a_client_that_stops_reading_costs_the_view_its_budget_and_is_disconnected() {
         }
     };
     // A client that reads, for the whole test.
-    let reader = std::thread::spawn(move || ws_client(port, "/costmap", 1_000_000, 30));
+    let reader = named_thread("ws-reader", move || {
+        ws_client(port, "/costmap", 1_000_000, 30)
+    });
     let mut rss = Vec::new();
     publish_for(&mut source, Duration::from_secs(4), &mut rss);
     let baseline = *rss[rss.len() / 2..].iter().max().unwrap();

@@ -284,7 +284,7 @@ impl FrontDoor {
             .max_message_size(Some(MAX_CLIENT_MESSAGE))
             .max_frame_size(Some(MAX_CLIENT_MESSAGE));
         // The error type is tungstenite's, for the callback it takes.
-        #[allow(clippy::result_large_err)]
+        #[allow(clippy::result_large_err, reason = "tungstenite's callback type")]
         let choose = |request: &Request, mut response: Response| {
             let offered: Vec<&str> = request
                 .headers()

@@ -107,8 +107,10 @@ pub fn free_bytes(path: &Path) -> Option<u64> {
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
     let c = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+    // SAFETY: statvfs is plain integers, for which all-zero bytes are a valid value.
     let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
-    // SAFETY: `c` is a valid C string and `st` a valid out-pointer.
+    // SAFETY: `c` is a NUL-terminated string that outlives the call and `st` a
+    // writable statvfs; statvfs(3) reads the one and writes only the other.
     if unsafe { libc::statvfs(c.as_ptr(), &mut st) } != 0 {
         return None;
     }

@@ -314,6 +314,16 @@ impl CameraConfig {
                 start,
             ));
         }
+        self.validate_replay(i)?;
+        self.validate_areas(i)?;
+        check_floor_points(&key("floor_points"), &self.floor_points)?;
+        Ok(())
+    }
+
+    /// How a file is replayed (`preload_frames`, `start_frame`) and how a source is
+    /// reconnected.
+    fn validate_replay(&self, i: usize) -> Result<(), Invalid> {
+        let key = |k: &str| format!("camera[{i}].{k}");
         if let Some(n) = self.preload_frames {
             check_range(&key("preload_frames"), n as f64, 2.0, 100_000.0)?;
             if !self.source_kind(Path::new(".")).is_file() {
@@ -354,6 +364,11 @@ impl CameraConfig {
                 ),
             ));
         }
+        Ok(())
+    }
+
+    /// The masks and zones: simple polygons, zones with unique names.
+    fn validate_areas(&self, i: usize) -> Result<(), Invalid> {
         for (j, poly) in self.mask.iter().enumerate() {
             check_polygon(&format!("camera[{i}].mask[{j}]"), poly)?;
         }
@@ -373,7 +388,6 @@ impl CameraConfig {
             }
             check_polygon(&format!("{zkey}.polygon"), &zone.polygon)?;
         }
-        check_floor_points(&key("floor_points"), &self.floor_points)?;
         Ok(())
     }
 }

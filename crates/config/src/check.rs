@@ -1,6 +1,6 @@
 //! Value checks the sections' `validate` share.
 
-use super::{Invalid, Polygon};
+use super::Invalid;
 
 /// Errors unless `lo <= v <= hi`.
 pub fn check_range(key: &str, v: f64, lo: f64, hi: f64) -> Result<(), Invalid> {
@@ -70,7 +70,7 @@ pub(super) fn check_at_least(
 /// Errors unless `poly` has at least 3 points, all finite, and is simple: no two
 /// edges that are not neighbours cross or touch (a bow tie or figure eight has no
 /// well-defined inside).
-pub(super) fn check_polygon(key: &str, poly: &Polygon) -> Result<(), Invalid> {
+pub(super) fn check_polygon(key: &str, poly: &[[f64; 2]]) -> Result<(), Invalid> {
     check_at_least(key, poly.len(), 3, "a polygon of at least 3 [x, y] points")?;
     if poly.iter().flatten().any(|v| !v.is_finite()) {
         return Err(Invalid::new(key, "expected finite coordinates"));

@@ -342,6 +342,15 @@ pub fn is_valid_ros_topic(topic: &str) -> bool {
 impl CostmapConfig {
     /// Checks the `costmap.*` keys, and its segments and routes against `cameras`.
     pub(super) fn validate(&self, cameras: &[CameraConfig]) -> Result<(), Invalid> {
+        self.validate_grid()?;
+        self.validate_ros()?;
+        self.validate_costs()?;
+        self.validate_segments(cameras)?;
+        self.validate_routes()
+    }
+
+    /// The grid: from `map_yaml`, or all of its own keys, or none.
+    fn validate_grid(&self) -> Result<(), Invalid> {
         if self.map_yaml.is_some() {
             for (name, given) in [
                 ("resolution_m", self.resolution_m.is_some()),
@@ -406,6 +415,11 @@ impl CostmapConfig {
                 check_range(&format!("costmap.{name}"), v, -1e6, 1e6)?;
             }
         }
+        Ok(())
+    }
+
+    /// The frame, the topics and services, the publish rate, DDS.
+    fn validate_ros(&self) -> Result<(), Invalid> {
         if self.frame_id.trim().is_empty() {
             return Err(Invalid::new(
                 "costmap.frame_id",
@@ -447,6 +461,11 @@ impl CostmapConfig {
             &self.dds_interfaces,
             "127.0.0.1",
         )?;
+        Ok(())
+    }
+
+    /// Weights, costs, the speed filter, the forecast, staleness and snapshots.
+    fn validate_costs(&self) -> Result<(), Invalid> {
         for (name, v) in [
             ("weight_in_place", self.weight_in_place),
             ("weight_moving", self.weight_moving),
@@ -506,7 +525,12 @@ impl CostmapConfig {
         check_positive("costmap.stale_s", self.stale_s)?;
         check_range("costmap.snapshot_every_s", self.snapshot_every_s, 0.0, 1e7)?;
         check_range("costmap.snapshot_keep", self.snapshot_keep as f64, 1.0, 1e6)?;
+        Ok(())
+    }
 
+    /// Each `[[costmap.segment]]`: a unique name, and a floor polygon (with cameras
+    /// on the floor) or a camera's zone.
+    fn validate_segments(&self, cameras: &[CameraConfig]) -> Result<(), Invalid> {
         let located = cameras.iter().any(|cam| !cam.floor_points.is_empty());
         for (i, seg) in self.segments.iter().enumerate() {
             let key = |k: &str| format!("costmap.segment[{i}].{k}");
@@ -553,6 +577,11 @@ impl CostmapConfig {
                 }
             }
         }
+        Ok(())
+    }
+
+    /// Each `[[costmap.route]]`: a unique name and known segments.
+    fn validate_routes(&self) -> Result<(), Invalid> {
         for (i, route) in self.routes.iter().enumerate() {
             let key = |k: &str| format!("costmap.route[{i}].{k}");
             check_plan_name(

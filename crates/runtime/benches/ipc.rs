@@ -91,8 +91,9 @@ fn monotonic_ns() -> i64 {
 
 /// User + system CPU time of this process, microseconds.
 fn cpu_us() -> f64 {
-    // SAFETY: getrusage fills the struct.
+    // SAFETY: rusage is plain integers, for which all-zero bytes are a valid value.
     let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: `ru` is a writable rusage and getrusage(2) writes only it.
     unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut ru) };
     let tv = |t: libc::timeval| t.tv_sec as f64 * 1e6 + t.tv_usec as f64;
     tv(ru.ru_utime) + tv(ru.ru_stime)
@@ -131,8 +132,8 @@ fn main() {
         receiver(
             &args[i + 1],
             &args[i + 2],
-            args[i + 3].parse().unwrap(),
-            args[i + 4].parse().unwrap(),
+            args[i + 3].parse().expect("--receiver: a size index"),
+            args[i + 4].parse().expect("--receiver: a frame count"),
         );
         return;
     }
@@ -169,7 +170,7 @@ fn main() {
             .iter()
             .find(|r| r.0 == size && r.1 == transport)
             .map(|r| (r.2, r.3, r.4))
-            .unwrap()
+            .expect("every size ran with every transport")
     };
     let (vga_p50, _, vga_cpu) = get("vga", "iceoryx2");
     let (hd_p50, hd_p99, hd_cpu) = get("1080p", "iceoryx2");
@@ -193,7 +194,7 @@ fn main() {
 fn run_case(transport: &str, size_index: usize, frames: usize) -> (Vec<f64>, f64, usize) {
     let size = SIZES[size_index];
     let tag = format!("ipcbench-{}-{transport}-{}", std::process::id(), size.name);
-    let mut child = Command::new(std::env::current_exe().unwrap())
+    let mut child = Command::new(std::env::current_exe().expect("this bench's path"))
         .args([
             "--receiver",
             transport,
@@ -204,7 +205,7 @@ fn run_case(transport: &str, size_index: usize, frames: usize) -> (Vec<f64>, f64
         .stdout(Stdio::piped())
         .spawn()
         .expect("receiver");
-    let mut out = BufReader::new(child.stdout.take().unwrap());
+    let mut out = BufReader::new(child.stdout.take().expect("the receiver's piped stdout"));
     let mut line = String::new();
     let sender_cpu = match transport {
         "iceoryx2" => {
@@ -212,11 +213,11 @@ fn run_case(transport: &str, size_index: usize, frames: usize) -> (Vec<f64>, f64
             let mut publisher = ipc
                 .publisher::<Frames>("bench", size.bytes())
                 .expect("publisher");
-            out.read_line(&mut line).unwrap(); // "ready"
+            out.read_line(&mut line).expect("receiver"); // "ready"
             while publisher.subscriber_count() == 0 {
                 std::thread::sleep(Duration::from_millis(1));
             }
-            let camera = CameraId::new("bench").unwrap();
+            let camera = CameraId::new("bench").expect("a valid camera id");
             let mut cpu = 0.0;
             for i in 0..WARMUP + frames {
                 let t0 = thread_cpu_us();
@@ -250,7 +251,7 @@ fn run_case(transport: &str, size_index: usize, frames: usize) -> (Vec<f64>, f64
         }
         _ => {
             let path = std::env::temp_dir().join(format!("{tag}.sock"));
-            out.read_line(&mut line).unwrap(); // "ready" once it listens
+            out.read_line(&mut line).expect("receiver"); // "ready" once it listens
             let mut stream = UnixStream::connect(&path).expect("connect");
             let mut frame = vec![0u8; size.bytes() + 8];
             let mut cpu = 0.0;
@@ -267,17 +268,19 @@ fn run_case(transport: &str, size_index: usize, frames: usize) -> (Vec<f64>, f64
         }
     };
     line.clear();
-    out.read_line(&mut line).unwrap();
+    out.read_line(&mut line).expect("receiver report");
     let _ = child.wait();
     let received: serde_json::Value = serde_json::from_str(&line).expect("receiver report");
     let latencies: Vec<f64> = received["latencies_us"]
         .as_array()
-        .unwrap()
+        .expect("receiver report: latencies_us")
         .iter()
-        .map(|v| v.as_f64().unwrap())
+        .map(|v| v.as_f64().expect("receiver report: a latency"))
         .collect();
     let lost = frames - latencies.len();
-    let receiver_cpu = received["cpu_us"].as_f64().unwrap();
+    let receiver_cpu = received["cpu_us"]
+        .as_f64()
+        .expect("receiver report: cpu_us");
     if std::env::var_os("IPC_BENCH_VERBOSE").is_some() {
         eprintln!(
             "{transport} {}: sender {:.1} µs/frame, receiver {:.1} µs/frame",
@@ -307,7 +310,7 @@ fn receiver(transport: &str, tag: &str, size_index: usize, measured: usize) {
                 .expect("waitset");
             let _guard = waitset.attach_notification(&frames).expect("attach");
             println!("ready");
-            std::io::stdout().flush().unwrap();
+            std::io::stdout().flush().expect("stdout");
             let mut latencies_us = Vec::with_capacity(measured);
             let (mut cpu0, mut checksum) = (0.0, 0u64);
             let last = (WARMUP + measured - 1) as u64;
@@ -358,7 +361,7 @@ fn receiver(transport: &str, tag: &str, size_index: usize, measured: usize) {
             let _ = std::fs::remove_file(&path);
             let listener = UnixListener::bind(&path).expect("bind");
             println!("ready");
-            std::io::stdout().flush().unwrap();
+            std::io::stdout().flush().expect("stdout");
             let (mut stream, _) = listener.accept().expect("accept");
             let mut frame = vec![0u8; size.bytes() + 8];
             let mut latencies_us = Vec::with_capacity(measured);
@@ -370,7 +373,7 @@ fn receiver(transport: &str, tag: &str, size_index: usize, measured: usize) {
                     cpu0 = cpu_us();
                 }
                 if n >= WARMUP {
-                    let sent = i64::from_le_bytes(frame[..8].try_into().unwrap());
+                    let sent = i64::from_le_bytes(frame[..8].try_into().expect("8 bytes"));
                     latencies_us.push((now - sent) as f64 / 1e3);
                 }
             }

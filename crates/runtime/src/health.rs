@@ -2,7 +2,7 @@
 //! and the periodic one-line status every stage logs and publishes.
 
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex, OnceLock, Weak};
+use std::sync::{Arc, OnceLock, Weak};
 use std::time::{Duration, Instant};
 
 use crate::ipc::{Ipc, StatusPublisher};
@@ -11,6 +11,7 @@ use isochron_config::clock::wall_now_ns;
 use isochron_wire::{
     CameraId, LAYOUT_VERSION, MAGIC, STAGE_NAME_LEN, STATUS_DETAIL_LEN, StageStatus, to_fixed,
 };
+use parking_lot::Mutex;
 
 pub use isochron_exit as exit;
 
@@ -54,7 +55,7 @@ fn millis_since_epoch(now: Instant) -> u64 {
 /// A new heartbeat, registered with the process's watchdog.
 fn register_heartbeat(now: Instant) -> Arc<AtomicU64> {
     let beat = Arc::new(AtomicU64::new(millis_since_epoch(now)));
-    let mut all = HEARTBEATS.lock().unwrap_or_else(|e| e.into_inner());
+    let mut all = HEARTBEATS.lock();
     all.retain(|w| w.strong_count() > 0);
     all.push(Arc::downgrade(&beat));
     beat
@@ -62,7 +63,7 @@ fn register_heartbeat(now: Instant) -> Arc<AtomicU64> {
 
 /// True when every live loop of the process beat within `period` of `now`.
 fn all_loops_alive(now: Instant, period: Duration) -> bool {
-    let all = HEARTBEATS.lock().unwrap_or_else(|e| e.into_inner());
+    let all = HEARTBEATS.lock();
     all_alive(&all, now, period)
 }
 

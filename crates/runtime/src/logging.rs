@@ -13,9 +13,9 @@
 
 use std::collections::HashMap;
 use std::io::IsTerminal;
-use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
+use parking_lot::Mutex;
 use tracing::field::{Field, Visit};
 use tracing_subscriber::EnvFilter;
 use tracing_subscriber::layer::{Context, Layer, SubscriberExt};
@@ -69,7 +69,7 @@ impl LibraryLogLimit {
     /// True if a record of `module` may pass now; the number held back since the
     /// last one that passed, if any.
     fn admit(&self, module: &str, now: Instant) -> (bool, u64) {
-        let mut modules = self.modules.lock().unwrap_or_else(|e| e.into_inner());
+        let mut modules = self.modules.lock();
         let held = modules.entry(module.to_string()).or_default();
         if held.issued >= LOG_BURST && held.last.is_some_and(|t| now - t < LOG_EVERY) {
             held.held_back += 1;
@@ -115,8 +115,10 @@ fn stderr_is_journal() -> bool {
     let Some(value) = std::env::var_os("JOURNAL_STREAM") else {
         return false;
     };
-    // SAFETY: fstat fills the zeroed struct for a descriptor we only inspect.
+    // SAFETY: stat is plain integers, for which all-zero bytes are a valid value.
     let mut st: libc::stat = unsafe { std::mem::zeroed() };
+    // SAFETY: `st` is a writable stat and fstat(2) writes only it; any descriptor
+    // number is safe to pass (a closed one is an error, EBADF).
     if unsafe { libc::fstat(libc::STDERR_FILENO, &mut st) } != 0 {
         return false;
     }

@@ -175,9 +175,9 @@ fn run<B: FilterBank>(
     presence: bool,
     keep: bool,
 ) -> RunResult {
-    let camera = CameraId::new("bench").unwrap();
-    let clock = SiteClock::new("UTC", Cycle::Daily).unwrap();
-    let start = parse_rfc3339("2026-03-02T08:00:00Z").unwrap();
+    let camera = CameraId::new("bench").expect("a valid camera id");
+    let clock = SiteClock::new("UTC", Cycle::Daily).expect("UTC is a time zone");
+    let start = parse_rfc3339("2026-03-02T08:00:00Z").expect("a valid RFC 3339 time");
     let mut params = Params::default();
     params.presence.enabled = presence;
     let mut cascade: Cascade<B> = Cascade::new(camera, params, clock, grid(), None);
@@ -277,8 +277,10 @@ fn filesystem_of(path: &Path) -> String {
     let Ok(c_path) = std::ffi::CString::new(path.as_os_str().as_bytes()) else {
         return "unknown".into();
     };
-    // SAFETY: a zeroed statfs is a valid out-parameter; the path is NUL-terminated.
+    // SAFETY: statfs is plain integers, for which all-zero bytes are a valid value.
     let mut st: libc::statfs = unsafe { std::mem::zeroed() };
+    // SAFETY: `c_path` is a NUL-terminated string that outlives the call and `st` a
+    // writable statfs; statfs(2) reads the one and writes only the other.
     if unsafe { libc::statfs(c_path.as_ptr(), &mut st) } != 0 {
         return "unknown".into();
     }
@@ -385,52 +387,11 @@ fn main() {
         .map(|(_, b)| b.iter().filter(|b| b.present > 0.5).count() as f64)
         .sum::<f64>()
         / present.outputs.len().max(1) as f64;
-    for (what, result) in [
-        (
-            "cascade and non-cascade outputs differ",
-            same_outputs(&c, &n),
-        ),
-        (
-            "the cascade's outputs differ on f32 and on the counting type",
-            same_outputs(&plain, &c),
-        ),
-    ] {
-        if let Err(e) = result {
-            eprintln!("{what}: {e}");
-            std::process::exit(1);
-        }
-    }
-    let per_block_frame = |n: u64| n as f64 / block_frames;
+    check_outputs(&c, &n, &plain);
     let seconds = c.outputs.len();
-    let (mut tc, mut tn, mut tp) = (Vec::new(), Vec::new(), Vec::new());
-    // Alternate, so that a noisy neighbour hurts all alike.
-    for _ in 0..runs {
-        let elapsed = |r: RunResult| r.elapsed.as_secs_f64() * 1e9 / block_frames;
-        tc.push(elapsed(run::<CascadeBank>(
-            &frames,
-            run_seconds,
-            false,
-            false,
-        )));
-        tn.push(elapsed(run::<NonCascadeBank>(
-            &frames,
-            run_seconds,
-            false,
-            false,
-        )));
-        tp.push(elapsed(run::<CascadeBank>(
-            &frames,
-            run_seconds,
-            true,
-            false,
-        )));
-    }
+    let (tc, tn, tp) = timed(&frames, run_seconds, runs, block_frames);
     let (ns_c, ns_n, ns_p) = (median(tc.clone()), median(tn.clone()), median(tp));
     let presence_cost = ns_p / ns_c - 1.0;
-    let (min_c, min_n) = (
-        tc.iter().cloned().fold(f64::MAX, f64::min),
-        tn.iter().cloned().fold(f64::MAX, f64::min),
-    );
     let k = (GRID_W * GRID_H) as f64;
     let (commit_p50, commit_p99) = match commit_latency(commits, &state_dir) {
         Ok(t) => t,
@@ -452,53 +413,8 @@ fn main() {
         seconds,
         run_seconds / 60
     );
-    println!(
-        "{:<34} {:>12} {:>12} {:>12}",
-        "", "cascade", "non-cascade", "non/cascade"
-    );
-    println!(
-        "{:<34} {:>12.3} {:>12.3} {:>12.2}",
-        "ns per block-frame (median)", ns_c, ns_n, time_ratio
-    );
-    println!(
-        "{:<34} {:>12.3} {:>12.3} {:>12.2}",
-        "ns per block-frame (best)",
-        min_c,
-        min_n,
-        min_n / min_c
-    );
-    let ops_row = |what: &str, of: fn(&OpCount) -> u64| {
-        let (a, b) = (of(&ops_c), of(&ops_n));
-        println!(
-            "{:<34} {:>12.3} {:>12.3} {:>12.2}",
-            what,
-            per_block_frame(a),
-            per_block_frame(b),
-            b as f64 / a.max(1) as f64
-        );
-    };
-    ops_row("arithmetic ops per block-frame", OpCount::total);
-    ops_row("  additions and subtractions", |o| o.add);
-    ops_row("  multiplications", |o| o.mul);
-    ops_row("  divisions", |o| o.div);
-    ops_row("  maxima", |o| o.max);
-    println!(
-        "{:<34} {:>12} {:>12} {:>12.2}",
-        "filters (paper's count)",
-        c.filters,
-        n.filters,
-        n.filters as f64 / c.filters as f64
-    );
-    println!(
-        "{:<34} {:>12} {:>12} {:>12.2}",
-        "state bytes per camera", c.state_bytes, n.state_bytes, state_ratio
-    );
-    println!(
-        "{:<34} {:>12.2} {:>12.2}",
-        "state, motion frames (12 B/block)",
-        c.state_bytes as f64 / (k * 12.0),
-        n.state_bytes as f64 / (k * 12.0)
-    );
+    print_times((ns_c, &tc), (ns_n, &tn));
+    print_counts((&c, &ops_c), (&n, &ops_n), block_frames);
     println!(
         "{:<34} {:>12}",
         "outputs", "identical (S1, S2 and vectors bit for bit; long-term within float rounding)"
@@ -530,5 +446,125 @@ fn main() {
     println!(
         "{{\"bench\":\"cascade\",\"ns_per_block_frame\":{ns_c:.3},\"ops_ratio\":{ops_ratio:.3},\"state_ratio\":{state_ratio:.3},\"time_ratio\":{time_ratio:.3},\"presence_cost\":{presence_cost:.3},\"ns_per_block_frame_with_presence\":{ns_p:.3},\"commit_p50_ms\":{commit_p50:.3},\"commit_p99_ms\":{commit_p99:.3},\"commit_fs\":\"{fs}\",\"commit_durable\":{is_durable}{}}}",
         if quick { ",\"quick\":true" } else { "" }
+    );
+}
+
+/// Exits with the reason unless the two banks agree and the counting type computes
+/// what f32 does.
+fn check_outputs(c: &RunResult, n: &RunResult, plain: &RunResult) {
+    for (what, result) in [
+        ("cascade and non-cascade outputs differ", same_outputs(c, n)),
+        (
+            "the cascade's outputs differ on f32 and on the counting type",
+            same_outputs(plain, c),
+        ),
+    ] {
+        if let Err(e) = result {
+            eprintln!("{what}: {e}");
+            std::process::exit(1);
+        }
+    }
+}
+
+/// Nanoseconds per block-frame of each run: the cascade, the non-cascade, the
+/// cascade with the presence band.
+fn timed(
+    frames: &[Vec<BlockMotion>],
+    run_seconds: i64,
+    runs: usize,
+    block_frames: f64,
+) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let (mut tc, mut tn, mut tp) = (Vec::new(), Vec::new(), Vec::new());
+    // Alternate, so that a noisy neighbour hurts all alike.
+    for _ in 0..runs {
+        let elapsed = |r: RunResult| r.elapsed.as_secs_f64() * 1e9 / block_frames;
+        tc.push(elapsed(run::<CascadeBank>(
+            frames,
+            run_seconds,
+            false,
+            false,
+        )));
+        tn.push(elapsed(run::<NonCascadeBank>(
+            frames,
+            run_seconds,
+            false,
+            false,
+        )));
+        tp.push(elapsed(run::<CascadeBank>(
+            frames,
+            run_seconds,
+            true,
+            false,
+        )));
+    }
+    (tc, tn, tp)
+}
+
+/// The table's rows of what is counted: operations, filters, state.
+fn print_counts(
+    (c, ops_c): (&RunResult, &OpCount),
+    (n, ops_n): (&RunResult, &OpCount),
+    block_frames: f64,
+) {
+    let per_block_frame = |n: u64| n as f64 / block_frames;
+    let k = f64::from(GRID_W * GRID_H);
+    let ops_row = |what: &str, of: fn(&OpCount) -> u64| {
+        let (a, b) = (of(ops_c), of(ops_n));
+        println!(
+            "{:<34} {:>12.3} {:>12.3} {:>12.2}",
+            what,
+            per_block_frame(a),
+            per_block_frame(b),
+            b as f64 / a.max(1) as f64
+        );
+    };
+    ops_row("arithmetic ops per block-frame", OpCount::total);
+    ops_row("  additions and subtractions", |o| o.add);
+    ops_row("  multiplications", |o| o.mul);
+    ops_row("  divisions", |o| o.div);
+    ops_row("  maxima", |o| o.max);
+    println!(
+        "{:<34} {:>12} {:>12} {:>12.2}",
+        "filters (paper's count)",
+        c.filters,
+        n.filters,
+        n.filters as f64 / c.filters as f64
+    );
+    println!(
+        "{:<34} {:>12} {:>12} {:>12.2}",
+        "state bytes per camera",
+        c.state_bytes,
+        n.state_bytes,
+        n.state_bytes as f64 / c.state_bytes as f64
+    );
+    println!(
+        "{:<34} {:>12.2} {:>12.2}",
+        "state, motion frames (12 B/block)",
+        c.state_bytes as f64 / (k * 12.0),
+        n.state_bytes as f64 / (k * 12.0)
+    );
+}
+
+/// The table's head and its rows of time: median and best of the runs.
+fn print_times((ns_c, tc): (f64, &[f64]), (ns_n, tn): (f64, &[f64])) {
+    let time_ratio = ns_n / ns_c;
+    let (min_c, min_n) = (
+        tc.iter().cloned().fold(f64::MAX, f64::min),
+        tn.iter().cloned().fold(f64::MAX, f64::min),
+    );
+    println!(
+        "{:<34} {:>12} {:>12} {:>12}",
+        "", "cascade", "non-cascade", "non/cascade"
+    );
+    println!(
+        "{:<34} {:>12.3} {:>12.3} {:>12.2}",
+        "ns per block-frame (median)", ns_c, ns_n, time_ratio
+    );
+    println!(
+        "{:<34} {:>12.3} {:>12.3} {:>12.2}",
+        "ns per block-frame (best)",
+        min_c,
+        min_n,
+        min_n / min_c
     );
 }

@@ -1,10 +1,14 @@
 //! Unit tests of the cascade state machine (no shared memory).
+#![allow(
+    clippy::too_many_lines,
+    reason = "a test is one scenario, read top to bottom"
+)]
 
 use super::*;
 use crate::filters::Counted;
 use fastrand::Rng as Lcg;
 use isochron_config::clock::{Cycle, parse_rfc3339};
-use isochron_store::{StoreMeta, store_path};
+use isochron_store::{Store, StoreMeta, store_path};
 use isochron_wire::{FLAG_END_OF_STREAM, Preamble, Stream};
 
 const CAM: &str = "cam01";
@@ -104,7 +108,10 @@ fn push<B: FilterBank>(
 
 /// Feeds `seconds` seconds at `fps` starting at `start_ns`, blocks from `f(frame time
 /// in s since start, frame)`.
-#[allow(clippy::too_many_arguments)]
+#[allow(
+    clippy::too_many_arguments,
+    reason = "a test driver: every knob of a run"
+)]
 fn run<B: FilterBank>(
     c: &mut Cascade<B>,
     feed: &mut Feed,

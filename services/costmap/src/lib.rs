@@ -16,7 +16,9 @@
 //! * snapshots (`map_server` PGM + YAML and a PNG picture) are written with
 //!   `isochron_planning::snapshot`, the writer the CLI shares;
 //! * [`stage`]: the service's stage for the runtime (every camera's `activity` and
-//!   `detections` in, the cost map out, planning requests answered).
+//!   `detections` in, the cost map out, planning requests answered), with what it
+//!   publishes and counts (`publish`) and what it plans and snapshots
+//!   (`planning`) in modules of their own.
 //!
 //! The binary `isochron-costmap` runs [`stage`] and answers `<prefix>/plan` with
 //! `isochron_planning::plan_service::PlanServer`.
@@ -26,5 +28,7 @@ pub mod delta;
 pub mod markers;
 pub mod msgs;
 pub mod plan_dds;
+mod planning;
+mod publish;
 pub mod ros;
 pub mod stage;

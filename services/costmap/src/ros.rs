@@ -36,7 +36,7 @@ use ros2_client::dds::{DEFAULT_PUBLISHER_QOS, Publisher};
 use ros2_client::qos::Durability;
 use ros2_client::{Name, NodeName};
 use rustdds::dds::qos::HasQoSPolicy;
-use rustdds::{QosPolicies, TopicDescription, policy};
+use rustdds::{QosPolicies, Topic, TopicDescription, policy};
 
 use isochron_dds::{DdsError, RosNode, keep_last};
 
@@ -158,64 +158,15 @@ impl RosOutput {
     pub fn start(settings: &RosSettings) -> Result<RosOutput, RosError> {
         let mut ros = RosNode::start(settings.domain_id, &settings.interfaces, NODE, None)?;
 
-        let topic = |name: &str, package: &str, type_name: &str, durability, depth| {
-            ros.topic(
-                &topic_name(name)?,
-                (package, type_name),
-                &topic_qos(durability, depth),
-            )
-            .map_err(RosError::from)
-        };
-        let latched = Durability::TransientLocal;
-        let grid_topic = topic(
-            &settings.topic,
-            "nav_msgs",
-            "OccupancyGrid",
-            latched,
-            GRID_DEPTH,
-        )?;
-        let updates_topic = topic(
-            &settings.updates_topic,
-            "map_msgs",
-            "OccupancyGridUpdate",
-            Durability::Volatile,
-            UPDATES_DEPTH,
-        )?;
-        let people_topic = topic(
-            &settings.people_topic,
-            "geometry_msgs",
-            "PoseArray",
-            Durability::Volatile,
-            PEOPLE_DEPTH,
-        )?;
-        let markers_topic = topic(
-            &settings.markers_topic,
-            "visualization_msgs",
-            "MarkerArray",
-            latched,
-            GRID_DEPTH,
-        )?;
-        let filter_info_topic = topic(
-            &settings.speed_filter_info_topic,
-            "nav2_msgs",
-            "CostmapFilterInfo",
-            latched,
-            GRID_DEPTH,
-        )?;
-        let mask_topic = topic(
-            &settings.speed_mask_topic,
-            "nav_msgs",
-            "OccupancyGrid",
-            latched,
-            GRID_DEPTH,
-        )?;
-        let forecast_topic = topic(
-            &settings.forecast_topic,
-            "nav_msgs",
-            "OccupancyGrid",
-            latched,
-            GRID_DEPTH,
-        )?;
+        let [
+            grid_topic,
+            updates_topic,
+            people_topic,
+            markers_topic,
+            filter_info_topic,
+            mask_topic,
+            forecast_topic,
+        ] = topics(&ros, settings)?;
         // RustDDS gives a writer the ROS default publisher's QoS overridden by the
         // topic's (`Publisher::create_datawriter`).
         let grid_match = (
@@ -343,6 +294,63 @@ impl RosOutput {
 
 /// The QoS of the bridge's topics: reliable (waiting at most [`MAX_BLOCKING`] for
 /// room), `durability`, keep last `depth`, and at most `depth` samples in the
+/// The output's topics, in this order: the grid, its updates, the people, the
+/// markers, the speed filter's info, the speed mask, the forecast.
+fn topics(ros: &RosNode, s: &RosSettings) -> Result<[Topic; 7], RosError> {
+    let latched = Durability::TransientLocal;
+    let volatile = Durability::Volatile;
+    let specs = [
+        (&s.topic, ("nav_msgs", "OccupancyGrid"), latched, GRID_DEPTH),
+        (
+            &s.updates_topic,
+            ("map_msgs", "OccupancyGridUpdate"),
+            volatile,
+            UPDATES_DEPTH,
+        ),
+        (
+            &s.people_topic,
+            ("geometry_msgs", "PoseArray"),
+            volatile,
+            PEOPLE_DEPTH,
+        ),
+        (
+            &s.markers_topic,
+            ("visualization_msgs", "MarkerArray"),
+            latched,
+            GRID_DEPTH,
+        ),
+        (
+            &s.speed_filter_info_topic,
+            ("nav2_msgs", "CostmapFilterInfo"),
+            latched,
+            GRID_DEPTH,
+        ),
+        (
+            &s.speed_mask_topic,
+            ("nav_msgs", "OccupancyGrid"),
+            latched,
+            GRID_DEPTH,
+        ),
+        (
+            &s.forecast_topic,
+            ("nav_msgs", "OccupancyGrid"),
+            latched,
+            GRID_DEPTH,
+        ),
+    ];
+    let mut made = Vec::with_capacity(specs.len());
+    for (name, message_type, durability, depth) in specs {
+        made.push(ros.topic(
+            &topic_name(name)?,
+            message_type,
+            &topic_qos(durability, depth),
+        )?);
+    }
+    Ok(made
+        .try_into()
+        .unwrap_or_else(|_| unreachable!("seven specs make seven topics")))
+}
+
 /// writer's cache ([`keep_last`]).
 fn topic_qos(durability: Durability, depth: i32) -> QosPolicies {
     keep_last(

@@ -2,95 +2,32 @@
 //! `OccupancyGrid` (+ updates) out, snapshots, and `<prefix>/plan` answered — run
 //! by the stage runtime ([`isochron_runtime::stage`]). Runs once per site.
 
-use std::hash::{Hash, Hasher};
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use isochron_config::LoadedConfig;
-use isochron_config::clock::{Cycle, NS_PER_S, SiteClock, format_rfc3339, timestamp, wall_now_ns};
+use isochron_config::clock::{NS_PER_S, SiteClock, wall_now_ns};
 use isochron_dds::{domain_id, limit_dds_logging};
 use isochron_exit::{self as exit, Fatal};
 use isochron_planning::grid::MapGrid;
-use isochron_planning::plan::{DayRange, PlanError};
-use isochron_planning::plan_service::{PlanServer, answer_now, answer_offline};
+use isochron_planning::plan_service::PlanServer;
 use isochron_planning::planner::Planner;
-use isochron_planning::query::{PlanKind, PlanRequest, PlanResponse, PlanStatus};
-use isochron_planning::raster::Footprint;
+use isochron_planning::snapshot;
 use isochron_runtime::ipc::{Activity, Detections, Ipc};
-use isochron_runtime::stage::{Context, Input, Notified, Stage, Warnings, Woken};
+use isochron_runtime::stage::{Context, Input, Notified, Stage, Woken};
 use isochron_runtime::topology::StageKind;
 
 use crate::bridge::{Bridge, count_non_finite};
-use crate::delta::{DeltaTracker, Output};
+use crate::delta::DeltaTracker;
 use crate::markers::{marker_key, site_markers};
-use crate::msgs::{
-    CostmapFilterInfo, Header, MapMetaData, OccupancyGrid, OccupancyGridUpdate, Point, Pose,
-    PoseArray, Quaternion, Time,
+use crate::msgs::{CostmapFilterInfo, Header, Time};
+use crate::planning::Planning;
+use crate::publish::{
+    Counters, Ros, geometry_key, occupancy_grid, publish, publish_people, unknown_as_free,
 };
-use crate::ros::{PublishError, RosOutput, RosSettings, interfaces};
-use isochron_planning::snapshot::{self, FloorPlan, Snapshot, SnapshotError};
+use crate::ros::{RosOutput, RosSettings, interfaces};
 
 /// How long a read long-term model is trusted before the store is checked again.
 const STORE_REFRESH: Duration = Duration::from_secs(60);
-
-/// Counters for the status line.
-#[derive(Default)]
-struct Counters {
-    /// Publish failures, rate-limited: a stalled DDS fails every tick.
-    warnings: Warnings,
-    grids: u64,
-    updates: u64,
-    publish_errors: u64,
-    plans: u64,
-    snapshots: u64,
-    confirmed: u64,
-    people: u64,
-    markers: u64,
-    masks: u64,
-    forecasts: u64,
-}
-
-impl Counters {
-    /// Counts one publish of `what`: into the counter `sent` picks if it went out
-    /// (then true), else as a publish error with a warning.
-    fn published(
-        &mut self,
-        what: &str,
-        result: Result<(), PublishError>,
-        sent: fn(&mut Counters) -> &mut u64,
-    ) -> bool {
-        match result {
-            Ok(()) => {
-                *sent(self) += 1;
-                true
-            }
-            Err(e) => {
-                self.publish_errors += 1;
-                self.warnings
-                    .warn("publish", || format!("publishing {what} failed: {e}"));
-                false
-            }
-        }
-    }
-}
-
-/// The ROS 2 side: the output and what was sent.
-struct Ros {
-    output: RosOutput,
-    tracker: DeltaTracker,
-    geometry: u64,
-    frame_id: String,
-    /// `costmap.publish_unknown`: false sends 0 instead of -1.
-    publish_unknown: bool,
-    /// When the forecast is next computed.
-    next_forecast: Instant,
-    /// Each camera's footprint on its store's block grid.
-    forecast_footprints: Vec<Option<Footprint>>,
-    /// The last speed mask sent.
-    mask_sent: Option<Vec<i8>>,
-    /// The camera frame sizes the last markers were drawn with (`None`: none sent).
-    markers_sent: Option<Vec<Option<(u32, u32)>>>,
-}
 
 /// The cost-map stage's inputs: every camera's activity, every camera's
 /// detections, and planning requests.
@@ -159,68 +96,7 @@ impl CostmapStage {
             .unwrap_or_else(|| loaded.state_dir().join("costmap"));
 
         let ros = match &bridge.grid {
-            Some(grid) => {
-                let settings = RosSettings {
-                    domain_id: domain_id(c.ros_domain_id)
-                        .map_err(|e| Fatal::from(e).context(loaded.path.display()))?,
-                    interfaces: interfaces(
-                        &c.dds_interfaces
-                            .iter()
-                            .filter_map(|a| a.parse().ok())
-                            .collect::<Vec<_>>(),
-                    ),
-                    topic: c.topic.clone(),
-                    updates_topic: c.updates_topic(),
-                    people_topic: c.people_topic.clone(),
-                    markers_topic: c.markers_topic.clone(),
-                    speed_filter_info_topic: c.speed_filter_info_topic.clone(),
-                    speed_mask_topic: c.speed_mask_topic.clone(),
-                    forecast_topic: c.forecast_topic.clone(),
-                    plan_offline_service: c.plan_offline_service.clone(),
-                    plan_now_service: c.plan_now_service.clone(),
-                };
-                limit_dds_logging();
-                let output = RosOutput::start(&settings)?;
-                // The speed filter's info never changes: sent once, latched.
-                if let Err(e) = output.publish_filter_info(CostmapFilterInfo {
-                    header: Header {
-                        stamp: Time::from_utc_ns(wall_now_ns()),
-                        frame_id: c.frame_id.clone(),
-                    },
-                    kind: CostmapFilterInfo::SPEED_LIMIT_PERCENT,
-                    filter_mask_topic: c.speed_mask_topic.clone(),
-                    base: 0.0,
-                    multiplier: 1.0,
-                }) {
-                    tracing::warn!("publishing the speed filter info failed: {e}");
-                }
-                tracing::info!(
-                    "publishing a {}x{} grid of {} m on {} (+ {}), frame '{}', ROS domain {}, {}",
-                    grid.width,
-                    grid.height,
-                    grid.resolution,
-                    settings.topic,
-                    settings.updates_topic,
-                    c.frame_id,
-                    settings.domain_id,
-                    if settings.interfaces.is_empty() {
-                        "all interfaces".to_string()
-                    } else {
-                        format!("interfaces {:?}", settings.interfaces)
-                    }
-                );
-                Some(Ros {
-                    output,
-                    tracker: DeltaTracker::new(Duration::from_secs_f64(c.full_every_s)),
-                    geometry: geometry_key(grid),
-                    frame_id: c.frame_id.clone(),
-                    publish_unknown: c.publish_unknown,
-                    markers_sent: None,
-                    mask_sent: None,
-                    next_forecast: Instant::now(),
-                    forecast_footprints: Vec::new(),
-                })
-            }
+            Some(grid) => Some(ros_output(loaded, grid)?),
             None => {
                 tracing::warn!(
                     "no [costmap] grid (map_yaml or width_cells/height_cells): nothing is published to ROS 2; planning only"
@@ -261,6 +137,89 @@ impl CostmapStage {
 }
 
 impl CostmapStage {
+    /// Publishes the speed mask if it changed, and the grid (full or an update).
+    fn publish_grid(&mut self, cx: &mut Context, now: Instant) {
+        if let (Some(ros), Some(grid)) = (&mut self.ros, &self.bridge.grid)
+            && let Some(mut cells) = self.bridge.compose(now)
+        {
+            let stamp_ns = self.bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
+            let c = &self.planning.loaded.config.costmap;
+            let mask: Vec<i8> = cells.iter().map(|&v| c.speed_mask_value(v)).collect();
+            if ros.mask_sent.as_ref() != Some(&mask) {
+                let message = occupancy_grid(grid, &ros.frame_id, stamp_ns, mask.clone());
+                let result = ros.output.publish_mask(message);
+                if self
+                    .counters
+                    .published("the speed mask", result, |c| &mut c.masks)
+                {
+                    ros.mask_sent = Some(mask);
+                }
+            }
+            if !ros.publish_unknown {
+                unknown_as_free(&mut cells);
+            }
+            if publish(ros, grid, &cells, stamp_ns, now, &mut self.counters) {
+                let (arrived, origin) =
+                    self.newest_arrival.map_or((None, 0), |(a, o)| (Some(a), o));
+                cx.health.sent(arrived, origin);
+            }
+        }
+    }
+
+    /// Publishes the forecast when it is due: the cost map the long-term model
+    /// expects `costmap.forecast_ahead_min` from now.
+    fn publish_forecast(&mut self, cx: &mut Context, now: Instant) {
+        if let (Some(ros), Some(grid)) = (&mut self.ros, &self.bridge.grid)
+            && now >= ros.next_forecast
+        {
+            let c = &self.planning.loaded.config.costmap;
+            ros.next_forecast = now + Duration::from_secs_f64(c.forecast_every_s);
+            let now_ns = self.bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
+            let t_star = self
+                .bridge
+                .newest(now)
+                .map_or_else(|| self.planning.clock.t_star(now_ns), |(_, t)| t);
+            let ahead = (t_star + c.forecast_ahead_min) % self.planning.planner.cycle().bins();
+            let expected =
+                self.planning
+                    .planner
+                    .expected_costmap(grid, ahead, &mut ros.forecast_footprints);
+            match expected {
+                Ok(cells) => {
+                    let at_ns = now_ns + c.forecast_ahead_min as i64 * 60 * NS_PER_S;
+                    let message = occupancy_grid(grid, &ros.frame_id, at_ns, cells);
+                    let result = ros.output.publish_forecast(message);
+                    self.counters
+                        .published("the forecast", result, |c| &mut c.forecasts);
+                }
+                Err(e) => cx.warnings.warn("forecast", || {
+                    format!("no forecast: the long-term store cannot be read: {e}")
+                }),
+            }
+        }
+    }
+
+    /// Publishes the site's markers when what they show changed.
+    fn publish_markers(&mut self) {
+        if let Some(ros) = &mut self.ros {
+            let key = marker_key(&self.planning.loaded, &self.bridge);
+            if ros.markers_sent.as_ref() != Some(&key) {
+                let header = Header {
+                    stamp: Time::from_utc_ns(wall_now_ns()),
+                    frame_id: ros.frame_id.clone(),
+                };
+                let markers = site_markers(&self.planning.loaded, &self.bridge, &header);
+                let result = ros.output.publish_markers(markers);
+                if self
+                    .counters
+                    .published("the markers", result, |c| &mut c.markers)
+                {
+                    ros.markers_sent = Some(key);
+                }
+            }
+        }
+    }
+
     /// Answers the planning requests that came over ROS 2.
     fn serve_ros_plans(&mut self, cx: &mut Context) {
         let Some(ros) = &mut self.ros else {
@@ -268,7 +227,7 @@ impl CostmapStage {
         };
         let served = ros.output.serve_plans(cx, |kind, request| {
             self.planning
-                .answer(kind, request, &self.bridge, &mut self.counters)
+                .answer(kind, request, &self.bridge, &mut self.counters.snapshots)
         });
         self.counters.plans += served as u64;
     }
@@ -327,7 +286,7 @@ impl Stage for CostmapStage {
         let served = plans.0.serve(
             |kind, request| {
                 self.planning
-                    .answer(kind, request, &self.bridge, &mut self.counters)
+                    .answer(kind, request, &self.bridge, &mut self.counters.snapshots)
             },
             &mut rejected,
         )?;
@@ -348,77 +307,10 @@ impl Stage for CostmapStage {
                 // Fell behind (a slow plan, a stalled DDS write): do not burst.
                 self.next_publish = now + self.period;
             }
-            if let (Some(ros), Some(grid)) = (&mut self.ros, &self.bridge.grid)
-                && let Some(mut cells) = self.bridge.compose(now)
-            {
-                let stamp_ns = self.bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
-                let c = &self.planning.loaded.config.costmap;
-                let mask: Vec<i8> = cells.iter().map(|&v| c.speed_mask_value(v)).collect();
-                if ros.mask_sent.as_ref() != Some(&mask) {
-                    let message = occupancy_grid(grid, &ros.frame_id, stamp_ns, mask.clone());
-                    let result = ros.output.publish_mask(message);
-                    if self
-                        .counters
-                        .published("the speed mask", result, |c| &mut c.masks)
-                    {
-                        ros.mask_sent = Some(mask);
-                    }
-                }
-                if !ros.publish_unknown {
-                    unknown_as_free(&mut cells);
-                }
-                if publish(ros, grid, &cells, stamp_ns, now, &mut self.counters) {
-                    let (arrived, origin) =
-                        self.newest_arrival.map_or((None, 0), |(a, o)| (Some(a), o));
-                    cx.health.sent(arrived, origin);
-                }
-            }
+            self.publish_grid(cx, now);
         }
-        if let (Some(ros), Some(grid)) = (&mut self.ros, &self.bridge.grid)
-            && now >= ros.next_forecast
-        {
-            let c = &self.planning.loaded.config.costmap;
-            ros.next_forecast = now + Duration::from_secs_f64(c.forecast_every_s);
-            let now_ns = self.bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
-            let t_star = self
-                .bridge
-                .newest(now)
-                .map_or_else(|| self.planning.clock.t_star(now_ns), |(_, t)| t);
-            let ahead = (t_star + c.forecast_ahead_min) % self.planning.planner.cycle().bins();
-            let expected =
-                self.planning
-                    .planner
-                    .expected_costmap(grid, ahead, &mut ros.forecast_footprints);
-            match expected {
-                Ok(cells) => {
-                    let at_ns = now_ns + c.forecast_ahead_min as i64 * 60 * NS_PER_S;
-                    let message = occupancy_grid(grid, &ros.frame_id, at_ns, cells);
-                    let result = ros.output.publish_forecast(message);
-                    self.counters
-                        .published("the forecast", result, |c| &mut c.forecasts);
-                }
-                Err(e) => cx.warnings.warn("forecast", || {
-                    format!("no forecast: the long-term store cannot be read: {e}")
-                }),
-            }
-        }
-        if let Some(ros) = &mut self.ros {
-            let key = marker_key(&self.planning.loaded, &self.bridge);
-            if ros.markers_sent.as_ref() != Some(&key) {
-                let header = Header {
-                    stamp: Time::from_utc_ns(wall_now_ns()),
-                    frame_id: ros.frame_id.clone(),
-                };
-                let markers = site_markers(&self.planning.loaded, &self.bridge, &header);
-                let result = ros.output.publish_markers(markers);
-                if self
-                    .counters
-                    .published("the markers", result, |c| &mut c.markers)
-                {
-                    ros.markers_sent = Some(key);
-                }
-            }
-        }
+        self.publish_forecast(cx, now);
+        self.publish_markers();
         if let Some(at) = self.next_snapshot
             && now >= at
         {
@@ -478,6 +370,72 @@ impl Stage for CostmapStage {
     }
 }
 
+/// The ROS 2 output of the cost map on `grid`: the participant, its topics and
+/// services, the speed filter's info (sent once, latched).
+fn ros_output(loaded: &LoadedConfig, grid: &MapGrid) -> Result<Ros, Fatal> {
+    let c = &loaded.config.costmap;
+    let settings = RosSettings {
+        domain_id: domain_id(c.ros_domain_id)
+            .map_err(|e| Fatal::from(e).context(loaded.path.display()))?,
+        interfaces: interfaces(
+            &c.dds_interfaces
+                .iter()
+                .filter_map(|a| a.parse().ok())
+                .collect::<Vec<_>>(),
+        ),
+        topic: c.topic.clone(),
+        updates_topic: c.updates_topic(),
+        people_topic: c.people_topic.clone(),
+        markers_topic: c.markers_topic.clone(),
+        speed_filter_info_topic: c.speed_filter_info_topic.clone(),
+        speed_mask_topic: c.speed_mask_topic.clone(),
+        forecast_topic: c.forecast_topic.clone(),
+        plan_offline_service: c.plan_offline_service.clone(),
+        plan_now_service: c.plan_now_service.clone(),
+    };
+    limit_dds_logging();
+    let output = RosOutput::start(&settings)?;
+    // The speed filter's info never changes: sent once, latched.
+    if let Err(e) = output.publish_filter_info(CostmapFilterInfo {
+        header: Header {
+            stamp: Time::from_utc_ns(wall_now_ns()),
+            frame_id: c.frame_id.clone(),
+        },
+        kind: CostmapFilterInfo::SPEED_LIMIT_PERCENT,
+        filter_mask_topic: c.speed_mask_topic.clone(),
+        base: 0.0,
+        multiplier: 1.0,
+    }) {
+        tracing::warn!("publishing the speed filter info failed: {e}");
+    }
+    tracing::info!(
+        "publishing a {}x{} grid of {} m on {} (+ {}), frame '{}', ROS domain {}, {}",
+        grid.width,
+        grid.height,
+        grid.resolution,
+        settings.topic,
+        settings.updates_topic,
+        c.frame_id,
+        settings.domain_id,
+        if settings.interfaces.is_empty() {
+            "all interfaces".to_string()
+        } else {
+            format!("interfaces {:?}", settings.interfaces)
+        }
+    );
+    Ok(Ros {
+        output,
+        tracker: DeltaTracker::new(Duration::from_secs_f64(c.full_every_s)),
+        geometry: geometry_key(grid),
+        frame_id: c.frame_id.clone(),
+        publish_unknown: c.publish_unknown,
+        markers_sent: None,
+        mask_sent: None,
+        next_forecast: Instant::now(),
+        forecast_footprints: Vec::new(),
+    })
+}
+
 /// Why Nav2 may not take the grid as the robots' map, if it may not: a StaticLayer
 /// of a global (not rolling) costmap resizes the whole costmap to a map of another
 /// size, resolution or origin, and the robots' own map is gone. The grid has the
@@ -505,286 +463,5 @@ pub fn nav2_geometry_warning(loaded: &LoadedConfig, grid: &MapGrid) -> Option<St
             geometry(grid)
         )),
         Some(_) => None,
-    }
-}
-
-/// A hash of what makes two grids incompatible (size, resolution, origin).
-fn geometry_key(grid: &MapGrid) -> u64 {
-    let mut h = std::collections::hash_map::DefaultHasher::new();
-    (grid.width, grid.height).hash(&mut h);
-    for v in [grid.resolution, grid.origin_x, grid.origin_y, grid.yaw] {
-        v.to_bits().hash(&mut h);
-    }
-    h.finish()
-}
-
-/// Publishes the `placed` people camera `k`'s detected frame (capture time
-/// `capture_ns`) just added to the bridge, as a `PoseArray` in the map frame.
-fn publish_people(
-    ros: &Ros,
-    bridge: &Bridge,
-    k: usize,
-    placed: usize,
-    capture_ns: i64,
-    counters: &mut Counters,
-) {
-    let Some(cam) = bridge.cameras.get(k) else {
-        return;
-    };
-    let mut poses: Vec<Pose> = cam
-        .confirmed
-        .iter()
-        .rev()
-        .take(placed)
-        .map(|(_, _, p)| Pose {
-            position: Point {
-                x: p[0],
-                y: p[1],
-                z: 0.0,
-            },
-            orientation: Quaternion::from_yaw(0.0),
-        })
-        .collect();
-    poses.reverse();
-    let people = PoseArray {
-        header: Header {
-            stamp: Time::from_utc_ns(capture_ns),
-            frame_id: ros.frame_id.clone(),
-        },
-        poses,
-    };
-    counters.published("people", ros.output.publish_people(people), |c| {
-        &mut c.people
-    });
-}
-
-/// A full grid message of `grid`'s geometry.
-fn occupancy_grid(grid: &MapGrid, frame_id: &str, stamp_ns: i64, data: Vec<i8>) -> OccupancyGrid {
-    let stamp = Time::from_utc_ns(stamp_ns);
-    OccupancyGrid {
-        header: Header {
-            stamp,
-            frame_id: frame_id.to_string(),
-        },
-        info: MapMetaData {
-            map_load_time: stamp,
-            resolution: grid.resolution as f32,
-            width: grid.width,
-            height: grid.height,
-            origin: Pose {
-                position: Point {
-                    x: grid.origin_x,
-                    y: grid.origin_y,
-                    z: 0.0,
-                },
-                orientation: Quaternion::from_yaw(grid.yaw),
-            },
-        },
-        data,
-    }
-}
-
-/// Sets the unknown (-1) cells to 0, for `costmap.publish_unknown = false`.
-pub fn unknown_as_free(cells: &mut [i8]) {
-    for c in cells.iter_mut().filter(|c| **c < 0) {
-        *c = 0;
-    }
-}
-
-/// Publishes what the tracker decides; true if something went out.
-fn publish(
-    ros: &mut Ros,
-    grid: &MapGrid,
-    cells: &[i8],
-    stamp_ns: i64,
-    now: Instant,
-    counters: &mut Counters,
-) -> bool {
-    let header = Header {
-        stamp: Time::from_utc_ns(stamp_ns),
-        frame_id: ros.frame_id.clone(),
-    };
-    let result = match ros.tracker.next(cells, grid.width, ros.geometry, now) {
-        Output::Nothing => return false,
-        Output::Full => {
-            counters.grids += 1;
-            ros.output.publish_grid(OccupancyGrid {
-                header: header.clone(),
-                ..occupancy_grid(grid, &ros.frame_id, stamp_ns, cells.to_vec())
-            })
-        }
-        Output::Update {
-            x,
-            y,
-            width,
-            height,
-            data,
-        } => {
-            counters.updates += 1;
-            ros.output.publish_update(OccupancyGridUpdate {
-                header,
-                x: x as i32,
-                y: y as i32,
-                width,
-                height,
-                data,
-            })
-        }
-    };
-    if let Err(e) = result {
-        counters.publish_errors += 1;
-        // Subscribers must not miss a delta: the next tick sends the full grid.
-        ros.tracker.reset();
-        counters
-            .warnings
-            .warn("publish", || format!("publishing to ROS 2 failed: {e}"));
-        return false;
-    }
-    true
-}
-
-/// Why no snapshot was written.
-#[derive(Debug, thiserror::Error)]
-enum SnapshotFailure {
-    /// No grid to take a picture of.
-    #[error("no [costmap] grid is configured (map_yaml or width_cells/height_cells)")]
-    NoGrid,
-    /// The bridge composed no cells.
-    #[error("no grid")]
-    NoCells,
-    /// Writing the files failed.
-    #[error("{0}")]
-    Write(#[from] SnapshotError),
-}
-
-/// What answers planning requests and writes snapshots: the site, its long-term
-/// planner and clock, the floor plan, where snapshots go.
-struct Planning {
-    loaded: LoadedConfig,
-    planner: Planner,
-    clock: SiteClock,
-    floor_plan: Option<FloorPlan>,
-    snapshot_dir: PathBuf,
-}
-
-impl Planning {
-    /// Writes a snapshot of the cost map that `bridge` composes now; returns its YAML path.
-    fn write_snapshot(&self, bridge: &Bridge, now: Instant) -> Result<String, SnapshotFailure> {
-        let (loaded, dir, floor_plan) =
-            (&self.loaded, &self.snapshot_dir, self.floor_plan.as_ref());
-        let grid = bridge.grid.as_ref().ok_or(SnapshotFailure::NoGrid)?;
-        let cells = bridge.compose(now).ok_or(SnapshotFailure::NoCells)?;
-        let stamp_ns = bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
-        let ts = timestamp(stamp_ns);
-        let stem = format!(
-            "activity-{}{:03}Z",
-            ts.strftime("%Y%m%dT%H%M%S."),
-            ts.subsec_millisecond()
-        );
-        let coverage = bridge.coverage();
-        let polygons: Vec<&[[f64; 2]]> = loaded.config.costmap.segment_polygons();
-        let stamp = format_rfc3339(stamp_ns);
-        // As many as `coverage`: the cameras with a footprint.
-        let camera_ids: Vec<&str> = bridge
-            .cameras
-            .iter()
-            .filter(|c| c.footprint.is_some())
-            .map(|c| c.id.as_str())
-            .collect();
-        let files = snapshot::write(
-            dir,
-            &stem,
-            &Snapshot {
-                grid,
-                cells: &cells,
-                floor_plan,
-                coverage: &coverage,
-                camera_ids: &camera_ids,
-                segments: &polygons,
-                zones: &snapshot::floor_zones(&loaded.config.cameras),
-                caption: &format!("ACTIVITY COST {stamp}"),
-                stamp: &stamp,
-            },
-        )?;
-        snapshot::prune(dir, "activity-", loaded.config.costmap.snapshot_keep)?;
-        Ok(files.yaml.display().to_string())
-    }
-
-    /// Answers one planning request.
-    fn answer(
-        &mut self,
-        kind: PlanKind,
-        request: &PlanRequest,
-        bridge: &Bridge,
-        counters: &mut Counters,
-    ) -> PlanResponse {
-        let (planner, clock) = (&mut self.planner, &self.clock);
-        let now = Instant::now();
-        let failed =
-            |status: PlanStatus, message: String| PlanResponse::new(kind as u32, status, &message);
-        let status_of = |e: &PlanError| match e {
-            PlanError::UnknownRoute(..) => PlanStatus::UnknownRoute,
-            PlanError::NoData(_) | PlanError::EmptySegment(_) => PlanStatus::NoData,
-            _ => PlanStatus::Failed,
-        };
-        // "Now" is the time of the newest activity (header time), else the wall clock.
-        let now_ns = bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
-        match kind {
-            PlanKind::Offline => {
-                let route = request.route_names().remove(0);
-                let cycle_offset = match planner.cycle() {
-                    Cycle::Daily => 0,
-                    Cycle::Weekly => {
-                        let day = if request.weekday == 7 {
-                            clock.t_star(now_ns) / 1440
-                        } else {
-                            request.weekday
-                        };
-                        day * 1440
-                    }
-                };
-                let range = DayRange {
-                    start: request.start_minute,
-                    end: request.end_minute,
-                    step: request.step_min,
-                    cycle_offset,
-                };
-                match planner.offline(&route, range) {
-                    Ok(plan) => answer_offline(&plan),
-                    Err(e) => failed(status_of(&e), e.to_string()),
-                }
-            }
-            PlanKind::Now => {
-                let t_star = bridge
-                    .newest(now)
-                    .map_or_else(|| clock.t_star(now_ns), |(_, t)| t);
-                let live = bridge.live(now);
-                match planner.now(&request.route_names(), &live, t_star) {
-                    Ok(ranked) => answer_now(&ranked, t_star),
-                    Err(e) => failed(status_of(&e), e.to_string()),
-                }
-            }
-            PlanKind::Snapshot => match self.write_snapshot(bridge, now) {
-                Ok(path) => {
-                    counters.snapshots += 1;
-                    tracing::info!("snapshot written: {path}");
-                    PlanResponse::new(kind as u32, PlanStatus::Ok, &path)
-                }
-                Err(e) if bridge.grid.is_none() => failed(PlanStatus::NoData, e.to_string()),
-                Err(e) => failed(PlanStatus::Failed, e.to_string()),
-            },
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn unknown_cells_become_free_only_when_asked() {
-        let mut cells = vec![-1, 0, 42, 99, -1];
-        unknown_as_free(&mut cells);
-        assert_eq!(cells, vec![0, 0, 42, 99, 0]);
     }
 }

@@ -17,13 +17,12 @@
 //! [`QUICK_DETECT_ALL_FRAMES`] of them: a check that the bench runs; the JSON line
 //! gets `"quick":true`.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
 use isochron_config::Config;
-use isochron_gate::detector::Detector;
-use isochron_gate::worker::Region;
+use isochron_gate::detector::{Detector, Region};
 use isochron_tests::{bin_dir, mjpg_writer, repo_root};
 use opencv::core::Size;
 use opencv::prelude::*;
@@ -36,20 +35,174 @@ const QUICK_CLIP_FRAMES: usize = 150;
 /// Frames the detect-all pass times with `--quick`.
 const QUICK_DETECT_ALL_FRAMES: usize = 4;
 
+/// What went wrong, for the bench's exit message.
+type Error = Box<dyn std::error::Error>;
+
 /// Writes `frames` (BGR) to an MJPG clip at `path`.
-fn write_clip(path: &Path, frames: &[Mat], fps: f64) {
+fn write_clip(path: &Path, frames: &[Mat], fps: f64) -> Result<(), Error> {
     let size = Size::new(frames[0].cols(), frames[0].rows());
     let mut writer = mjpg_writer(path, fps, size);
     for f in frames {
-        writer.write(f).unwrap();
+        writer.write(f)?;
     }
-    writer.release().unwrap();
+    writer.release()?;
+    Ok(())
 }
 
-fn main() {
+/// The frames of the video the bench reads, grey, and their size.
+struct Frames {
+    /// Grey frames, `w × h` bytes each.
+    grey: Vec<Vec<u8>>,
+    /// Frame width, pixels.
+    w: u32,
+    /// Frame height, pixels.
+    h: u32,
+}
+
+/// Decodes `video` (its first [`QUICK_CLIP_FRAMES`] frames if `quick`, which it then
+/// also writes, BGR, to `out/clip.avi`: the returned path is the video the group
+/// replays).
+fn read_frames(video: &Path, out: &Path, quick: bool) -> Result<(Frames, PathBuf), Error> {
+    let name = video.to_str().ok_or("a UTF-8 video path")?;
+    let mut cap = videoio::VideoCapture::from_file(name, videoio::CAP_ANY)?;
+    let (mut bgr, mut gray) = (Mat::default(), Mat::default());
+    let mut grey = Vec::new();
+    let mut clip = Vec::new();
+    // The size is taken while reading: after the last read the Mat is empty (0x0).
+    let (mut w, mut h) = (0, 0);
+    while (!quick || grey.len() < QUICK_CLIP_FRAMES) && cap.read(&mut bgr)? && !bgr.empty() {
+        imgproc::cvt_color(&bgr, &mut gray, imgproc::COLOR_BGR2GRAY, 0)?;
+        (w, h) = (gray.cols() as u32, gray.rows() as u32);
+        grey.push(gray.data_bytes()?.to_vec());
+        if quick {
+            clip.push(bgr.try_clone()?);
+        }
+    }
+    assert!(!grey.is_empty(), "no frames in {}", video.display());
+    if !quick {
+        return Ok((Frames { grey, w, h }, video.to_path_buf()));
+    }
+    std::fs::create_dir_all(out)?;
+    let path = out.join("clip.avi");
+    let fps = cap.get(videoio::CAP_PROP_FPS)?;
+    write_clip(&path, &clip, if fps > 0.0 { fps } else { 25.0 })?;
+    Ok((Frames { grey, w, h }, path))
+}
+
+/// The detector on an even sample of `sample` frames: frames/s, frames timed and
+/// people found.
+fn detect_all(
+    detector: &mut Detector,
+    frames: &Frames,
+    sample: usize,
+) -> Result<(f64, usize, usize), Error> {
+    let step = (frames.grey.len() / sample).max(1);
+    let t0 = Instant::now();
+    let mut people = 0;
+    let mut timed = 0;
+    for f in frames.grey.iter().step_by(step) {
+        people += detector.detect(f, frames.w, frames.h, Region::WHOLE)?.len();
+        timed += 1;
+    }
+    Ok((timed as f64 / t0.elapsed().as_secs_f64(), timed, people))
+}
+
+/// What the group's `summary.json` says of a replay.
+struct Hybrid {
+    /// Frames the group read.
+    frames: u64,
+    /// The group's frames per second.
+    fps: f64,
+    /// Frames the gated detector ran on.
+    detected: u64,
+}
+
+/// Runs the whole group (`isochron replay`) on `video` into `out`.
+fn run_hybrid(video: &Path, out: &Path, config_path: &Path) -> Result<Hybrid, Error> {
+    let isochron = bin_dir().join("isochron");
+    assert!(
+        isochron.is_file(),
+        "{} is not built: build the binaries of this profile first (`cargo xtask bench gate` \
+         builds the release ones; `cargo build --workspace --bins` the dev ones)",
+        isochron.display()
+    );
+    let status = Command::new(&isochron)
+        .arg("replay")
+        .arg(video)
+        .arg("--out")
+        .arg(out)
+        .arg("--config")
+        .arg(config_path)
+        .status()
+        .expect("isochron replay");
+    assert!(
+        status.success(),
+        "replay failed; see {}",
+        out.join("logs").display()
+    );
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json"))?)?;
+    Ok(Hybrid {
+        frames: summary["counts"]["frames"]
+            .as_u64()
+            .ok_or("summary: counts.frames")?,
+        fps: summary["frames_per_s"]
+            .as_f64()
+            .ok_or("summary: frames_per_s")?,
+        detected: summary["gate"]["frames_detected"].as_u64().unwrap_or(0),
+    })
+}
+
+/// The events of `out/events.jsonl` (none if it is missing).
+fn read_events(out: &Path) -> Result<Vec<serde_json::Value>, Error> {
+    let text = std::fs::read_to_string(out.join("events.jsonl")).unwrap_or_default();
+    Ok(text
+        .lines()
+        .map(serde_json::from_str)
+        .collect::<Result<_, _>>()?)
+}
+
+/// The person-present frames of PETS09's ground truth (0-based, below `total` if
+/// `quick`) and how many of them lie outside every event (each event extended by 10
+/// frames): missed people.
+fn missed_frames(
+    root: &Path,
+    events: &[serde_json::Value],
+    total: usize,
+    quick: bool,
+) -> Result<(usize, usize), Error> {
+    let mut spans = Vec::with_capacity(events.len());
+    for e in events {
+        let start = e["start_frame"]
+            .as_u64()
+            .ok_or("an event without start_frame")?;
+        let end = e["end_frame"]
+            .as_u64()
+            .ok_or("an event without end_frame")?;
+        spans.push((start, end + 10));
+    }
+    let covered = |frame: u64| spans.iter().any(|&(s, e)| s <= frame && frame <= e);
+    let gt =
+        std::fs::read_to_string(root.join("tests/data/pets09-s2l1-gt.txt")).unwrap_or_default();
+    let mut present = Vec::new();
+    for l in gt.lines() {
+        let f: Vec<&str> = l.split(',').collect();
+        if f.get(6) == Some(&"1") {
+            let frame = f[0].parse::<u64>()? - 1;
+            if !quick || frame < total as u64 {
+                present.push(frame);
+            }
+        }
+    }
+    present.sort_unstable();
+    present.dedup();
+    let missed = present.iter().filter(|&&f| !covered(f)).count();
+    Ok((present.len(), missed))
+}
+
+fn main() -> Result<(), Error> {
     let quick = std::env::args().any(|a| a == "--quick");
     let root = repo_root();
-    let mut video = root.join("data/vtest.avi");
     let config_path = root.join("config/demo.toml");
     let config = Config::load(&config_path).expect("config/demo.toml");
     let out = root.join(if quick {
@@ -60,80 +213,20 @@ fn main() {
     let _ = std::fs::remove_dir_all(&out);
 
     // Detect all: decode every frame, time the detector on an even sample of them.
-    let mut cap =
-        videoio::VideoCapture::from_file(video.to_str().unwrap(), videoio::CAP_ANY).unwrap();
-    let (mut bgr, mut gray) = (Mat::default(), Mat::default());
-    let mut frames = Vec::new();
-    let mut clip = Vec::new();
-    // The size is taken while reading: after the last read the Mat is empty (0x0).
-    let (mut w, mut h) = (0, 0);
-    while (!quick || frames.len() < QUICK_CLIP_FRAMES)
-        && cap.read(&mut bgr).unwrap()
-        && !bgr.empty()
-    {
-        imgproc::cvt_color(&bgr, &mut gray, imgproc::COLOR_BGR2GRAY, 0).unwrap();
-        (w, h) = (gray.cols() as u32, gray.rows() as u32);
-        frames.push(gray.data_bytes().unwrap().to_vec());
-        if quick {
-            clip.push(bgr.try_clone().unwrap());
-        }
-    }
-    let total = frames.len();
-    assert!(total > 0, "no frames in {}", video.display());
-    if quick {
-        std::fs::create_dir_all(&out).unwrap();
-        let path = out.join("clip.avi");
-        let fps = cap.get(videoio::CAP_PROP_FPS).unwrap();
-        write_clip(&path, &clip, if fps > 0.0 { fps } else { 25.0 });
-        video = path;
-    }
-    let mut detector =
-        Detector::from_config(&config.config.gate.detector, &config.base_dir()).unwrap();
+    let (frames, video) = read_frames(&root.join("data/vtest.avi"), &out, quick)?;
+    let (w, h, total) = (frames.w, frames.h, frames.grey.len());
+    let mut detector = Detector::from_config(&config.config.gate.detector, &config.base_dir())?;
     let sample = if quick {
         QUICK_DETECT_ALL_FRAMES
     } else {
         DETECT_ALL_FRAMES
     };
-    let step = (total / sample).max(1);
-    let t0 = Instant::now();
-    let mut people = 0;
-    let mut timed = 0;
-    for f in frames.iter().step_by(step) {
-        people += detector.detect(f, w, h, Region::WHOLE).unwrap().len();
-        timed += 1;
-    }
-    let detect_all_fps = timed as f64 / t0.elapsed().as_secs_f64();
+    let (detect_all_fps, timed, people) = detect_all(&mut detector, &frames, sample)?;
 
     // Hybrid: the whole group on the whole video (the clip with `--quick`).
-    let isochron = bin_dir().join("isochron");
-    assert!(
-        isochron.is_file(),
-        "{} is not built: build the binaries of this profile first (`cargo xtask bench gate` \
-         builds the release ones; `cargo build --workspace --bins` the dev ones)",
-        isochron.display()
-    );
-    let status = Command::new(&isochron)
-        .args([
-            "replay",
-            video.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--config",
-        ])
-        .arg(&config_path)
-        .status()
-        .expect("isochron replay");
-    assert!(
-        status.success(),
-        "replay failed; see {}",
-        out.join("logs").display()
-    );
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
-    let group_frames = summary["counts"]["frames"].as_u64().unwrap();
-    let hybrid_fps = summary["frames_per_s"].as_f64().unwrap();
-    let detected = summary["gate"]["frames_detected"].as_u64().unwrap_or(0);
-    let detected_fraction = detected as f64 / group_frames.max(1) as f64;
+    let hybrid = run_hybrid(&video, &out, &config_path)?;
+    let (hybrid_fps, detected) = (hybrid.fps, hybrid.detected);
+    let detected_fraction = detected as f64 / hybrid.frames.max(1) as f64;
     // The quick run checks that every stage still works, the gated detector too.
     assert!(
         !quick || detected > 0,
@@ -142,30 +235,8 @@ fn main() {
     );
 
     // Person-present frames outside every event would be missed people.
-    let events: Vec<serde_json::Value> = std::fs::read_to_string(out.join("events.jsonl"))
-        .unwrap_or_default()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
-    let covered = |frame: u64| {
-        events.iter().any(|e| {
-            e["start_frame"].as_u64().unwrap() <= frame
-                && frame <= e["end_frame"].as_u64().unwrap() + 10
-        })
-    };
-    let gt =
-        std::fs::read_to_string(root.join("tests/data/pets09-s2l1-gt.txt")).unwrap_or_default();
-    let mut present: Vec<u64> = gt
-        .lines()
-        .filter_map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            (f.get(6) == Some(&"1")).then(|| f[0].parse::<u64>().unwrap() - 1)
-        })
-        .filter(|&f| !quick || f < total as u64)
-        .collect();
-    present.sort_unstable();
-    present.dedup();
-    let missed = present.iter().filter(|&&f| !covered(f)).count();
+    let events = read_events(&out)?;
+    let (present, missed) = missed_frames(&root, &events, total, quick)?;
 
     let speedup = hybrid_fps / detect_all_fps;
     println!(
@@ -190,12 +261,12 @@ fn main() {
         events.len()
     );
     println!(
-        "person-present frames outside any event: {missed} of {} (missed intervals: {})",
-        present.len(),
+        "person-present frames outside any event: {missed} of {present} (missed intervals: {})",
         if missed == 0 { "none" } else { "SOME" }
     );
     println!(
         "{{\"bench\":\"gate\",\"detect_all_fps\":{detect_all_fps:.2},\"hybrid_fps\":{hybrid_fps:.1},\"speedup\":{speedup:.1},\"detected_fraction\":{detected_fraction:.4}{}}}",
         if quick { ",\"quick\":true" } else { "" }
     );
+    Ok(())
 }

@@ -18,13 +18,12 @@
 //! SETTINGS, a sweep that changes one setting at a time.
 
 use std::collections::BTreeSet;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use isochron_config::{DetectorConfig, MotionConfig};
-use isochron_gate::detector::Detector;
+use isochron_gate::detector::{Detector, Region};
 use isochron_gate::gate::crop_region;
-use isochron_gate::worker::Region;
 use isochron_motion::detector::MotionDetector;
 use isochron_motion::eval::{GroundTruth, PersonBox};
 use isochron_wire::geometry::BlockGrid;
@@ -111,79 +110,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let step: u64 = args.next().and_then(|s| s.parse().ok()).unwrap_or(40);
     let mut settings: Vec<Setting> = args.filter_map(|a| Setting::parse(&a)).collect();
     if settings.is_empty() {
-        let one = |f: &dyn Fn(&mut Setting)| {
-            let mut s = Setting::base();
-            f(&mut s);
-            s
-        };
-        settings.push(Setting::base());
-        for u in [1.0, 1.25, 1.75, 2.0] {
-            settings.push(one(&|s| s.config.hog_upscale = u));
-        }
-        for t in [0.3, 0.6] {
-            settings.push(one(&|s| s.config.hog_hit_threshold = t));
-        }
-        settings.push(one(&|s| s.config.hog_win_stride_px = 16));
-        for k in [1.1, 1.2] {
-            settings.push(one(&|s| s.config.hog_scale_step = k));
-        }
-        for g in [0, 1, 3] {
-            settings.push(one(&|s| s.config.hog_group_threshold = g));
-        }
-        for c in [32, 64, 96] {
-            settings.push(one(&|s| s.crop = Some(c)));
-        }
+        settings = default_settings();
     }
 
-    // The sampled frames, with the blocks the motion stage saw active in the
-    // second before each.
-    let mut cap = videoio::VideoCapture::from_file(
-        root.join("data/vtest.avi").to_str().unwrap(),
-        videoio::CAP_ANY,
-    )?;
-    let fps = cap.get(videoio::CAP_PROP_FPS)?;
-    let per_second = if fps > 0.0 { fps.round() as u64 } else { 10 };
-    let (mut bgr, mut gray) = (Mat::default(), Mat::default());
     let motion_config = MotionConfig::default();
-    let mut motion = None;
-    let mut blocks = Vec::new();
-    let mut previous: Vec<u8> = Vec::new();
-    let mut active = BTreeSet::new();
-    let mut samples = Vec::new();
-    let mut n = 0u64;
-    while cap.read(&mut bgr)? && !bgr.empty() {
-        imgproc::cvt_color(&bgr, &mut gray, imgproc::COLOR_BGR2GRAY, 0)?;
-        let pixels = gray.data_bytes()?.to_vec();
-        let (w, h) = (gray.cols() as usize, gray.rows() as usize);
-        let det = match &mut motion {
-            Some(det) => det,
-            None => {
-                let det = MotionDetector::new(&motion_config, w, h, &[])?;
-                blocks = vec![BlockMotion::default(); det.geometry().blocks()];
-                motion.insert(det)
-            }
-        };
-        // Only the pairs of the second before a sampled frame.
-        let next_sample = n.div_ceil(step) * step;
-        if n > 0 && next_sample - n < per_second {
-            det.process(&previous, &pixels, n as i64 * 100_000_000, &mut blocks)?;
-            for (i, b) in blocks.iter().enumerate() {
-                if b.density >= motion_config.density_threshold {
-                    active.insert(i as u32);
-                }
-            }
-        }
-        if n.is_multiple_of(step) {
-            samples.push(Sample {
-                n,
-                pixels: pixels.clone(),
-                active: std::mem::take(&mut active).into_iter().collect(),
-            });
-        }
-        previous = pixels;
-        n += 1;
-    }
-    let (w, h) = (gray.cols() as u32, gray.rows() as u32);
+    let (samples, w, h) = sampled_frames(&root, step, &motion_config)?;
     let grid = BlockGrid::new(w, h, motion_config.block_px);
     println!(
         "HOG on {} frames of vtest.avi ({w}x{h}), every {step}th; IoU >= 0.5",
@@ -251,4 +182,89 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
     Ok(())
+}
+
+/// The settings compared when none are given: the defaults, then one change at a time.
+fn default_settings() -> Vec<Setting> {
+    let mut settings = Vec::new();
+    let one = |f: &dyn Fn(&mut Setting)| {
+        let mut s = Setting::base();
+        f(&mut s);
+        s
+    };
+    settings.push(Setting::base());
+    for u in [1.0, 1.25, 1.75, 2.0] {
+        settings.push(one(&|s| s.config.hog_upscale = u));
+    }
+    for t in [0.3, 0.6] {
+        settings.push(one(&|s| s.config.hog_hit_threshold = t));
+    }
+    settings.push(one(&|s| s.config.hog_win_stride_px = 16));
+    for k in [1.1, 1.2] {
+        settings.push(one(&|s| s.config.hog_scale_step = k));
+    }
+    for g in [0, 1, 3] {
+        settings.push(one(&|s| s.config.hog_group_threshold = g));
+    }
+    for c in [32, 64, 96] {
+        settings.push(one(&|s| s.crop = Some(c)));
+    }
+    settings
+}
+
+/// The frames of vtest.avi sampled every `step`th, with the blocks the motion stage
+/// saw active in the second before each, and the frames' size.
+fn sampled_frames(
+    root: &Path,
+    step: u64,
+    motion_config: &MotionConfig,
+) -> Result<(Vec<Sample>, u32, u32), Box<dyn std::error::Error>> {
+    let mut cap = videoio::VideoCapture::from_file(
+        root.join("data/vtest.avi")
+            .to_str()
+            .ok_or("a UTF-8 checkout path")?,
+        videoio::CAP_ANY,
+    )?;
+    let fps = cap.get(videoio::CAP_PROP_FPS)?;
+    let per_second = if fps > 0.0 { fps.round() as u64 } else { 10 };
+    let (mut bgr, mut gray) = (Mat::default(), Mat::default());
+    let mut motion = None;
+    let mut blocks = Vec::new();
+    let mut previous: Vec<u8> = Vec::new();
+    let mut active = BTreeSet::new();
+    let mut samples = Vec::new();
+    let mut n = 0u64;
+    while cap.read(&mut bgr)? && !bgr.empty() {
+        imgproc::cvt_color(&bgr, &mut gray, imgproc::COLOR_BGR2GRAY, 0)?;
+        let pixels = gray.data_bytes()?.to_vec();
+        let (w, h) = (gray.cols() as usize, gray.rows() as usize);
+        let det = match &mut motion {
+            Some(det) => det,
+            None => {
+                let det = MotionDetector::new(motion_config, w, h, &[])?;
+                blocks = vec![BlockMotion::default(); det.geometry().blocks()];
+                motion.insert(det)
+            }
+        };
+        // Only the pairs of the second before a sampled frame.
+        let next_sample = n.div_ceil(step) * step;
+        if n > 0 && next_sample - n < per_second {
+            det.process(&previous, &pixels, n as i64 * 100_000_000, &mut blocks)?;
+            for (i, b) in blocks.iter().enumerate() {
+                if b.density >= motion_config.density_threshold {
+                    active.insert(i as u32);
+                }
+            }
+        }
+        if n.is_multiple_of(step) {
+            samples.push(Sample {
+                n,
+                pixels: pixels.clone(),
+                active: std::mem::take(&mut active).into_iter().collect(),
+            });
+        }
+        previous = pixels;
+        n += 1;
+    }
+    Ok((samples, gray.cols() as u32, gray.rows() as u32))
 }

@@ -21,7 +21,42 @@ use opencv::core::{Mat, Rect, Scalar, Size, Vector};
 use opencv::prelude::*;
 use opencv::{dnn, imgproc, objdetect};
 
-use crate::worker::Region;
+/// A rectangle of the frame, pixels; width 0 means the whole frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Region {
+    /// Left edge.
+    pub x: u32,
+    /// Top edge.
+    pub y: u32,
+    /// Width (0: the whole frame).
+    pub w: u32,
+    /// Height.
+    pub h: u32,
+}
+
+impl Region {
+    /// The whole frame.
+    pub const WHOLE: Region = Region {
+        x: 0,
+        y: 0,
+        w: 0,
+        h: 0,
+    };
+
+    /// True for the whole frame.
+    pub fn is_whole(&self) -> bool {
+        self.w == 0
+    }
+
+    /// True if the point `(x, y)` lies in the region.
+    pub fn contains(&self, x: f32, y: f32) -> bool {
+        self.is_whole()
+            || (x >= self.x as f32
+                && y >= self.y as f32
+                && x <= (self.x + self.w) as f32
+                && y <= (self.y + self.h) as f32)
+    }
+}
 
 /// Fraction of a HOG window's width left and right of the person.
 const HOG_MARGIN_X: f32 = 0.1;
@@ -36,39 +71,45 @@ const HOG_WINDOW: (i32, i32) = (64, 128);
 /// A ready detector.
 pub enum Detector {
     /// OpenCV HOG + linear SVM for people.
-    Hog {
-        /// The descriptor with the people SVM set.
-        hog: objdetect::HOGDescriptor,
-        /// Upscale factor applied first.
-        upscale: f64,
-        /// SVM hit threshold.
-        hit_threshold: f64,
-        /// Window stride, upscaled pixels.
-        win_stride: i32,
-        /// Pyramid scale step.
-        scale_step: f64,
-        /// `groupRectangles` threshold; 0: non-maximum suppression instead.
-        group_threshold: u32,
-        /// NMS overlap threshold (with `group_threshold` 0).
-        nms_threshold: f32,
-        /// Reused buffer for the upscaled frame.
-        scaled: Mat,
-    },
+    Hog(HogDetector),
     /// A YOLO ONNX model through OpenCV dnn.
-    Onnx {
-        /// The network.
-        net: dnn::Net,
-        /// Square input size.
-        input_px: i32,
-        /// Input channels (1 or 3).
-        channels: u32,
-        /// Lowest kept class score.
-        score_threshold: f32,
-        /// NMS overlap threshold.
-        nms_threshold: f32,
-        /// Reused buffers: the scaled frame, the letterboxed input, its colour version.
-        buffers: [Mat; 3],
-    },
+    Onnx(OnnxDetector),
+}
+
+/// OpenCV's HOG people detector and its settings.
+pub struct HogDetector {
+    /// The descriptor with the people SVM set.
+    pub hog: objdetect::HOGDescriptor,
+    /// Upscale factor applied first.
+    pub upscale: f64,
+    /// SVM hit threshold.
+    pub hit_threshold: f64,
+    /// Window stride, upscaled pixels.
+    pub win_stride: i32,
+    /// Pyramid scale step.
+    pub scale_step: f64,
+    /// `groupRectangles` threshold; 0: non-maximum suppression instead.
+    pub group_threshold: u32,
+    /// NMS overlap threshold (with `group_threshold` 0).
+    pub nms_threshold: f32,
+    /// Reused buffer for the upscaled frame.
+    pub scaled: Mat,
+}
+
+/// A YOLO ONNX model through OpenCV dnn, and its settings.
+pub struct OnnxDetector {
+    /// The network.
+    pub net: dnn::Net,
+    /// Square input size.
+    pub input_px: i32,
+    /// Input channels (1 or 3).
+    pub channels: u32,
+    /// Lowest kept class score.
+    pub score_threshold: f32,
+    /// NMS overlap threshold.
+    pub nms_threshold: f32,
+    /// Reused buffers: the scaled frame, the letterboxed input, its colour version.
+    pub buffers: [Mat; 3],
 }
 
 /// Why the detector could not be built or started.
@@ -117,7 +158,7 @@ impl Detector {
                 let svm = objdetect::HOGDescriptor::get_default_people_detector()
                     .map_err(DetectorError::Hog)?;
                 hog.set_svm_detector(svm);
-                Ok(Detector::Hog {
+                Ok(Detector::Hog(HogDetector {
                     hog,
                     upscale: config.hog_upscale,
                     hit_threshold: config.hog_hit_threshold,
@@ -126,7 +167,7 @@ impl Detector {
                     group_threshold: config.hog_group_threshold,
                     nms_threshold: config.nms_threshold,
                     scaled: Mat::default(),
-                })
+                }))
             }
             Some(model) => {
                 let path = if model.is_absolute() {
@@ -141,14 +182,14 @@ impl Detector {
                     Ok(net) => net,
                     Err(source) => return Err(DetectorError::Model { path, source }),
                 };
-                Ok(Detector::Onnx {
+                Ok(Detector::Onnx(OnnxDetector {
                     net,
                     input_px: config.input_px as i32,
                     channels: config.input_channels,
                     score_threshold: config.score_threshold,
                     nms_threshold: config.nms_threshold,
                     buffers: Default::default(),
-                })
+                }))
             }
         }
     }
@@ -156,8 +197,8 @@ impl Detector {
     /// Short name for logs.
     pub fn name(&self) -> &'static str {
         match self {
-            Detector::Hog { .. } => "hog",
-            Detector::Onnx { .. } => "onnx",
+            Detector::Hog(_) => "hog",
+            Detector::Onnx(_) => "onnx",
         }
     }
 
@@ -178,11 +219,11 @@ impl Detector {
             ));
         }
         let min = match self {
-            Detector::Hog { upscale, .. } => (
-                (HOG_WINDOW.0 as f64 / *upscale).ceil() as u32,
-                (HOG_WINDOW.1 as f64 / *upscale).ceil() as u32,
+            Detector::Hog(hog) => (
+                (HOG_WINDOW.0 as f64 / hog.upscale).ceil() as u32,
+                (HOG_WINDOW.1 as f64 / hog.upscale).ceil() as u32,
             ),
-            Detector::Onnx { .. } => (32, 32),
+            Detector::Onnx(_) => (32, 32),
         };
         let r = search_rect(region, width, height, min);
         // SAFETY: `gray` holds width × height bytes (checked above) and outlives
@@ -200,137 +241,141 @@ impl Detector {
                 width as usize,
             )?
         };
+        let found = match self {
+            Detector::Hog(hog) => hog.detect(&crop, r)?,
+            Detector::Onnx(onnx) => onnx.detect(&crop, r)?,
+        };
+        Ok(found)
+    }
+}
+
+impl HogDetector {
+    /// People in `crop`, the part `r` of the frame; boxes in frame pixels.
+    fn detect(&mut self, crop: &Mat, r: Rect) -> opencv::Result<Vec<Detection>> {
         let (ox, oy) = (r.x as f32, r.y as f32);
-        match self {
-            Detector::Hog {
-                hog,
-                upscale,
-                hit_threshold,
-                win_stride,
-                scale_step,
-                group_threshold,
-                nms_threshold,
-                scaled,
-            } => {
-                let mut rects = Vector::<Rect>::new();
-                let mut weights = Vector::<f64>::new();
-                let mut run = |image: &Mat| {
-                    hog.detect_multi_scale_weights(
-                        image,
-                        &mut rects,
-                        &mut weights,
-                        *hit_threshold,
-                        Size::new(*win_stride, *win_stride),
-                        Size::new(8, 8),
-                        *scale_step,
-                        *group_threshold as f64,
-                        false,
-                    )
-                };
-                if (*upscale - 1.0).abs() > 1e-6 {
-                    let size = Size::new(
-                        (r.width as f64 * *upscale).round() as i32,
-                        (r.height as f64 * *upscale).round() as i32,
-                    );
-                    imgproc::resize(&crop, scaled, size, 0.0, 0.0, imgproc::INTER_LINEAR)?;
-                    run(scaled)?;
-                } else {
-                    run(&crop)?;
-                }
-                let mut boxes: Vec<(Rect, f32)> = rects
-                    .iter()
-                    .zip(weights.iter())
-                    .map(|(r, w)| (r, w as f32))
-                    .collect();
-                if *group_threshold == 0 && boxes.len() > 1 {
-                    let rects: Vector<Rect> = boxes.iter().map(|b| b.0).collect();
-                    let scores: Vector<f32> = boxes.iter().map(|b| b.1).collect();
-                    let mut keep = Vector::<i32>::new();
-                    dnn::nms_boxes(
-                        &rects,
-                        &scores,
-                        hit_threshold.max(0.0) as f32,
-                        *nms_threshold,
-                        &mut keep,
-                        1.0,
-                        0,
-                    )?;
-                    boxes = keep.iter().map(|i| boxes[i as usize]).collect();
-                }
-                let s = *upscale as f32;
-                // HOG's window has a margin around the person (64×128 for a
-                // person about 50×100): the box is shrunk to the person, so it
-                // overlaps an annotation as tightly and its bottom is at the feet.
-                Ok(boxes
-                    .into_iter()
-                    .map(|(r, w)| {
-                        let (rw, rh) = (r.width as f32, r.height as f32);
-                        Detection {
-                            x: ox + (r.x as f32 + HOG_MARGIN_X * rw) / s,
-                            y: oy + (r.y as f32 + HOG_MARGIN_TOP * rh) / s,
-                            w: rw * (1.0 - 2.0 * HOG_MARGIN_X) / s,
-                            h: rh * (1.0 - HOG_MARGIN_TOP - HOG_MARGIN_BOTTOM) / s,
-                            score: w,
-                            class: 0,
-                        }
-                    })
-                    .collect())
-            }
-            Detector::Onnx {
-                net,
-                input_px,
-                channels,
-                score_threshold,
-                nms_threshold,
-                buffers: [scaled, boxed, bgr],
-            } => {
-                let fit = Letterbox::new(r.width as u32, r.height as u32, *input_px);
-                imgproc::resize(
-                    &crop,
-                    scaled,
-                    Size::new(fit.width, fit.height),
-                    0.0,
-                    0.0,
-                    imgproc::INTER_LINEAR,
-                )?;
-                let (left, top) = (fit.pad_x as i32, fit.pad_y as i32);
-                opencv::core::copy_make_border(
-                    scaled,
-                    boxed,
-                    top,
-                    *input_px - fit.height - top,
-                    left,
-                    *input_px - fit.width - left,
-                    opencv::core::BORDER_CONSTANT,
-                    Scalar::all(114.0),
-                )?;
-                let input = if *channels == 3 {
-                    imgproc::cvt_color(boxed, bgr, imgproc::COLOR_GRAY2BGR, 0)?;
-                    &*bgr
-                } else {
-                    &*boxed
-                };
-                let blob = dnn::blob_from_image(
-                    input,
-                    1.0 / 255.0,
-                    Size::new(*input_px, *input_px),
-                    Scalar::default(),
-                    *channels == 3,
-                    false,
-                    opencv::core::CV_32F,
-                )?;
-                net.set_input(&blob, "", 1.0, Scalar::default())?;
-                let out = net.forward_single("")?;
-                let candidates = parse_yolo(&out, *score_threshold)?;
-                let mut found =
-                    non_max_suppression(candidates, *score_threshold, *nms_threshold, &fit)?;
-                for d in &mut found {
-                    d.x += ox;
-                    d.y += oy;
-                }
-                Ok(found)
-            }
+        let mut rects = Vector::<Rect>::new();
+        let mut weights = Vector::<f64>::new();
+        let mut run = |image: &Mat| {
+            self.hog.detect_multi_scale_weights(
+                image,
+                &mut rects,
+                &mut weights,
+                self.hit_threshold,
+                Size::new(self.win_stride, self.win_stride),
+                Size::new(8, 8),
+                self.scale_step,
+                self.group_threshold as f64,
+                false,
+            )
+        };
+        if (self.upscale - 1.0).abs() > 1e-6 {
+            let size = Size::new(
+                (r.width as f64 * self.upscale).round() as i32,
+                (r.height as f64 * self.upscale).round() as i32,
+            );
+            imgproc::resize(
+                crop,
+                &mut self.scaled,
+                size,
+                0.0,
+                0.0,
+                imgproc::INTER_LINEAR,
+            )?;
+            run(&self.scaled)?;
+        } else {
+            run(crop)?;
         }
+        let mut boxes: Vec<(Rect, f32)> = rects
+            .iter()
+            .zip(weights.iter())
+            .map(|(r, w)| (r, w as f32))
+            .collect();
+        if self.group_threshold == 0 && boxes.len() > 1 {
+            let rects: Vector<Rect> = boxes.iter().map(|b| b.0).collect();
+            let scores: Vector<f32> = boxes.iter().map(|b| b.1).collect();
+            let mut keep = Vector::<i32>::new();
+            dnn::nms_boxes(
+                &rects,
+                &scores,
+                self.hit_threshold.max(0.0) as f32,
+                self.nms_threshold,
+                &mut keep,
+                1.0,
+                0,
+            )?;
+            boxes = keep.iter().map(|i| boxes[i as usize]).collect();
+        }
+        let s = self.upscale as f32;
+        // HOG's window has a margin around the person (64×128 for a
+        // person about 50×100): the box is shrunk to the person, so it
+        // overlaps an annotation as tightly and its bottom is at the feet.
+        Ok(boxes
+            .into_iter()
+            .map(|(r, w)| {
+                let (rw, rh) = (r.width as f32, r.height as f32);
+                Detection {
+                    x: ox + (r.x as f32 + HOG_MARGIN_X * rw) / s,
+                    y: oy + (r.y as f32 + HOG_MARGIN_TOP * rh) / s,
+                    w: rw * (1.0 - 2.0 * HOG_MARGIN_X) / s,
+                    h: rh * (1.0 - HOG_MARGIN_TOP - HOG_MARGIN_BOTTOM) / s,
+                    score: w,
+                    class: 0,
+                }
+            })
+            .collect())
+    }
+}
+
+impl OnnxDetector {
+    /// People in `crop`, the part `r` of the frame; boxes in frame pixels.
+    fn detect(&mut self, crop: &Mat, r: Rect) -> opencv::Result<Vec<Detection>> {
+        let (ox, oy) = (r.x as f32, r.y as f32);
+        let [scaled, boxed, bgr] = &mut self.buffers;
+        let fit = Letterbox::new(r.width as u32, r.height as u32, self.input_px);
+        imgproc::resize(
+            crop,
+            scaled,
+            Size::new(fit.width, fit.height),
+            0.0,
+            0.0,
+            imgproc::INTER_LINEAR,
+        )?;
+        let (left, top) = (fit.pad_x as i32, fit.pad_y as i32);
+        opencv::core::copy_make_border(
+            scaled,
+            boxed,
+            top,
+            self.input_px - fit.height - top,
+            left,
+            self.input_px - fit.width - left,
+            opencv::core::BORDER_CONSTANT,
+            Scalar::all(114.0),
+        )?;
+        let input = if self.channels == 3 {
+            imgproc::cvt_color(boxed, bgr, imgproc::COLOR_GRAY2BGR, 0)?;
+            &*bgr
+        } else {
+            &*boxed
+        };
+        let blob = dnn::blob_from_image(
+            input,
+            1.0 / 255.0,
+            Size::new(self.input_px, self.input_px),
+            Scalar::default(),
+            self.channels == 3,
+            false,
+            opencv::core::CV_32F,
+        )?;
+        self.net.set_input(&blob, "", 1.0, Scalar::default())?;
+        let out = self.net.forward_single("")?;
+        let candidates = parse_yolo(&out, self.score_threshold)?;
+        let mut found =
+            non_max_suppression(candidates, self.score_threshold, self.nms_threshold, &fit)?;
+        for d in &mut found {
+            d.x += ox;
+            d.y += oy;
+        }
+        Ok(found)
     }
 }
 
@@ -509,153 +554,4 @@ fn non_max_suppression(
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn mat3(shape: [i32; 3], values: &[f32]) -> Mat {
-        let mut m =
-            Mat::new_nd_with_default(&shape, opencv::core::CV_32F, Scalar::all(0.0)).unwrap();
-        m.data_typed_mut::<f32>().unwrap().copy_from_slice(values);
-        m
-    }
-
-    #[test]
-    fn parses_yolov8_layout() {
-        // Rows cx, cy, w, h, person, other class; 8 candidates (real exports have
-        // far more candidates than rows, which is how the layouts are told apart).
-        let n = 8;
-        let mut v = vec![0.0f32; 6 * n];
-        for i in 0..n {
-            v[i] = 100.0 + i as f32; // cx
-            v[n + i] = 50.0; // cy
-            v[2 * n + i] = 20.0; // w
-            v[3 * n + i] = 40.0; // h
-        }
-        v[4 * n] = 0.9; // candidate 0: a person
-        v[4 * n + 1] = 0.3; // candidate 1: too weak
-        v[5 * n + 2] = 0.95; // candidate 2: another class
-        let found = parse_yolo(&mat3([1, 6, n as i32], &v), 0.5).unwrap();
-        assert_eq!(found.len(), 1);
-        assert_eq!(
-            (found[0].cx, found[0].cy, found[0].score),
-            (100.0, 50.0, 0.9)
-        );
-    }
-
-    #[test]
-    fn parses_yolov5_layout_with_objectness() {
-        // 8 candidates of cx, cy, w, h, objectness, person, other.
-        let mut v = vec![0.0f32; 8 * 7];
-        v[..7].copy_from_slice(&[10.0, 20.0, 4.0, 8.0, 0.9, 0.8, 0.1]);
-        v[7..14].copy_from_slice(&[30.0, 40.0, 4.0, 8.0, 0.2, 0.9, 0.0]);
-        let found = parse_yolo(&mat3([1, 8, 7], &v), 0.5).unwrap();
-        assert_eq!(found.len(), 1);
-        assert!((found[0].score - 0.72).abs() < 1e-6);
-    }
-
-    #[test]
-    fn overlapping_boxes_are_suppressed_and_scaled_to_the_frame() {
-        let c = |cx, score| Candidate {
-            cx,
-            cy: 300.0,
-            w: 20.0,
-            h: 40.0,
-            score,
-        };
-        // A 1280x640 frame in a 640 input: scale 0.5, 160 px of padding above.
-        let fit = Letterbox::new(1280, 640, 640);
-        assert_eq!(
-            (fit.scale, fit.width, fit.height, fit.pad_x, fit.pad_y),
-            (0.5, 640, 320, 0.0, 160.0)
-        );
-        let kept = non_max_suppression(
-            vec![c(100.0, 0.9), c(102.0, 0.8), c(300.0, 0.7)],
-            0.5,
-            0.45,
-            &fit,
-        )
-        .unwrap();
-        assert_eq!(kept.len(), 2);
-        assert_eq!((kept[0].x, kept[0].w), (180.0, 40.0));
-        assert_eq!((kept[0].y, kept[0].h), (240.0, 80.0), "(280 - 160) / 0.5");
-    }
-
-    #[test]
-    fn a_search_rect_is_the_region_in_the_frame_at_least_the_window() {
-        let r = |x, y, w, h| Region { x, y, w, h };
-        let rect = |region, min| {
-            let r = search_rect(region, 768, 576, min);
-            (r.x, r.y, r.width, r.height)
-        };
-        assert_eq!(rect(Region::WHOLE, (43, 86)), (0, 0, 768, 576));
-        assert_eq!(rect(r(100, 50, 200, 300), (43, 86)), (100, 50, 200, 300));
-        // Clamped to the frame.
-        assert_eq!(rect(r(700, 500, 200, 300), (43, 86)), (700, 490, 68, 86));
-        // Grown around the centre to the window.
-        assert_eq!(rect(r(100, 100, 10, 20), (43, 86)), (83, 67, 43, 86));
-        assert_eq!(rect(r(0, 0, 10, 20), (43, 86)), (0, 0, 43, 86));
-        // A region off the frame searches its nearest corner.
-        assert_eq!(rect(r(900, 900, 10, 10), (43, 86)), (725, 490, 43, 86));
-    }
-
-    /// Frame `n` of `data/vtest.avi`, GRAY8, with its size.
-    fn vtest_frame(n: usize) -> (Vec<u8>, u32, u32) {
-        use opencv::videoio;
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/vtest.avi");
-        let mut cap =
-            videoio::VideoCapture::from_file(path.to_str().unwrap(), videoio::CAP_ANY).unwrap();
-        let (mut bgr, mut gray) = (Mat::default(), Mat::default());
-        for _ in 0..=n {
-            assert!(cap.read(&mut bgr).unwrap(), "vtest.avi");
-        }
-        imgproc::cvt_color(&bgr, &mut gray, imgproc::COLOR_BGR2GRAY, 0).unwrap();
-        let (w, h) = (gray.cols() as u32, gray.rows() as u32);
-        (gray.data_bytes().unwrap().to_vec(), w, h)
-    }
-
-    #[test]
-    fn hog_on_a_crop_finds_the_people_of_the_whole_frame_in_frame_pixels() {
-        let (pixels, w, h) = vtest_frame(100);
-        let mut hog = Detector::from_config(&DetectorConfig::default(), Path::new(".")).unwrap();
-        let whole = hog.detect(&pixels, w, h, Region::WHOLE).unwrap();
-        let best = whole
-            .iter()
-            .max_by(|a, b| a.score.total_cmp(&b.score))
-            .expect("HOG finds someone on frame 100 of vtest.avi");
-        // A crop around them, 64 px more on each side, off the frame's origin.
-        let margin = 64.0;
-        let x0 = (best.x - margin).max(0.0) as u32;
-        let y0 = (best.y - margin).max(0.0) as u32;
-        let region = Region {
-            x: x0,
-            y: y0,
-            w: ((best.x + best.w + margin) as u32).min(w) - x0,
-            h: ((best.y + best.h + margin) as u32).min(h) - y0,
-        };
-        let cropped = hog.detect(&pixels, w, h, region).unwrap();
-        let iou = |a: &Detection, b: &Detection| {
-            let ix = (a.x + a.w).min(b.x + b.w) - a.x.max(b.x);
-            let iy = (a.y + a.h).min(b.y + b.h) - a.y.max(b.y);
-            let i = ix.max(0.0) * iy.max(0.0);
-            i / (a.w * a.h + b.w * b.h - i)
-        };
-        let same = cropped.iter().map(|d| iou(d, best)).fold(0.0, f32::max);
-        assert!(
-            same >= 0.7,
-            "best overlap {same:.2} with {best:?} in {region:?}: {cropped:?}"
-        );
-    }
-
-    #[test]
-    fn a_missing_model_is_a_clear_error() {
-        let config = DetectorConfig {
-            model: Some("nope.onnx".into()),
-            ..DetectorConfig::default()
-        };
-        let err = Detector::from_config(&config, Path::new("/tmp"))
-            .err()
-            .unwrap()
-            .to_string();
-        assert!(err.contains("/tmp/nope.onnx does not exist"), "{err}");
-    }
-}
+mod tests;

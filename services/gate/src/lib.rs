@@ -7,6 +7,8 @@
 //!   below it for a hold time;
 //! * [`gate`]: the per-camera gate: zones, event trackers, and which frames to
 //!   detect (N per event, or one every M seconds while an event lasts);
+//! * `people`: the people the detector confirmed, and where they and activity lie
+//!   on the block grid (the crop a detection searches);
 //! * [`ring`]: the recent frames the detector reads;
 //! * [`detector`]: OpenCV's HOG people detector, or an ONNX model via OpenCV dnn;
 //! * [`worker`]: the detector thread, so a slow detector never stalls activity;
@@ -16,6 +18,7 @@
 pub mod detector;
 pub mod events;
 pub mod gate;
+mod people;
 pub mod ring;
 pub mod stage;
 pub mod worker;

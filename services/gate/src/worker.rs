@@ -16,45 +16,8 @@ use std::time::{Duration, Instant};
 use isochron_wire::Detection;
 use parking_lot::Mutex;
 
-use crate::detector::{Detector, DetectorError};
+use crate::detector::{Detector, DetectorError, Region};
 use crate::ring::{FrameRing, StoredFrame};
-
-/// A rectangle of the frame, pixels; width 0 means the whole frame.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct Region {
-    /// Left edge.
-    pub x: u32,
-    /// Top edge.
-    pub y: u32,
-    /// Width (0: the whole frame).
-    pub w: u32,
-    /// Height.
-    pub h: u32,
-}
-
-impl Region {
-    /// The whole frame.
-    pub const WHOLE: Region = Region {
-        x: 0,
-        y: 0,
-        w: 0,
-        h: 0,
-    };
-
-    /// True for the whole frame.
-    pub fn is_whole(&self) -> bool {
-        self.w == 0
-    }
-
-    /// True if the point `(x, y)` lies in the region.
-    pub fn contains(&self, x: f32, y: f32) -> bool {
-        self.is_whole()
-            || (x >= self.x as f32
-                && y >= self.y as f32
-                && x <= (self.x + self.w) as f32
-                && y <= (self.y + self.h) as f32)
-    }
-}
 
 /// A request to run the detector on the latest frame at or before `time_ns`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -102,7 +65,7 @@ pub struct DetectorSlots {
 }
 
 /// A running detection's slot, given back when dropped (closing the file unlocks).
-pub struct Slot(#[allow(dead_code)] File);
+pub struct Slot(#[allow(dead_code, reason = "held for its lock, never read")] File);
 
 impl DetectorSlots {
     /// How often a job that waits for a slot tries again.
@@ -481,7 +444,8 @@ mod tests {
         let held = slots.acquire(Some(Duration::ZERO)).expect("slot");
         let waiter = {
             let slots = slots.clone();
-            std::thread::spawn(move || slots.acquire(None).is_some())
+            let waiter = std::thread::Builder::new().name("waiter".into());
+            waiter.spawn(move || slots.acquire(None).is_some()).unwrap()
         };
         std::thread::sleep(Duration::from_millis(50));
         assert!(!waiter.is_finished(), "it waits while the slot is taken");

@@ -156,31 +156,56 @@ fn main() -> opencv::Result<()> {
     let params = MotionParams::default();
 
     if o.profile {
-        let mut det =
-            MotionDetector::with_implementation(geom, params, Implementation::detect(), &[]);
-        let mut blocks = vec![BlockMotion::default(); geom.blocks()];
-        for _ in 0..o.rounds {
-            let start = thread_cpu_ns();
-            for i in 1..=pairs {
-                det.process(&frames[i - 1], &frames[i], capture_ns(i), &mut blocks)
-                    .expect("sizes");
-            }
-            println!(
-                "{:.1} us/frame",
-                (thread_cpu_ns() - start) / 1e3 / pairs as f64
-            );
-        }
+        profile(geom, params, &frames, o.rounds);
         return Ok(());
     }
-
     let frames = &frames;
     let mats: Vec<Mat> = frames
         .iter()
         .map(|f| Mat::new_rows_cols_with_data(h as i32, w as i32, f).and_then(|m| m.try_clone()))
         .collect::<opencv::Result<_>>()?;
     let mats = &mats;
-    let mut methods: Vec<Method> = Vec::new();
+    let mut methods = ours(geom, params, frames);
+    methods.extend(opencv(geom, mats)?);
 
+    eprintln!(
+        "motion bench: {w}x{h} GRAY8 frames of vtest.avi, 1 thread, {} rounds; per round {pairs} pairs \
+         ({SLOW_PAIRS} for {}), median thread CPU time",
+        o.rounds,
+        methods
+            .iter()
+            .filter(|m| m.slow)
+            .map(|m| m.name)
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    time_rounds(&mut methods, o.rounds, pairs);
+    report(&methods, o.quick);
+    Ok(())
+}
+
+/// `--profile`: only our detector, one line of CPU time per round (for `perf`).
+fn profile(geom: Geometry, params: MotionParams, frames: &[Vec<u8>], rounds: usize) {
+    let pairs = frames.len() - 1;
+    let mut det = MotionDetector::with_implementation(geom, params, Implementation::detect(), &[]);
+    let mut blocks = vec![BlockMotion::default(); geom.blocks()];
+    for _ in 0..rounds {
+        let start = thread_cpu_ns();
+        for i in 1..=pairs {
+            det.process(&frames[i - 1], &frames[i], capture_ns(i), &mut blocks)
+                .expect("sizes");
+        }
+        println!(
+            "{:.1} us/frame",
+            (thread_cpu_ns() - start) / 1e3 / pairs as f64
+        );
+    }
+}
+
+/// The read floor and our detector, each kernel, and the best without the
+/// appearance (what the presence band costs).
+fn ours(geom: Geometry, params: MotionParams, frames: &[Vec<u8>]) -> Vec<Method<'_>> {
+    let mut methods = Vec::new();
     methods.push(Method {
         name: "read-floor",
         what: "byte sum of both frames".into(),
@@ -236,6 +261,12 @@ fn main() -> opencv::Result<()> {
             times: Vec::new(),
         });
     }
+    methods
+}
+
+/// OpenCV's ways of finding motion, on the same frames as `Mat`s.
+fn opencv(geom: Geometry, mats: &[Mat]) -> opencv::Result<Vec<Method<'_>>> {
+    let mut methods = Vec::new();
     let grid = Size::new(geom.grid_w as i32, geom.grid_h as i32);
     let (mut diff, mut mask, mut means) = (Mat::default(), Mat::default(), Mat::default());
     methods.push(Method {
@@ -288,20 +319,13 @@ fn main() -> opencv::Result<()> {
         }),
         times: Vec::new(),
     });
+    Ok(methods)
+}
 
-    eprintln!(
-        "motion bench: {w}x{h} GRAY8 frames of vtest.avi, 1 thread, {} rounds; per round {pairs} pairs \
-         ({SLOW_PAIRS} for {}), median thread CPU time",
-        o.rounds,
-        methods
-            .iter()
-            .filter(|m| m.slow)
-            .map(|m| m.name)
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
+/// Times every method `rounds` times, after one round of warm-up.
+fn time_rounds(methods: &mut [Method<'_>], rounds: usize, pairs: usize) {
     // Round 0 warms up (page faults, lazy initialisation) and is not counted.
-    for round in 0..=o.rounds {
+    for round in 0..=rounds {
         for m in methods.iter_mut() {
             let (first, last) = if m.slow {
                 // A different window each round, cycling through the frames.
@@ -318,7 +342,10 @@ fn main() -> opencv::Result<()> {
             }
         }
     }
+}
 
+/// The table, and the closing JSON line.
+fn report(methods: &[Method<'_>], quick: bool) {
     let ns = |name: &str| {
         methods
             .iter()
@@ -335,7 +362,7 @@ fn main() -> opencv::Result<()> {
         "{:<18} {:>10} {:>10} {:>9}  what",
         "method", "us/frame", "frames/s", "vs ours"
     );
-    for m in &methods {
+    for m in methods {
         let t = m.median();
         println!(
             "{:<18} {:>10.1} {:>10.0} {:>8.2}x  {}",
@@ -355,11 +382,10 @@ fn main() -> opencv::Result<()> {
         "floor_fraction": round(ns("read-floor") / ours, 3),
         "appearance_cost": round(ours / ns("isochron-no-appearance") - 1.0, 3),
     });
-    if o.quick {
+    if quick {
         json["quick"] = true.into();
     }
     println!("{json}");
-    Ok(())
 }
 
 fn round(v: f64, digits: i32) -> f64 {

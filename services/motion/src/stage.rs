@@ -125,34 +125,7 @@ impl<'ipc> MotionStage<'ipc> {
             tracing::info!(camera = %self.camera, "end of stream passed on; waiting for more frames");
             return Ok(());
         }
-        if header.format() != PixelFormat::Gray8 || header.width == 0 || header.height == 0 {
-            cx.health.rejected();
-            self.prev = None;
-            let camera = &self.camera;
-            cx.warnings.warn("format", || {
-                format!(
-                    "rejected frame {} ({}x{} {:?}): motion needs GRAY8 frames of at least 1x1; \
-                     set pixel_format = \"gray8\" for camera '{camera}'",
-                    header.source_index,
-                    header.width,
-                    header.height,
-                    header.format()
-                )
-            });
-            return Ok(());
-        }
-        if let Some((w, h)) = self.size
-            && (header.width, header.height) != (w, h)
-        {
-            cx.health.rejected();
-            self.prev = None;
-            let camera = &self.camera;
-            cx.warnings.warn("size", || {
-                format!(
-                    "rejected frame {} ({}x{}): camera '{camera}' is configured for {w}x{h} frames",
-                    header.source_index, header.width, header.height
-                )
-            });
+        if !self.accepts(&header, cx) {
             return Ok(());
         }
         let info = FrameInfo::of(&header);
@@ -169,9 +142,60 @@ impl<'ipc> MotionStage<'ipc> {
             });
             return Ok(());
         }
-        if pairing.is_pair()
-            && let (Some((_, prev)), Some(detector)) = (&self.prev, &mut self.detector)
+        if pairing.is_pair() {
+            self.send_motion(&sample, &header, arrived, cx)?;
+        }
+        // The current frame becomes the previous one; the old one is released here.
+        self.prev = Some((info, sample));
+        Ok(())
+    }
+
+    /// True if the frame can be processed: GRAY8, not empty, of the configured size.
+    /// Otherwise it is counted as rejected, with a warning, and the pair broken.
+    fn accepts(&mut self, header: &FrameHeader, cx: &mut Context) -> bool {
+        if header.format() != PixelFormat::Gray8 || header.width == 0 || header.height == 0 {
+            cx.health.rejected();
+            self.prev = None;
+            let camera = &self.camera;
+            cx.warnings.warn("format", || {
+                format!(
+                    "rejected frame {} ({}x{} {:?}): motion needs GRAY8 frames of at least 1x1; \
+                     set pixel_format = \"gray8\" for camera '{camera}'",
+                    header.source_index,
+                    header.width,
+                    header.height,
+                    header.format()
+                )
+            });
+            return false;
+        }
+        if let Some((w, h)) = self.size
+            && (header.width, header.height) != (w, h)
         {
+            cx.health.rejected();
+            self.prev = None;
+            let camera = &self.camera;
+            cx.warnings.warn("size", || {
+                format!(
+                    "rejected frame {} ({}x{}): camera '{camera}' is configured for {w}x{h} frames",
+                    header.source_index, header.width, header.height
+                )
+            });
+            return false;
+        }
+        true
+    }
+
+    /// Computes the motion between the previous frame and `sample` (which arrived
+    /// at `arrived`) straight into a loan, and sends it.
+    fn send_motion(
+        &mut self,
+        sample: &Received<Frames>,
+        header: &FrameHeader,
+        arrived: Instant,
+        cx: &mut Context,
+    ) -> Result<(), Fatal> {
+        if let (Some((_, prev)), Some(detector)) = (&self.prev, &mut self.detector) {
             let geom = *detector.geometry();
             // SAFETY: process_uninit initialises every block when it returns Ok.
             let sent = unsafe {
@@ -227,8 +251,6 @@ impl<'ipc> MotionStage<'ipc> {
                 }
             }
         }
-        // The current frame becomes the previous one; the old one is released here.
-        self.prev = Some((info, sample));
         Ok(())
     }
 }

@@ -41,10 +41,11 @@
 //! aws-lc-rs would need cmake and a much longer build.
 
 use std::collections::VecDeque;
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
+use parking_lot::{Mutex, MutexGuard};
 use rumqttc::{
     ConnectReturnCode, ConnectionError, Disconnect, Event, EventLoop, Incoming, LastWill,
     MqttOptions, Outgoing, Publish, QoS, Request, TlsConfiguration, Transport,
@@ -90,7 +91,7 @@ impl Shared {
 
     /// The outbox.
     pub fn outbox(&self) -> MutexGuard<'_, Outbox> {
-        self.outbox.lock().unwrap_or_else(|e| e.into_inner())
+        self.outbox.lock()
     }
 
     /// Tells the client that messages are waiting.
@@ -180,6 +181,16 @@ impl Trouble {
             _ => Trouble::Unreachable,
         }
     }
+}
+
+/// How far a stop has got: flushing until `deadline`, then the "offline" status,
+/// then DISCONNECT.
+#[derive(Debug, Default)]
+struct Closing {
+    /// When the flush gives up.
+    deadline: Option<Instant>,
+    offline_sent: bool,
+    disconnect_sent: bool,
 }
 
 /// True when a rustls error is in `e`'s chain: with TLS 1.3 a broker that
@@ -339,31 +350,18 @@ impl Client {
 
     async fn run(mut self) {
         let mut backoff = BACKOFF_MIN;
-        let mut deadline: Option<Instant> = None;
-        let mut offline_sent = false;
-        let mut disconnect_sent = false;
+        let mut closing = Closing::default();
         loop {
-            if self.stopping() && deadline.is_none() {
-                deadline = Some(Instant::now() + FLUSH);
+            if self.stopping() && closing.deadline.is_none() {
+                closing.deadline = Some(Instant::now() + FLUSH);
             }
-            if let Some(d) = deadline {
+            if let Some(d) = closing.deadline {
                 if !self.connected || Instant::now() >= d {
                     break;
                 }
-                let drained = self.shared.outbox().is_empty() && self.messages_in_flight() == 0;
-                if drained && !offline_sent {
-                    let topic = self.settings.status_topic.clone();
-                    self.publish(&topic, b"offline", true, None);
-                    offline_sent = true;
-                }
-                if offline_sent && self.inflight.is_empty() && !disconnect_sent {
-                    self.eventloop
-                        .pending
-                        .push_back(Request::Disconnect(Disconnect));
-                    disconnect_sent = true;
-                }
+                self.close_step(&mut closing);
             }
-            if self.connected && !offline_sent {
+            if self.connected && !closing.offline_sent {
                 self.hand_over();
             }
             let event = if self.connected {
@@ -382,32 +380,8 @@ impl Client {
             match event {
                 None => {}
                 Some(Ok(Event::Incoming(Incoming::ConnAck(_)))) => {
-                    self.connected = true;
-                    self.shared.connected.store(true, Ordering::Relaxed);
                     backoff = BACKOFF_MIN;
-                    if self.ever_connected {
-                        self.shared.reconnects.fetch_add(1, Ordering::Relaxed);
-                    }
-                    let queued = self.shared.outbox().len();
-                    let after = match self.failed_since {
-                        0 => String::new(),
-                        n => format!(", after {n} refused or failed attempts"),
-                    };
-                    tracing::info!(
-                        "connected to the MQTT broker {} as {}{} ({queued} messages queued{after})",
-                        self.settings.url,
-                        self.settings.who(),
-                        if self.settings.tls.is_some() {
-                            " over TLS"
-                        } else {
-                            ""
-                        },
-                    );
-                    self.ever_connected = true;
-                    self.trouble = Trouble::None;
-                    self.failed_since = 0;
-                    let topic = self.settings.status_topic.clone();
-                    self.publish(&topic, b"online", true, None);
+                    self.on_connected();
                 }
                 Some(Ok(Event::Outgoing(Outgoing::Publish(pkid)))) => {
                     if let Some(f) = self.inflight.iter_mut().find(|f| f.pkid.is_none()) {
@@ -427,7 +401,7 @@ impl Client {
                 Some(Err(e)) => {
                     let was_connected = self.connected;
                     self.lost();
-                    if deadline.is_some() || self.stopping() {
+                    if closing.deadline.is_some() || self.stopping() {
                         break;
                     }
                     self.failed(&e, was_connected);
@@ -445,6 +419,53 @@ impl Client {
                 self.settings.url
             );
         }
+    }
+
+    /// One step of a stop while connected: once everything is delivered, the
+    /// retained "offline" status, then (once that is acknowledged) DISCONNECT.
+    fn close_step(&mut self, closing: &mut Closing) {
+        let drained = self.shared.outbox().is_empty() && self.messages_in_flight() == 0;
+        if drained && !closing.offline_sent {
+            let topic = self.settings.status_topic.clone();
+            self.publish(&topic, b"offline", true, None);
+            closing.offline_sent = true;
+        }
+        if closing.offline_sent && self.inflight.is_empty() && !closing.disconnect_sent {
+            self.eventloop
+                .pending
+                .push_back(Request::Disconnect(Disconnect));
+            closing.disconnect_sent = true;
+        }
+    }
+
+    /// The broker accepted the connection: counted, logged, the retained "online"
+    /// status published.
+    fn on_connected(&mut self) {
+        self.connected = true;
+        self.shared.connected.store(true, Ordering::Relaxed);
+        if self.ever_connected {
+            self.shared.reconnects.fetch_add(1, Ordering::Relaxed);
+        }
+        let queued = self.shared.outbox().len();
+        let after = match self.failed_since {
+            0 => String::new(),
+            n => format!(", after {n} refused or failed attempts"),
+        };
+        tracing::info!(
+            "connected to the MQTT broker {} as {}{} ({queued} messages queued{after})",
+            self.settings.url,
+            self.settings.who(),
+            if self.settings.tls.is_some() {
+                " over TLS"
+            } else {
+                ""
+            },
+        );
+        self.ever_connected = true;
+        self.trouble = Trouble::None;
+        self.failed_since = 0;
+        let topic = self.settings.status_topic.clone();
+        self.publish(&topic, b"online", true, None);
     }
 
     /// Counts and logs a failed connection: each change of reason once (an

@@ -244,9 +244,10 @@ pub(super) unsafe fn run_bands<K: Simd>(
                     continue;
                 }
                 let inner = inner_rows && lanes == LANES && x >= 1 && x + LANES < geom.width;
-                // SAFETY (all three calls): forwarded from the caller; the strip lies in
-                // the block (sx < width, rows ≤ bp), FULL matches, `inner` as required.
                 let direct = if inner {
+                    // SAFETY: K's CPU features are the caller's promise; the frames are
+                    // `geom.width`-pixel rows (the caller's promise) and `inner` holds
+                    // the strip's neighbours inside the frame, as strip_direct requires.
                     unsafe {
                         K::strip_direct(prev, cur, geom.width, (x, y0, rows), offset, thresholds)
                     }
@@ -258,9 +259,15 @@ pub(super) unsafe fn run_bands<K: Simd>(
                     None => {
                         if !built {
                             let (at, size) = ((x0, y0), (width, rows));
+                            // SAFETY: K's CPU features are the caller's promise; the
+                            // block (x0, y0, width × rows) lies in the frame by the
+                            // clamps to geom.width and geom.height above.
                             unsafe { bands.build_block::<K>(prev, cur, geom, at, size, offset) };
                             built = true;
                         }
+                        // SAFETY: K's CPU features are the caller's promise;
+                        // sx < width, rows ≤ block_px, 1 ≤ lanes ≤ LANES (16), and
+                        // FULL is chosen by `lanes == LANES`, as strip requires.
                         unsafe {
                             let at = Strip { x: sx, rows, lanes };
                             if lanes == LANES {

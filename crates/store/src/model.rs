@@ -1,0 +1,178 @@
+//! What a store holds: its meta, the bins of the model, the F_L1 baseline and the
+//! cascade's progress.
+
+use isochron_config::clock::Cycle;
+use isochron_wire::geometry::BlockGrid;
+
+/// What a store is about; fixed when it is created.
+///
+/// The `meta` table stores the grid's frame size and block edge, and for readers of
+/// the file the model's size `grid_w × grid_h` (every blob has that many values),
+/// which must agree with them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoreMeta {
+    /// Camera id.
+    pub camera: String,
+    /// The block grid of the model.
+    pub grid: BlockGrid,
+    /// The isochronal cycle: the number of bins.
+    pub cycle: Cycle,
+    /// Wall-clock time of creation, UTC ns.
+    pub created_ns: i64,
+}
+
+impl StoreMeta {
+    /// The meta of a new store of `camera` on `grid`.
+    pub fn new(camera: impl Into<String>, grid: BlockGrid, cycle: Cycle, created_ns: i64) -> Self {
+        StoreMeta {
+            camera: camera.into(),
+            grid,
+            cycle,
+            created_ns,
+        }
+    }
+
+    /// Number of blocks per bin.
+    pub fn blocks(&self) -> usize {
+        self.grid.len()
+    }
+
+    /// Number of minute bins of the cycle.
+    pub fn bins(&self) -> u32 {
+        self.cycle.bins()
+    }
+
+    /// `WxH`.
+    pub fn grid(&self) -> String {
+        format!("{}x{}", self.grid.grid_w(), self.grid.grid_h())
+    }
+}
+
+/// The long-term model of one minute bin t*: per block the exponentially weighted
+/// mean and variance of the minute means of `M_L1`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Bin {
+    /// The bin: minute of the cycle.
+    pub t_star: u32,
+    /// Minutes (one per day, or per week with the weekly cycle) that taught this bin.
+    /// All blocks of a bin learn together, so this is every block's count.
+    pub count: u32,
+    /// Absolute minute (minutes since the Unix epoch) that last taught this bin.
+    pub last_minute: i64,
+    /// Mean per block (row-major), density units.
+    pub mean: Vec<f32>,
+    /// Variance per block.
+    pub var: Vec<f32>,
+}
+
+impl Bin {
+    /// A bin that has learned nothing yet.
+    pub fn empty(t_star: u32, blocks: usize) -> Bin {
+        Bin {
+            t_star,
+            count: 0,
+            last_minute: i64::MIN,
+            mean: vec![0.0; blocks],
+            var: vec![0.0; blocks],
+        }
+    }
+
+    /// Standard deviation of block `k` (0 outside the grid).
+    pub fn sigma(&self, k: usize) -> f32 {
+        self.var.get(k).map_or(0.0, |v| v.max(0.0).sqrt())
+    }
+
+    /// Mean of the block means.
+    pub fn mean_over_blocks(&self) -> f64 {
+        if self.mean.is_empty() {
+            return 0.0;
+        }
+        self.mean.iter().map(|&m| m as f64).sum::<f64>() / self.mean.len() as f64
+    }
+
+    /// Mean of the block variances.
+    pub fn var_over_blocks(&self) -> f64 {
+        if self.var.is_empty() {
+            return 0.0;
+        }
+        self.var.iter().map(|&m| m as f64).sum::<f64>() / self.var.len() as f64
+    }
+}
+
+/// The F_L1 baseline of a camera at a point in (capture) time.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Baseline {
+    /// Capture time of the last frame that went into it, UTC ns.
+    pub capture_ns: i64,
+    /// Frames it has seen (drives the bias-corrected warm-up).
+    pub frames: u64,
+    /// Frame rate r in use, frames/s.
+    pub frame_rate: f64,
+    /// Baseline density per block.
+    pub level: Vec<f32>,
+}
+
+/// How far the cascade has got.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Progress {
+    /// The last completed minute (minutes since the Unix epoch), if any.
+    pub last_minute: Option<i64>,
+    /// Minutes that updated a bin.
+    pub committed: u64,
+    /// Minutes completed without enough frames (or already learned), not learned.
+    pub skipped: u64,
+}
+
+/// One completed minute, written atomically by [`Store::commit_minute`].
+#[derive(Debug, Clone, Copy)]
+pub struct MinuteCommit<'a> {
+    /// The minute (minutes since the Unix epoch).
+    pub minute: i64,
+    /// The bin's new state, if the minute taught it; `None` if it was skipped.
+    pub bin: Option<&'a Bin>,
+    /// The F_L1 baseline at the end of the minute.
+    pub baseline: Option<&'a Baseline>,
+}
+
+/// The whole long-term model of a camera.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Model {
+    /// What the store is about.
+    pub meta: StoreMeta,
+    /// One entry per bin of the cycle (`None`: never taught).
+    pub bins: Vec<Option<Bin>>,
+}
+
+impl Model {
+    /// The model of `meta` that has learned `bins` (each at its `t_star`, which must
+    /// be inside the cycle) and nothing else: a known model without a store.
+    pub fn with_bins(meta: StoreMeta, bins: impl IntoIterator<Item = Bin>) -> Model {
+        let mut all = vec![None; meta.bins() as usize];
+        for bin in bins {
+            let t = bin.t_star as usize;
+            all[t] = Some(bin);
+        }
+        Model { meta, bins: all }
+    }
+
+    /// The bin at `t_star`, if it has learned anything.
+    pub fn bin(&self, t_star: u32) -> Option<&Bin> {
+        self.bins.get(t_star as usize).and_then(Option::as_ref)
+    }
+
+    /// Bins that have learned anything.
+    pub fn learned(&self) -> impl Iterator<Item = &Bin> {
+        self.bins.iter().flatten()
+    }
+}
+
+/// What [`Store::verify`] checked.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VerifyReport {
+    /// Bin rows checked.
+    pub bins: usize,
+    /// Whether a baseline row is present (and valid).
+    pub baseline: bool,
+    /// The progress.
+    pub progress: Progress,
+}
