@@ -6,14 +6,14 @@
 //! ([`Stage::on_stop`]) — and its `main` hands it to [`run`]. The runtime does
 //! the I/O and the waiting around it, the same way for every stage:
 //!
-//! * it creates the one iceoryx2 WaitSet of the loop, attaches the stage's inputs
-//!   and an interval for its timer, and wakes the stage with the inputs that
-//!   notified ([`Woken`]);
-//! * **timers**: besides its interval ([`Stage::timer`], for periodic work), a
-//!   stage sets an alarm in its [`Context`] ([`Context::alarm_at`],
-//!   [`Context::alarm_in`]): the runtime's wait ends then (the WaitSet's timeout:
-//!   no thread sleeps, nothing polls) and [`Stage::on_alarm`] runs. One alarm per
-//!   stage; setting one replaces the one pending. A stage never sleeps: what it
+//! * it creates the one iceoryx2 WaitSet of the loop, attaches the stage's inputs,
+//!   and wakes the stage with the inputs that notified ([`Woken`]);
+//! * **timers** are the WaitSet's timeout, so no thread sleeps and nothing polls:
+//!   the wait ends at the stage's alarm ([`Context::alarm_at`],
+//!   [`Context::alarm_in`]: then [`Stage::on_alarm`] runs; one alarm per stage,
+//!   a new one replaces the one pending) or when its tick is due
+//!   ([`Stage::timer`], at most [`IDLE_TICK`] after the last pass: every pass
+//!   ticks, so a busy loop gets no extra wake-up). A stage never sleeps: what it
 //!   waits for is a time (an alarm), a sample (an input) or another thread's
 //!   result (a [`Wakeup`]);
 //! * **source stages** have no input (`type Inputs = ()`): they produce on their
@@ -120,8 +120,9 @@ pub trait Stage {
         false
     }
 
-    /// A period at which [`Stage::on_tick`] must run (default [`IDLE_TICK`]; it
-    /// also runs on every other pass, and at least every [`IDLE_TICK`]).
+    /// The longest time between two runs of [`Stage::on_tick`] (default and at
+    /// most [`IDLE_TICK`]): it runs on every pass, and the loop wakes for it when
+    /// no pass came for this long.
     fn timer(&self) -> Duration {
         IDLE_TICK
     }
@@ -195,10 +196,10 @@ impl Context {
         due
     }
 
-    /// How long the loop may wait at `now`: until the alarm, at most `idle`.
-    fn wait_at(&self, now: Instant, idle: Duration) -> Duration {
+    /// How long the loop may wait at `now`: until the alarm, at most `limit`.
+    fn wait_at(&self, now: Instant, limit: Duration) -> Duration {
         self.alarm
-            .map_or(idle, |at| at.saturating_duration_since(now).min(idle))
+            .map_or(limit, |at| at.saturating_duration_since(now).min(limit))
     }
 
     /// The health's share of a pass: the watchdog, and the report when due.
@@ -259,26 +260,40 @@ fn drive<S: Stage>(
                 .map_err(|e| ipc_error("attaching an input to the WaitSet", e))?,
         );
     }
-    let timer = stage.timer();
-    // Also what a source stage (no input) is never without: a WaitSet with
-    // nothing attached cannot wait.
-    let _timer = waitset
-        .attach_interval(timer)
-        .map_err(|e| ipc_error("attaching the timer to the WaitSet", e))?;
-    let idle = timer.min(IDLE_TICK);
+    // A source stage has no input: the WaitSet gets a wake-up no one wakes, as
+    // a WaitSet with nothing attached cannot wait (its waits are all timeouts).
+    let idle_wakeup = match attachables.is_empty() {
+        true => Some(Wakeup::new().map_err(|e| {
+            Fatal::with_source(isochron_exit::UNAVAILABLE, "creating the loop's wake-up", e)
+        })?),
+        false => None,
+    };
+    let _idle_guard = match &idle_wakeup {
+        Some((wakeup, _)) => Some(
+            waitset
+                .attach_notification(wakeup as &dyn Attachable)
+                .map_err(|e| ipc_error("attaching the loop's wake-up to the WaitSet", e))?,
+        ),
+        None => None,
+    };
+    let idle = stage.timer().min(IDLE_TICK);
     if let Some(status) = ready {
         notify_ready(status);
     }
     stage.on_start(cx)?;
 
     let mut more = false;
+    // The tick is due `idle` after the last pass: a pass for an input or an
+    // alarm ticks too, so the timer adds no wake-up to a busy loop.
+    let mut last_pass = Instant::now();
     while !ipc.should_stop() && !stage.finished() {
         let mut woken = Woken::default();
+        let now = Instant::now();
         // After a full batch, samples are still waiting: look again at once.
         let wait = if more {
             Duration::ZERO
         } else {
-            cx.wait_at(Instant::now(), idle)
+            cx.wait_at(now, (last_pass + idle).saturating_duration_since(now))
         };
         let result = waitset
             .wait_and_process_once_with_timeout(
@@ -299,6 +314,7 @@ fn drive<S: Stage>(
         if more {
             woken = Woken::all();
         }
+        last_pass = Instant::now();
         more = pass(stage, inputs, &woken, cx)?;
     }
     if stage.take_inputs_on_stop() {
