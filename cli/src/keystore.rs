@@ -1,6 +1,7 @@
 //! `isochron keystore`: the DDS Security keystore of a site's links, in the
 //! layout of an SROS2 keystore, made with the `openssl` command (the steps are
-//! the ones README.md, "Security", lists for doing it by hand).
+//! the ones docs/many-boxes.md, "DDS Security and the keystore", lists for
+//! doing it by hand).
 //!
 //! * `init DIR`: the site's certificate authority (one CA signs identities and
 //!   permissions, as SROS2 does: `DIR/private/ca.key.pem`, which stays with the

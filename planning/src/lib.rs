@@ -1,6 +1,6 @@
 //! isochron-planning: where and when a robot should go around people, from the
 //! cameras' block activity (the paper's sections "Off-line / Real-time Global Path
-//! Planning"; docs/ARCHITECTURE.md, "Cost map and planning").
+//! Planning"; docs/ARCHITECTURE.md, "Paper to code").
 //!
 //! A library without processes of its own: the cost map bridge (`isochron-costmap`)
 //! uses it to draw activity on the robots' map and to answer plan queries, and the

@@ -4,6 +4,67 @@
 //! Every test gets its own site (directory, config, iceoryx2 prefix, DDS domain),
 //! so the tests of all areas run in parallel in this one process. Run one area
 //! with a filter, e.g. `cargo test -p isochron-tests --test it -- capture::`.
+//!
+//! The areas, and the peers they meet:
+//!
+//! * capture, motion (scored against PETS 2009 boxes), cascade (kill -9 at random
+//!   moments), gate (a small ONNX model with the YOLOv8 output layout whose boxes
+//!   are known, built with the Python `onnx` package by `tests/data/yolo_constant.py`,
+//!   run through the gate's OpenCV dnn path, letterbox and channels included),
+//!   pipeline (`isochron replay` on vtest.avi), presence (a clip made from
+//!   vtest.avi — median scene, PETS09 cut-outs walking in, standing still 30–45 s,
+//!   walking out — scored on the whole group's events and recording);
+//! * costmap: the grid read back by an independent ROS 2 peer,
+//!   `tests/ros2/costmap_listener.py` (Eclipse Cyclone DDS from PyPI, in
+//!   `target/ros2-venv`), on loopback and a DDS domain per test; nav2: that grid
+//!   through a Python re-implementation of each Nav2 release's StaticLayer
+//!   (`tests/ros2/nav2_static_layer.py`, docs/nav2.md), and the planning services
+//!   called by a Fast DDS client (`tests/ros2/fastdds/`, C++ on Debian's Fast DDS
+//!   2.9 with types from fastddsgen, built by `cargo xtask setup` into
+//!   `target/fastdds-peer`), the Cyclone DDS client and a hostile Cyclone DDS
+//!   participant (`tests/ros2/plan_attacker.py`);
+//! * view: the calibration overlay on vtest.avi with the demo calibration (a wrong
+//!   tape mark flagged, bad input); a `replay --record` of vtest read by the
+//!   Python `mcap` package; `isochron view` during a replay at speed 1 with the
+//!   protocol's reference client (`@foxglove/ws-protocol` 0.8.0 under Node.js,
+//!   subprotocol `foxglove.websocket.v1`: every advertised channel subscribed and
+//!   decoded with the advertised protobuf schema via protobufjs) and a Python
+//!   `websockets` client speaking `foxglove.sdk.v1`; raw handshakes for each name
+//!   and a 400; a client that stops reading on a 1 MiB-per-message grid (the view's
+//!   RSS stays within the budget plus a margin while a reading client keeps up, and
+//!   the stalled one is disconnected after `view.client_stall_s`); the view as a
+//!   row of `isochron status` while it runs, and not before or after; a recorder on
+//!   a 5 MiB tmpfs; the heat map; `costmap snapshot --at` on a store `isochron
+//!   synth` made from a profile busy 08:00–18:00 (cost where the camera sees at
+//!   10:00, zero at 03:00, -1 outside, the JSON grid, `--at 25:00` exits 64 with one
+//!   line; `--day` on a weekly store busy on Mondays in one half of the view and on
+//!   Tuesdays in the other: each day lights its own half, an unlearned day nothing,
+//!   `--day funday` exits 64 with one line);
+//! * operations (kill -9 under `isochron up`, SIGTERM, a hung service, a reader
+//!   that never reads, a foreign publisher of malformed samples; an ignored
+//!   30-minute soak), launcher, scale (several cameras per process), doctor,
+//!   inputs, reliability, conventions;
+//! * hostile: forged link messages from an unauthenticated Cyclone DDS participant
+//!   (`tests/ros2/link_forger.py`), raw DATA_FRAG datagrams, a forged status, a
+//!   stalled subscriber, two secured links in two network namespaces; RSS bounds
+//!   from `/proc`; link: two boxes in two network namespaces joined by a veth pair;
+//! * systemd (`systemd-analyze verify` and `security`); exporter (scraped during a
+//!   replay and linted by `promtool check metrics`, a killed service's
+//!   `isochron_up`, a taken port; the alert rules through `promtool check rules`
+//!   and `promtool test rules`; hostile clients from raw sockets — 4 × 400 MiB
+//!   request heads, 3 000 idle connections, slowloris — get 431 or are closed while
+//!   VmRSS and Threads from `/proc/<pid>/status` stay bounded and a normal scrape
+//!   passes promtool);
+//! * mqtt: a replay of vtest into a real Mosquitto restarted in the middle, read
+//!   back by a rumqttc subscriber with a persistent session (in order, received +
+//!   dropped = emitted); an unreachable broker, a malformed URL; Mosquitto with TLS,
+//!   certificates made by openssl, a `mosquitto_passwd` file and
+//!   `require_certificate`, read back by `mosquitto_sub` (events over mutual TLS,
+//!   nothing in clear through a recording relay, a forged event never published, a
+//!   missing client certificate, a password the broker stops accepting mid-run);
+//! * package: the `.deb` made from the dev binaries, checked with `dpkg-deb
+//!   --info`/`--contents`; where `CI=true`, installed with `dpkg -i`, its user,
+//!   files and `--version` checked, nothing enabled, purged.
 
 mod capture;
 mod cascade;

@@ -23,6 +23,22 @@
 //!
 //! The group never waits for a client: the crate's server hands messages to the
 //! relay, which never waits for the client.
+//!
+//! Why a front door rather than the crate's server alone: the crate's server
+//! (0.30.3, `src/websocket/handshake.rs`) answers any other subprotocol with HTTP
+//! 400, has no option for other names and no way to hand it an accepted
+//! connection, and never disconnects a client that reads nothing (the
+//! stalled-client test, run against the crate's server alone, saw the view grow by
+//! 351 MiB in 21 s on a 1 MiB-per-message grid). The price: every message crosses
+//! loopback once more (one extra WebSocket per client; measured with one client
+//! taking 1 MiB cost maps at ~14 Hz: the view used 8.1–9.0 % of a core through the
+//! relay, 8.4 % with the crate's server alone), and the internal port is reachable
+//! by local processes, which would meet the crate's own 1 024-message backlog there
+//! (never from the network, whatever `view.listen` says). A server of our own on
+//! the crate's `Context` (its `Sink` trait is public but hidden, "until Sink is
+//! public") would have saved the hop at the cost of re-implementing the protocol on
+//! an unstable API; a byte-level proxy that only rewrote the header could not bound
+//! bytes without parsing frames anyway.
 
 use std::net::SocketAddr;
 use std::sync::Arc;

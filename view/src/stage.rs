@@ -11,6 +11,12 @@
 //!
 //! The sink is the Foxglove WebSocket server ([`Sink::Live`]) or an MCAP file
 //! ([`Sink::Record`]); both publish through the same [`SiteChannels`].
+//!
+//! The view is not an expected service: `isochron status` adds its row only while
+//! `<prefix>/status/view` has a publisher, and the exporter does not watch it (it
+//! would be "down" whenever nobody looks). There is one status publisher per
+//! service: a second `view` or `record` on the same site runs but warns that its
+//! status is not published.
 
 use std::path::PathBuf;
 use std::sync::Arc;

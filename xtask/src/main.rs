@@ -16,6 +16,9 @@
 //!   binaries (`OUT/man/*.8`), and bash, zsh and fish completions (`OUT/completions/`) of
 //!   `isochron`, made from their clap definitions with clap_mangen and
 //!   clap_complete (default `OUT` = `target/docs`);
+//! * `docs config [--check]`: `docs/configuration.md`, the configuration reference,
+//!   from the config structs' field docs and defaults ([`config_ref`]); `--check`
+//!   fails if it is stale (`test` runs it);
 //! * `install [--prefix P] [--destdir D]`: release build, then binaries, systemd
 //!   units, sysusers/tmpfiles entries, an example config, the README, the man
 //!   pages and completions installed under `D/P` (default `P` = `/usr/local`), and
@@ -31,6 +34,8 @@ use std::process::{Command, Stdio};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
+
+mod config_ref;
 
 /// System packages: OpenCV and the bindings' clang; iproute2 (`ip`, `ss`) for the
 /// network-namespace and DDS socket tests; `prometheus` for promtool, which checks
@@ -92,6 +97,9 @@ fn main() -> anyhow::Result<()> {
                 bench(target, extra)
             }
         }
+        Some("docs") if args.get(1).is_some_and(|a| a == "config") => {
+            config_ref::run(&root, cargo(), &args[2..])
+        }
         Some("docs") => {
             let out = args
                 .get(1)
@@ -101,7 +109,7 @@ fn main() -> anyhow::Result<()> {
         Some("install") => install(&root, &args[1..]),
         Some("deb") => deb(&root, &args[1..]),
         _ => bail!(
-            "usage: cargo xtask <setup|demo|test|bench NAME|docs [OUT]|install [--prefix P] [--destdir D]|deb [--profile dev|release] [--no-build] [--out DIR]>"
+            "usage: cargo xtask <setup|demo|test|bench NAME|docs [OUT]|docs config [--check]|install [--prefix P] [--destdir D]|deb [--profile dev|release] [--no-build] [--out DIR]>"
         ),
     }
 }
@@ -464,6 +472,7 @@ fn report(out: &Path) -> anyhow::Result<()> {
 
 fn test() -> anyhow::Result<()> {
     run(cargo().args(["fmt", "--all", "--", "--check"]))?;
+    config_ref::check(&repo_root(), linted_cargo()?)?;
     // Lint and build every target in one pass (clippy --all-targets, but building).
     run(linted_cargo()?.args(["test", "--workspace", "--all-targets", "--no-run"]))?;
     run(linted_cargo()?.args(["build", "--workspace", "--bins"]))?;

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use super::{CameraConfig, Invalid, check_dds, check_polygon, check_positive, check_range};
 
 /// `[costmap]`: block activity on the robots' map as a ROS 2 `OccupancyGrid`
-/// (docs/ARCHITECTURE.md, "Cost map and planning"), snapshots, and path planning on segments and routes.
+/// (docs/robots.md), snapshots, and path planning on segments and routes.
 ///
 /// The grid is configured either by `map_yaml` (a `map_server` YAML: origin and
 /// resolution from it, size from its image, so the activity lines up with the
@@ -105,7 +105,7 @@ pub struct CostmapConfig {
     /// and joins multicast on, e.g. `["127.0.0.1"]`. Default: all (loopback only
     /// when `ROS_LOCALHOST_ONLY=1`). RustDDS still binds its UDP sockets to
     /// 0.0.0.0: to make loopback-only a hard limit, add `IPAddressDeny=any` and
-    /// `IPAddressAllow=localhost` to the unit (see the README).
+    /// `IPAddressAllow=localhost` to the unit (docs/security.md).
     pub dds_interfaces: Vec<String>,
     /// Weight of in-place activity S1 in the cost. Default 1.
     pub weight_in_place: f64,

@@ -76,7 +76,7 @@ pub struct DetectorConfig {
     /// Run the detector at all. Default true. `false`: events and presence come
     /// from activity and the presence band alone (no boxes, no confirmed people).
     pub enabled: bool,
-    /// ONNX model file (a YOLOv5/YOLOv8 export; see the README); relative to the
+    /// ONNX model file (a YOLOv5/YOLOv8 export; docs/pipeline.md); relative to the
     /// config file. Default: none (HOG).
     pub model: Option<PathBuf>,
     /// Square input size of the ONNX model, pixels. Frames are letterboxed into
@@ -91,7 +91,7 @@ pub struct DetectorConfig {
     /// Overlap (IoU) above which the weaker of two boxes is suppressed. Default 0.45.
     pub nms_threshold: f32,
     /// HOG: upscale frames by this factor first (its window finds people ≥ ~100 px
-    /// tall). Default 1.5 (measured on PETS09, see the README).
+    /// tall). Default 1.5 (measured on PETS09, docs/benchmarks.md).
     pub hog_upscale: f64,
     /// HOG: SVM hit threshold. Default 0.
     pub hog_hit_threshold: f64,

@@ -8,6 +8,15 @@
 //!
 //! Each section is a module of its own that holds its keys and checks them; they
 //! are all re-exported here.
+//!
+//! [`Config::validate`] calls each section's `validate` in turn. Syntax and type
+//! errors are located through the TOML span and `serde_path_to_error`'s key path;
+//! semantic errors ([`Invalid`]) through the key's span found with `toml_edit` (or
+//! its table's, when the key is absent). Unknown keys are errors
+//! (`deny_unknown_fields`). `cargo xtask docs config` makes docs/configuration.md
+//! from the fields' doc comments and the real defaults (the
+//! `isochron-config-defaults` example), and checks every `Default <value>` a doc
+//! comment states against them.
 
 mod camera;
 mod cascade;

@@ -20,7 +20,7 @@ pub struct SiteConfig {
     /// relative paths are relative to the config file.
     pub state_dir: PathBuf,
     /// Cameras one process of a per-camera stage serves, when `isochron up` starts
-    /// the group (each camera on its own thread; see the README's "Scale"). Default
+    /// the group (each camera on its own thread; see docs/benchmarks.md, "Scale"). Default
     /// 1: one process per camera and stage.
     pub cameras_per_process: usize,
 }

@@ -1,6 +1,6 @@
 //! Exit codes (sysexits.h) and the one rule that maps a library error to one.
-//! The services and the `isochron` command share this table (README, "Exit
-//! codes"); clap's own usage errors exit with 2.
+//! The services and the `isochron` command share this table (docs/operating.md,
+//! "Exit codes"); clap's own usage errors exit with 2.
 //!
 //! Every library error type implements [`Classify`]; a binary turns any of them
 //! into a [`Fatal`] with `?` (the blanket `From`), so no call site chooses an exit

@@ -15,7 +15,22 @@
 //!   stalled consumer (or a `tap` left in a pager) never blocks a producer;
 //! * lossless (`ipc.lossless`, used by `isochron replay --speed max`): a publisher
 //!   waits for room, up to `ipc.lossless_timeout_s` per stalled subscriber, so a
-//!   recording runs as fast as the slowest stage and loses nothing.
+//!   recording runs as fast as the slowest stage and loses nothing. A new lossless
+//!   publisher wakes existing subscribers and waits 250 ms so they connect before
+//!   its first sample.
+//!
+//! With the defaults (5 subscribers, a frame buffer of 3, 2 borrowed samples per
+//! subscriber, 2 loaned per publisher, no history) a camera's frames take 27
+//! frames of shared memory ([`publisher_segment_bytes`]).
+//!
+//! Creating a node also removes stale resources of dead processes; [`node_census`]
+//! is what `isochron doctor` reports, so doctor takes the census before it creates
+//! any node, removes stale resources only with `--fix`, and without it creates no
+//! node at all while some exist. SIGINT and SIGTERM are seen through handlers
+//! installed after iceoryx2's (chaining to them) and kept in a process-wide flag
+//! ([`request_stop`], [`Ipc::should_stop`]), so every camera thread stops, and a
+//! SIGCONT right after SIGTERM (systemd's stop sequence) cannot erase the request
+//! as it would iceoryx2's own last-signal record.
 
 isochron_exit::always_exits_with!(UNAVAILABLE: IpcError;);
 

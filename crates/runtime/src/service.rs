@@ -1,5 +1,21 @@
 //! What every service binary does first: logging, config, camera, iceoryx2 node —
 //! each failure mapped to a clear message and an exit code a supervisor understands.
+//!
+//! * [`main_per_camera`] parses `--config` and `--camera a,b,c` ([`CameraArgs`],
+//!   shared by every per-camera service) and calls [`run_cameras`]: one camera on
+//!   the main thread, or several on one thread each, every one with its own node
+//!   `<prefix>/<stage>/<camera>`. The process is ready once every camera's loop is
+//!   (`health::expect_ready`), and the systemd watchdog is fed only while every
+//!   loop beats. A permanent error stops only its camera; a transient one stops the
+//!   whole process so its supervisor restarts it, and a transient code wins over a
+//!   permanent one as the exit code.
+//! * [`main_site_wide`] (the costmap bridge, the exporter, the link, the MQTT sink)
+//!   parses `--config` only, then [`start`] and [`finish`].
+//! * Every service and the CLI set umask 0077 ([`owner_only_files`]: what they
+//!   create is readable by their user only, as the units' `UMask=`) and raise their
+//!   soft limit of open files to the hard one ([`raise_open_file_limit`]). Stop
+//!   requests (SIGINT, SIGTERM) are a process-wide flag ([`crate::ipc`]) that every
+//!   loop checks at least every tick.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;

@@ -37,6 +37,29 @@
 //! Inputs and outputs also exist in memory ([`Input::memory`], [`Output::memory`]):
 //! [`step`] then drives a stage without shared memory, which is how its unit tests
 //! run, and [`step_alarm`] fires its alarm as if its time had come.
+//!
+//! One pass of [`run`]'s loop: wait (until the alarm, at most `min(timer,
+//! 250 ms)` after the last pass, or not at all if the last pass left samples);
+//! drain the wake-ups, then [`Stage::on_wake`] with the inputs that notified
+//! (after a full batch every input counts as woken); [`Stage::on_alarm`] if it
+//! is due; [`Stage::on_tick`]; then the watchdog, and a status report every 5 s.
+//! An input yields at most 256 samples per pass; the rest are taken on the next
+//! pass without waiting, so health and stop requests are never starved. On
+//! stop, [`Stage::on_stop`] runs (after taking what is queued, if the stage asks
+//! with [`Stage::take_inputs_on_stop`]) and a final report is published;
+//! [`Stage::finished`] ends the loop as a stop request does (how a recording ends
+//! by itself). A [`Notified`] input is one the stage reads by itself: the costmap
+//! bridge's `<prefix>/plan` server, for which the runtime only wakes the stage
+//! when a client notifies the plan's event service (un-notified requests are
+//! found on the next pass). [`Output::send_in_place`] loans shared memory and
+//! lets the stage write the payload there (motion writes its blocks this way,
+//! zero-copy); a failed loan ([`SendError::NoLoan`]) or writer
+//! ([`SendError::Write`]) loses that sample (counted) and the stage goes on,
+//! while [`SendError::Failed`] ends the process.
+//! `drives_the_motion_stage_through_the_runtime_without_shared_memory` in
+//! `services/motion/src/stage.rs` is the model of a stage's unit test: frames, a
+//! foreign camera's sample and a sequence gap in, then the motion samples, the end
+//! of stream, and the received/rejected/dropped/sent counters checked.
 
 mod input;
 mod output;

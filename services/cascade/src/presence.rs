@@ -21,9 +21,11 @@
 //!   [`LUMA_RELATIVE`] of `B`, and four standard deviations of the block's own
 //!   noise), or the texture's at least `texture_change` (and [`TEXTURE_RELATIVE`]
 //!   of `B`'s texture and four deviations);
-//! * **present**: an empty block that starts to differ in a second when it or a
-//!   neighbour had moving activity (S2: motion above the always-on level F_L1
-//!   leaves; or the second before) has had something enter — unless the
+//! * **present**: an empty block that starts to differ in a second when it
+//!   moved itself and it or a neighbour had moving activity (S2: motion above the
+//!   always-on level F_L1 leaves; or the second before), or that differs next to
+//!   a block something entered (the plain middle of a coat has no motion pixels
+//!   of its own), has had something enter — unless the
 //!   block is restless (it moved in more than [`RESTLESS_MAX`] of the recent
 //!   seconds: a flag or a tape in the wind). It is present while it differs (and
 //!   is not restless). If it still differs [`ENTER_S`] seconds later, in a second
@@ -81,6 +83,17 @@ pub const GHOST_S: u32 = 3;
 pub const LUMA_RELATIVE: f32 = 0.06;
 /// ... and a texture change this fraction of the background texture.
 pub const TEXTURE_RELATIVE: f32 = 0.3;
+/// The 8 neighbours of a block, as (dx, dy).
+const NEIGHBOURS: [(isize, isize); 8] = [
+    (-1, -1),
+    (0, -1),
+    (1, -1),
+    (-1, 0),
+    (1, 0),
+    (-1, 1),
+    (0, 1),
+    (1, 1),
+];
 /// The global fit needs at least this many empty, still blocks.
 const FIT_MIN_BLOCKS: usize = 8;
 /// A block's noise is learned as the EMA of its squared difference at this rate
@@ -368,6 +381,10 @@ impl Presence {
             let moved = self.moved[k];
             let near = self.moved_near[k];
             let arrived = self.arrived_near[k];
+            // The block itself moved: something crossed into it (a change that
+            // only coincides with motion next to it — a light in a doorway — did
+            // not arrive).
+            let own = moved || self.moved_before[k];
             let (learn, drift, noise) = (self.learn_rate, self.drift_rate, self.noise_rate);
             let b = &mut self.blocks[k];
             if b.state == State::Unlearned {
@@ -390,7 +407,7 @@ impl Presence {
             let differs = dl.abs() >= luma_tol || dt.abs() >= texture_tol;
             b.differs = differs;
             match b.state {
-                State::Empty if differs && arrived && b.restless <= RESTLESS_MAX => {
+                State::Empty if differs && arrived && own && b.restless <= RESTLESS_MAX => {
                     b.state = State::Entered;
                     b.calm_s = 1;
                     b.ghost_s = 0;
@@ -425,21 +442,44 @@ impl Presence {
                 _ => {}
             }
         }
-        // What entered next to something present and stays is part of it (the
-        // arm of someone standing, which moves while the rest does not).
-        for k in 0..self.blocks.len() {
-            let b = &self.blocks[k];
-            if b.state == State::Entered && b.differs && b.calm_s >= ENTER_S {
-                let (x, y) = ((k % self.grid_w) as isize, (k / self.grid_w) as isize);
-                let joined = (-1..=1).any(|dy| {
-                    (-1..=1).any(|dx| {
-                        self.index(x + dx, y + dy)
-                            .is_some_and(|n| self.blocks[n].state == State::Present)
-                    })
-                });
-                if joined {
-                    self.blocks[k].state = State::Present;
-                    self.blocks[k].calm_s = 0;
+        self.grow(now_s);
+    }
+
+    /// What differs next to something that entered is part of it: the plain
+    /// middle of a coat has no motion pixels of its own (flood from every
+    /// entered or settled block through empty blocks that differ where something
+    /// arrived); and what entered next to something settled and still differs has
+    /// settled too (the arm of someone standing moves while the rest does not).
+    fn grow(&mut self, now_s: i64) {
+        self.stack.clear();
+        self.stack
+            .extend((0..self.blocks.len()).filter(|&k| self.blocks[k].state != State::Empty));
+        while let Some(k) = self.stack.pop() {
+            let state = self.blocks[k].state;
+            if !matches!(state, State::Entered | State::Present) {
+                continue;
+            }
+            let (x, y) = ((k % self.grid_w) as isize, (k / self.grid_w) as isize);
+            for (dx, dy) in NEIGHBOURS {
+                let Some(n) = self.index(x + dx, y + dy) else {
+                    continue;
+                };
+                let b = &mut self.blocks[n];
+                let joins = b.differs && b.restless <= RESTLESS_MAX;
+                match b.state {
+                    State::Empty if joins && self.arrived_near[n] => {
+                        b.state = State::Entered;
+                        b.calm_s = 1;
+                        b.ghost_s = 0;
+                        b.moved_s = b.moved_s.max(now_s);
+                        self.stack.push(n);
+                    }
+                    State::Entered if joins && state == State::Present && b.calm_s >= ENTER_S => {
+                        b.state = State::Present;
+                        b.calm_s = 0;
+                        self.stack.push(n);
+                    }
+                    _ => {}
                 }
             }
         }

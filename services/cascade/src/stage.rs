@@ -1,6 +1,14 @@
 //! The cascade stage: `motion` in, 1-Hz `activity` out, the long-term store
 //! updated once per completed minute — run by the stage runtime
 //! ([`isochron_runtime::stage`]).
+//!
+//! A store write that fails with an I/O error (a full or read-only disk) does not
+//! end the cascade: that minute is not learned, the failure is warned about
+//! (rate-limited) and counted (`store_failures=` in the status detail), and the
+//! next minute tries again. Permanent store errors (foreign, damaged, another
+//! grid) still end it with their code. When the camera's size is configured, the
+//! cascade knows the grid the config gives and rejects samples of any other grid
+//! before they can create or reach the store.
 
 use std::path::PathBuf;
 use std::time::Instant;

@@ -1,5 +1,5 @@
 //! isochron-costmap: the cameras' block activity on the robots' map, published to
-//! ROS 2 as a cost map, and the site's planning service (docs/ARCHITECTURE.md, "Cost map and planning"; the
+//! ROS 2 as a cost map, and the site's planning service (docs/robots.md; the
 //! paper's section "Incorporation into ROS").
 //!
 //! The floor geometry, the costs and the planning itself are in `isochron-planning`;

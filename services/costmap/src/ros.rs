@@ -27,7 +27,7 @@
 //! loopback when `ROS_LOCALHOST_ONLY=1` or `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`):
 //! RustDDS announces only their addresses and multicasts only on them, but binds
 //! its sockets to 0.0.0.0 regardless (hard-coded in 0.15) — a hard limit is the
-//! unit's `IPAddressAllow=`/`IPAddressDeny=` or a firewall (README).
+//! unit's `IPAddressAllow=`/`IPAddressDeny=` or a firewall (docs/security.md).
 
 use std::net::IpAddr;
 use std::time::Duration;

@@ -6,6 +6,14 @@
 //! service restarts, which Prometheus's `rate()` and `increase()` handle as a
 //! counter reset. Stage-specific counters come from the status detail
 //! (`key=value` words, see each stage's `detail`), named in [`DETAIL_METRICS`].
+//!
+//! `isochron_up` is 1 while the last report is younger than
+//! `exporter.stale_after_s` and its pid exists (`kill(pid, 0)` ≠ ESRCH), so a
+//! killed and reaped service is down at the next scrape, a hung one after the
+//! stale time. `prometheus-client` writes OpenMetrics (counter families named
+//! without `_total`); a client that does not ask for OpenMetrics in `Accept` gets
+//! the classic 0.0.4 text (`_total` on counter families' `HELP`/`TYPE`, no
+//! `# EOF`), which is what `promtool check metrics` lints.
 
 use std::sync::{Arc, Mutex};
 use std::time::Duration;

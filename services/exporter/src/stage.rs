@@ -5,6 +5,12 @@
 //!
 //! It watches every pipeline stage of every configured camera, and the site-wide
 //! costmap, whether or not they run: a service that never reported is `up` 0.
+//!
+//! The exporter is not a pipeline stage (not in `StageKind::ALL`): `isochron up`
+//! starts it only when the config has `[exporter]` (`launch::optional_services`),
+//! and `isochron replay` goes on if it fails. `isochron status` and `doctor` show
+//! its row (and the link's when `[link]` exports or imports a camera) next to the
+//! pipeline's (`status::expected_stages`).
 
 use std::net::{SocketAddr, TcpListener};
 use std::sync::Arc;

@@ -81,6 +81,9 @@ pub struct EventTracker {
     kind: ActivityKind,
     hold_ns: i64,
     open: Option<Event>,
+    /// The open event ends `hold_ns` after this: its last second above the
+    /// threshold, or the last frame a person was confirmed in.
+    hold_from_ns: i64,
 }
 
 impl EventTracker {
@@ -90,6 +93,7 @@ impl EventTracker {
             kind,
             hold_ns: (hold_s * 1e9) as i64,
             open: None,
+            hold_from_ns: i64::MIN,
         }
     }
 
@@ -132,17 +136,19 @@ impl EventTracker {
                 };
                 *next_id += 1;
                 self.open = Some(event.clone());
+                self.hold_from_ns = second.end_ns;
                 Change::Started(event)
             }
             (Some(event), true) => {
                 event.end_ns = second.end_ns;
                 event.end_frame = second.last_frame;
+                self.hold_from_ns = second.end_ns;
                 event.peak = event.peak.max(value);
                 merge_sorted(&mut event.blocks, active_blocks);
                 Change::Continued(event.clone())
             }
-            (Some(event), false) => {
-                if !hold_open && second.end_ns - event.end_ns >= self.hold_ns {
+            (Some(_), false) => {
+                if !hold_open && second.end_ns - self.hold_from_ns >= self.hold_ns {
                     Change::Ended(self.open.take().expect("open event"))
                 } else {
                     Change::None
@@ -152,13 +158,26 @@ impl EventTracker {
     }
 
     /// Someone was seen at `time_ns` (frame `frame`): the open event, if any, lasts
-    /// at least until then.
+    /// at least until then, and its hold runs from then.
     pub fn extend(&mut self, time_ns: i64, frame: u64) {
         if let Some(event) = &mut self.open
             && time_ns > event.end_ns
         {
             event.end_ns = time_ns;
             event.end_frame = event.end_frame.max(frame);
+            self.hold_from_ns = self.hold_from_ns.max(time_ns);
+        }
+    }
+
+    /// Something stayed present through `second` (the presence band, which has
+    /// a hold of its own): the open event, if any, spans it; its hold still runs
+    /// from its last second above the threshold.
+    pub fn cover(&mut self, second: Second) {
+        if let Some(event) = &mut self.open
+            && second.end_ns > event.end_ns
+        {
+            event.end_ns = second.end_ns;
+            event.end_frame = event.end_frame.max(second.last_frame);
         }
     }
 

@@ -5,8 +5,10 @@
 //! **Presence.** A zone's events stay open while its activity is above the
 //! threshold (or was, within `hold_s`), while the presence band has a block
 //! present in the zone (something that entered stays there, moving or not: the
-//! cascade's `presence` module; the event lasts at least to the end of every such
-//! second), and while the detector holds a person confirmed there:
+//! cascade's `presence` module, whose own hold is that a block leaves only once
+//! it matched its empty appearance for 2 s; the event lasts at least to the end
+//! of every such second, without a further `hold_s`), and while the detector
+//! holds a person confirmed there:
 //!
 //! * a detection creates a confirmed person where a person box overlaps a block
 //!   that was active in the detected second (a detector hit on a background that
@@ -343,10 +345,11 @@ impl Gate {
                 }
             }
             // Something stays in the zone (the presence band): its events last at
-            // least to the end of this second.
+            // least to the end of this second, and end once nothing is present and
+            // the activity has been quiet for the hold.
             if present {
                 for tracker in &mut zone.trackers {
-                    tracker.extend(second.end_ns, second.last_frame);
+                    tracker.cover(second);
                 }
             }
             // Presence: re-check confirmed people, or check once whether someone
@@ -733,6 +736,33 @@ mod tests {
         );
         let a = g.on_activity(&header(1, 5), &blocks(1.3, 0.1, 0.05));
         assert_eq!(kinds(&a), ["Detect#0", "Start#0"]);
+    }
+
+    #[test]
+    fn a_present_block_holds_the_event_which_ends_when_nothing_is_present() {
+        let mut g = gate(GateConfig {
+            detector: isochron_config::DetectorConfig {
+                enabled: false,
+                ..Default::default()
+            },
+            ..GateConfig::default()
+        });
+        let mut all = Vec::new();
+        for s in 0..40 {
+            // Moving 5..8 s, then still but present until 30 s.
+            let mut b = blocks(if (5..8).contains(&s) { 1.0 } else { 0.0 }, 0.0, 0.0);
+            if (5..30).contains(&s) {
+                b[1].present = 1.0;
+            }
+            all.extend(g.on_activity(&header(s, 0), &b));
+        }
+        // No detector: no jobs; one event, ended at the first second with nothing
+        // present (its activity was quiet for longer than the hold).
+        assert_eq!(kinds(&all), ["Start#0", "End#0"]);
+        let Action::Event { event, .. } = &all[1] else {
+            panic!()
+        };
+        assert_eq!((event.start_frame, event.end_frame), (50, 299));
     }
 
     #[test]

@@ -1,6 +1,6 @@
 //! isochron-motion: per-block motion features (density, flow vector, direction) from
 //! consecutive GRAY8 frames — the first stage after capture (see docs/ARCHITECTURE.md,
-//! section 'Motion detection'; the paper's "Motion Detection").
+//! 'Paper to code'; the paper's "Motion Detection").
 //!
 //! * [`kernel`]: the fused motion-flow kernel (temporal difference,
 //!   motion-pixel test, spatial gradient, normal-flow sums per block): scalar

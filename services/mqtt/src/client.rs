@@ -21,6 +21,24 @@
 //!
 //! Sessions are clean (`clean_session`): after a reconnection rumqttc forgets the
 //! unacknowledged publishes, and the outbox sends them again.
+//!
+//! The thread is the only owner of rumqttc's `EventLoop`, so it feeds requests
+//! straight into the loop's `pending` queue rather than through rumqttc's `Client`
+//! channel: the order in which it hands messages over is the order of the
+//! `Outgoing::Publish(pkid)` events, which matches each message to its packet id.
+//! While connected it waits on the event loop, a wake-up from the stage
+//! (`tokio::sync::Notify`) or a 100 ms tick; while connecting it lets the attempt
+//! run to its end (3 s timeout). So every message is either acknowledged or counted
+//! as dropped: `messages = sent + queue_dropped + queued (+ in flight)`.
+//!
+//! Why rumqttc: an MQTT 3.1.1 client in Rust with QoS 1, last will, keep-alive and
+//! reconnection by polling, maintained (bytebeamio) and widely used; its async
+//! runtime is tokio, already in the workspace's tree (through the view), so it adds
+//! few crates (`flume`, `fixedbitset`, `tokio-stream`). paho-mqtt would link the C
+//! library, and a hand-written MQTT client would be more to keep right. TLS is
+//! rumqttc's `use-rustls-no-provider` feature with rustls's `ring` provider chosen
+//! by us: ring builds with the C compiler already needed, where the default
+//! aws-lc-rs would need cmake and a much longer build.
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};

@@ -1,7 +1,7 @@
 //! isochron-mqtt: the site's zone events and detections, as JSON, to an MQTT
 //! broker (QoS 1), with a retained availability topic and a last will.
 //!
-//! [`message`] makes the topics and the JSON (the README's schema); [`outbox`] is
+//! [`message`] makes the topics and the JSON (the schema of docs/operating.md); [`outbox`] is
 //! the bounded queue between the stage and the client, which drops the oldest
 //! and counts it; [`client`] owns the broker connection on its own thread
 //! (reconnecting with backoff), over TLS ([`tls`]) and with a user name and

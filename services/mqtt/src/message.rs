@@ -1,5 +1,5 @@
 //! What the sink publishes: the topics, and the JSON of a zone event record or a
-//! detections sample (the schema the README documents). Pure: no I/O.
+//! detections sample (the schema docs/operating.md documents). Pure: no I/O.
 
 use isochron_config::clock::format_rfc3339;
 use isochron_wire::{ActivityKind, Detection, DetectionHeader, EventHeader, EventPhase};

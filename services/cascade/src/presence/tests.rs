@@ -335,3 +335,19 @@ fn a_restless_block_never_has_something_enter_and_an_arm_that_moves_joins_its_bo
     }
     assert_eq!(last, spot, "the arm joined");
 }
+
+#[test]
+fn a_change_that_only_coincides_with_motion_next_to_it_does_not_enter() {
+    let floor = Scene::floor();
+    let mut rig = Rig::new(120.0);
+    rig.run_for(10, &floor);
+    // Someone walks past block (4, 3) while its light goes down: it differs, a
+    // neighbour moves, the block itself does not.
+    let mut dimmed = floor.clone().moving((5, 3, 1, 1));
+    dimmed.luma[3 * W + 4] -= 40.0;
+    let present = rig.run(&dimmed);
+    assert!(!present.contains(&(3 * W + 4)), "{present:?}");
+    let mut still = floor.clone();
+    still.luma[3 * W + 4] -= 40.0;
+    assert!(rig.run_for(3, &still).is_empty());
+}
