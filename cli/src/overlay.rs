@@ -109,9 +109,9 @@ pub fn draw(out: &Path, frame: &Frame, scene: &Scene) -> anyhow::Result<()> {
     let mut backend = BitMapBackend::new(out, (w, h));
     backend
         .blit_bitmap((0, 0), (w, h), &frame.rgb)
-        .map_err(|e| anyhow::anyhow!("drawing the frame: {e:?}"))?;
+        .map_err(|e| anyhow::anyhow!("drawing the frame: {e}"))?;
     let root = backend.into_drawing_area();
-    let e = |e: DrawingAreaErrorKind<_>| anyhow::anyhow!("drawing the overlay: {e:?}");
+    let e = |e: DrawingAreaErrorKind<_>| anyhow::anyhow!("drawing the overlay: {e}");
     let px = |p: Point| (p[0].round() as i32, p[1].round() as i32);
 
     // Block grid.
