@@ -162,7 +162,7 @@ fn draw(out: &std::path::Path, heat: &Heat, title: &str) -> anyhow::Result<()> {
         top_m + (heat.rows * row_px) as u32 + bottom,
     );
     let root = BitMapBackend::new(out, (w, h)).into_drawing_area();
-    let e = |e: DrawingAreaErrorKind<_>| anyhow::anyhow!("drawing the heat map: {e:?}");
+    let e = |e: DrawingAreaErrorKind<_>| anyhow::anyhow!("drawing the heat map: {e}");
     root.fill(&WHITE).map_err(e)?;
     let font = ("sans-serif", 16).into_font();
     root.draw(&Text::new(title.to_string(), (10, 12), font.clone()))

@@ -113,9 +113,9 @@ pub fn draw(out: &Path, frame: &Frame, scene: &Scene) -> anyhow::Result<()> {
     let mut backend = BitMapBackend::new(out, (w, h));
     backend
         .blit_bitmap((0, 0), (w, h), &frame.rgb)
-        .map_err(|e| anyhow::anyhow!("drawing the frame: {e:?}"))?;
+        .map_err(|e| anyhow::anyhow!("drawing the frame: {e}"))?;
     let root = backend.into_drawing_area();
-    let e = |e: DrawingAreaErrorKind<_>| anyhow::anyhow!("drawing the overlay: {e:?}");
+    let e = |e: DrawingAreaErrorKind<_>| anyhow::anyhow!("drawing the overlay: {e}");
     draw_image_layers(&root, scene, (w, h)).map_err(e)?;
     if let Some(cal) = scene.calibration
         && let Some(inv) = cal.homography.inverse()

@@ -15,28 +15,32 @@
 //!
 //! With `--speed max` (the default) delivery is lossless: every stage sees every
 //! sample, and the run goes as fast as the slowest stage.
+//!
+//! The replay itself is a stage of the runtime ([`isochron_runtime::stage`]):
+//! its inputs are its own subscribers to every produced stream, its alarms pace
+//! the start-up (capture starts once every consumer has subscribed), its tick
+//! watches the services and the progress. It reports no status of its own
+//! (`Context::unreported`).
+
+mod tally;
 
 use std::collections::BTreeMap;
-use std::fs::File;
-use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, bail};
-use iceoryx2::prelude::*;
-use isochron_config::clock::format_rfc3339;
+use anyhow::{Context as _, bail};
 use isochron_config::{Config, LoadedConfig, Speed};
+use isochron_exit::Fatal;
 use isochron_runtime::health::InputCompleteness;
-use isochron_runtime::ipc::{
-    Activity, Detections, Events, Frames, Ipc, IpcError, Motion, StreamSubscriber, StreamType,
-};
+use isochron_runtime::ipc::{Ipc, StatusSubscriber};
+use isochron_runtime::stage::{self, Context, Stage, Woken};
 use isochron_runtime::topology::StageKind;
-use isochron_wire::{ActivityKind, DetectionHeader, EventPhase, Stream, fixed_str};
-use serde_json::json;
+use isochron_wire::{Stream, fixed_str};
 
 use crate::launch::{ServiceSpec, State, Supervisor, group_specs, installed_stages};
 use crate::record::RecorderThread;
+use tally::{ReplayInputs, Tally};
 
 /// Run the whole group on a video file and write what every stage produced.
 #[derive(clap::Args)]
@@ -93,17 +97,18 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         );
     }
     let ipc = Ipc::of_site("isochron-replay", &loaded.config)?;
-    let subscribers = Subscribers::open(&ipc, &camera, &stages)?;
+    let inputs = tally::open_inputs(&ipc, &camera, &stages)?;
     // The recorder runs on a thread of its own, woken by its own subscribers.
     let recorder = args
         .record
         .as_deref()
         .map(|path| RecorderThread::start(&loaded, path))
         .transpose()?;
-    let mut tally = Tally::new(&camera, &subscribers, &out)?;
+    let tally = Tally::new(&camera, &inputs, &out)?;
 
     let specs = group_specs(&loaded);
     let mut supervisor = Supervisor::new(false, Duration::from_secs(60), Some(out.join("logs")))?;
+    // The wall time counts the services' start-up too, as it always has.
     let started = Instant::now();
     // Consumers first; the producer only once everything downstream listens.
     let (capture, rest): (Vec<ServiceSpec>, Vec<ServiceSpec>) = specs
@@ -118,86 +123,55 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .cloned()
         .chain(crate::launch::optional_services(&loaded))
         .collect();
-    wait_for_consumers(&ipc, &camera, &consumers, &mut supervisor)?;
-    // Capture's last status says how much of the file it read (it publishes it
-    // before the end of stream); subscribed before capture starts.
-    let capture_status = ipc.status_subscriber(&camera, StageKind::Capture)?;
-    let mut capture_detail = None;
-    for spec in capture {
-        supervisor.add(spec)?;
-    }
-    println!(
+    let banner = format!(
         "replay: {} → {} (speed {speed}, prefix {})",
         video.display(),
         out.display(),
         loaded.config.site.service_prefix
     );
-
-    let waitset = WaitSetBuilder::new()
-        .create::<ipc::Service>()
-        .map_err(|e| anyhow::anyhow!("creating a waitset: {e:?}"))?;
-    let guards = subscribers.attach(&waitset)?;
-    let stall = Duration::from_secs_f64(args.stall_timeout_s);
-    let mut last_progress = Instant::now();
-    let mut last_total = 0;
-    loop {
-        let _ = waitset.wait_and_process_once_with_timeout(
-            |_| CallbackProgression::Continue,
-            Duration::from_millis(100),
-        );
-        tally.drain(&subscribers)?;
-        if let Some(status) = capture_status.latest() {
-            capture_detail = Some(fixed_str(&status.detail));
-        }
-        if tally.all_ended() {
-            break;
-        }
-        if ipc.should_stop() {
-            bail!("interrupted");
-        }
-        for change in supervisor.poll() {
-            tracing::info!("{} {}", change.name, change.what);
-        }
-        if let Some((name, state)) = supervisor
-            .states()
-            .into_iter()
-            .filter(|(name, _)| !is_optional(name))
-            .find(|(_, s)| matches!(s, State::Failed { .. }))
-        {
-            bail!(
-                "{name} failed ({state:?}) before the end of the video; see {}",
-                out.join("logs").display()
-            );
-        }
-        let total = tally.total();
-        if total != last_total {
-            last_total = total;
-            last_progress = Instant::now();
-        } else if last_progress.elapsed() > stall {
-            bail!(
-                "no progress for {:.0} s (counts so far: {}); see {}",
-                stall.as_secs_f64(),
-                tally.counts_line(),
-                out.join("logs").display()
-            );
-        }
+    let mut replay = ReplayStage {
+        ipc: &ipc,
+        camera: camera.clone(),
+        logs: out.join("logs"),
+        supervisor,
+        phase: Phase::Starting {
+            capture,
+            consumers,
+            deadline: Instant::now() + START_TIMEOUT,
+            banner,
+        },
+        tally,
+        capture_status: None,
+        capture_detail: None,
+        stall: Duration::from_secs_f64(args.stall_timeout_s),
+        last_total: 0,
+        last_progress: Instant::now(),
+        failure: None,
+    };
+    let mut cx = Context::unreported(StageKind::View);
+    stage::run_in(&ipc, &mut replay, &inputs, &mut cx)?;
+    if let Some(failure) = replay.failure.take() {
+        return Err(failure);
+    }
+    if !matches!(replay.phase, Phase::Collecting) || !replay.tally.all_ended() {
+        bail!("interrupted");
     }
     let wall = started.elapsed();
-    drop(guards);
-    supervisor.stop_all(Duration::from_secs(10));
+    replay.supervisor.stop_all(Duration::from_secs(10));
     // What arrived is recorded, then the file closed (early, and the replay went
     // on, if the disk ran low: then the exit code is 1).
     let recording_failed = recorder
         .map(RecorderThread::finish)
         .transpose()?
         .is_some_and(|code| code != ExitCode::SUCCESS);
-    let input = capture_detail
+    let input = replay
+        .capture_detail
         .as_deref()
         .and_then(InputCompleteness::from_detail);
-    tally.finish(&out, &video, wall, input)?;
+    replay.tally.finish(&out, &video, wall, input)?;
     println!(
         "replay: {} in {:.1} s",
-        tally.counts_line(),
+        replay.tally.counts_line(),
         wall.as_secs_f64()
     );
     if let Some(input) = input.filter(|i| i.truncated) {
@@ -268,360 +242,214 @@ fn is_optional(name: &str) -> bool {
     name == StageKind::Exporter.name() || name == StageKind::Mqtt.name()
 }
 
-/// Waits until every installed consumer has subscribed to its inputs (each stream
-/// also has the replay's own subscriber); an optional one that stopped (a bad
-/// `[mqtt]` broker URL) is not waited for.
-fn wait_for_consumers(
+/// How long the services may take to subscribe to their inputs.
+const START_TIMEOUT: Duration = Duration::from_secs(60);
+/// How often the replay looks whether the services have subscribed yet
+/// (iceoryx2 says nothing when a subscriber connects).
+const START_CHECK: Duration = Duration::from_millis(20);
+/// How often the services' states and the progress are looked at.
+const SUPERVISE_EVERY: Duration = Duration::from_millis(100);
+
+/// Where the replay is.
+enum Phase {
+    /// The consumers are starting: capture (`capture`) starts once every one of
+    /// `consumers` has subscribed to its inputs, before `deadline`; `banner` is
+    /// printed then.
+    Starting {
+        capture: Vec<ServiceSpec>,
+        consumers: Vec<(StageKind, PathBuf)>,
+        deadline: Instant,
+        banner: String,
+    },
+    /// Capture runs: what every stage produces is collected.
+    Collecting,
+}
+
+/// The replay as a stage of the runtime: it starts the group (capture last),
+/// collects what every stage produces (its inputs), and has finished once
+/// every stream has ended — or a stage failed, or nothing moved for the stall
+/// timeout (`failure`).
+struct ReplayStage<'ipc> {
+    ipc: &'ipc Ipc,
+    camera: String,
+    logs: PathBuf,
+    supervisor: Supervisor,
+    phase: Phase,
+    tally: Tally,
+    /// Capture's last status says how much of the file it read (it publishes
+    /// it before the end of stream); subscribed before capture starts.
+    capture_status: Option<StatusSubscriber>,
+    capture_detail: Option<String>,
+    stall: Duration,
+    last_total: u64,
+    last_progress: Instant,
+    /// Why the replay stopped before every stream ended.
+    failure: Option<anyhow::Error>,
+}
+
+impl ReplayStage<'_> {
+    /// While starting: starts capture once every consumer listens.
+    fn start_capture(&mut self, cx: &mut Context) -> anyhow::Result<()> {
+        let Phase::Starting {
+            capture,
+            consumers,
+            deadline,
+            banner,
+        } = &mut self.phase
+        else {
+            return Ok(());
+        };
+        let missing = missing_consumers(self.ipc, &self.camera, consumers, &mut self.supervisor)?;
+        if !missing.is_empty() {
+            if Instant::now() > *deadline {
+                bail!(
+                    "services did not subscribe in time ({})",
+                    missing.join(", ")
+                );
+            }
+            cx.alarm_in(START_CHECK);
+            return Ok(());
+        }
+        self.capture_status = Some(
+            self.ipc
+                .status_subscriber(&self.camera, StageKind::Capture)?,
+        );
+        for spec in std::mem::take(capture) {
+            self.supervisor.add(spec)?;
+        }
+        println!("{banner}");
+        self.phase = Phase::Collecting;
+        self.last_progress = Instant::now();
+        Ok(())
+    }
+
+    /// While collecting: the services' changes, a failed one, no progress.
+    fn supervise(&mut self) -> anyhow::Result<()> {
+        if let Some(status) = self.capture_status.as_ref().and_then(|s| s.latest()) {
+            self.capture_detail = Some(fixed_str(&status.detail));
+        }
+        if !matches!(self.phase, Phase::Collecting) || self.tally.all_ended() {
+            return Ok(());
+        }
+        for change in self.supervisor.poll() {
+            tracing::info!("{} {}", change.name, change.what);
+        }
+        if let Some((name, state)) = self
+            .supervisor
+            .states()
+            .into_iter()
+            .filter(|(name, _)| !is_optional(name))
+            .find(|(_, s)| matches!(s, State::Failed { .. }))
+        {
+            bail!(
+                "{name} failed ({state:?}) before the end of the video; see {}",
+                self.logs.display()
+            );
+        }
+        let total = self.tally.total();
+        if total != self.last_total {
+            self.last_total = total;
+            self.last_progress = Instant::now();
+        } else if self.last_progress.elapsed() > self.stall {
+            bail!(
+                "no progress for {:.0} s (counts so far: {}); see {}",
+                self.stall.as_secs_f64(),
+                self.tally.counts_line(),
+                self.logs.display()
+            );
+        }
+        Ok(())
+    }
+
+    /// Ends the replay with `result`'s failure, if it failed (the loop ends
+    /// as [`Stage::finished`] then says; `run` returns the error, chain and all).
+    fn settle(&mut self, result: anyhow::Result<()>) -> Result<(), Fatal> {
+        if let Err(e) = result {
+            self.failure.get_or_insert(e);
+        }
+        Ok(())
+    }
+}
+
+impl Stage for ReplayStage<'_> {
+    type Inputs = ReplayInputs;
+    // Unreported (`Context::unreported`): no status line names it.
+    const KIND: StageKind = StageKind::View;
+
+    fn on_start(&mut self, cx: &mut Context) -> Result<(), Fatal> {
+        cx.alarm_at(Instant::now());
+        Ok(())
+    }
+
+    fn on_wake(
+        &mut self,
+        inputs: &ReplayInputs,
+        _woken: &Woken,
+        cx: &mut Context,
+    ) -> Result<(), Fatal> {
+        let taken = self.tally.take(inputs, cx);
+        self.settle(taken)
+    }
+
+    fn on_alarm(&mut self, cx: &mut Context) -> Result<(), Fatal> {
+        let started = self.start_capture(cx);
+        self.settle(started)
+    }
+
+    fn on_tick(&mut self, _cx: &mut Context) -> Result<(), Fatal> {
+        let supervised = self.supervise();
+        self.settle(supervised)
+    }
+
+    fn finished(&self) -> bool {
+        self.failure.is_some() || self.tally.all_ended()
+    }
+
+    fn timer(&self) -> Duration {
+        SUPERVISE_EVERY
+    }
+
+    fn detail(&self) -> String {
+        self.tally.counts_line()
+    }
+}
+
+/// The streams of `camera` that some consumer of `stages` has not subscribed to
+/// yet (each stream also has the replay's own subscriber), as `stream: have/n`;
+/// an optional consumer that stopped (a bad `[mqtt]` broker URL) is not waited
+/// for. Fails if a required service stopped.
+fn missing_consumers(
     ipc: &Ipc,
     camera: &str,
     stages: &[(StageKind, PathBuf)],
     supervisor: &mut Supervisor,
-) -> anyhow::Result<()> {
-    let deadline = Instant::now() + Duration::from_secs(60);
-    loop {
-        supervisor.poll();
-        let states = supervisor.states();
-        let stopped = |stage: StageKind| {
-            is_optional(stage.name())
-                && states.iter().any(|(name, s)| {
-                    name == stage.name() && matches!(s, State::Failed { .. } | State::Finished)
-                })
-        };
-        let mut expected: BTreeMap<Stream, usize> = BTreeMap::new();
-        for (stage, _) in stages.iter().filter(|(s, _)| !stopped(*s)) {
-            for input in stage.consumes() {
-                *expected.entry(*input).or_insert(1) += 1;
-            }
-        }
-        let missing: Vec<String> = expected
-            .iter()
-            .filter_map(|(stream, n)| {
-                let have = ipc.subscriber_count(camera, *stream).unwrap_or(0);
-                (have < *n).then(|| format!("{stream}: {have}/{n}"))
+) -> anyhow::Result<Vec<String>> {
+    supervisor.poll();
+    let states = supervisor.states();
+    let stopped = |stage: StageKind| {
+        is_optional(stage.name())
+            && states.iter().any(|(name, s)| {
+                name == stage.name() && matches!(s, State::Failed { .. } | State::Finished)
             })
-            .collect();
-        if missing.is_empty() {
-            return Ok(());
+    };
+    let mut expected: BTreeMap<Stream, usize> = BTreeMap::new();
+    for (stage, _) in stages.iter().filter(|(s, _)| !stopped(*s)) {
+        for input in stage.consumes() {
+            *expected.entry(*input).or_insert(1) += 1;
         }
-        if let Some((name, state)) = supervisor
-            .states()
-            .into_iter()
-            .filter(|(name, _)| !is_optional(name))
-            .find(|(_, s)| matches!(s, State::Failed { .. } | State::Finished))
-        {
-            bail!("{name} stopped during start-up ({state:?}); see its log");
-        }
-        if Instant::now() > deadline {
-            bail!(
-                "services did not subscribe in time ({})",
-                missing.join(", ")
-            );
-        }
-        std::thread::sleep(Duration::from_millis(20));
     }
-}
-
-/// The replay's own subscribers, one per produced stream.
-struct Subscribers {
-    frames: StreamSubscriber<Frames>,
-    motion: Option<StreamSubscriber<Motion>>,
-    activity: Option<StreamSubscriber<Activity>>,
-    events: Option<StreamSubscriber<Events>>,
-    detections: Option<StreamSubscriber<Detections>>,
-}
-
-impl Subscribers {
-    fn open(ipc: &Ipc, camera: &str, stages: &[(StageKind, PathBuf)]) -> anyhow::Result<Self> {
-        let has = |stream: Stream| {
-            stages
-                .iter()
-                .any(|(stage, _)| stage.produces().contains(&stream))
-        };
-        fn subscriber_if<S: StreamType>(
-            ipc: &Ipc,
-            camera: &str,
-            wanted: bool,
-        ) -> Result<Option<StreamSubscriber<S>>, IpcError> {
-            wanted.then(|| ipc.subscriber(camera)).transpose()
-        }
-        Ok(Subscribers {
-            frames: ipc.subscriber(camera)?,
-            motion: subscriber_if(ipc, camera, has(Stream::Motion))?,
-            activity: subscriber_if(ipc, camera, has(Stream::Activity))?,
-            events: subscriber_if(ipc, camera, has(Stream::Events))?,
-            detections: subscriber_if(ipc, camera, has(Stream::Detections))?,
+    if let Some((name, state)) = states
+        .iter()
+        .filter(|(name, _)| !is_optional(name))
+        .find(|(_, s)| matches!(s, State::Failed { .. } | State::Finished))
+    {
+        bail!("{name} stopped during start-up ({state:?}); see its log");
+    }
+    Ok(expected
+        .iter()
+        .filter_map(|(stream, n)| {
+            let have = ipc.subscriber_count(camera, *stream).unwrap_or(0);
+            (have < *n).then(|| format!("{stream}: {have}/{n}"))
         })
-    }
-
-    fn attach<'w>(
-        &'w self,
-        waitset: &'w WaitSet<ipc::Service>,
-    ) -> anyhow::Result<Vec<WaitSetGuard<'w, 'w, ipc::Service>>> {
-        let mut attachments: Vec<&dyn SynchronousMultiplexingDebug> = vec![&self.frames];
-        if let Some(s) = &self.motion {
-            attachments.push(s);
-        }
-        if let Some(s) = &self.activity {
-            attachments.push(s);
-        }
-        if let Some(s) = &self.events {
-            attachments.push(s);
-        }
-        if let Some(s) = &self.detections {
-            attachments.push(s);
-        }
-        attachments
-            .into_iter()
-            .map(|a| {
-                waitset
-                    .attach_notification(a)
-                    .map_err(|e| anyhow::anyhow!("attaching to the waitset: {e:?}"))
-            })
-            .collect()
-    }
-}
-
-/// What a WaitSet can wait on.
-trait SynchronousMultiplexingDebug: SynchronousMultiplexing + std::fmt::Debug {}
-impl<T: SynchronousMultiplexing + std::fmt::Debug> SynchronousMultiplexingDebug for T {}
-
-/// Samples seen per stream, and the files written from them.
-struct Tally {
-    camera: String,
-    counts: BTreeMap<Stream, u64>,
-    ended: BTreeMap<Stream, bool>,
-    events_out: BufWriter<File>,
-    detections_out: BufWriter<File>,
-    finished_events: u64,
-    gate: serde_json::Value,
-}
-
-/// The hybrid scheme's counters as a detections header states them.
-fn gate_summary(h: &DetectionHeader) -> serde_json::Value {
-    json!({
-        "frames_seen": h.frames_seen,
-        "frames_detected": h.frames_detected,
-        "jobs_dropped": h.jobs_dropped,
-        "detector_total_ms": h.detector_total_us as f64 / 1e3,
-    })
-}
-
-/// Receives every pending sample of `subscriber`; calls `each` for data samples.
-/// Returns (data samples, saw end of stream).
-fn drain_one<S: StreamType>(
-    subscriber: &StreamSubscriber<S>,
-    mut end: impl FnMut(&S::Header) -> bool,
-    mut each: impl FnMut(&S::Header, &[S::Element]) -> anyhow::Result<()>,
-) -> anyhow::Result<(u64, bool)> {
-    subscriber.drain_wakeups();
-    let (mut n, mut ended) = (0, false);
-    while let Some(sample) = subscriber.receive()? {
-        if end(sample.user_header()) {
-            ended = true;
-        } else {
-            n += 1;
-            each(sample.user_header(), sample.payload())?;
-        }
-    }
-    Ok((n, ended))
-}
-
-impl Tally {
-    fn new(camera: &str, subs: &Subscribers, out: &Path) -> anyhow::Result<Self> {
-        let create = |name: &str| -> anyhow::Result<BufWriter<File>> {
-            let path = out.join(name);
-            Ok(BufWriter::new(
-                File::create(&path).with_context(|| format!("creating {}", path.display()))?,
-            ))
-        };
-        let mut ended = BTreeMap::new();
-        ended.insert(Stream::Frames, false);
-        for (stream, present) in [
-            (Stream::Motion, subs.motion.is_some()),
-            (Stream::Activity, subs.activity.is_some()),
-            (Stream::Events, subs.events.is_some()),
-            (Stream::Detections, subs.detections.is_some()),
-        ] {
-            if present {
-                ended.insert(stream, false);
-            }
-        }
-        Ok(Tally {
-            camera: camera.to_string(),
-            counts: Stream::ALL.iter().map(|s| (*s, 0)).collect(),
-            ended,
-            events_out: create("events.jsonl")?,
-            detections_out: create("detections.jsonl")?,
-            finished_events: 0,
-            gate: json!({}),
-        })
-    }
-
-    fn add(&mut self, stream: Stream, (n, ended): (u64, bool)) {
-        *self.counts.entry(stream).or_default() += n;
-        if ended {
-            self.ended.insert(stream, true);
-        }
-    }
-
-    /// Reads everything that arrived.
-    fn drain(&mut self, subs: &Subscribers) -> anyhow::Result<()> {
-        let r = drain_one(
-            &subs.frames,
-            |h| h.preamble.is_end_of_stream(),
-            |_, _| Ok(()),
-        )?;
-        self.add(Stream::Frames, r);
-        if let Some(s) = &subs.motion {
-            let r = drain_one(s, |h| h.preamble.is_end_of_stream(), |_, _| Ok(()))?;
-            self.add(Stream::Motion, r);
-        }
-        if let Some(s) = &subs.activity {
-            let r = drain_one(s, |h| h.preamble.is_end_of_stream(), |_, _| Ok(()))?;
-            self.add(Stream::Activity, r);
-        }
-        if let Some(s) = &subs.events {
-            let camera = &self.camera;
-            let out = &mut self.events_out;
-            let finished = &mut self.finished_events;
-            let r = drain_one(
-                s,
-                |h| h.preamble.is_end_of_stream(),
-                |h, blocks| {
-                    if h.phase != EventPhase::End as u32 {
-                        return Ok(());
-                    }
-                    *finished += 1;
-                    let line = json!({
-                        "camera": camera,
-                        "event_id": h.event_id,
-                        "zone": h.zone_name(),
-                        "kind": ActivityKind::from_u32(h.kind).map(|k| k.name()).unwrap_or("?"),
-                        "start": format_rfc3339(h.start_ns),
-                        "end": format_rfc3339(h.end_ns),
-                        "start_frame": h.start_frame,
-                        "end_frame": h.end_frame,
-                        "peak": h.peak,
-                        "threshold": h.threshold,
-                        "blocks": blocks,
-                    });
-                    writeln!(out, "{line}")?;
-                    Ok(())
-                },
-            )?;
-            self.add(Stream::Events, r);
-        }
-        if let Some(s) = &subs.detections {
-            let camera = &self.camera;
-            let out = &mut self.detections_out;
-            let (mut final_counters, mut last_counters) = (None, None);
-            let r = drain_one(
-                s,
-                |h| {
-                    // The end of stream carries the gate's final counters.
-                    let end = h.preamble.is_end_of_stream();
-                    if end {
-                        final_counters = Some(gate_summary(h));
-                    }
-                    end
-                },
-                |h, dets| {
-                    let line = json!({
-                        "camera": camera,
-                        "event_id": h.event_id,
-                        "frame": h.source_index,
-                        "capture_time": format_rfc3339(h.preamble.capture_time_ns),
-                        "detector_ms": h.detector_us as f64 / 1e3,
-                        "searched": [h.roi_x, h.roi_y, h.roi_w, h.roi_h],
-                        "detections": dets.iter().map(|d| json!({
-                            "x": d.x, "y": d.y, "w": d.w, "h": d.h, "score": d.score, "class": d.class
-                        })).collect::<Vec<_>>(),
-                    });
-                    writeln!(out, "{line}")?;
-                    last_counters = Some(gate_summary(h));
-                    Ok(())
-                },
-            )?;
-            if let Some(summary) = final_counters.or(last_counters) {
-                self.gate = summary;
-            }
-            self.add(Stream::Detections, r);
-        }
-        Ok(())
-    }
-
-    fn all_ended(&self) -> bool {
-        self.ended.values().all(|e| *e)
-    }
-
-    /// Counts per stream, with events counted as finished events.
-    fn counts(&self) -> Vec<(&'static str, u64)> {
-        Stream::ALL
-            .iter()
-            .map(|s| {
-                let n = if *s == Stream::Events {
-                    self.finished_events
-                } else {
-                    self.counts[s]
-                };
-                (s.name(), n)
-            })
-            .collect()
-    }
-
-    fn total(&self) -> u64 {
-        self.counts.values().sum()
-    }
-
-    fn counts_line(&self) -> String {
-        self.counts()
-            .iter()
-            .map(|(k, v)| format!("{k}={v}"))
-            .collect::<Vec<_>>()
-            .join(" ")
-    }
-
-    /// Writes `summary.json`; `input` is capture's account of the file (see
-    /// [`InputCompleteness`]), if it gave one.
-    fn finish(
-        &mut self,
-        out: &Path,
-        video: &Path,
-        wall: Duration,
-        input: Option<InputCompleteness>,
-    ) -> anyhow::Result<()> {
-        self.events_out.flush()?;
-        self.detections_out.flush()?;
-        let counts: serde_json::Map<String, serde_json::Value> = self
-            .counts()
-            .into_iter()
-            .map(|(k, v)| (k.to_string(), json!(v)))
-            .collect();
-        let frames = self.counts[&Stream::Frames];
-        let summary = json!({
-            "video": video,
-            "camera": self.camera,
-            "counts": counts,
-            "wall_time_s": wall.as_secs_f64(),
-            "frames_per_s": frames as f64 / wall.as_secs_f64().max(1e-9),
-            "gate": self.gate,
-            "input": match input {
-                Some(i) => json!({
-                    "frames_stated": (i.frames_stated > 0).then_some(i.frames_stated),
-                    "frames_read": i.frames_read,
-                    "truncated": i.truncated,
-                }),
-                // Capture said nothing (it did not end on the file): unknown.
-                None => json!({
-                    "frames_stated": null,
-                    "frames_read": frames,
-                    "truncated": null,
-                }),
-            },
-        });
-        let path = out.join("summary.json");
-        std::fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n")
-            .with_context(|| format!("writing {}", path.display()))?;
-        Ok(())
-    }
+        .collect())
 }

@@ -118,11 +118,11 @@ impl RosNode {
                 DomainParticipantSecurityConfigFiles::with_ros_default_names(dir, String::new()),
             );
         }
-        let participant = builder.build().map_err(|e| dds(format!("{e:?}")))?;
+        let participant = builder.build().map_err(|e| dds(format!("{e}")))?;
         let context =
-            Context::from_domain_participant(participant).map_err(|e| dds(format!("{e:?}")))?;
-        let node_name = NodeName::new("/isochron", name)
-            .map_err(|e| dds(format!("node name {name}: {e:?}")))?;
+            Context::from_domain_participant(participant).map_err(|e| dds(format!("{e}")))?;
+        let node_name =
+            NodeName::new("/isochron", name).map_err(|e| dds(format!("node name {name}: {e}")))?;
         let mut node = context
             .new_node(
                 node_name.clone(),
@@ -130,7 +130,7 @@ impl RosNode {
                     .enable_rosout(false)
                     .start_parameter_services(false),
             )
-            .map_err(|e| dds(format!("creating the node: {e:?}")))?;
+            .map_err(|e| dds(format!("creating the node: {e}")))?;
         // The spinner keeps the node visible in the ROS graph (`ros2 node list`) and
         // answers its discovery traffic; it ends when the node is dropped.
         let spinner = match node.spinner() {
@@ -141,7 +141,7 @@ impl RosNode {
                 })
                 .ok(),
             Err(e) => {
-                tracing::warn!("ROS 2 spinner not started: {e:?}");
+                tracing::warn!("ROS 2 spinner not started: {e}");
                 None
             }
         };
@@ -198,7 +198,7 @@ impl RosNode {
                 qos,
                 TopicKind::NoKey,
             )
-            .map_err(|e| self.error(format!("creating topic {name}: {e:?}")))
+            .map_err(|e| self.error(format!("creating topic {name}: {e}")))
     }
 }
 

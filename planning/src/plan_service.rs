@@ -56,10 +56,10 @@ pub enum RequestError {
 
 type Factory = PortFactory<Ipc2, PlanRequest, (), PlanResponse, ()>;
 
-fn err(context: &str, e: impl std::fmt::Debug) -> IpcError {
+fn err(context: &str, e: impl std::fmt::Display) -> IpcError {
     IpcError {
         context: context.to_string(),
-        detail: format!("{e:?}"),
+        detail: format!("{e}"),
     }
 }
 
@@ -164,7 +164,7 @@ impl PlanServer {
                 }
             };
             if let Err(e) = active.send_copy(response) {
-                tracing::warn!("a plan response could not be sent (client gone?): {e:?}");
+                tracing::warn!("a plan response could not be sent (client gone?): {e}");
             }
             n += 1;
         }
@@ -215,12 +215,12 @@ impl PlanClient {
         let pending = self
             .client
             .send_copy(request)
-            .map_err(|e| RequestError::Send(format!("{e:?}")))?;
+            .map_err(|e| RequestError::Send(format!("{e}")))?;
         let _ = self.notifier.notify();
         loop {
             if let Some(response) = pending
                 .receive()
-                .map_err(|e| RequestError::Receive(format!("{e:?}")))?
+                .map_err(|e| RequestError::Receive(format!("{e}")))?
             {
                 let response = *response.payload();
                 response.validate().map_err(RequestError::Malformed)?;

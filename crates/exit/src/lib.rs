@@ -6,6 +6,11 @@
 //! into a [`Fatal`] with `?` (the blanket `From`), so no call site chooses an exit
 //! code by hand. A supervisor must not restart a service that exits with a
 //! permanent code ([`is_permanent`]): the same input would fail the same way.
+//!
+//! A [`Fatal`] keeps the error it was made from as its cause (`source()`), so the
+//! chain reaches the end of the process intact: the exit code is read from it
+//! ([`code_of_chain`]) and the last log line shows all of it (`{:#}`, or
+//! [`chain`] for any error: `context: error: cause`).
 
 /// A check failed or the command could not do its work (`doctor` found a
 /// problem, an error no other code describes).
@@ -43,44 +48,124 @@ pub trait Classify: std::fmt::Display {
     }
 }
 
-/// A failure that ends the process with `code` after logging `message`.
-#[derive(Debug)]
+/// A failure that ends the process with `code`, keeping what caused it.
+///
+/// Its `Display` is its own message (`{}`), or the whole chain of causes with
+/// the alternate flag (`{:#}`: `context: message: cause: ...`), which is how a
+/// process logs the failure it ends with. [`std::error::Error::source`] gives
+/// the causes, so [`code_of_chain`], `anyhow`'s `{:#}` and a debugger see the
+/// library errors themselves, not strings made of them.
 pub struct Fatal {
     /// Exit code (one of this module's constants).
     pub code: i32,
-    /// What went wrong and what to do.
-    pub message: String,
+    /// Its own message; `None` when it is the `error` it was made from
+    /// ([`From`]: then it displays as that error and its causes are that
+    /// error's causes).
+    message: Option<String>,
+    /// What caused it.
+    error: Option<Box<dyn std::error::Error + Send + Sync + 'static>>,
 }
 
 impl Fatal {
-    /// A failure with `code`.
+    /// A failure with `code`, caused by nothing else: `message` says what went
+    /// wrong and what to do.
     pub fn new(code: i32, message: impl Into<String>) -> Self {
         Fatal {
             code,
-            message: message.into(),
+            message: Some(message.into()),
+            error: None,
         }
     }
 
-    /// The same failure with `context` before its message (`context: message`).
+    /// A failure with `code` that `message` describes, caused by `source` (shown
+    /// after it in the chain: `message: source`).
+    pub fn with_source(
+        code: i32,
+        message: impl Into<String>,
+        source: impl Into<Box<dyn std::error::Error + Send + Sync + 'static>>,
+    ) -> Self {
+        Fatal {
+            code,
+            message: Some(message.into()),
+            error: Some(source.into()),
+        }
+    }
+
+    /// The same failure (same code) with `context` before it: displayed as
+    /// `context`, the failure becomes its source (`{:#}`: `context: failure`).
     pub fn context(self, context: impl std::fmt::Display) -> Self {
-        Fatal::new(self.code, format!("{context}: {}", self.message))
+        let code = self.code;
+        Fatal::with_source(code, context.to_string(), self)
+    }
+
+    /// The whole chain as one line: `message: cause: cause ...` (what `{:#}`
+    /// prints).
+    pub fn chain(&self) -> String {
+        format!("{self:#}")
+    }
+}
+
+impl std::fmt::Debug for Fatal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Fatal({}, {self:#})", self.code)
     }
 }
 
 impl std::fmt::Display for Fatal {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.message)
+        match (&self.message, &self.error) {
+            (Some(message), _) => f.write_str(message)?,
+            (None, Some(error)) => write!(f, "{error}")?,
+            (None, None) => {}
+        }
+        if f.alternate() {
+            let mut cause = std::error::Error::source(self);
+            while let Some(c) = cause {
+                write!(f, ": {c}")?;
+                cause = c.source();
+            }
+        }
+        Ok(())
     }
 }
 
 /// So a command can pass a stage's failure on with `?`; [`code_of_chain`] keeps
-/// its code.
-impl std::error::Error for Fatal {}
-
-impl<E: Classify> From<E> for Fatal {
-    fn from(e: E) -> Self {
-        Fatal::new(e.exit_code(), e.to_string())
+/// its code, and the causes stay reachable through `source()`.
+impl std::error::Error for Fatal {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        let error = self.error.as_deref()?;
+        if self.message.is_some() {
+            Some(error)
+        } else {
+            // It displays as `error`: its causes are `error`'s.
+            error.source()
+        }
     }
+}
+
+/// A library error ends the process with the code it classifies itself with,
+/// and stays the failure's cause (not a string made of it).
+impl<E: Classify + std::error::Error + Send + Sync + 'static> From<E> for Fatal {
+    fn from(e: E) -> Self {
+        Fatal {
+            code: e.exit_code(),
+            message: None,
+            error: Some(Box::new(e)),
+        }
+    }
+}
+
+/// The chain of `error` and its causes as one line, `error: cause: cause ...`:
+/// how a log line or a message shows an error (`anyhow`'s `{:#}` for any error).
+pub fn chain(error: &(dyn std::error::Error + 'static)) -> String {
+    let mut line = error.to_string();
+    let mut cause = error.source();
+    while let Some(c) = cause {
+        line.push_str(": ");
+        line.push_str(&c.to_string());
+        cause = c.source();
+    }
+    line
 }
 
 /// A bad command line found after parsing (a value out of range): exit code
@@ -167,10 +252,70 @@ mod tests {
     fn library_errors_become_fatal_with_their_code() {
         let f: Fatal = Gone.into();
         assert_eq!(f.code, UNAVAILABLE);
-        assert_eq!(f.message, "the disk is gone");
+        assert_eq!(f.to_string(), "the disk is gone");
+        let f = f.context("camera 'a'");
+        assert_eq!(f.code, UNAVAILABLE);
+        assert_eq!(f.to_string(), "camera 'a'");
+        assert_eq!(f.chain(), "camera 'a': the disk is gone");
+    }
+
+    /// An error with a cause, as a library's error wrapping an I/O error.
+    #[derive(Debug, thiserror::Error)]
+    #[error("writing the store")]
+    struct Store(#[source] std::io::Error);
+    always_exits_with!(UNAVAILABLE: Store;);
+
+    #[test]
+    fn a_fatal_keeps_the_chain_of_what_caused_it() {
+        let io = std::io::Error::new(std::io::ErrorKind::StorageFull, "no space left");
+        let f: Fatal = Store(io).into();
+        let f = f.context("cam01");
+        assert_eq!(format!("{f}"), "cam01");
+        assert_eq!(format!("{f:#}"), "cam01: writing the store: no space left");
+        // The causes are the errors themselves, not strings made of them.
+        let mut causes = Vec::new();
+        let mut cause = std::error::Error::source(&f);
+        while let Some(c) = cause {
+            causes.push(c);
+            cause = c.source();
+        }
         assert_eq!(
-            f.context("camera 'a'").message,
-            "camera 'a': the disk is gone"
+            causes.len(),
+            2,
+            "the Fatal made from Store, then the I/O error"
         );
+        let io = causes[1]
+            .downcast_ref::<std::io::Error>()
+            .expect("an io::Error");
+        assert_eq!(io.kind(), std::io::ErrorKind::StorageFull);
+        // anyhow renders it the same way, and the exit code still comes through.
+        let e = anyhow::Error::from(f).context("isochron replay");
+        assert_eq!(
+            format!("{e:#}"),
+            "isochron replay: cam01: writing the store: no space left"
+        );
+        let none = |_: &(dyn std::error::Error + 'static)| None;
+        let chain = e.chain().map(|c| c as &(dyn std::error::Error + 'static));
+        assert_eq!(code_of_chain(chain, none), UNAVAILABLE);
+        assert_eq!(
+            chain_line(&Store(std::io::Error::other("gone"))),
+            "writing the store: gone"
+        );
+    }
+
+    fn chain_line(e: &(dyn std::error::Error + 'static)) -> String {
+        chain(e)
+    }
+
+    #[test]
+    fn a_fatal_with_a_source_shows_it_after_its_message() {
+        let f = Fatal::with_source(
+            CONFIG,
+            "site.toml",
+            std::io::Error::other("permission denied"),
+        );
+        assert_eq!(f.to_string(), "site.toml");
+        assert_eq!(f.chain(), "site.toml: permission denied");
+        assert_eq!(Fatal::new(DATA, "bad").chain(), "bad");
     }
 }

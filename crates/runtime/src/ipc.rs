@@ -81,11 +81,11 @@ pub struct IpcError {
     pub detail: String,
 }
 
-fn err(context: impl Into<String>) -> impl FnOnce(&dyn Debug) -> IpcError {
+fn err(context: impl Into<String>) -> impl FnOnce(&dyn std::fmt::Display) -> IpcError {
     let context = context.into();
     move |e| IpcError {
         context,
-        detail: format!("{e:?}"),
+        detail: format!("{e}"),
     }
 }
 

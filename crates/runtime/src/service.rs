@@ -180,10 +180,10 @@ fn run_threads(
                     let result = context(stage, loaded, Some(cam)).and_then(run);
                     match &result {
                         Err(f) if exit::is_permanent(f.code) => {
-                            tracing::error!("this camera stops: {}", f.message);
+                            tracing::error!("this camera stops: {f:#}");
                         }
                         Err(f) => {
-                            tracing::error!("{}; stopping the process", f.message);
+                            tracing::error!("{f:#}; stopping the process");
                             crate::ipc::request_stop();
                         }
                         Ok(()) => {}
@@ -218,7 +218,7 @@ fn run_threads(
                 Some(prev) => exit::is_permanent(prev.code) && !exit::is_permanent(f.code),
             };
             if replace {
-                first_failure = Some(Fatal::new(f.code, format!("camera '{id}': {}", f.message)));
+                first_failure = Some(f.context(format!("camera '{id}'")));
             }
         }
     }
@@ -257,7 +257,8 @@ pub fn finish(stage: StageKind, result: Result<(), Fatal>) -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(fatal) => {
-            tracing::error!("{}", fatal.message);
+            // The whole chain: what failed and every cause under it.
+            tracing::error!("{fatal:#}");
             ExitCode::from(fatal.code as u8)
         }
     }

@@ -5,8 +5,11 @@
 //!   for files so recordings replay on a simulated clock;
 //! * [`Pacer`]: real-time (or `speed`×) pacing of file playback;
 //! * [`Backoff`]: exponential reconnect delays for sources that drop out;
-//! * [`stage`]: the service loop (source → `frames`), paced, stoppable.
+//! * [`stage`]: the capture stage (source → `frames`), a source stage of the
+//!   runtime: pacing, reconnect backoff and loan retries are its alarms;
+//! * [`camera`]: the service's `run`: the stage of a configured camera.
 
+pub mod camera;
 pub mod source;
 pub mod stage;
 
@@ -56,14 +59,17 @@ impl Pacer {
         }
     }
 
+    /// When frame `index` is due: `t0 + index / (fps × speed)`; `None` unpaced
+    /// (every frame is due at once).
+    pub fn due(&self, index: u64) -> Option<Instant> {
+        self.period.map(|p| self.t0 + p.mul_f64(index as f64))
+    }
+
     /// How long to wait before frame `index` is due (zero if late or unpaced).
     pub fn wait_for(&self, index: u64) -> Duration {
-        match self.period {
-            None => Duration::ZERO,
-            Some(p) => {
-                (self.t0 + p.mul_f64(index as f64)).saturating_duration_since(Instant::now())
-            }
-        }
+        self.due(index).map_or(Duration::ZERO, |due| {
+            due.saturating_duration_since(Instant::now())
+        })
     }
 }
 

@@ -4,13 +4,18 @@
 //! own, then converts it (colour, then size) or copies it into a caller's buffer —
 //! the loaned shared-memory sample: one write into shared memory per frame, where
 //! every consumer reads it in place.
+//!
+//! The capture stage reads any [`FrameSource`]: a decoder ([`VideoSource`]),
+//! frames preloaded into memory ([`PreloadedSource`]), or frames a test made.
 
+use std::mem::MaybeUninit;
 use std::path::PathBuf;
 use std::sync::Arc;
 
 use parking_lot::Mutex;
 
 use isochron_config::SourceKind;
+use isochron_runtime::health::InputCompleteness;
 use isochron_wire::PixelFormat;
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
@@ -37,6 +42,14 @@ pub enum SourceError {
     /// OpenCV failed.
     #[error("OpenCV: {0}")]
     OpenCv(#[from] opencv::Error),
+    /// A buffer that does not hold one frame (a bug).
+    #[error("a buffer of {got} bytes cannot hold a frame of {expected} bytes")]
+    FrameBuffer {
+        /// The frame's size.
+        expected: usize,
+        /// The buffer's size.
+        got: usize,
+    },
 }
 
 impl isochron_exit::Classify for SourceError {
@@ -46,6 +59,7 @@ impl isochron_exit::Classify for SourceError {
         match self {
             SourceError::Missing(_) => exit::NO_INPUT,
             SourceError::Undecodable(_) => exit::DATA,
+            SourceError::FrameBuffer { .. } => exit::SOFTWARE,
             _ => exit::UNAVAILABLE,
         }
     }
@@ -60,6 +74,71 @@ pub enum ReadOutcome {
     EndOfFile,
     /// A live source stopped delivering.
     Lost,
+}
+
+/// The size and pixel format of the frames capture publishes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FrameFormat {
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// Pixel layout.
+    pub format: PixelFormat,
+}
+
+impl FrameFormat {
+    /// Bytes of one frame (packed rows).
+    pub fn bytes(&self) -> usize {
+        self.width as usize * self.height as usize * self.format.channels()
+    }
+
+    /// Bytes of one row.
+    pub fn stride(&self) -> u32 {
+        self.width * self.format.channels() as u32
+    }
+
+    /// `Ok` if `dst` holds exactly one frame.
+    fn check(&self, dst: &[MaybeUninit<u8>]) -> Result<(), SourceError> {
+        if dst.len() == self.bytes() {
+            Ok(())
+        } else {
+            Err(SourceError::FrameBuffer {
+                expected: self.bytes(),
+                got: dst.len(),
+            })
+        }
+    }
+}
+
+/// Where the capture stage's frames come from.
+pub trait FrameSource {
+    /// Width and height the source decodes to, if it says.
+    fn native_size(&mut self) -> Result<Option<(u32, u32)>, SourceError> {
+        Ok(None)
+    }
+
+    /// Frame rate the source states (0 if unknown).
+    fn stated_fps(&self) -> f64 {
+        0.0
+    }
+
+    /// Source index of the frame the next read returns.
+    fn next_index(&self) -> u64;
+
+    /// Reads the next frame into `dst`, which holds one frame of `frame`. On
+    /// [`ReadOutcome::Frame`] every byte of `dst` has been written.
+    fn read_frame(
+        &mut self,
+        dst: &mut [MaybeUninit<u8>],
+        frame: FrameFormat,
+    ) -> Result<ReadOutcome, SourceError>;
+
+    /// For a file that ended: how much of it was read against the frame count
+    /// it states. `None` for a source that does not end (live, preloaded).
+    fn completeness(&self) -> Option<InputCompleteness> {
+        None
+    }
 }
 
 /// An opened video source.
@@ -258,6 +337,44 @@ impl VideoSource {
     }
 }
 
+impl FrameSource for VideoSource {
+    fn native_size(&mut self) -> Result<Option<(u32, u32)>, SourceError> {
+        VideoSource::native_size(self)
+    }
+
+    fn stated_fps(&self) -> f64 {
+        VideoSource::stated_fps(self)
+    }
+
+    fn next_index(&self) -> u64 {
+        self.position()
+    }
+
+    fn read_frame(
+        &mut self,
+        dst: &mut [MaybeUninit<u8>],
+        frame: FrameFormat,
+    ) -> Result<ReadOutcome, SourceError> {
+        frame.check(dst)?;
+        // SAFETY: `dst` holds exactly width × height × channels bytes (checked
+        // above), and `MaybeUninit<u8>` has the layout of `u8`.
+        unsafe {
+            self.read_into(
+                dst.as_mut_ptr().cast(),
+                frame.width,
+                frame.height,
+                frame.format,
+            )
+        }
+    }
+
+    fn completeness(&self) -> Option<InputCompleteness> {
+        self.kind
+            .is_file()
+            .then(|| InputCompleteness::of(self.position(), self.stated_frame_count()))
+    }
+}
+
 /// The colour conversion from `channels` decoded channels to `format`.
 fn conversion(channels: i32, format: PixelFormat) -> i32 {
     match (channels, format) {
@@ -387,5 +504,33 @@ impl PreloadedSource {
         unsafe { std::ptr::copy_nonoverlapping(frame.as_ptr(), dst, frame.len()) };
         self.next = (self.next + 1) % self.frames.len();
         ReadOutcome::Frame
+    }
+}
+
+impl FrameSource for PreloadedSource {
+    fn stated_fps(&self) -> f64 {
+        self.fps
+    }
+
+    fn next_index(&self) -> u64 {
+        PreloadedSource::next_index(self)
+    }
+
+    fn read_frame(
+        &mut self,
+        dst: &mut [MaybeUninit<u8>],
+        frame: FrameFormat,
+    ) -> Result<ReadOutcome, SourceError> {
+        frame.check(dst)?;
+        let stored = self.frames[self.next].len();
+        if stored != dst.len() {
+            return Err(SourceError::FrameBuffer {
+                expected: stored,
+                got: dst.len(),
+            });
+        }
+        // SAFETY: `dst` holds exactly the bytes of one preloaded frame (checked
+        // above), and `MaybeUninit<u8>` has the layout of `u8`.
+        Ok(unsafe { self.read_into(dst.as_mut_ptr().cast()) })
     }
 }

@@ -1,359 +1,442 @@
-//! The capture stage: a camera or file in, `frames` out. It has no input stream,
-//! so it paces itself (file clock, reconnect backoff) instead of waiting on a
-//! WaitSet; stop requests end its sleeps early.
+//! The capture stage: a camera or file in, `frames` out — a source stage of the
+//! runtime ([`isochron_runtime::stage`]): it has no input and produces on its
+//! alarms, so all its waiting is the runtime's:
+//!
+//! * a file's frame `i` is due at `t0 + i / (fps × speed)`: the alarm is set
+//!   for it (`speed = "max"`, and a live camera: at once, the read blocks in
+//!   OpenCV until the source delivers — that is the stage's work, not a wait);
+//! * a live source that cannot be opened, or drops out, is opened again with
+//!   exponential backoff ([`Backoff`]): an alarm per attempt;
+//! * a frame that finds no sample to loan (subscribers hold them all) is counted
+//!   as dropped and read again [`LOAN_RETRY`] later: an alarm.
+//!
+//! A file ends with its last status report (with how much of it was read,
+//! [`InputCompleteness`]) and then an end of stream; a looped one starts again.
 
+use std::mem::MaybeUninit;
 use std::time::{Duration, Instant};
 
-use isochron_config::clock::{format_rfc3339, parse_rfc3339, wall_now_ns};
-use isochron_config::{SourceKind, Speed};
+use isochron_config::Speed;
+use isochron_config::clock::{format_rfc3339, wall_now_ns};
 use isochron_exit::{self as exit, Fatal};
-use isochron_runtime::health::{Health, InputCompleteness, notify_ready};
-use isochron_runtime::ipc::{Frames, Ipc, StreamPublisher};
-use isochron_runtime::service::ServiceContext;
+use isochron_runtime::health::InputCompleteness;
+use isochron_runtime::ipc::Frames;
+use isochron_runtime::stage::{Context, Output, SendError, Stage, Woken};
 use isochron_runtime::topology::StageKind;
-use isochron_wire::{
-    CameraId, FLAG_DISCONTINUITY, FLAG_END_OF_STREAM, FrameHeader, Preamble, Stream,
-};
+use isochron_wire::{FLAG_DISCONTINUITY, FrameHeader, PixelFormat, Preamble};
 
-use crate::source::{PreloadedSource, ReadOutcome, SourceError, VideoSource};
+use crate::source::{FrameFormat, FrameSource, ReadOutcome, SourceError};
 use crate::{Backoff, Pacer, Rescale, Stamper, rescale};
 
-/// Reads the camera of `ctx` and publishes its frames until the file ends or the
-/// process is asked to stop.
-pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
-    let cam = ctx.camera().clone();
-    let kind = cam.source_kind(&ctx.config.base_dir());
-    let mut backoff = Backoff::new(
-        Duration::from_secs_f64(cam.reconnect_initial_s),
-        Duration::from_secs_f64(cam.reconnect_max_s),
-    );
-    let mut health = Health::new(StageKind::Capture, &cam.id, Some(&ctx.ipc));
-    if !kind.is_file() {
-        // A camera may be unreachable for long: the service is up (its status says
-        // so) and feeds the watchdog while it backs off, instead of being killed
-        // as a service that never started.
-        notify_ready(&format!("capturing {}", cam.id));
-    }
-    let mut waiting = || health.tick(|| "source unavailable".into());
-    let Some(mut source) = open_source(&kind, &mut backoff, &ctx.ipc, &mut waiting)? else {
-        return Ok(());
-    };
+/// How long a frame that found no sample to loan waits before it is read again.
+pub const LOAN_RETRY: Duration = Duration::from_millis(5);
 
-    let native = source.native_size()?;
-    let (width, height) = match (cam.width, cam.height) {
-        (Some(w), Some(h)) => (w, h),
-        _ => native.ok_or_else(|| {
+/// What the config says about the camera, as the stage needs it.
+#[derive(Debug, Clone)]
+pub struct Settings {
+    /// The camera's id.
+    pub camera: String,
+    /// The source is a file (it ends, is paced, and failing to open it is
+    /// permanent) rather than a live camera.
+    pub is_file: bool,
+    /// A file starts again from its first frame when it ends (`loop`).
+    pub loop_file: bool,
+    /// Width and height from the config, if both are set (else the source's).
+    pub size: Option<(u32, u32)>,
+    /// Pixel format published.
+    pub format: PixelFormat,
+    /// Frame rate from the config, if set (else the one the source states).
+    pub fps: Option<f64>,
+    /// Playback speed of a file (`max`: as fast as the readers allow).
+    pub speed: Speed,
+    /// Capture time of a file's first frame, UTC ns (`None`: now).
+    pub start_ns: Option<i64>,
+    /// Delays between attempts to open a live source.
+    pub backoff: Backoff,
+}
+
+/// Opens the camera's source: a live one (again, after it dropped out), or a
+/// looped file for its next pass, from its first frame.
+pub type Opener = Box<dyn FnMut() -> Result<Box<dyn FrameSource>, SourceError>>;
+
+/// How the source is played, decided when it first opens.
+#[derive(Debug, Clone)]
+pub struct Playback {
+    /// The frames published.
+    pub frame: FrameFormat,
+    /// The frame rate (configured, or the source's).
+    pub fps: f64,
+    stamper: Stamper,
+    pacer: Pacer,
+}
+
+impl Playback {
+    /// The playback of `source` as `settings` ask: the configured size (or the
+    /// source's, logged if rescaled), the configured frame rate (or the file's),
+    /// the file clock. Fails (with [`exit::CONFIG`]) if the size or a file's
+    /// frame rate is known to neither.
+    pub fn of(settings: &Settings, source: &mut dyn FrameSource) -> Result<Self, Fatal> {
+        let camera = &settings.camera;
+        let native = source.native_size()?;
+        let (width, height) = settings.size.or(native).ok_or_else(|| {
             Fatal::new(
                 exit::CONFIG,
                 format!(
-                    "camera '{}': the source does not report its frame size; set width and height in the config",
-                    cam.id
+                    "camera '{camera}': the source does not report its frame size; set width and height in the config"
                 ),
             )
-        })?,
-    };
-    if let Some(native) = native {
-        match rescale(&cam.id, native, (width, height)) {
-            Rescale::None => {}
-            Rescale::SameAspect(line) => tracing::info!("{line}"),
-            Rescale::Stretched(line) => tracing::warn!("{line}"),
-        }
-    }
-    let format = cam.format();
-    let frame_bytes = width as usize * height as usize * format.channels();
-    let camera_id = CameraId::new(&cam.id).expect("validated camera id");
-
-    let is_file = kind.is_file();
-    let fps = cam.fps.unwrap_or_else(|| source.stated_fps());
-    let mut source = match cam.preload_frames {
-        None => {
-            source.seek(cam.start_frame)?;
-            Source::Video(source)
-        }
-        Some(n) => {
-            let preloaded =
-                PreloadedSource::load(&kind, n, width, height, format)?.start_at(cam.start_frame);
-            tracing::info!(
-                "preloaded {} frames: publishing them in a loop, no decoding",
-                preloaded.len()
-            );
-            Source::Preloaded(preloaded)
-        }
-    };
-    if is_file && (fps.is_nan() || fps <= 0.0) {
-        return Err(Fatal::new(
-            exit::CONFIG,
-            format!(
-                "camera '{}': the file states no frame rate; set fps in the config",
-                cam.id
-            ),
-        ));
-    }
-    let stamper = if is_file {
-        let start_ns = match &cam.start {
-            Some(s) => parse_rfc3339(s).expect("validated start time"),
-            None => wall_now_ns(),
-        };
-        Stamper::File { start_ns, fps }
-    } else {
-        Stamper::Wall
-    };
-    let pacer = Pacer::new(
-        fps.max(1.0),
-        match cam.speed {
-            Speed::Max => None,
-            Speed::Factor(f) => Some(f),
-        },
-    );
-
-    let mut publisher = ctx.ipc.publisher::<Frames>(&cam.id, frame_bytes)?;
-    tracing::info!(
-        camera = %cam.id,
-        source = %cam.source,
-        "publishing {width}x{height} {format:?} frames at {fps:.2} fps (speed {}, {})",
-        cam.speed,
-        match &stamper {
-            Stamper::File { start_ns, .. } => format!("file clock from {}", format_rfc3339(*start_ns)),
-            Stamper::Wall => "wall clock".into(),
-        }
-    );
-    if kind.is_file() {
-        notify_ready(&format!("capturing {}", cam.id));
-    }
-
-    let mut index: u64 = 0; // frames published: the file clock's tick
-    let mut flags = 0u32;
-    let mut reconnects = 0u64;
-    let mut loops = 0u64;
-    let detail = |reconnects: u64, loops: u64, fps_src: f64| {
-        format!("reconnects={reconnects} loops={loops} source_fps={fps_src:.2}")
-    };
-    while !ctx.ipc.should_stop() {
-        health.tick(|| detail(reconnects, loops, fps));
-        if is_file {
-            let wait = pacer.wait_for(index);
-            if !wait.is_zero() {
-                sleep_unless_stopped(&ctx.ipc, wait, &mut || {});
-                continue;
+        })?;
+        if let Some(native) = native {
+            match rescale(camera, native, (width, height)) {
+                Rescale::None => {}
+                Rescale::SameAspect(line) => tracing::info!("{line}"),
+                Rescale::Stretched(line) => tracing::warn!("{line}"),
             }
         }
-        let mut sample = match publisher.loan(frame_bytes) {
-            Ok(s) => s,
-            Err(e) => {
-                // Every sample is held by subscribers: drop this frame, don't block.
-                tracing::debug!("frame dropped: {e}");
-                health.dropped(1);
-                std::thread::sleep(Duration::from_millis(5));
-                continue;
-            }
+        let fps = settings.fps.unwrap_or_else(|| source.stated_fps());
+        if settings.is_file && (fps.is_nan() || fps <= 0.0) {
+            return Err(Fatal::new(
+                exit::CONFIG,
+                format!("camera '{camera}': the file states no frame rate; set fps in the config"),
+            ));
+        }
+        let stamper = match settings.is_file {
+            true => Stamper::File {
+                start_ns: settings.start_ns.unwrap_or_else(wall_now_ns),
+                fps,
+            },
+            false => Stamper::Wall,
         };
-        let source_index = source.next_index();
-        // SAFETY: the loan holds exactly `frame_bytes` bytes.
-        let outcome = unsafe {
-            source.read_into(
-                sample.payload_mut().as_mut_ptr().cast(),
+        Ok(Playback {
+            frame: FrameFormat {
                 width,
                 height,
-                format,
-            )
-        };
-        match outcome {
-            Ok(ReadOutcome::Frame) => {
-                health.read_one();
-                let capture_time_ns = stamper.stamp(index);
-                let mut preamble = Preamble::new::<u8>(
-                    Stream::Frames,
-                    camera_id,
-                    publisher.next_sequence(),
-                    frame_bytes,
-                );
-                preamble.capture_time_ns = capture_time_ns;
-                preamble.origin_wall_ns = wall_now_ns();
-                preamble.flags = std::mem::take(&mut flags);
-                *sample.user_header_mut() = FrameHeader {
-                    preamble,
-                    width,
-                    height,
-                    stride: width * format.channels() as u32,
-                    pixel_format: format as u32,
-                    source_index,
-                };
-                // SAFETY: read_into wrote every byte of the frame.
-                let sample = unsafe { sample.assume_init() };
-                publisher.send(sample)?;
-                health.sent(None, preamble.origin_wall_ns);
-                index += 1;
-            }
-            Ok(ReadOutcome::EndOfFile) => {
-                drop(sample);
-                let input = source.check_complete();
-                if cam.loop_file {
-                    loops += 1;
-                    source = Source::Video(VideoSource::open(&kind)?);
-                    continue;
-                }
-                // The final status (with the input's completeness) before the end of
-                // stream: a reader that sees the end (replay) has the status too.
-                health.report(final_detail(detail(reconnects, loops, fps), input));
-                send_end_of_stream(&mut publisher, camera_id, stamper.stamp(index))?;
-                tracing::info!("end of file after {index} frames; end of stream signalled");
-                return Ok(());
-            }
-            Ok(ReadOutcome::Lost) | Err(_) if !is_file => {
-                drop(sample);
-                if let Err(e) = outcome {
-                    tracing::warn!("camera '{}' failed: {e}", cam.id);
-                }
-                tracing::warn!(
-                    "camera '{}' stopped delivering frames; reconnecting",
-                    cam.id
-                );
-                backoff.reset();
-                let mut keep_alive = || health.tick(|| "source unavailable".into());
-                match open_source(&kind, &mut backoff, &ctx.ipc, &mut keep_alive)? {
-                    Some(s) => source = Source::Video(s),
-                    None => break,
-                }
-                reconnects += 1;
-                flags |= FLAG_DISCONTINUITY;
-            }
-            Ok(ReadOutcome::Lost) => unreachable!("file sources end, they are not lost"),
-            Err(e) => {
-                // A file that breaks mid-way: publish what was decodable, then end.
-                drop(sample);
-                tracing::warn!("decoding failed after {} frames: {e}", source.next_index());
-                let input = source.check_complete();
-                health.report(final_detail(detail(reconnects, loops, fps), input));
-                send_end_of_stream(&mut publisher, camera_id, stamper.stamp(index))?;
-                return Ok(());
-            }
-        }
+                format: settings.format,
+            },
+            fps,
+            stamper,
+            pacer: Pacer::new(
+                fps.max(1.0),
+                match settings.speed {
+                    Speed::Max => None,
+                    Speed::Factor(f) => Some(f),
+                },
+            ),
+        })
     }
-    health.report(detail(reconnects, loops, fps));
-    Ok(())
 }
 
-/// Opens the source. A file that is missing or undecodable is a permanent error; a
-/// live source is retried with exponential backoff until it opens or we are asked to
-/// stop (`Ok(None)`). `keep_alive` runs while waiting (the watchdog must know a
-/// camera that is reconnecting is not hung).
-fn open_source(
-    kind: &SourceKind,
-    backoff: &mut Backoff,
-    ipc: &Ipc,
-    keep_alive: &mut dyn FnMut(),
-) -> Result<Option<VideoSource>, Fatal> {
-    loop {
-        match VideoSource::open(kind) {
-            Ok(source) => return Ok(Some(source)),
-            Err(e) if kind.is_file() => return Err(e.into()),
+/// Why a read sent no frame.
+enum NotSent {
+    /// The source ended (a file) or stopped delivering (a live camera).
+    Ended,
+    /// The source failed.
+    Failed(SourceError),
+}
+
+/// The capture of one camera.
+pub struct CaptureStage<'ipc> {
+    settings: Settings,
+    open: Opener,
+    /// `None` while a live source is (re)connecting.
+    source: Option<Box<dyn FrameSource>>,
+    /// `None` until the source first opened.
+    playback: Option<Playback>,
+    output: Output<'ipc, Frames>,
+    backoff: Backoff,
+    /// Frames published: the file clock's tick.
+    index: u64,
+    /// Flags of the next frame (a discontinuity after a reconnect).
+    flags: u32,
+    reconnects: u64,
+    loops: u64,
+    /// How much of the file was read, once it ended.
+    input: Option<InputCompleteness>,
+    ended: bool,
+}
+
+impl<'ipc> CaptureStage<'ipc> {
+    /// A stage that opens its source on its first alarm (a live camera: it is
+    /// ready and reports `source unavailable` while it backs off).
+    pub fn connecting(settings: Settings, open: Opener, output: Output<'ipc, Frames>) -> Self {
+        CaptureStage {
+            backoff: settings.backoff.clone(),
+            settings,
+            open,
+            source: None,
+            playback: None,
+            output,
+            index: 0,
+            flags: 0,
+            reconnects: 0,
+            loops: 0,
+            input: None,
+            ended: false,
+        }
+    }
+
+    /// A stage that plays `source`, opened already (a file, decoded or
+    /// preloaded), as `playback` says; its publisher is created now.
+    pub fn playing(
+        settings: Settings,
+        open: Opener,
+        source: Box<dyn FrameSource>,
+        playback: Playback,
+        output: Output<'ipc, Frames>,
+    ) -> Result<Self, Fatal> {
+        let mut stage = CaptureStage::connecting(settings, open, output);
+        stage.start(source, playback)?;
+        Ok(stage)
+    }
+
+    /// Plays `source`: creates the publisher for its frames and says so.
+    fn start(&mut self, source: Box<dyn FrameSource>, playback: Playback) -> Result<(), Fatal> {
+        self.output.reserve(playback.frame.bytes())?;
+        let FrameFormat {
+            width,
+            height,
+            format,
+        } = playback.frame;
+        tracing::info!(
+            camera = %self.settings.camera,
+            "publishing {width}x{height} {format:?} frames at {:.2} fps (speed {}, {})",
+            playback.fps,
+            self.settings.speed,
+            match &playback.stamper {
+                Stamper::File { start_ns, .. } =>
+                    format!("file clock from {}", format_rfc3339(*start_ns)),
+                Stamper::Wall => "wall clock".into(),
+            }
+        );
+        self.playback = Some(playback);
+        self.source = Some(source);
+        Ok(())
+    }
+
+    /// Opens the live source (or a file at start): on success reading starts
+    /// at once; a live source that fails is tried again after the next backoff
+    /// delay; a file that fails ends the process (permanent).
+    fn connect(&mut self, cx: &mut Context) -> Result<(), Fatal> {
+        match (self.open)() {
+            Ok(mut source) => {
+                match self.playback.is_some() {
+                    true => {
+                        self.reconnects += 1;
+                        self.flags |= FLAG_DISCONTINUITY;
+                        self.source = Some(source);
+                    }
+                    false => {
+                        let playback = Playback::of(&self.settings, source.as_mut())?;
+                        self.start(source, playback)?;
+                    }
+                }
+                cx.alarm_at(Instant::now());
+                Ok(())
+            }
+            Err(e) if self.settings.is_file => Err(e.into()),
             Err(e) => {
-                let (delay, attempt) = backoff.next_delay();
+                let (delay, attempt) = self.backoff.next_delay();
                 tracing::warn!(
                     "{e}; attempt {attempt} failed, retrying in {:.1} s",
                     delay.as_secs_f64()
                 );
-                if !sleep_unless_stopped(ipc, delay, keep_alive) {
-                    return Ok(None);
-                }
+                cx.alarm_in(delay);
+                Ok(())
             }
         }
     }
-}
 
-/// Where frames come from: a decoder, or frames preloaded into memory.
-enum Source {
-    Video(VideoSource),
-    Preloaded(PreloadedSource),
-}
-
-impl Source {
-    /// Source index of the frame the next read returns.
-    fn next_index(&self) -> u64 {
-        match self {
-            Source::Video(v) => v.position(),
-            Source::Preloaded(p) => p.next_index(),
-        }
-    }
-
-    /// Reads the next frame into `dst` (see [`VideoSource::read_into`]).
-    ///
-    /// # Safety
-    /// `dst` must point to one frame of `width × height` `format`.
-    unsafe fn read_into(
-        &mut self,
-        dst: *mut u8,
-        width: u32,
-        height: u32,
-        format: isochron_wire::PixelFormat,
-    ) -> Result<ReadOutcome, SourceError> {
-        match self {
-            // SAFETY: forwarded from the caller.
-            Source::Video(v) => unsafe { v.read_into(dst, width, height, format) },
-            // SAFETY: forwarded from the caller.
-            Source::Preloaded(p) => Ok(unsafe { p.read_into(dst) }),
-        }
-    }
-
-    /// How much of the file was read, compared with what it states; warns when it
-    /// ended well before the frame count it states (truncated). `None` for a
-    /// preloaded source (it never ends).
-    fn check_complete(&self) -> Option<InputCompleteness> {
-        let Source::Video(v) = self else {
-            return None;
+    /// Reads the next frame into a loaned sample and publishes it, if it is due
+    /// (else sets the alarm for when it is); then sets the alarm for the next.
+    fn publish_next(&mut self, cx: &mut Context) -> Result<(), Fatal> {
+        let (Some(playback), Some(source)) = (&self.playback, &mut self.source) else {
+            return Ok(());
         };
-        let input = InputCompleteness::of(v.position(), v.stated_frame_count());
-        if input.truncated {
+        if self.settings.is_file
+            && let Some(due) = playback.pacer.due(self.index)
+            && due > Instant::now()
+        {
+            cx.alarm_at(due);
+            return Ok(());
+        }
+        let (frame, index, flags) = (playback.frame, self.index, self.flags);
+        let source_index = source.next_index();
+        let mut origin_wall_ns = 0;
+        let write = |dst: &mut [MaybeUninit<u8>]| match source.read_frame(dst, frame) {
+            Ok(ReadOutcome::Frame) => Ok(()),
+            Ok(ReadOutcome::EndOfFile | ReadOutcome::Lost) => Err(NotSent::Ended),
+            Err(e) => Err(NotSent::Failed(e)),
+        };
+        let header = |_: &(), mut preamble: Preamble| {
+            preamble.capture_time_ns = playback.stamper.stamp(index);
+            preamble.origin_wall_ns = wall_now_ns();
+            preamble.flags = flags;
+            origin_wall_ns = preamble.origin_wall_ns;
+            FrameHeader {
+                preamble,
+                width: frame.width,
+                height: frame.height,
+                stride: frame.stride(),
+                pixel_format: frame.format as u32,
+                source_index,
+            }
+        };
+        // SAFETY: `write` returns Ok only for ReadOutcome::Frame, when the source
+        // has written every byte of the frame.
+        let sent = unsafe {
+            self.output
+                .send_in_place(frame.bytes(), &Preamble::default(), write, header)
+        };
+        match sent {
+            Ok(()) => {
+                cx.health.read_one();
+                cx.health.sent(None, origin_wall_ns);
+                self.flags = 0;
+                self.index += 1;
+                self.next_alarm(cx);
+                Ok(())
+            }
+            Err(SendError::NoLoan(e)) => {
+                // Every sample is held by subscribers: drop this frame, don't block.
+                tracing::debug!("frame dropped: {e}");
+                cx.health.dropped(1);
+                cx.alarm_in(LOAN_RETRY);
+                Ok(())
+            }
+            Err(SendError::Failed(e)) => Err(e.into()),
+            Err(SendError::Write(not_sent)) if self.settings.is_file => {
+                self.file_ended(not_sent, cx)
+            }
+            Err(SendError::Write(not_sent)) => {
+                self.lost(not_sent, cx);
+                Ok(())
+            }
+        }
+    }
+
+    /// Sets the alarm for the next frame: when it is due (a paced file), else at
+    /// once.
+    fn next_alarm(&self, cx: &mut Context) {
+        let due = self
+            .playback
+            .as_ref()
+            .filter(|_| self.settings.is_file)
+            .and_then(|p| p.pacer.due(self.index));
+        cx.alarm_at(due.unwrap_or_else(Instant::now));
+    }
+
+    /// A live source stopped delivering: reconnects, first at once, then after
+    /// each backoff delay.
+    fn lost(&mut self, not_sent: NotSent, cx: &mut Context) {
+        if let NotSent::Failed(e) = not_sent {
+            tracing::warn!("camera '{}' failed: {e}", self.settings.camera);
+        }
+        tracing::warn!(
+            "camera '{}' stopped delivering frames; reconnecting",
+            self.settings.camera
+        );
+        self.source = None;
+        self.backoff.reset();
+        cx.alarm_at(Instant::now());
+    }
+
+    /// A file ended (or broke mid-way: what was decodable is published): starts
+    /// it again if looped, else ends the stream.
+    fn file_ended(&mut self, not_sent: NotSent, cx: &mut Context) -> Result<(), Fatal> {
+        let input = self.source.as_ref().and_then(|s| s.completeness());
+        if let Some(input) = input.filter(|i| i.truncated) {
             tracing::warn!(
                 "the file ended after {} of the {} frames it states: it is truncated or damaged",
                 input.frames_read,
                 input.frames_stated
             );
         }
-        Some(input)
-    }
-}
-
-/// Capture's last status detail: `detail`, then the input's completeness as
-/// `frames_read=N frames_stated=M truncated=true|false` (see
-/// [`InputCompleteness::from_detail`]).
-fn final_detail(detail: String, input: Option<InputCompleteness>) -> String {
-    match input {
-        Some(input) => format!("{detail} {}", input.to_detail()),
-        None => detail,
-    }
-}
-
-fn send_end_of_stream(
-    publisher: &mut StreamPublisher<Frames>,
-    camera: CameraId,
-    capture_time_ns: i64,
-) -> Result<(), Fatal> {
-    let mut preamble = Preamble::new::<u8>(Stream::Frames, camera, publisher.next_sequence(), 0);
-    preamble.capture_time_ns = capture_time_ns;
-    preamble.origin_wall_ns = wall_now_ns();
-    preamble.flags = FLAG_END_OF_STREAM;
-    let header = FrameHeader {
-        preamble,
-        ..Default::default()
-    };
-    publisher.send_copy(header, &[])?;
-    Ok(())
-}
-
-/// Sleeps `total`, waking early when asked to stop and every 100 ms to run
-/// `keep_alive`. Returns false if asked to stop.
-fn sleep_unless_stopped(ipc: &Ipc, total: Duration, keep_alive: &mut dyn FnMut()) -> bool {
-    let end = Instant::now() + total;
-    loop {
-        keep_alive();
-        if ipc.should_stop() {
-            return false;
+        match not_sent {
+            NotSent::Failed(e) => tracing::warn!(
+                "decoding failed after {} frames: {e}",
+                self.source.as_ref().map_or(0, |s| s.next_index())
+            ),
+            NotSent::Ended if self.settings.loop_file => {
+                self.loops += 1;
+                self.source = Some((self.open)()?);
+                cx.alarm_at(Instant::now());
+                return Ok(());
+            }
+            NotSent::Ended => {}
         }
-        let left = end.saturating_duration_since(Instant::now());
-        if left.is_zero() {
-            return true;
-        }
-        std::thread::sleep(left.min(Duration::from_millis(100)));
+        self.end_of_stream(input, cx)
+    }
+
+    /// Reports the final status (with `input`, how much of the file was read)
+    /// and then sends the end of stream: a reader that sees the end (replay) has
+    /// the status too.
+    fn end_of_stream(
+        &mut self,
+        input: Option<InputCompleteness>,
+        cx: &mut Context,
+    ) -> Result<(), Fatal> {
+        self.input = input;
+        self.ended = true;
+        cx.cancel_alarm();
+        cx.health.report(self.detail());
+        let capture_time_ns = self
+            .playback
+            .as_ref()
+            .map_or_else(wall_now_ns, |p| p.stamper.stamp(self.index));
+        let from = Preamble {
+            capture_time_ns,
+            origin_wall_ns: wall_now_ns(),
+            ..Preamble::default()
+        };
+        self.output.end_of_stream(&from, |_| {})?;
+        tracing::info!(
+            "end of file after {} frames; end of stream signalled",
+            self.index
+        );
+        Ok(())
     }
 }
+
+impl Stage for CaptureStage<'_> {
+    type Inputs = ();
+    const KIND: StageKind = StageKind::Capture;
+
+    fn on_start(&mut self, cx: &mut Context) -> Result<(), Fatal> {
+        cx.alarm_at(Instant::now());
+        Ok(())
+    }
+
+    fn on_wake(&mut self, _: &(), _: &Woken, _: &mut Context) -> Result<(), Fatal> {
+        Ok(())
+    }
+
+    fn on_alarm(&mut self, cx: &mut Context) -> Result<(), Fatal> {
+        match (self.ended, self.source.is_some()) {
+            (true, _) => Ok(()),
+            (false, true) => self.publish_next(cx),
+            (false, false) => self.connect(cx),
+        }
+    }
+
+    fn finished(&self) -> bool {
+        self.ended
+    }
+
+    fn detail(&self) -> String {
+        if self.source.is_none() && !self.ended {
+            return "source unavailable".into();
+        }
+        let fps = self.playback.as_ref().map_or(0.0, |p| p.fps);
+        let detail = format!(
+            "reconnects={} loops={} source_fps={fps:.2}",
+            self.reconnects, self.loops
+        );
+        match self.input {
+            Some(input) => format!("{detail} {}", input.to_detail()),
+            None => detail,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

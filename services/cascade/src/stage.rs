@@ -274,7 +274,7 @@ impl CascadeStage<'_> {
             format!(
                 "the long-term store cannot be written ({}): this minute is not learned; \
                  trying again at the next one",
-                e.message
+                e.chain()
             )
         });
     }

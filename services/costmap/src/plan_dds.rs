@@ -189,22 +189,22 @@ impl Service {
                     qos,
                     TopicKind::NoKey,
                 )
-                .map_err(|e| fail(format!("{e:?}")))
+                .map_err(|e| fail(format!("{e}")))
         };
         let request_topic = topic(("rq", "Request", "Request"), &request_qos)?;
         let reply_topic = topic(("rr", "Reply", "Response"), &reply_qos)?;
         let subscriber = participant
             .create_subscriber(&QosPolicies::default())
-            .map_err(|e| fail(format!("{e:?}")))?;
+            .map_err(|e| fail(format!("{e}")))?;
         let publisher = participant
             .create_publisher(&QosPolicies::from(DEFAULT_PUBLISHER_QOS))
-            .map_err(|e| fail(format!("{e:?}")))?;
+            .map_err(|e| fail(format!("{e}")))?;
         let reader = subscriber
             .create_simple_datareader_no_key::<RawSample, Raw>(&request_topic, Some(request_qos))
-            .map_err(|e| fail(format!("{e:?}")))?;
+            .map_err(|e| fail(format!("{e}")))?;
         let writer = publisher
             .create_datawriter_no_key::<RawReply, Raw>(&reply_topic, Some(reply_qos))
-            .map_err(|e| fail(format!("{e:?}")))?;
+            .map_err(|e| fail(format!("{e}")))?;
         Ok(Service {
             kind,
             name: name.to_string(),
@@ -229,7 +229,7 @@ impl Service {
                     cx.health.rejected();
                     let name = &self.name;
                     cx.warnings.warn("plan request unreadable", || {
-                        format!("{name}: a request that cannot be read: {e:?}")
+                        format!("{name}: a request that cannot be read: {e}")
                     });
                     continue;
                 }
@@ -376,7 +376,7 @@ impl Service {
         {
             let (name, e) = (&self.name, e.forget_data());
             cx.warnings.warn("plan reply failed", || {
-                format!("{name}: a reply could not be sent: {e:?}")
+                format!("{name}: a reply could not be sent: {e}")
             });
         }
     }

@@ -131,7 +131,7 @@ impl PublishError {
 pub fn topic_name(name: &str) -> Result<Name, RosError> {
     Name::parse(name).map_err(|e| RosError::TopicName {
         name: name.to_string(),
-        detail: format!("{e:?}"),
+        detail: format!("{e}"),
     })
 }
 
@@ -179,7 +179,7 @@ impl RosOutput {
                     .create_publisher(&$topic, None)
                     .map_err(|e| {
                         ros.error(format!(
-                            concat!("creating the ", $what, " publisher: {:?}"),
+                            concat!("creating the ", $what, " publisher: {}"),
                             e
                         ))
                     })?
@@ -193,7 +193,7 @@ impl RosOutput {
         let mask = publisher!(mask_topic, "speed mask");
         let forecast = publisher!(forecast_topic, "forecast");
         let node = NodeName::new("/isochron", NODE)
-            .map_err(|e| ros.error(format!("node name {NODE}: {e:?}")))?;
+            .map_err(|e| ros.error(format!("node name {NODE}: {e}")))?;
         let plans = PlanServices::start(
             &ros.context().domain_participant(),
             &node,

@@ -1,6 +1,21 @@
 //! The gate stage: `frames` and `activity` in, `events` and `detections` out — run
 //! by the stage runtime ([`isochron_runtime::stage`]). Frames go into the ring;
-//! activity drives the event trackers; the detector thread runs on gated frames.
+//! activity drives the event trackers; the detector thread runs on gated frames
+//! and wakes the stage with each result (a [`Wakeup`], the stage's third input).
+//!
+//! The gate never waits on the runtime's thread; what it waits for, the runtime
+//! does:
+//!
+//! * lossless (`ipc.lossless`, a replay): after an activity sample that gated
+//!   detections, the gate takes no further frame or activity until their results
+//!   are in (the detector's wake-ups), so the next second is judged with this
+//!   second's detections known, as live with a fast enough detector, and the
+//!   ring keeps the frames the jobs name; what stays queued meanwhile holds the
+//!   upstream stages back (lossless delivery waits for room);
+//! * at the end of the activity stream, the end of the frames stream is awaited
+//!   (its samples wake the gate; an alarm ends the wait after [`END_WAIT`]),
+//!   then the detections still pending (their wake-ups; an alarm after
+//!   [`DRAIN_TIMEOUT`]), and only then is the end passed on.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -10,10 +25,11 @@ use isochron_config::{CameraConfig, LoadedConfig};
 use isochron_exit::{self as exit, Fatal};
 use isochron_runtime::ipc::{Activity, Detections, Events, Frames, Ipc};
 use isochron_runtime::service::ServiceContext;
-use isochron_runtime::stage::{Context, Input, Output, Received, Stage, Woken};
+use isochron_runtime::stage::{Context, Input, Output, Received, Stage, Wakeup, Woken};
 use isochron_runtime::topology::StageKind;
 use isochron_wire::{
-    DetectionHeader, EventHeader, EventPhase, PixelFormat, Preamble, ZONE_NAME_LEN, to_fixed,
+    ActivityHeader, DetectionHeader, EventHeader, EventPhase, PixelFormat, Preamble, ZONE_NAME_LEN,
+    to_fixed,
 };
 use parking_lot::Mutex;
 
@@ -34,7 +50,27 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
 /// Most detections published for one frame.
 const MAX_DETECTIONS: usize = 256;
 /// How long the end of a stream waits for queued detections.
-const DRAIN_TIMEOUT: Duration = Duration::from_secs(60);
+pub const DRAIN_TIMEOUT: Duration = Duration::from_secs(60);
+/// How long the end of the activity stream waits for the end of the frames
+/// (capture sends it before motion can end activity, but a full queue may hold
+/// it back for a moment).
+pub const END_WAIT: Duration = Duration::from_secs(2);
+
+/// Where the gate is in its input streams.
+#[derive(Debug, Clone, Copy)]
+enum Phase {
+    /// Taking frames and activity as they come.
+    Running,
+    /// The activity stream ended (`end`): waiting, until `deadline`, for the end
+    /// of the frames stream.
+    EndingFrames {
+        end: ActivityHeader,
+        deadline: Instant,
+    },
+    /// The events are closed: waiting, until `deadline`, for the detections
+    /// still pending, then passing the end (`end`) on.
+    EndingDetections { end: Preamble, deadline: Instant },
+}
 
 /// Counters of the hybrid scheme.
 #[derive(Default)]
@@ -62,13 +98,15 @@ pub struct GateStage<'ipc> {
     detector_name: &'static str,
     lossless: bool,
     intake: FrameIntake,
+    phase: Phase,
     counters: Counters,
     events: Output<'ipc, Events>,
     detections: Output<'ipc, Detections>,
 }
 
-/// The gate's inputs: frames first (they are taken before each activity sample).
-pub type GateInputs = (Input<Frames>, Input<Activity>);
+/// The gate's inputs: frames first (they are taken before each activity sample),
+/// then activity, then the detector's wake-up.
+pub type GateInputs = (Input<Frames>, Input<Activity>, Wakeup);
 
 impl<'ipc> GateStage<'ipc> {
     /// The gate of `camera` on `loaded`'s site, publishing through `ipc`, and its
@@ -83,23 +121,28 @@ impl<'ipc> GateStage<'ipc> {
         let detector_config = config.gate.detector.clone();
         let base_dir = loaded.base_dir();
         // Live, a busy detector loses work instead of delaying events; a lossless
-        // replay detects every gated frame, at the detector's pace.
+        // replay detects every gated frame, at the detector's pace: an activity
+        // sample gates at most one job per zone, and the gate takes nothing more
+        // until they are done, so the queue holds them all.
         let lossless = config.ipc.lossless;
         let queue = if lossless {
-            0
+            camera.zones.len().max(1)
         } else {
             config.gate.detector.queue
         };
+        let (wakeup, waker) = Wakeup::new()
+            .map_err(|e| Fatal::with_source(exit::UNAVAILABLE, "the detector's wake-up", e))?;
         let slots =
             DetectorSlots::of_site(&config.site.service_prefix, config.gate.detector.concurrent)
                 .map(Arc::new)
-                .map_err(|e| Fatal::new(exit::UNAVAILABLE, e.to_string()))?;
+                .map_err(|e| Fatal::with_source(exit::UNAVAILABLE, "the detector's slots", e))?;
         let (worker, detector_name) = Worker::start(
             move || Detector::from_config(&detector_config, &base_dir),
             ring.clone(),
             queue,
             slots,
             (!lossless).then(|| Duration::from_secs_f64(config.gate.detector.slot_wait_s)),
+            waker,
         )?;
         let gate = Gate::new(
             GateSettings {
@@ -108,7 +151,11 @@ impl<'ipc> GateStage<'ipc> {
             },
             camera.zones.clone(),
         );
-        let inputs = (Input::open(ipc, &camera.id)?, Input::open(ipc, &camera.id)?);
+        let inputs = (
+            Input::open(ipc, &camera.id)?,
+            Input::open(ipc, &camera.id)?,
+            wakeup,
+        );
         let mut detections = Output::new(ipc, &camera.id);
         detections.reserve(MAX_DETECTIONS)?;
         tracing::info!(camera = %camera.id, detector = detector_name, "gating the {detector_name} detector on events");
@@ -118,6 +165,7 @@ impl<'ipc> GateStage<'ipc> {
             detector_name,
             lossless,
             intake: FrameIntake::new(ring),
+            phase: Phase::Running,
             counters: Counters::default(),
             events: Output::new(ipc, &camera.id),
             detections,
@@ -126,44 +174,105 @@ impl<'ipc> GateStage<'ipc> {
     }
 
     /// Handles one activity sample (frames queued before it are taken first).
-    fn on_activity(
-        &mut self,
-        sample: Received<Activity>,
-        frames: &Input<Frames>,
-        cx: &mut Context,
-    ) -> Result<(), Fatal> {
+    fn on_activity(&mut self, sample: Received<Activity>, cx: &mut Context) -> Result<(), Fatal> {
         let arrived = Instant::now();
         let h = *sample.header();
-        let grid_len = (h.grid_w * h.grid_h) as usize;
         if h.preamble.is_end_of_stream() {
-            self.intake.finish(frames, cx, &mut self.counters);
-            let end = Preamble {
-                capture_time_ns: h.preamble.capture_time_ns,
-                ..Preamble::default()
+            self.phase = Phase::EndingFrames {
+                end: h,
+                deadline: arrived + END_WAIT,
             };
-            for action in self.gate.finish() {
-                self.execute(&action, &end, grid_len.max(1), cx, arrived)?;
+            return Ok(());
+        }
+        let grid_len = (h.grid_w * h.grid_h) as usize;
+        // An activity sample ends a second: its last frame may be the newest.
+        self.intake.keep_newest();
+        for action in self.gate.on_activity(&h, sample.payload()) {
+            self.execute(&action, &h.preamble, grid_len, cx, arrived)?;
+        }
+        Ok(())
+    }
+
+    /// True while a lossless gate waits for its detections before it takes
+    /// anything more (see the module doc).
+    fn awaiting_detections(&self) -> bool {
+        self.lossless && self.worker.pending() > 0
+    }
+
+    /// Takes frames, then activity samples one by one, as long as the gate is
+    /// not waiting for its detections or the end of a stream.
+    fn take_inputs(
+        &mut self,
+        (frames, activity, _): &GateInputs,
+        cx: &mut Context,
+    ) -> Result<(), Fatal> {
+        while matches!(self.phase, Phase::Running) && !self.awaiting_detections() {
+            // Frames take a shorter path than activity, but a gate that waited on
+            // its detector may have left some queued: take them first, so the
+            // frames a job names are in the ring.
+            self.intake.drain(frames, cx, &mut self.counters);
+            let Some(sample) = activity.next(cx) else {
+                break;
+            };
+            self.on_activity(sample, cx)?;
+        }
+        Ok(())
+    }
+
+    /// Moves an ending stream on as far as it can now; sets the alarm for the
+    /// deadline it waits for, if it waits.
+    fn end_streams(&mut self, frames: &Input<Frames>, cx: &mut Context) -> Result<(), Fatal> {
+        let now = Instant::now();
+        if let Phase::EndingFrames { end, deadline } = self.phase {
+            self.intake.drain(frames, cx, &mut self.counters);
+            if !self.intake.ended && now < deadline {
+                cx.alarm_at(deadline);
+                return Ok(());
             }
-            self.drain_detector(DRAIN_TIMEOUT)?;
-            self.publish_end_of_stream(&h.preamble)?;
+            self.close_events(&end, cx)?;
+        }
+        if let Phase::EndingDetections { end, deadline } = self.phase {
+            let pending = self.worker.pending();
+            if pending > 0 && now < deadline {
+                cx.alarm_at(deadline);
+                return Ok(());
+            }
+            if pending > 0 {
+                tracing::warn!("{pending} detections still pending at the end of the stream");
+            }
+            self.publish_end_of_stream(&end)?;
+            self.phase = Phase::Running;
+            cx.cancel_alarm();
             tracing::info!(
                 "end of stream: {} events, detector ran on {} of {} frames",
                 self.gate.events_started(),
                 self.counters.frames_detected,
                 self.counters.frames_seen
             );
-            return Ok(());
         }
-        // An activity sample ends a second: its last frame may be the newest.
+        Ok(())
+    }
+
+    /// The end of the activity stream `end` (the frames taken, or waited for
+    /// long enough): closes the open events; the end waits for the detections.
+    fn close_events(&mut self, end: &ActivityHeader, cx: &mut Context) -> Result<(), Fatal> {
+        if !self.intake.ended {
+            tracing::warn!("the activity stream ended before the frames stream did");
+        }
         self.intake.keep_newest();
-        for action in self.gate.on_activity(&h, sample.payload()) {
-            self.execute(&action, &h.preamble, grid_len, cx, arrived)?;
+        let from = Preamble {
+            capture_time_ns: end.preamble.capture_time_ns,
+            ..Preamble::default()
+        };
+        let grid_len = ((end.grid_w * end.grid_h) as usize).max(1);
+        let arrived = Instant::now();
+        for action in self.gate.finish() {
+            self.execute(&action, &from, grid_len, cx, arrived)?;
         }
-        if self.lossless {
-            // A replay decides presence as live would with a detector fast enough:
-            // the next second is judged with this second's detections known.
-            self.drain_detector(DRAIN_TIMEOUT)?;
-        }
+        self.phase = Phase::EndingDetections {
+            end: end.preamble,
+            deadline: arrived + DRAIN_TIMEOUT,
+        };
         Ok(())
     }
 
@@ -185,12 +294,7 @@ impl<'ipc> GateStage<'ipc> {
                 }
             }
             Action::Detect(job) => {
-                let queued = if self.lossless {
-                    self.worker.submit_wait(*job)
-                } else {
-                    self.worker.submit(*job)
-                };
-                if !queued {
+                if !self.worker.submit(*job) {
                     tracing::debug!(event = job.event_id, "detector busy: detection dropped");
                     self.gate.on_detections(job.id, job.region, None);
                 }
@@ -316,25 +420,6 @@ impl<'ipc> GateStage<'ipc> {
         self.events.end_of_stream(&from, |_| {})?;
         Ok(())
     }
-
-    /// Waits (up to `timeout`) for every queued detection and publishes the results.
-    fn drain_detector(&mut self, timeout: Duration) -> Result<(), Fatal> {
-        let end = Instant::now() + timeout;
-        while self.worker.pending() > 0 {
-            let left = end.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                tracing::warn!(
-                    "{} detections still pending at the end of the stream",
-                    self.worker.pending()
-                );
-                break;
-            }
-            if let Some(report) = self.worker.wait_report(left) {
-                self.handle_report(report)?;
-            }
-        }
-        Ok(())
-    }
 }
 
 /// Counts a detection job that did not run (`why`, at debug level) and hands it back.
@@ -350,27 +435,23 @@ impl Stage for GateStage<'_> {
 
     fn on_wake(
         &mut self,
-        (frames, activity): &GateInputs,
+        inputs: &GateInputs,
         _woken: &Woken,
         cx: &mut Context,
     ) -> Result<(), Fatal> {
-        self.intake.drain(frames, cx, &mut self.counters);
-        while let Some(sample) = activity.next(cx) {
-            // Frames take a shorter path than activity, but a gate that waited on
-            // its detector may have left some queued: take them first, so the
-            // frames a job names are in the ring.
-            self.intake.drain(frames, cx, &mut self.counters);
-            self.on_activity(sample, frames, cx)?;
-        }
+        // The detector's results (its wake-up is the third input).
         for report in self.worker.reports() {
             self.handle_report(report)?;
         }
-        Ok(())
-    }
-
-    /// Detector reports are published within this.
-    fn timer(&self) -> Duration {
-        Duration::from_millis(100)
+        loop {
+            self.take_inputs(inputs, cx)?;
+            let ending = !matches!(self.phase, Phase::Running);
+            self.end_streams(&inputs.0, cx)?;
+            // An end passed on just now: activity that came since is taken next.
+            if !(ending && matches!(self.phase, Phase::Running)) {
+                return Ok(());
+            }
+        }
     }
 
     fn detail(&self) -> String {
@@ -403,9 +484,6 @@ struct FrameIntake {
 }
 
 impl FrameIntake {
-    /// How long the end of the activity stream waits for the end of the frames.
-    const END_WAIT: Duration = Duration::from_secs(2);
-
     /// Intake into `ring`.
     fn new(ring: Arc<Mutex<FrameRing>>) -> Self {
         FrameIntake {
@@ -474,23 +552,5 @@ impl FrameIntake {
             h.height,
             sample.payload(),
         );
-    }
-
-    /// At the end of the activity stream: takes the frames still on their way,
-    /// up to the end of the frames stream (capture sends it before motion can
-    /// end activity, but a full queue may hold it back for a moment).
-    fn finish(&mut self, frames: &Input<Frames>, cx: &mut Context, counters: &mut Counters) {
-        let deadline = Instant::now() + Self::END_WAIT;
-        loop {
-            self.drain(frames, cx, counters);
-            if self.ended || Instant::now() >= deadline {
-                break;
-            }
-            std::thread::sleep(Duration::from_millis(1));
-        }
-        if !self.ended {
-            tracing::warn!("the activity stream ended before the frames stream did");
-        }
-        self.keep_newest();
     }
 }

@@ -13,6 +13,7 @@ use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, TrySendError, sync_cha
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use isochron_runtime::stage::Waker;
 use isochron_wire::Detection;
 use parking_lot::Mutex;
 
@@ -178,12 +179,14 @@ impl Worker {
     /// frame it names is copied out of the ring before anything can replace it.
     /// A job runs only in a free slot of `slots`; it waits for one up to
     /// `slot_wait` (`None`, lossless replays: as long as it takes), then is dropped.
+    /// Each report wakes the stage through `waker`.
     pub fn start(
         make: impl FnOnce() -> Result<Detector, DetectorError> + Send + 'static,
         ring: Arc<Mutex<FrameRing>>,
         queue: usize,
         slots: Arc<DetectorSlots>,
         slot_wait: Option<Duration>,
+        waker: Waker,
     ) -> Result<(Worker, &'static str), DetectorError> {
         let (jobs_tx, jobs_rx) = sync_channel::<Job>(queue);
         let (reports_tx, reports_rx) = sync_channel::<Report>(1024);
@@ -212,6 +215,7 @@ impl Worker {
                         if reports_tx.send(Report::Busy(job)).is_err() {
                             break;
                         }
+                        waker.wake();
                         continue;
                     };
                     let found = ring.lock().copy_latest_at(job.time_ns, &mut frame);
@@ -237,6 +241,7 @@ impl Worker {
                     if reports_tx.send(report).is_err() {
                         break;
                     }
+                    waker.wake();
                 }
             })
             .map_err(DetectorError::Thread)?;
@@ -285,29 +290,9 @@ impl Worker {
         }
     }
 
-    /// Queues a job, waiting for room (lossless replays: every gated frame is
-    /// detected, and the whole group runs at the pace the detector allows).
-    pub fn submit_wait(&mut self, job: Job) -> bool {
-        let Some(jobs) = &self.jobs else { return false };
-        if jobs.send(job).is_ok() {
-            self.submitted += 1;
-            true
-        } else {
-            self.dropped += 1;
-            false
-        }
-    }
-
     /// Jobs queued or running.
     pub fn pending(&self) -> u64 {
         self.submitted - self.completed
-    }
-
-    /// Waits up to `timeout` for the next report.
-    pub fn wait_report(&mut self, timeout: Duration) -> Option<Report> {
-        let r = self.reports.recv_timeout(timeout).ok()?;
-        self.completed += 1;
-        Some(r)
     }
 }
 
@@ -395,12 +380,14 @@ mod tests {
             ..Default::default()
         };
         let again = config.clone();
+        let (_wakeup, waker) = isochron_runtime::stage::Wakeup::new().expect("a wake-up");
         let (mut worker, _) = Worker::start(
             move || Detector::from_config(&config, std::path::Path::new(".")),
             ring,
             8,
             slots.clone(),
             None,
+            waker,
         )
         .expect("HOG detector");
         // The first job waits for the slot; eight more wait in the queue.

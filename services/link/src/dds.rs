@@ -12,7 +12,7 @@ use std::path::Path;
 use ros2_client::dds::Node;
 /// The writer and reader types [`LinkDds`] makes.
 pub use ros2_client::dds::{Publisher, Subscription};
-use ros2_client::{CreateResult, Name};
+use ros2_client::{CreateError, CreateResult, Name};
 use rustdds::{QosPolicies, policy};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
@@ -69,11 +69,11 @@ impl LinkDds {
     ) -> Result<E, DdsError> {
         let name = self.topic_name(camera, suffix);
         let parsed =
-            Name::parse(&name).map_err(|e| self.ros.error(format!("topic {name}: {e:?}")))?;
+            Name::parse(&name).map_err(|e| self.ros.error(format!("topic {name}: {e}")))?;
         let topic = self.ros.topic(&parsed, ("isochron_msgs", msg), &qos)?;
         patiently(|| E::create(self.ros.node_mut(), &topic)).map_err(|e| {
             self.ros.error(format!(
-                "creating the {suffix} {} of {camera}: {e:?}",
+                "creating the {suffix} {} of {camera}: {e}",
                 E::WHAT
             ))
         })
@@ -123,16 +123,15 @@ impl<M: DeserializeOwned + 'static> Endpoint<M> for Subscription<M> {
 }
 
 /// Creates a DDS entity, waiting while RustDDS's event loop catches up: it takes
-/// new readers and writers through bounded channels (100 readers, 10 writers),
-/// which a link of a few hundred cameras fills at start ("sending on a full
-/// channel"). Gives up after 5 s.
-fn patiently<T, E: std::fmt::Debug>(mut create: impl FnMut() -> Result<T, E>) -> Result<T, E> {
+/// new readers through a bounded channel (100 readers), which a link of a few
+/// hundred cameras fills at start (then creating one is out of resources, as our
+/// RustDDS patch `vendor/rustdds-full-reader-channel.patch` reports it). Gives
+/// up after 5 s.
+fn patiently<T>(mut create: impl FnMut() -> CreateResult<T>) -> CreateResult<T> {
     let end = std::time::Instant::now() + std::time::Duration::from_secs(5);
     loop {
         match create() {
-            Err(e)
-                if format!("{e:?}").contains("full channel") && std::time::Instant::now() < end =>
-            {
+            Err(CreateError::OutOfResources { .. }) if std::time::Instant::now() < end => {
                 std::thread::sleep(std::time::Duration::from_millis(10));
             }
             result => return result,

@@ -360,7 +360,7 @@ impl<'ipc, S: LinkStream> ImportLane<'ipc, S> {
                 Err(e) => {
                     cx.health.rejected();
                     cx.warnings.warn("read", || {
-                        format!("an unreadable {} message of {camera}: {e:?}", S::SUFFIX)
+                        format!("an unreadable {} message of {camera}: {e}", S::SUFFIX)
                     });
                     continue;
                 }
@@ -603,7 +603,7 @@ impl<'ipc> LinkStage<'ipc> {
                     Err(err) => {
                         e.status.errors += 1;
                         cx.warnings.warn("publish", || {
-                            format!("publishing {}'s status: {err:?}", e.camera)
+                            format!("publishing {}'s status: {err}", e.camera)
                         });
                     }
                 }

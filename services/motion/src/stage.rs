@@ -243,7 +243,7 @@ impl<'ipc> MotionStage<'ipc> {
                     }
                 }
                 Err(SendError::Failed(e)) => return Err(e.into()),
-                Err(SendError::Skipped(e)) => {
+                Err(e) => {
                     cx.health.dropped(1);
                     cx.warnings.warn("send", || {
                         format!("frame {}: no motion computed: {e}", header.source_index)

@@ -1320,11 +1320,19 @@ impl InnerSubscriber {
     )?;
 
     // Send reader ingredients to DP event loop, where the actual reader will be
-    // constructed
+    // constructed. A full channel means the event loop has not yet taken the
+    // readers created before: out of resources for now, the caller may try again.
     self
       .sender_add_reader
       .try_send(new_reader)
-      .or_else(|e| create_error_poisoned!("Cannot add DataReader. Error: {}", e))?;
+      .or_else(|e| match e {
+        std::sync::mpsc::TrySendError::Full(_) => Err(CreateError::OutOfResources {
+          reason: "Cannot add DataReader: the event loop's channel is full".to_string(),
+        }),
+        std::sync::mpsc::TrySendError::Disconnected(_) => {
+          create_error_poisoned!("Cannot add DataReader. Error: {}", e)
+        }
+      })?;
 
     // Return the DataReader to user
     Ok(datareader)
