@@ -62,6 +62,7 @@
 //! of stream, and the received/rejected/dropped/sent counters checked.
 
 mod input;
+mod memory;
 mod output;
 mod wakeup;
 mod warnings;
@@ -72,11 +73,12 @@ use std::time::{Duration, Instant};
 use iceoryx2::prelude::*;
 
 use crate::health::{Health, notify_ready};
-use crate::ipc::{Ipc, Ipc2, IpcError, stop_requested_by};
+use crate::ipc::{Ipc, Ipc2, IpcError, StreamType, stop_requested_by};
 use crate::topology::StageKind;
 use isochron_exit::Fatal;
 
-pub use input::{Input, Owned, Queue, Received, one_in_one_out};
+pub use input::{Input, Received};
+pub use memory::{Owned, Queue};
 pub use output::{Output, SendError};
 pub use wakeup::{Waker, Wakeup};
 pub use warnings::Warnings;
@@ -514,6 +516,18 @@ impl<T: Attachable> Inputs for Notified<T> {
     fn attachables(&self) -> Vec<&dyn Attachable> {
         vec![&self.0 as &dyn Attachable]
     }
+}
+
+/// How a per-camera stage with one input and one output starts: the input of
+/// `camera`'s upstream stream `I`, and the stage `make` builds on the output of
+/// stream `O`.
+pub fn one_in_one_out<'ipc, I: StreamType, O: StreamType, T>(
+    ipc: &'ipc Ipc,
+    camera: &str,
+    make: impl FnOnce(Output<'ipc, O>) -> Result<T, Fatal>,
+) -> Result<(T, Input<I>), Fatal> {
+    let input = Input::open(ipc, camera)?;
+    Ok((make(Output::new(ipc, camera))?, input))
 }
 
 #[cfg(test)]

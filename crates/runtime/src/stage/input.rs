@@ -1,14 +1,12 @@
 //! A stage's inputs: a stream's receiving end that checks and counts every
 //! sample it yields, in shared memory or (tests) in process memory.
 
-use std::cell::{Cell, RefCell};
-use std::collections::VecDeque;
-use std::rc::Rc;
+use std::cell::Cell;
 
-use super::{Attachable, Context, Inputs, Output};
+use super::memory::{Owned, Queue};
+use super::{Attachable, Context, Inputs};
 use crate::health::Health;
 use crate::ipc::{Ipc, IpcError, ReceivedSample, StreamSubscriber, StreamType};
-use isochron_exit::Fatal;
 use isochron_wire::{CameraId, StreamHeader};
 
 /// Samples one input yields per wake before the loop ticks (health, stop) again;
@@ -45,17 +43,6 @@ impl<S: StreamType> Received<S> {
         self.header().preamble().is_end_of_stream()
     }
 }
-
-/// A header and payload in process memory.
-pub struct Owned<S: StreamType> {
-    /// The header.
-    pub header: S::Header,
-    /// The payload.
-    pub payload: Vec<S::Element>,
-}
-
-/// A queue of samples shared between a test and a memory [`Input`] or [`Output`].
-pub type Queue<S> = Rc<RefCell<VecDeque<Owned<S>>>>;
 
 enum InputPort<S: StreamType> {
     Shared(Box<StreamSubscriber<S>>),
@@ -187,17 +174,6 @@ impl<S: StreamType> Inputs for Input<S> {
     }
 }
 
-/// How a per-camera stage with one input and one output starts: the input of
-/// `camera`'s upstream stream `I`, and the stage `make` builds on the output of
-/// stream `O`.
-pub fn one_in_one_out<'ipc, I: StreamType, O: StreamType, T>(
-    ipc: &'ipc Ipc,
-    camera: &str,
-    make: impl FnOnce(Output<'ipc, O>) -> Result<T, Fatal>,
-) -> Result<(T, Input<I>), Fatal> {
-    let input = Input::open(ipc, camera)?;
-    Ok((make(Output::new(ipc, camera))?, input))
-}
 
 #[cfg(test)]
 mod tests {

@@ -5,7 +5,7 @@
 use std::fmt::Display;
 use std::mem::MaybeUninit;
 
-use super::{Owned, Queue};
+use super::memory::{Owned, Queue};
 use crate::ipc::{Ipc, IpcError, StreamPublisher, StreamType};
 use isochron_wire::{CameraId, FLAG_END_OF_STREAM, Preamble, StreamHeader};
 
