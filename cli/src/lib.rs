@@ -16,10 +16,6 @@ mod overlay;
 mod plan;
 mod plot;
 mod record;
-#[allow(
-    clippy::too_many_lines,
-    reason = "replay's run (135 lines) is being rewritten onto the stage runtime (issue 26)"
-)]
 mod replay;
 mod status;
 mod store;

@@ -73,20 +73,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let video = args
-        .video
-        .canonicalize()
-        .with_context(|| format!("video file {} does not exist", args.video.display()))?;
-    let speed = Speed::parse(&args.speed).with_context(|| {
-        format!(
-            "--speed: expected `max` or a number > 0, found '{}'",
-            args.speed
-        )
-    })?;
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
-    let out = args.out.canonicalize()?;
-
+    let (video, speed, out) = check_args(&args)?;
     let (loaded, camera) = effective_config(&args, &video, speed, &out)?;
     let stages = installed_stages();
     if !stages.iter().any(|(s, _)| *s == StageKind::Capture) {
@@ -156,7 +143,38 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if !matches!(replay.phase, Phase::Collecting) || !replay.tally.all_ended() {
         bail!("interrupted");
     }
-    let wall = started.elapsed();
+    finish(replay, recorder, &out, &video, started.elapsed())
+}
+
+/// The video (canonical), the speed and the output directory (created) the
+/// arguments name.
+fn check_args(args: &Args) -> anyhow::Result<(PathBuf, Speed, PathBuf)> {
+    let video = args
+        .video
+        .canonicalize()
+        .with_context(|| format!("video file {} does not exist", args.video.display()))?;
+    let speed = Speed::parse(&args.speed).with_context(|| {
+        format!(
+            "--speed: expected `max` or a number > 0, found '{}'",
+            args.speed
+        )
+    })?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let out = args.out.canonicalize()?;
+    Ok((video, speed, out))
+}
+
+/// After every stream ended: stop the services, close the recording, write the
+/// outputs and the summary line; the exit code says whether the input or the
+/// recording fell short.
+fn finish(
+    mut replay: ReplayStage<'_>,
+    recorder: Option<RecorderThread>,
+    out: &Path,
+    video: &Path,
+    wall: Duration,
+) -> anyhow::Result<ExitCode> {
     replay.supervisor.stop_all(Duration::from_secs(10));
     // What arrived is recorded, then the file closed (early, and the replay went
     // on, if the disk ran low: then the exit code is 1).
@@ -168,7 +186,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .capture_detail
         .as_deref()
         .and_then(InputCompleteness::from_detail);
-    replay.tally.finish(&out, &video, wall, input)?;
+    replay.tally.finish(out, video, wall, input)?;
     println!(
         "replay: {} in {:.1} s",
         replay.tally.counts_line(),

@@ -208,64 +208,8 @@ fn run_case(transport: &str, size_index: usize, frames: usize) -> (Vec<f64>, f64
     let mut out = BufReader::new(child.stdout.take().expect("the receiver's piped stdout"));
     let mut line = String::new();
     let sender_cpu = match transport {
-        "iceoryx2" => {
-            let ipc = ipc(&tag, "ipcbench-sender");
-            let mut publisher = ipc
-                .publisher::<Frames>("bench", size.bytes())
-                .expect("publisher");
-            out.read_line(&mut line).expect("receiver"); // "ready"
-            while publisher.subscriber_count() == 0 {
-                std::thread::sleep(Duration::from_millis(1));
-            }
-            let camera = CameraId::new("bench").expect("a valid camera id");
-            let mut cpu = 0.0;
-            for i in 0..WARMUP + frames {
-                let t0 = thread_cpu_us();
-                let mut sample = publisher.loan(size.bytes()).expect("loan");
-                let mut preamble = Preamble::new::<u8>(
-                    Stream::Frames,
-                    camera,
-                    publisher.next_sequence(),
-                    size.bytes(),
-                );
-                preamble.origin_wall_ns = monotonic_ns();
-                *sample.user_header_mut() = FrameHeader {
-                    preamble,
-                    width: size.width,
-                    height: size.height,
-                    stride: size.width * size.format.channels() as u32,
-                    pixel_format: size.format as u32,
-                    source_index: i as u64,
-                };
-                // The pixels are already in place (a decoder writes them straight
-                // into the loan); the transport moves none of them.
-                // SAFETY: u8 has no invalid values; the benchmark never reads them.
-                let sample = unsafe { sample.assume_init() };
-                publisher.send(sample).expect("send");
-                if i >= WARMUP {
-                    cpu += thread_cpu_us() - t0;
-                }
-                std::thread::sleep(INTERVAL);
-            }
-            cpu
-        }
-        _ => {
-            let path = std::env::temp_dir().join(format!("{tag}.sock"));
-            out.read_line(&mut line).expect("receiver"); // "ready" once it listens
-            let mut stream = UnixStream::connect(&path).expect("connect");
-            let mut frame = vec![0u8; size.bytes() + 8];
-            let mut cpu = 0.0;
-            for i in 0..WARMUP + frames {
-                let t0 = thread_cpu_us();
-                frame[..8].copy_from_slice(&monotonic_ns().to_le_bytes());
-                stream.write_all(&frame).expect("write");
-                if i >= WARMUP {
-                    cpu += thread_cpu_us() - t0;
-                }
-                std::thread::sleep(INTERVAL);
-            }
-            cpu
-        }
+        "iceoryx2" => send_iceoryx2(&tag, size, frames, &mut out, &mut line),
+        _ => send_uds(&tag, size, frames, &mut out, &mut line),
     };
     line.clear();
     out.read_line(&mut line).expect("receiver report");
@@ -388,4 +332,80 @@ fn receiver(transport: &str, tag: &str, size_index: usize, measured: usize) {
         "{}",
         serde_json::json!({"latencies_us": result.latencies_us, "cpu_us": result.cpu_us})
     );
+}
+
+/// The sender's side of an iceoryx2 case: waits for the receiver's "ready" line,
+/// sends `WARMUP + frames` frames at [`INTERVAL`]; returns the measured frames'
+/// thread CPU time, µs.
+fn send_iceoryx2(
+    tag: &str,
+    size: Size,
+    frames: usize,
+    out: &mut impl BufRead,
+    line: &mut String,
+) -> f64 {
+    let ipc = ipc(tag, "ipcbench-sender");
+    let mut publisher = ipc
+        .publisher::<Frames>("bench", size.bytes())
+        .expect("publisher");
+    out.read_line(line).expect("receiver"); // "ready"
+    while publisher.subscriber_count() == 0 {
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let camera = CameraId::new("bench").expect("a valid camera id");
+    let mut cpu = 0.0;
+    for i in 0..WARMUP + frames {
+        let t0 = thread_cpu_us();
+        let mut sample = publisher.loan(size.bytes()).expect("loan");
+        let mut preamble = Preamble::new::<u8>(
+            Stream::Frames,
+            camera,
+            publisher.next_sequence(),
+            size.bytes(),
+        );
+        preamble.origin_wall_ns = monotonic_ns();
+        *sample.user_header_mut() = FrameHeader {
+            preamble,
+            width: size.width,
+            height: size.height,
+            stride: size.width * size.format.channels() as u32,
+            pixel_format: size.format as u32,
+            source_index: i as u64,
+        };
+        // The pixels are already in place (a decoder writes them straight
+        // into the loan); the transport moves none of them.
+        // SAFETY: u8 has no invalid values; the benchmark never reads them.
+        let sample = unsafe { sample.assume_init() };
+        publisher.send(sample).expect("send");
+        if i >= WARMUP {
+            cpu += thread_cpu_us() - t0;
+        }
+        std::thread::sleep(INTERVAL);
+    }
+    cpu
+}
+
+/// The sender's side of a Unix socket case, as [`send_iceoryx2`].
+fn send_uds(
+    tag: &str,
+    size: Size,
+    frames: usize,
+    out: &mut impl BufRead,
+    line: &mut String,
+) -> f64 {
+    let path = std::env::temp_dir().join(format!("{tag}.sock"));
+    out.read_line(line).expect("receiver"); // "ready" once it listens
+    let mut stream = UnixStream::connect(&path).expect("connect");
+    let mut frame = vec![0u8; size.bytes() + 8];
+    let mut cpu = 0.0;
+    for i in 0..WARMUP + frames {
+        let t0 = thread_cpu_us();
+        frame[..8].copy_from_slice(&monotonic_ns().to_le_bytes());
+        stream.write_all(&frame).expect("write");
+        if i >= WARMUP {
+            cpu += thread_cpu_us() - t0;
+        }
+        std::thread::sleep(INTERVAL);
+    }
+    cpu
 }

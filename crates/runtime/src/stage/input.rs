@@ -174,7 +174,6 @@ impl<S: StreamType> Inputs for Input<S> {
     }
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -169,12 +169,15 @@ fn another_threads_wakeup_wakes_the_stage_at_once() {
     let ipc = ipc("wakeup");
     let (wakeup, waker) = Wakeup::new().expect("a wake-up");
     let mut waiter = Waiter { wakes: 0, count: 3 };
-    let thread = std::thread::spawn(move || {
-        for _ in 0..3 {
-            std::thread::sleep(Duration::from_millis(20));
-            waker.wake();
-        }
-    });
+    let thread = std::thread::Builder::new()
+        .name("waker".into())
+        .spawn(move || {
+            for _ in 0..3 {
+                std::thread::sleep(Duration::from_millis(20));
+                waker.wake();
+            }
+        })
+        .expect("a thread");
     let start = Instant::now();
     let mut cx = Context::unreported(StageKind::Gate);
     run_in(&ipc, &mut waiter, &wakeup, &mut cx).expect("the loop");

@@ -98,14 +98,17 @@ mod tests {
     fn a_wake_from_another_thread_is_taken_once() {
         let (wakeup, waker) = Wakeup::new().expect("a socket pair");
         assert!(!wakeup.take(), "nothing yet");
-        let thread = std::thread::spawn({
-            let waker = waker.clone();
-            move || {
-                for _ in 0..3 {
-                    waker.wake();
+        let thread = std::thread::Builder::new()
+            .name("waker".into())
+            .spawn({
+                let waker = waker.clone();
+                move || {
+                    for _ in 0..3 {
+                        waker.wake();
+                    }
                 }
-            }
-        });
+            })
+            .expect("a thread");
         thread.join().expect("the waking thread");
         assert!(wakeup.take());
         assert!(!wakeup.take(), "taken");
