@@ -145,6 +145,8 @@ fn the_package_holds_the_site_and_installs_enabling_nothing() {
             "./usr/lib/tmpfiles.d/isochron.conf",
             "./usr/share/doc/isochron/examples/isochron.toml",
             "./usr/share/doc/isochron/copyright",
+            "./usr/share/doc/isochron/docs/operating.md",
+            "./usr/share/doc/isochron/docs/configuration.md",
             "./usr/share/man/man1/isochron.1.gz",
             "./usr/share/man/man1/isochron-up.1.gz",
             "./usr/share/man/man1/isochron-costmap.1.gz",

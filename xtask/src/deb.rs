@@ -22,7 +22,7 @@ if [ "$1" = configure ]; then
     if [ -d /run/systemd/system ]; then
         systemctl --system daemon-reload >/dev/null || true
     fi
-    echo "isochron: nothing is enabled; see /usr/share/doc/isochron/README.md (Running it on a base station)"
+    echo "isochron: nothing is enabled; see /usr/share/doc/isochron/docs/operating.md (Installing on a base station)"
 fi
 exit 0
 "#;

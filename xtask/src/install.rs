@@ -63,8 +63,8 @@ impl Layout<'_> {
     }
 }
 
-/// Installs the binaries, systemd units, sysusers/tmpfiles entries, README,
-/// example config, Grafana dashboard, alert rules, man pages and completions
+/// Installs the binaries, systemd units, sysusers/tmpfiles entries, README and
+/// the guides in `docs/`, example config, Grafana dashboard, alert rules, man pages and completions
 /// under `destdir/prefix` (`cargo xtask install` and `cargo xtask deb`).
 pub(crate) fn lay_out(l: &Layout) -> anyhow::Result<()> {
     let prefix = l.prefix;
@@ -77,6 +77,7 @@ pub(crate) fn lay_out(l: &Layout) -> anyhow::Result<()> {
         &prefix.join("lib/sysusers.d"),
         &prefix.join("lib/tmpfiles.d"),
         &doc.join("examples"),
+        &doc.join("docs"),
     ] {
         std::fs::create_dir_all(l.under(dir))?;
     }
@@ -139,7 +140,8 @@ fn lay_out_units(l: &Layout, bin: &Path, units: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The sysusers/tmpfiles entries, and the README and examples into `doc`.
+/// The sysusers/tmpfiles entries, and the README, the guides (`docs/*.md`) and
+/// examples into `doc`.
 fn lay_out_files(l: &Layout, doc: &Path) -> anyhow::Result<()> {
     let prefix = l.prefix;
     let copies = [
@@ -168,6 +170,16 @@ fn lay_out_files(l: &Layout, doc: &Path) -> anyhow::Result<()> {
     for (from, to) in copies {
         std::fs::copy(l.root.join(from), l.under(&to))
             .with_context(|| format!("installing {from}"))?;
+    }
+    for entry in std::fs::read_dir(l.root.join("docs"))? {
+        let from = entry?.path();
+        if let Some(name) = from
+            .file_name()
+            .filter(|_| from.extension() == Some("md".as_ref()))
+        {
+            std::fs::copy(&from, l.under(&doc.join("docs").join(name)))
+                .with_context(|| format!("installing {}", from.display()))?;
+        }
     }
     Ok(())
 }
