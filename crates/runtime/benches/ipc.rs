@@ -353,9 +353,7 @@ fn send_iceoryx2(
         std::thread::sleep(Duration::from_millis(1));
     }
     let camera = CameraId::new("bench").expect("a valid camera id");
-    let mut cpu = 0.0;
-    for i in 0..WARMUP + frames {
-        let t0 = thread_cpu_us();
+    paced(frames, |i| {
         let mut sample = publisher.loan(size.bytes()).expect("loan");
         let mut preamble = Preamble::new::<u8>(
             Stream::Frames,
@@ -377,12 +375,7 @@ fn send_iceoryx2(
         // SAFETY: u8 has no invalid values; the benchmark never reads them.
         let sample = unsafe { sample.assume_init() };
         publisher.send(sample).expect("send");
-        if i >= WARMUP {
-            cpu += thread_cpu_us() - t0;
-        }
-        std::thread::sleep(INTERVAL);
-    }
-    cpu
+    })
 }
 
 /// The sender's side of a Unix socket case, as [`send_iceoryx2`].
@@ -397,11 +390,19 @@ fn send_uds(
     out.read_line(line).expect("receiver"); // "ready" once it listens
     let mut stream = UnixStream::connect(&path).expect("connect");
     let mut frame = vec![0u8; size.bytes() + 8];
+    paced(frames, |_| {
+        frame[..8].copy_from_slice(&monotonic_ns().to_le_bytes());
+        stream.write_all(&frame).expect("write");
+    })
+}
+
+/// Sends `WARMUP + frames` frames (`send(i)`) one every [`INTERVAL`]; returns the
+/// thread CPU time the measured ones took, µs.
+fn paced(frames: usize, mut send: impl FnMut(usize)) -> f64 {
     let mut cpu = 0.0;
     for i in 0..WARMUP + frames {
         let t0 = thread_cpu_us();
-        frame[..8].copy_from_slice(&monotonic_ns().to_le_bytes());
-        stream.write_all(&frame).expect("write");
+        send(i);
         if i >= WARMUP {
             cpu += thread_cpu_us() - t0;
         }
