@@ -262,29 +262,16 @@ pub fn seen_here(mut status: StageStatus, now_ns: i64) -> StageStatus {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isochron_wire::{LAYOUT_VERSION, MAGIC, STATUS_DETAIL_LEN};
+    use isochron_runtime::health::starting_status;
 
     #[test]
     fn a_relayed_status_is_as_fresh_as_its_arrival_and_owned_by_the_link() {
         let forged = StageStatus {
-            magic: MAGIC,
-            layout_version: LAYOUT_VERSION,
-            reserved: 0,
-            camera: CameraId::new("cam01").unwrap(),
-            stage: isochron_wire::to_fixed("gate"),
             pid: 1,
             rate_in: 1.0,
             started_wall_ns: 1,
             report_wall_ns: 1 << 62,
-            received: 0,
-            sent: 0,
-            dropped: 0,
-            rejected: 0,
-            rate_out: 0.0,
-            stage_latency_ms: 0.0,
-            e2e_latency_p50_ms: 0.0,
-            e2e_latency_p99_ms: 0.0,
-            detail: [0; STATUS_DETAIL_LEN],
+            ..starting_status(CameraId::new("cam01").unwrap(), StageKind::Gate)
         };
         let now = 1_800_000_000_000_000_000;
         let s = seen_here(forged, now);
