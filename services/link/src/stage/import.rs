@@ -86,8 +86,7 @@ impl<'ipc, S: LinkStream> ImportLane<'ipc, S> {
         id: &CameraId,
         limit: usize,
         cx: &mut Context,
-    ) -> Result<bool, Fatal> {
-        let mut any = false;
+    ) -> Result<(), Fatal> {
         for _ in 0..limit {
             let msg = match self.reader.take() {
                 Ok(Some((msg, _info))) => msg,
@@ -123,10 +122,9 @@ impl<'ipc, S: LinkStream> ImportLane<'ipc, S> {
             let origin = msg.header.preamble().origin_wall_ns;
             self.output.send_copy(msg.header, &msg.payload)?;
             self.counts.messages += 1;
-            any = true;
             cx.health.sent(Some(arrived), origin);
         }
-        Ok(any)
+        Ok(())
     }
 }
 
@@ -140,7 +138,6 @@ pub(super) struct Import<'ipc> {
     status_in: Subscription<Status>,
     status_out: HashMap<StageKind, StatusPublisher>,
     status: Counts,
-    last: Option<Instant>,
 }
 
 impl<'ipc> Import<'ipc> {
@@ -163,7 +160,6 @@ impl<'ipc> Import<'ipc> {
             status_in: dds.status(camera)?,
             status_out: HashMap::new(),
             status: Counts::default(),
-            last: None,
         })
     }
 
@@ -176,12 +172,9 @@ impl<'ipc> Import<'ipc> {
         cx: &mut Context,
     ) -> Result<(), Fatal> {
         let (camera, id) = (&self.camera, &self.id);
-        let mut any = self.activity.receive(camera, id, limit, cx)?;
-        any |= self.events.receive(camera, id, limit, cx)?;
-        any |= self.detections.receive(camera, id, limit, cx)?;
-        if any {
-            self.last = Some(Instant::now());
-        }
+        self.activity.receive(camera, id, limit, cx)?;
+        self.events.receive(camera, id, limit, cx)?;
+        self.detections.receive(camera, id, limit, cx)?;
         self.receive_status(ipc, cx);
         Ok(())
     }
