@@ -88,6 +88,32 @@ const CONNECT_EVERY: Duration = Duration::from_millis(200);
 /// Number of recent latencies kept for quantiles.
 const LATENCY_WINDOW: usize = 512;
 
+/// The status of `stage` of `camera` as it starts in this process: the layout's
+/// magic and version, this process's id, started now, nothing counted or
+/// reported yet.
+pub fn starting_status(camera: CameraId, stage: StageKind) -> StageStatus {
+    StageStatus {
+        magic: MAGIC,
+        layout_version: LAYOUT_VERSION,
+        reserved: 0,
+        camera,
+        stage: to_fixed::<STAGE_NAME_LEN>(stage.name()),
+        pid: std::process::id(),
+        rate_in: 0.0,
+        started_wall_ns: wall_now_ns(),
+        report_wall_ns: 0,
+        received: 0,
+        sent: 0,
+        dropped: 0,
+        rejected: 0,
+        rate_out: 0.0,
+        stage_latency_ms: 0.0,
+        e2e_latency_p50_ms: 0.0,
+        e2e_latency_p99_ms: 0.0,
+        detail: [0; STATUS_DETAIL_LEN],
+    }
+}
+
 /// Counts a stage's work, feeds the watchdog, and every `report_every` logs one
 /// status line and publishes it as a [`StageStatus`].
 pub struct Health {
@@ -121,26 +147,7 @@ impl Health {
         Health {
             stage,
             camera: camera.to_string(),
-            status: StageStatus {
-                magic: MAGIC,
-                layout_version: LAYOUT_VERSION,
-                reserved: 0,
-                camera: CameraId::new(camera).unwrap_or(CameraId([0; 24])),
-                stage: to_fixed::<STAGE_NAME_LEN>(stage.name()),
-                pid: std::process::id(),
-                rate_in: 0.0,
-                started_wall_ns: wall_now_ns(),
-                report_wall_ns: 0,
-                received: 0,
-                sent: 0,
-                dropped: 0,
-                rejected: 0,
-                rate_out: 0.0,
-                stage_latency_ms: 0.0,
-                e2e_latency_p50_ms: 0.0,
-                e2e_latency_p99_ms: 0.0,
-                detail: [0; STATUS_DETAIL_LEN],
-            },
+            status: starting_status(CameraId::new(camera).unwrap_or(CameraId([0; 24])), stage),
             publisher,
             report_every: Duration::from_secs(5),
             last_report: now,

@@ -38,7 +38,7 @@
 //! one), and the iceoryx2 side adds a port tag, a dynamic config and a data segment
 //! per publisher (plus a notifier's port tag and event config) and 3 files per
 //! remote stage's status publisher: 43 files per imported camera once every stream
-//! has crossed, 38 per exported one (`FileBudget` in [`stage`]). The link checks,
+//! has crossed, 38 per exported one (`FileBudget`, `stage/checks.rs`). The link checks,
 //! before it joins DDS, that its open-file limit holds that budget, and otherwise
 //! exits (78) with one line naming `LimitNOFILE=` and the value needed. Before, a
 //! link past the limit died at its N-th first sample with iceoryx2's

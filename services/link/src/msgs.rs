@@ -10,7 +10,9 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 use isochron_config::{MAX_BOX_ID_LEN, is_ros_token};
+use isochron_runtime::health::starting_status;
 use isochron_runtime::ipc::{Activity, Detections, Events, StreamType};
+use isochron_runtime::topology::StageKind;
 use isochron_wire::geometry::BlockGrid;
 use isochron_wire::{CameraId, MAX_BLOCKS, MAX_DETECTIONS, StageStatus, StreamHeader, WireError};
 
@@ -177,32 +179,8 @@ impl Status {
     pub fn max_cdr_len() -> usize {
         4 + cdr_len(&Status {
             box_id: "b".repeat(MAX_BOX_ID_LEN),
-            status: zeroed_status(),
+            status: starting_status(CameraId::default(), StageKind::Link),
         })
-    }
-}
-
-/// An all-zero [`StageStatus`].
-fn zeroed_status() -> StageStatus {
-    StageStatus {
-        magic: 0,
-        layout_version: 0,
-        reserved: 0,
-        camera: CameraId::default(),
-        stage: [0; isochron_wire::STAGE_NAME_LEN],
-        pid: 0,
-        rate_in: 0.0,
-        started_wall_ns: 0,
-        report_wall_ns: 0,
-        received: 0,
-        sent: 0,
-        dropped: 0,
-        rejected: 0,
-        rate_out: 0.0,
-        stage_latency_ms: 0.0,
-        e2e_latency_p50_ms: 0.0,
-        e2e_latency_p99_ms: 0.0,
-        detail: [0; isochron_wire::STATUS_DETAIL_LEN],
     }
 }
 
@@ -326,11 +304,6 @@ mod tests {
         assert_eq!((back.header.roi_w, back.payload), (20, vec![person]));
 
         let mut status = StageStatus {
-            magic: isochron_wire::MAGIC,
-            layout_version: isochron_wire::LAYOUT_VERSION,
-            reserved: 0,
-            camera: cam(),
-            stage: to_fixed("gate"),
             pid: 12,
             rate_in: 1.0,
             started_wall_ns: 1,
@@ -343,7 +316,7 @@ mod tests {
             stage_latency_ms: 8.0,
             e2e_latency_p50_ms: 9.0,
             e2e_latency_p99_ms: 10.0,
-            detail: [0; isochron_wire::STATUS_DETAIL_LEN],
+            ..starting_status(cam(), StageKind::Gate)
         };
         status.detail[..5].copy_from_slice(b"a=1 b");
         let back = round_trip(&Status {
