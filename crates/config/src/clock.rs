@@ -15,23 +15,57 @@ pub const MINUTES_PER_DAY: u32 = 1440;
 /// Minutes in a week: the number of isochronal bins of the weekly cycle.
 pub const MINUTES_PER_WEEK: u32 = 7 * MINUTES_PER_DAY;
 
-/// The isochronal cycle.
+/// The isochronal cycle: how the long-term model divides time.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
+#[serde(rename_all = "snake_case")]
 pub enum Cycle {
-    /// 1440 minute bins; every day is alike.
+    /// 1440 minute bins; every day is alike (the paper's model).
     Daily,
-    /// 7 × 1440 minute bins, Monday 00:00 first; weekdays and weekends apart.
+    /// 7 × 1440 minute bins, Monday 00:00 first; each weekday learns alone.
     Weekly,
+    /// A week, Monday 00:00 first, learned as day types — workdays and rest days
+    /// (weekends, holidays), 1440 bins each, that converge in days — refined per
+    /// weekday as weeks accumulate (`isochron_store::isochronal`).
+    DayTypes,
 }
 
 impl Cycle {
-    /// Number of minute bins in one cycle.
+    /// Number of minute bins in one cycle: what t* counts.
     pub fn bins(self) -> u32 {
+        self.days() * MINUTES_PER_DAY
+    }
+
+    /// Days in one cycle: 1 (daily) or 7.
+    pub fn days(self) -> u32 {
         match self {
-            Cycle::Daily => MINUTES_PER_DAY,
-            Cycle::Weekly => MINUTES_PER_WEEK,
+            Cycle::Daily => 1,
+            Cycle::Weekly | Cycle::DayTypes => 7,
         }
+    }
+
+    /// Rows the long-term store keeps: the cycle's bins, and for day types also the
+    /// two day-type profiles (workday, rest day) after them.
+    pub fn rows(self) -> u32 {
+        match self {
+            Cycle::Daily | Cycle::Weekly => self.bins(),
+            Cycle::DayTypes => MINUTES_PER_WEEK + 2 * MINUTES_PER_DAY,
+        }
+    }
+
+    /// The name configuration files and stores use.
+    pub fn name(self) -> &'static str {
+        match self {
+            Cycle::Daily => "daily",
+            Cycle::Weekly => "weekly",
+            Cycle::DayTypes => "day_types",
+        }
+    }
+
+    /// The cycle of a [`Cycle::name`].
+    pub fn from_name(name: &str) -> Option<Cycle> {
+        [Cycle::Daily, Cycle::Weekly, Cycle::DayTypes]
+            .into_iter()
+            .find(|c| c.name() == name)
     }
 }
 
@@ -62,17 +96,26 @@ impl SiteClock {
     }
 
     /// Isochronal time t*: the minute of the cycle of `utc_ns`, local time
-    /// (daily: 0..1440; weekly: 0..10080, Monday 00:00 = 0).
+    /// (daily: 0..1440; weekly and day types: 0..10080, Monday 00:00 = 0).
     pub fn t_star(&self, utc_ns: i64) -> u32 {
         let local = self.local(utc_ns);
         let minute = local.hour() as u32 * 60 + local.minute() as u32;
         match self.cycle {
             Cycle::Daily => minute,
-            Cycle::Weekly => {
+            Cycle::Weekly | Cycle::DayTypes => {
                 let weekday = local.weekday().to_monday_zero_offset() as u32;
                 weekday * MINUTES_PER_DAY + minute
             }
         }
+    }
+
+    /// The local calendar date and minute of the day of `utc_ns`.
+    pub fn local_date_minute(&self, utc_ns: i64) -> (jiff::civil::Date, u32) {
+        let local = self.local(utc_ns);
+        (
+            local.date(),
+            local.hour() as u32 * 60 + local.minute() as u32,
+        )
     }
 
     /// A number that changes exactly when the local minute changes: the minute

@@ -46,8 +46,13 @@ pub enum StoreError {
     },
     /// An isochron store of another format version.
     #[error(
-        "{} is an isochron store of format version {found}, this isochron reads version {FORMAT_VERSION}; use the matching isochron version, or move the file away to start a new model",
-        file.display()
+        "{} is an isochron store of format version {found}, this isochron reads version {FORMAT_VERSION}; {}",
+        file.display(),
+        if *found < FORMAT_VERSION as i64 {
+            format!("convert it, keeping everything it learned, with `isochron store migrate --store {} --camera <id> --config <site.toml>` (the old file is kept beside it as .v{found})", file.display())
+        } else {
+            "use the isochron version that wrote it, or move the file away to start a new model".to_string()
+        }
     )]
     Version {
         /// The file.
@@ -83,7 +88,8 @@ pub enum StoreError {
     },
     /// A model of another isochronal cycle.
     #[error(
-        "{} holds a {found} model, but the config says cascade.cycle = \"{expected}\"; set it back, or move the file away to start a new model",
+        "{} holds a {found} model, but the config says cascade.cycle = \"{expected}\"; set it back, or convert the model, keeping what it learned, with `isochron store migrate --store {} --camera <id> --config <site.toml>`",
+        file.display(),
         file.display()
     )]
     Cycle {

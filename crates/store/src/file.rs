@@ -37,11 +37,16 @@ CREATE TABLE progress (
     skipped INTEGER NOT NULL
 );
 INSERT INTO progress (id, last_minute, committed, skipped) VALUES (0, NULL, 0, 0);
+CREATE TABLE spans (
+    start INTEGER PRIMARY KEY NOT NULL,
+    end INTEGER NOT NULL,
+    crc INTEGER NOT NULL
+);
 ";
 
 impl StoreMeta {
     /// The rows of the file's `meta` table (without its `crc`).
-    pub(crate) fn rows(&self) -> Vec<(&'static str, String)> {
+    pub(crate) fn meta_rows(&self) -> Vec<(&'static str, String)> {
         vec![
             ("magic", MAGIC.to_string()),
             ("format_version", FORMAT_VERSION.to_string()),
@@ -60,10 +65,7 @@ impl StoreMeta {
 
 /// The cycle as the meta table and errors name it.
 pub(crate) fn cycle_name(cycle: Cycle) -> &'static str {
-    match cycle {
-        Cycle::Daily => "daily",
-        Cycle::Weekly => "weekly",
-    }
+    cycle.name()
 }
 
 /// CRC-32 of the meta rows, sorted by key.
@@ -102,7 +104,7 @@ pub(crate) fn create(path: &Path, meta: &StoreMeta) -> Result<(), StoreError> {
             let tx = conn.unchecked_transaction()?;
             tx.execute_batch(SCHEMA)?;
             let mut rows: Vec<(String, String)> = meta
-                .rows()
+                .meta_rows()
                 .into_iter()
                 .map(|(k, v)| (k.to_string(), v))
                 .collect();
@@ -231,10 +233,8 @@ pub(crate) fn read_meta(conn: &Connection, path: &Path) -> Result<StoreMeta, Sto
         let v = num(key)?;
         u32::try_from(v).map_err(|_| damaged(format!("meta `{key}` = {v} is out of range")))
     };
-    let cycle = match get("cycle") {
-        Some("daily") => Cycle::Daily,
-        Some("weekly") => Cycle::Weekly,
-        other => return Err(damaged(format!("meta `cycle` is {other:?}"))),
+    let Some(cycle) = get("cycle").and_then(Cycle::from_name) else {
+        return Err(damaged(format!("meta `cycle` is {:?}", get("cycle"))));
     };
     let meta = StoreMeta {
         camera: get("camera")

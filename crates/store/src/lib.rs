@@ -20,19 +20,29 @@
 //! * `meta`: magic, format version, camera, block grid, cycle, creation time, and a
 //!   CRC-32 over them; the file also carries SQLite's `application_id` (`ISOC`) and
 //!   `user_version` (the format version);
-//! * `bins`: one row per minute bin t* that has learned anything: count (days),
-//!   the absolute minute that last taught it, mean and variance per block (f32
-//!   little-endian blobs), and a CRC-32 over all of it;
+//! * `bins`: one row per row of the model ([`Cycle::rows`]: the minute bins t* of
+//!   the cycle, and with day types the workday and rest-day profiles after them;
+//!   [`isochronal`] says which rows a minute teaches) that has learned anything:
+//!   count (days or weeks), the absolute minute that last taught it, mean and
+//!   variance per block (f32 little-endian blobs), and a CRC-32 over all of it;
 //! * `baseline`: the F_L1 baseline per block with its frame count, rate and time, and
 //!   a CRC-32;
 //! * `progress`: the last completed minute and how many minutes were committed or
-//!   skipped (too few frames).
+//!   skipped (too few frames);
+//! * `spans`: the minutes completed so far as merged spans ([`Spans`]), each with a
+//!   CRC-32.
 //!
 //! **Crash safety.** The cascade writes one transaction per completed minute
-//! ([`Store::commit_minute`]): the bin's new row, the baseline and the progress
-//! together, or none of them. A crash at any moment loses at most the minute in
-//! progress. A bin learns only from minutes later than the one that last taught it,
-//! so data delivered twice (a replay, a restarted producer) never counts twice.
+//! ([`Store::commit_minute`]): the rows it taught, the baseline, the progress and
+//! the spans together, or none of them. A crash at any moment loses at most the
+//! minute in progress. A minute inside the completed spans teaches nothing again, so
+//! data delivered twice (a replay, a restarted producer) never counts twice; a
+//! minute outside them learns whatever its time (a clock corrected after running
+//! ahead keeps learning).
+//!
+//! **Versions.** Format 2 added the day-type rows and the spans. A store of format 1
+//! is refused with the command that converts it ([`migrate`], `isochron store
+//! migrate`), which keeps everything it learned and the old file beside it.
 //!
 //! **Damage.** Opening checks that the file is SQLite, is an isochron store (not
 //! another application's database), has this format version, belongs to the expected
@@ -48,17 +58,22 @@ use rusqlite::{Connection, OpenFlags, OptionalExtension, TransactionBehavior, pa
 
 mod error;
 mod file;
+pub mod isochronal;
+pub mod migrate;
 mod model;
 mod rows;
+mod spans;
 #[cfg(test)]
 mod tests;
 
 pub use error::StoreError;
+pub use isochronal::Rules;
 pub use model::{Baseline, Bin, MinuteCommit, Model, Progress, StoreMeta, VerifyReport};
+pub use spans::Spans;
 
 use error::sql_err;
 use file::{check_sqlite_header, create, cycle_name, read_meta};
-use rows::{RawBin, SELECT_BINS, f32_bytes, f32s_from};
+use rows::{RawBin, SELECT_BINS, f32_bytes, f32s_from, span_crc};
 
 use isochron_config::clock::Cycle;
 use isochron_wire::geometry::BlockGrid;
@@ -68,7 +83,7 @@ pub const FILE_SUFFIX: &str = ".isochron.sqlite";
 /// SQLite `application_id` of an isochron store: the bytes `ISOC`.
 pub const APPLICATION_ID: i32 = i32::from_be_bytes(*b"ISOC");
 /// Version of the store's layout. Bump it on any change to the tables or blobs.
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
 /// Value of the `magic` meta row.
 const MAGIC: &str = "isochron-store";
 /// How long a connection waits for a lock (WAL recovery, checkpoints).
@@ -85,6 +100,8 @@ pub struct Store {
     path: PathBuf,
     meta: StoreMeta,
     read_only: bool,
+    /// The completed minutes (the writer's; empty for a reader).
+    spans: Spans,
 }
 
 impl std::fmt::Debug for Store {
@@ -182,12 +199,48 @@ impl Store {
                     .map_err(|e| sql_err(path, e))?;
             }
         }
-        Ok(Store {
+        let mut store = Store {
             conn,
             path: file,
             meta,
             read_only,
-        })
+            spans: Spans::default(),
+        };
+        if !read_only {
+            store.spans = store.read_spans()?;
+        }
+        Ok(store)
+    }
+
+    /// The `spans` table, every row's checksum verified.
+    fn read_spans(&self) -> Result<Spans, StoreError> {
+        let mut stmt = self.statement("SELECT start, end, crc FROM spans")?;
+        let rows = stmt
+            .query_map([], |r| {
+                Ok((
+                    r.get::<_, i64>(0)?,
+                    r.get::<_, i64>(1)?,
+                    r.get::<_, i64>(2)?,
+                ))
+            })
+            .map_err(|e| sql_err(&self.path, e))?;
+        let mut spans = Vec::new();
+        for row in rows {
+            let (start, end, crc) = row.map_err(|e| sql_err(&self.path, e))?;
+            if span_crc(start, end) as i64 != crc || start > end {
+                return Err(StoreError::Damaged {
+                    file: self.path.clone(),
+                    detail: format!("checksum mismatch in the span of minutes {start}..{end}"),
+                });
+            }
+            spans.push((start, end));
+        }
+        Ok(Spans::from_rows(spans))
+    }
+
+    /// The minutes completed so far (empty for a reader).
+    pub fn spans(&self) -> &Spans {
+        &self.spans
     }
 
     /// The file.
@@ -220,8 +273,8 @@ impl Store {
             .map_err(|e| sql_err(&self.path, e))
     }
 
-    /// The model of bin `t_star`, if it has learned anything. Its checksum is
-    /// verified.
+    /// Row `t_star` of the model ([`Bin::t_star`]), if it has learned anything. Its
+    /// checksum is verified.
     pub fn read_bin(&self, t_star: u32) -> Result<Option<Bin>, StoreError> {
         let mut stmt = self.statement(&format!("{SELECT_BINS} WHERE t_star = ?1"))?;
         let raw = stmt
@@ -232,9 +285,10 @@ impl Store {
             .transpose()
     }
 
-    /// The whole model, every row's checksum verified.
+    /// The whole model, every row's checksum verified, read with its cycle's default
+    /// rules ([`Model::with_rules`] gives the site's).
     pub fn read_model(&self) -> Result<Model, StoreError> {
-        let bins_n = self.meta.bins() as usize;
+        let bins_n = self.meta.rows() as usize;
         let mut bins: Vec<Option<Bin>> = vec![None; bins_n];
         let mut stmt = self.statement(&format!("{SELECT_BINS} ORDER BY t_star"))?;
         let rows = stmt
@@ -248,15 +302,14 @@ impl Store {
             if t >= bins_n {
                 return Err(StoreError::Damaged {
                     file: self.path.clone(),
-                    detail: format!("bin {t} is outside the {bins_n} bins of the cycle"),
+                    detail: format!("bin {t} is outside the {bins_n} rows of the model"),
                 });
             }
             bins[t] = Some(bin);
         }
-        Ok(Model {
-            meta: self.meta.clone(),
-            bins,
-        })
+        let mut model = Model::with_bins(self.meta.clone(), []);
+        model.bins = bins;
+        Ok(model)
     }
 
     /// The stored F_L1 baseline, if any; its checksum is verified.
@@ -346,6 +399,7 @@ impl Store {
             });
         }
         read_meta(&self.conn, &self.path)?;
+        self.read_spans()?;
         let model = self.read_model()?;
         let baseline = self.read_baseline()?;
         Ok(VerifyReport {
@@ -355,7 +409,7 @@ impl Store {
         })
     }
 
-    /// Commits a hand-made minute: absolute minute `t_star` teaches bin `t_star` the
+    /// Commits a hand-made minute: absolute minute `t_star` teaches row `t_star` the
     /// per-block `mean` with variance 0 after `count` minutes, without a baseline
     /// (how tests and tools write a known long-term model).
     pub fn teach(&mut self, t_star: u32, count: u32, mean: Vec<f32>) -> Result<(), StoreError> {
@@ -368,14 +422,14 @@ impl Store {
         };
         self.commit_minute(&MinuteCommit {
             minute: t_star as i64,
-            bin: Some(&bin),
+            bins: std::slice::from_ref(&bin),
             baseline: None,
         })
     }
 
-    /// Writes one completed minute atomically and durably: the bin's new state (if the
-    /// minute taught it), the baseline, and the progress. When this returns `Ok`, the
-    /// minute survives a crash or power cut.
+    /// Writes one completed minute atomically and durably: the new state of the rows
+    /// it taught, the baseline, the progress and the completed spans. When this
+    /// returns `Ok`, the minute survives a crash or power cut.
     pub fn commit_minute(&mut self, commit: &MinuteCommit<'_>) -> Result<(), StoreError> {
         if self.read_only {
             return Err(StoreError::ReadOnly {
@@ -383,14 +437,14 @@ impl Store {
             });
         }
         let blocks = self.meta.blocks();
-        let bins = self.meta.bins();
+        let bins = self.meta.rows();
         let path = self.path.clone();
         let err = |e: rusqlite::Error| sql_err(&path, e);
         let tx = self
             .conn
             .transaction_with_behavior(TransactionBehavior::Immediate)
             .map_err(err)?;
-        if let Some(bin) = commit.bin {
+        for bin in commit.bins {
             if bin.mean.len() != blocks || bin.var.len() != blocks || bin.t_star >= bins {
                 return Err(StoreError::Io {
                     file: path.clone(),
@@ -431,13 +485,29 @@ impl Store {
             ])
             .map_err(err)?;
         }
-        let (committed, skipped) = if commit.bin.is_some() { (1, 0) } else { (0, 1) };
+        let (committed, skipped) = if commit.bins.is_empty() {
+            (0, 1)
+        } else {
+            (1, 0)
+        };
         tx.prepare_cached(
             "UPDATE progress SET last_minute = max(coalesce(last_minute, ?1), ?1), committed = committed + ?2, skipped = skipped + ?3 WHERE id = 0",
         )
         .map_err(err)?
         .execute(params![commit.minute, committed, skipped])
         .map_err(err)?;
-        tx.commit().map_err(err)
+        let mut spans = self.spans.clone();
+        let (start, end) = spans.add(commit.minute);
+        tx.prepare_cached("DELETE FROM spans WHERE start BETWEEN ?1 AND ?2")
+            .map_err(err)?
+            .execute(params![start, end])
+            .map_err(err)?;
+        tx.prepare_cached("INSERT INTO spans (start, end, crc) VALUES (?1, ?2, ?3)")
+            .map_err(err)?
+            .execute(params![start, end, span_crc(start, end) as i64])
+            .map_err(err)?;
+        tx.commit().map_err(err)?;
+        self.spans = spans;
+        Ok(())
     }
 }

@@ -1,8 +1,13 @@
 //! What a store holds: its meta, the bins of the model, the F_L1 baseline and the
 //! cascade's progress.
 
+use std::borrow::Cow;
+
 use isochron_config::clock::Cycle;
 use isochron_wire::geometry::BlockGrid;
+use jiff::civil::Date;
+
+use crate::isochronal::Rules;
 
 /// What a store is about; fixed when it is created.
 ///
@@ -37,9 +42,14 @@ impl StoreMeta {
         self.grid.len()
     }
 
-    /// Number of minute bins of the cycle.
+    /// Number of minute bins of the cycle: what t* counts.
     pub fn bins(&self) -> u32 {
         self.cycle.bins()
+    }
+
+    /// Number of rows the store keeps ([`Cycle::rows`]).
+    pub fn rows(&self) -> u32 {
+        self.cycle.rows()
     }
 
     /// `WxH`.
@@ -48,13 +58,15 @@ impl StoreMeta {
     }
 }
 
-/// The long-term model of one minute bin t*: per block the exponentially weighted
-/// mean and variance of the minute means of `M_L1`.
+/// The long-term model of one minute bin: per block the exponentially weighted mean
+/// and variance of the minute means of `M_L1`. A row of the store, or a forecast
+/// read from rows ([`Rules::forecast`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Bin {
-    /// The bin: minute of the cycle.
+    /// The row of the store (with the daily and weekly cycles, and the weekday rows
+    /// of day types, the minute t* of the cycle); in a forecast, t*.
     pub t_star: u32,
-    /// Minutes (one per day, or per week with the weekly cycle) that taught this bin.
+    /// Minutes (one per day, or per week for a weekday's row) that taught this bin.
     /// All blocks of a bin learn together, so this is every block's count.
     pub count: u32,
     /// Absolute minute (minutes since the Unix epoch) that last taught this bin.
@@ -128,39 +140,77 @@ pub struct Progress {
 pub struct MinuteCommit<'a> {
     /// The minute (minutes since the Unix epoch).
     pub minute: i64,
-    /// The bin's new state, if the minute taught it; `None` if it was skipped.
-    pub bin: Option<&'a Bin>,
+    /// The new state of the rows the minute taught; empty if it was skipped.
+    pub bins: &'a [Bin],
     /// The F_L1 baseline at the end of the minute.
     pub baseline: Option<&'a Baseline>,
 }
 
-/// The whole long-term model of a camera.
+/// The whole long-term model of a camera: the store's rows, and the rules that read
+/// forecasts from them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Model {
     /// What the store is about.
     pub meta: StoreMeta,
-    /// One entry per bin of the cycle (`None`: never taught).
+    /// One entry per row of the store (`None`: never taught).
     pub bins: Vec<Option<Bin>>,
+    /// How forecasts are read from the rows: the cycle's defaults until
+    /// [`Model::with_rules`] gives the site's.
+    pub rules: Rules,
 }
 
 impl Model {
-    /// The model of `meta` that has learned `bins` (each at its `t_star`, which must
-    /// be inside the cycle) and nothing else: a known model without a store.
+    /// The model of `meta` that has learned `bins` (each at its row, which must be
+    /// inside the store) and nothing else: a known model without a store.
     pub fn with_bins(meta: StoreMeta, bins: impl IntoIterator<Item = Bin>) -> Model {
-        let mut all = vec![None; meta.bins() as usize];
+        let mut all = vec![None; meta.rows() as usize];
         for bin in bins {
             let t = bin.t_star as usize;
-            all[t] = Some(bin);
+            if t < all.len() {
+                all[t] = Some(bin);
+            }
         }
-        Model { meta, bins: all }
+        Model {
+            rules: Rules::defaults(meta.cycle),
+            meta,
+            bins: all,
+        }
     }
 
-    /// The bin at `t_star`, if it has learned anything.
-    pub fn bin(&self, t_star: u32) -> Option<&Bin> {
-        self.bins.get(t_star as usize).and_then(Option::as_ref)
+    /// The same model read with the site's `rules` (rest days, holidays, weights);
+    /// rules of another cycle are ignored.
+    pub fn with_rules(mut self, rules: Rules) -> Model {
+        if rules.cycle() == self.meta.cycle {
+            self.rules = rules;
+        }
+        self
     }
 
-    /// Bins that have learned anything.
+    /// Row `row` of the store, if it has learned anything.
+    pub fn row(&self, row: u32) -> Option<&Bin> {
+        self.bins.get(row as usize).and_then(Option::as_ref)
+    }
+
+    /// The forecast at minute `t_star` of the cycle (taken modulo the cycle: a daily
+    /// model serves every day of a week) on a day that is no holiday, if anything
+    /// was learned for it.
+    pub fn bin(&self, t_star: u32) -> Option<Cow<'_, Bin>> {
+        let rows = self.rules.rows_of_t_star(t_star % self.meta.bins().max(1));
+        self.forecast(rows)
+    }
+
+    /// The forecast for `minute_of_day` on the local `date` (holidays included).
+    pub fn bin_on(&self, date: Date, minute_of_day: u32) -> Option<Cow<'_, Bin>> {
+        self.forecast(self.rules.rows(date, minute_of_day))
+    }
+
+    fn forecast(&self, rows: crate::isochronal::Rows) -> Option<Cow<'_, Bin>> {
+        let get = |r: Option<u32>| r.and_then(|r| self.row(r));
+        self.rules
+            .forecast(rows, get(rows.cycle), get(rows.day_type))
+    }
+
+    /// Rows that have learned anything.
     pub fn learned(&self) -> impl Iterator<Item = &Bin> {
         self.bins.iter().flatten()
     }

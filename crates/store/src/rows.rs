@@ -74,6 +74,11 @@ pub(crate) fn crc_of(parts: &[&[u8]]) -> u32 {
     h.finalize()
 }
 
+/// The CRC-32 of a `spans` row.
+pub(crate) fn span_crc(start: i64, end: i64) -> u32 {
+    crc_of(&[&start.to_le_bytes(), &end.to_le_bytes()])
+}
+
 /// `values` as little-endian bytes.
 pub(crate) fn f32_bytes(values: &[f32]) -> Vec<u8> {
     let mut out = Vec::with_capacity(values.len() * 4);

@@ -6,7 +6,7 @@ fn commit(store: &mut Store, minute: i64, bin: Option<&Bin>, baseline: Option<&B
     store
         .commit_minute(&MinuteCommit {
             minute,
-            bin,
+            bins: bin.map(std::slice::from_ref).unwrap_or_default(),
             baseline,
         })
         .unwrap();
@@ -62,7 +62,7 @@ fn round_trip_bins_baseline_progress() {
     let model = reader.read_model().unwrap();
     assert_eq!(model.bins.len(), 1440);
     assert_eq!(model.learned().count(), 2);
-    assert_eq!(model.bin(20), Some(&b20));
+    assert_eq!(model.bin(20).as_deref(), Some(&b20));
     assert_eq!(reader.read_baseline().unwrap(), Some(bl));
     assert_eq!(
         reader.progress().unwrap(),
@@ -83,7 +83,7 @@ fn round_trip_bins_baseline_progress() {
     assert!(matches!(
         reader.commit_minute(&MinuteCommit {
             minute: 1,
-            bin: None,
+            bins: &[],
             baseline: None
         }),
         Err(StoreError::ReadOnly { .. })
@@ -261,16 +261,95 @@ fn weekly_stores_have_a_week_of_bins() {
     commit(&mut store, 1, Some(&b), None);
     let model = store.read_model().unwrap();
     assert_eq!(model.bins.len(), 10_080);
-    assert_eq!(model.bin(10_000), Some(&b));
+    assert_eq!(model.bin(10_000).as_deref(), Some(&b));
     // A bin outside the cycle is refused.
     let bad = bin(10_080, 1, 0.0);
     assert!(
         store
             .commit_minute(&MinuteCommit {
                 minute: 2,
-                bin: Some(&bad),
+                bins: std::slice::from_ref(&bad),
                 baseline: None
             })
             .is_err()
     );
+}
+
+/// A store of format 1 as isochron wrote it before day types: `meta`'s cycle, no
+/// spans table, `user_version` 1.
+fn format_1_store(path: &std::path::Path, cycle: Cycle, bins: &[Bin]) {
+    let mut m = meta("cam01");
+    m.cycle = cycle;
+    let mut store = Store::open_or_create(path, &m).unwrap();
+    for (i, b) in bins.iter().enumerate() {
+        commit(&mut store, 1000 + i as i64, Some(b), None);
+    }
+    drop(store);
+    let conn = rusqlite::Connection::open(path).unwrap();
+    conn.execute_batch("DROP TABLE spans; PRAGMA user_version = 1;")
+        .unwrap();
+}
+
+#[test]
+fn a_format_1_store_is_refused_with_the_command_that_converts_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = store_path(dir.path(), "cam01");
+    format_1_store(&path, Cycle::Daily, &[bin(10, 4, 0.5)]);
+    let e = Store::open_writer(&path, "cam01", Cycle::DayTypes).unwrap_err();
+    assert!(matches!(e, StoreError::Version { found: 1, .. }));
+    assert!(e.to_string().contains("isochron store migrate"), "{e}");
+}
+
+#[test]
+fn migrating_keeps_what_was_learned() {
+    let dir = tempfile::tempdir().unwrap();
+    // A daily model becomes both day types' profiles.
+    let path = store_path(dir.path(), "cam01");
+    format_1_store(&path, Cycle::Daily, &[bin(10, 4, 0.5)]);
+    let rules = crate::Rules::defaults(Cycle::DayTypes);
+    let done = crate::migrate::migrate(&path, "cam01", &rules).unwrap();
+    assert_eq!((done.from_version, done.to_cycle), (1, Cycle::DayTypes));
+    assert!(done.backup.as_ref().unwrap().exists());
+    let store = Store::open_writer(&path, "cam01", Cycle::DayTypes).unwrap();
+    let model = store.read_model().unwrap();
+    assert_eq!(model.learned().count(), 2);
+    // Monday and Sunday 00:10 both read the daily minute 10.
+    for t in [10, 6 * 1440 + 10] {
+        let f = model.bin(t).unwrap();
+        assert_eq!((f.t_star, f.count, f.mean[0]), (t, 4, 0.5));
+    }
+    // The minutes it learned stay learned: replaying them teaches nothing twice.
+    assert!(store.spans().contains(1000));
+    drop(store);
+    // Converting again does nothing.
+    let again = crate::migrate::migrate(&path, "cam01", &rules).unwrap();
+    assert!(again.backup.is_none());
+
+    // A weekly model keeps its weekdays; each day type is the mix of its days.
+    let path = store_path(dir.path(), "cam02");
+    let mut weekly = Vec::new();
+    for d in 0..7u32 {
+        let mut b = bin(d * 1440 + 10, 2, if d < 5 { 1.0 } else { 0.2 });
+        b.mean = vec![if d < 5 { 1.0 } else { 0.2 }; 12];
+        weekly.push(b);
+    }
+    let mut m = meta("cam02");
+    m.cycle = Cycle::Weekly;
+    Store::open_or_create(&path, &m).unwrap();
+    let mut store = Store::open_writer(&path, "cam02", Cycle::Weekly).unwrap();
+    for (i, b) in weekly.iter().enumerate() {
+        commit(&mut store, 5000 + i as i64, Some(b), None);
+    }
+    drop(store);
+    let done = crate::migrate::migrate(&path, "cam02", &rules).unwrap();
+    assert_eq!((done.from_version, done.rows), (2, 9));
+    let model = Store::open_read_only(&path, "cam02")
+        .unwrap()
+        .read_model()
+        .unwrap();
+    let workday = model.row(7 * 1440 + 10).unwrap();
+    let rest = model.row(8 * 1440 + 10).unwrap();
+    assert_eq!((workday.count, workday.mean[0]), (10, 1.0));
+    assert_eq!((rest.count, rest.mean[0]), (4, 0.2));
+    assert_eq!(model.row(3 * 1440 + 10).unwrap().mean[0], 1.0);
 }
