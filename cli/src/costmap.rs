@@ -226,10 +226,7 @@ fn expected_snapshot(args: SnapshotArgs, at: &str) -> anyhow::Result<ExitCode> {
     .with_context(|| format!("--out {}", out.display()))?;
     let render_ms = started.elapsed().as_secs_f64() * 1e3;
     if args.json {
-        let cycle = match loaded.config.cascade.cycle {
-            Cycle::Daily => "daily",
-            Cycle::Weekly => "weekly",
-        };
+        let cycle = loaded.config.cascade.cycle.name();
         let at = (format_t_star(minute), day.map(|d| DAYS[d as usize]), cycle);
         println!("{}", expected_json(&e, at, note, &files, render_ms));
     } else {
@@ -271,8 +268,8 @@ fn cycle_day(
                 DAYS[d as usize]
             )),
         ),
-        (Cycle::Weekly, Some(d)) => (Some(d), None),
-        (Cycle::Weekly, None) => {
+        (Cycle::Weekly | Cycle::DayTypes, Some(d)) => (Some(d), None),
+        (Cycle::Weekly | Cycle::DayTypes, None) => {
             let clock = SiteClock::new(&loaded.config.site.time_zone, Cycle::Weekly)?;
             (Some(clock.t_star(wall_now_ns()) / MINUTES_PER_DAY), None)
         }

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context as _, bail};
-use isochron_config::clock::{Cycle, MINUTES_PER_DAY};
+use isochron_config::clock::MINUTES_PER_DAY;
 use isochron_planning::profile::daily_profile;
 use isochron_store::Model;
 use plotters::prelude::*;
@@ -130,7 +130,7 @@ pub(crate) fn heatmap(args: HeatmapArgs) -> anyhow::Result<ExitCode> {
             },
             heat.days,
             if heat.days == 1 { "day" } else { "days" },
-            if model.meta.cycle == Cycle::Weekly {
+            if model.meta.cycle.days() == 7 {
                 ", week folded onto a day"
             } else {
                 ""

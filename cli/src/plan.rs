@@ -140,11 +140,13 @@ fn day_range(args: &OfflineArgs, loaded: &LoadedConfig) -> anyhow::Result<DayRan
     let cycle_offset = match loaded.config.cascade.cycle {
         Cycle::Daily => {
             if args.day.is_some() {
-                bail!("--day is for weekly stores; this site has cascade.cycle = \"daily\"");
+                bail!(
+                    "--day is for a model of the week (cascade.cycle = \"day_types\" or \"weekly\"); this site has cascade.cycle = \"daily\""
+                );
             }
             0
         }
-        Cycle::Weekly => {
+        Cycle::Weekly | Cycle::DayTypes => {
             let day = match &args.day {
                 Some(d) => parse_day(d)
                     .with_context(|| format!("--day: expected mon .. sun, found '{d}'"))?,

@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{Context, bail};
-use isochron_config::clock::{Cycle, format_t_star};
+use isochron_config::clock::format_t_star;
 use isochron_planning::planner::Planner;
 use isochron_store::Model;
 use plotters::coord::Shift;
@@ -137,7 +137,7 @@ fn daily(args: DailyArgs) -> anyhow::Result<ExitCode> {
             model.meta.camera,
             daily.days,
             if daily.days == 1 { "day" } else { "days" },
-            if model.meta.cycle == Cycle::Weekly {
+            if model.meta.cycle.days() == 7 {
                 ", week folded onto a day"
             } else {
                 ""
@@ -163,7 +163,7 @@ fn segment_daily(config: Option<PathBuf>, segment: &str) -> anyhow::Result<(Dail
         "Isochronal activity M_p(t*), segment {segment}, {} {}{} (Cost = 100·M/{}, cap {}){}",
         daily.days,
         if daily.days == 1 { "day" } else { "days" },
-        if planner.cycle() == Cycle::Weekly {
+        if planner.cycle().days() == 7 {
             ", week folded onto a day"
         } else {
             ""

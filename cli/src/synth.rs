@@ -67,6 +67,9 @@ pub struct Args {
     /// Fraction of people who stop on their way for 5 to 40 s.
     #[arg(long, default_value_t = 0.1)]
     standing: f64,
+    /// The long-term model's cycle: day_types (the default), daily or weekly.
+    #[arg(long, default_value = "day_types")]
+    cycle: String,
 }
 
 /// Block edge of the synthetic frames, pixels.
@@ -82,7 +85,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let out = args.out.canonicalize()?;
-    let config_path = write_config(&out, &args.camera)?;
+    let cycle = isochron_config::clock::Cycle::from_name(&args.cycle).with_context(|| {
+        format!(
+            "--cycle: expected day_types, daily or weekly, found '{}'",
+            args.cycle
+        )
+    })?;
+    let config_path = write_config(&out, &args.camera, cycle)?;
     let prefix = Config::load(&config_path)?.config.site.service_prefix;
 
     let k = (grid_w * grid_h) as usize;
@@ -374,8 +383,13 @@ fn parse_start(text: &str) -> anyhow::Result<i64> {
 
 /// Writes `DIR/synth.toml`: the camera, a private prefix, lossless delivery, the store
 /// in DIR. Returns its path.
-fn write_config(out: &Path, camera: &str) -> anyhow::Result<PathBuf> {
+fn write_config(
+    out: &Path,
+    camera: &str,
+    cycle: isochron_config::clock::Cycle,
+) -> anyhow::Result<PathBuf> {
     let mut config = Config::default();
+    config.cascade.cycle = cycle;
     config.site.name = "synth".into();
     config.site.service_prefix = format!("isochron-synth-{}", std::process::id());
     config.site.state_dir = out.to_path_buf();

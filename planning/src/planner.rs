@@ -58,6 +58,9 @@ struct Cached {
 pub struct Planner {
     config: CostmapConfig,
     cycle: Cycle,
+    /// The long-term model's rules (rest days, holidays, weights) forecasts are read
+    /// with.
+    rules: isochron_store::Rules,
     cameras: Vec<CameraGeometry>,
     state_dir: PathBuf,
     params: CostParams,
@@ -87,6 +90,7 @@ impl Planner {
         Ok(Planner {
             config: config.costmap.clone(),
             cycle: config.cascade.cycle,
+            rules: isochron_store::Rules::of(&config.cascade),
             models: cameras.iter().map(|_| None).collect(),
             cameras,
             state_dir: loaded.state_dir(),
@@ -145,7 +149,8 @@ impl Planner {
             }
             let model = store
                 .read_model()
-                .map_err(|e| PlanError::NoData(e.to_string()))?;
+                .map_err(|e| PlanError::NoData(e.to_string()))?
+                .with_rules(self.rules.clone());
             cam.blocks = Some(store_block_grid(&model));
             self.models[k] = Some(Cached {
                 model,

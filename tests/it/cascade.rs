@@ -102,6 +102,8 @@ fn synth_args(
     let args = ["synth", "--camera", "cam01", "--profile", &profile];
     args.into_iter()
         .chain(["--days", days, "--out", &out, "--fps", fps, "--grid", grid])
+        // The office's profile is one day: the paper's daily model recovers it.
+        .chain(["--cycle", "daily"])
         .chain(options.iter().copied())
         .map(str::to_string)
         .collect()
@@ -718,7 +720,12 @@ fn the_service_filters_shared_memory_rejects_bad_samples_and_passes_end_of_strea
 /// Makes an empty store of `camera` whose model has blocks of 16 px over a
 /// `width × height` frame.
 fn write_store_for(path: &Path, camera: &str, (width, height): (u32, u32)) {
-    let meta = StoreMeta::new(camera, BlockGrid::new(width, height, 16), Cycle::Daily, 0);
+    let meta = StoreMeta::new(
+        camera,
+        BlockGrid::new(width, height, 16),
+        Cycle::DayTypes,
+        0,
+    );
     Store::open_or_create(path, &meta).unwrap();
 }
 
@@ -793,7 +800,7 @@ impl<'a> MinuteDamage<'a> {
     }
 
     fn apply(&self) {
-        let mut s = Store::open_writer(self.path, "cam01", Cycle::Daily).unwrap();
+        let mut s = Store::open_writer(self.path, "cam01", Cycle::DayTypes).unwrap();
         for t in 0..300u32 {
             s.teach(t, 1, vec![0.1; 8]).unwrap();
         }

@@ -987,7 +987,7 @@ fn a_snapshot_at_a_time_of_day_draws_what_the_long_term_model_expects() {
     let synth = [
         ["synth", "--camera", "cam01", "--days", "1"].as_slice(),
         &["--profile", profile, "--out", state],
-        &["--fps", "1", "--grid", "20x15"],
+        &["--fps", "1", "--grid", "20x15", "--cycle", "daily"],
     ];
     let done = site.isochron(&synth.concat(), Duration::from_secs(120));
     assert!(done.status.success(), "{}", done.stderr);

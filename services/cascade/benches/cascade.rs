@@ -338,7 +338,7 @@ fn commit_latency(commits: usize, state_dir: &Path) -> Result<(f64, f64), String
         store
             .commit_minute(&MinuteCommit {
                 minute: m as i64,
-                bin: Some(&bin),
+                bins: std::slice::from_ref(&bin),
                 baseline: Some(&baseline),
             })
             .expect("commit");

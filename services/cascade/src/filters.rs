@@ -27,8 +27,9 @@
 //!   vector is the EMA of the per-second mean vector; the S2 vector is the per-second
 //!   mean vector × `S2 / m_sec`.
 //! * **Per minute of the cycle t***: the mean of `M_L1` over the minute updates F_L2
-//!   of bin t* — an exponentially weighted mean and variance with α_L2, bias-corrected
-//!   while the bin has few samples ([`f_l2`]).
+//!   of the rows of t* — an exponentially weighted mean and variance with α_L2,
+//!   bias-corrected while a row has few samples ([`f_l2`]); which rows, and how the
+//!   forecast is read from them, is the store's `isochronal` module.
 //!
 //! The cascade ([`CascadeBank`]) feeds each filter from the one before it: one 1-s
 //! FIR serves both short-term outputs, one F_S1 serves the in-place output and the
@@ -219,12 +220,8 @@ pub fn alpha(t_decay: f64, rate: f64) -> f64 {
     0.1f64.powf(1.0 / n)
 }
 
-/// The weight of a new sample in a bias-corrected EMA that has seen `n` samples:
-/// `max(1 − α, 1/(n+1))`. The first sample gets weight 1, the first few are averaged
-/// equally, and from `n ≈ 1/(1−α)` on the filter is the plain EMA.
-pub fn warmup_weight(one_minus_alpha: f64, n: u64) -> f64 {
-    one_minus_alpha.max(1.0 / (n as f64 + 1.0))
-}
+/// The warm-up weight of a bias-corrected EMA, shared with F_L2 in the store.
+pub use isochron_store::isochronal::warmup_weight;
 
 /// F_L1 on one block: updates the baseline `b` with weight `w` (`1 − α_L1`, or the
 /// warm-up weight) and returns `M_L1 = max(0, M − b)`.
@@ -287,17 +284,13 @@ pub fn f_s1<T: Real>(s1: &mut T, m_sec: T, alpha_s1: T) -> T {
     s2
 }
 
-/// F_L2 on one block of bin t*: an exponentially weighted mean and variance, updated
-/// with weight `w` (use [`warmup_weight`] with `1 − α_L2` and the bin's count):
-/// `d = x − mean; mean += w·d; var = (1 − w)·(var + w·d²)`. With `w = 1/n` this is
-/// exactly the running mean and population variance of the first `n` samples.
-#[inline(always)]
-pub fn f_l2<T: Real>(mean: &mut T, var: &mut T, x: T, w: T) {
-    let d = x - *mean;
-    let inc = w * d;
-    *mean += inc;
-    *var = ((T::of(1.0) - w) * (*var + d * inc)).max(T::of(0.0));
-}
+/// F_L2 on one block of a row of the long-term model: an exponentially weighted mean
+/// and variance, updated with weight `w` (use [`warmup_weight`] with `1 − α_L2` and
+/// the row's count): `d = x − mean; mean += w·d; var = (1 − w)·(var + w·d²)`. With
+/// `w = 1/n` this is exactly the running mean and population variance of the first
+/// `n` samples. It lives with the model's rules in the store
+/// ([`isochron_store::isochronal`]), which the backtest runs too.
+pub use isochron_store::isochronal::f_l2;
 
 /// What a completed second produced, for the bookkeeping around a bank.
 #[derive(Debug, Clone, Copy, PartialEq)]

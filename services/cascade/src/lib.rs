@@ -20,11 +20,16 @@
 //!   unless `cascade.frame_rate` is set; α of F_L1 is recomputed when r moves by more
 //!   than 2 %.
 //! * **minutes** are whole UTC minutes; t* is the minute's minute of the day (or week)
-//!   in the site's time zone. A minute teaches its bin only if it got at least
-//!   `min_coverage × r × 60` frames (a camera that was off teaches nothing), and only
-//!   if it is later than the minute that last taught the bin (data delivered twice
-//!   never counts twice). Every completed minute is one commit: the bin (if taught),
-//!   the F_L1 baseline, and the progress.
+//!   in the site's time zone, and the long-term model's rules
+//!   ([`isochron_store::isochronal`]) say which rows of the store it teaches (one, or
+//!   its weekday's and its day type's) and how the long-term mean and sigma at t*
+//!   are read from them. A minute teaches only if it got at least
+//!   `min_coverage × r × 60` frames (a camera that was off teaches nothing: a day
+//!   without data leaves the model as it was), and only if the store never completed
+//!   it before (data delivered twice never counts twice; a minute earlier than what
+//!   the store learned last but never seen — a clock corrected after running ahead —
+//!   learns, with one warning per timeline). Every completed minute is one commit:
+//!   the rows it taught, the F_L1 baseline, the progress.
 //! * **time going backwards** by up to 2 s rejects the frame (out of order); by more,
 //!   it starts a new timeline (a replay of an older recording): the partial second
 //!   and minute are finished, the short-term state is reset, the long-term model and
@@ -37,13 +42,12 @@ mod long_term;
 pub mod presence;
 pub mod stage;
 
-use crate::filters::{
-    CascadeBank, FilterBank, RateEstimator, SecondInput, alpha, f_l2, warmup_weight,
-};
+use crate::filters::{CascadeBank, FilterBank, RateEstimator, SecondInput, alpha, warmup_weight};
 use crate::presence::{Presence, PresenceParams, PresenceStats};
 use isochron_config::clock::{NS_PER_S, SiteClock};
 use isochron_config::{CascadeConfig, Config};
-use isochron_store::{Baseline, Bin, MinuteCommit, StoreError};
+use isochron_store::isochronal::Rows;
+use isochron_store::{Baseline, Bin, MinuteCommit, Rules, StoreError};
 use isochron_wire::geometry::BlockGrid;
 use isochron_wire::{
     ActivityHeader, BlockActivity, BlockMotion, CameraId, MotionHeader, WireError,
@@ -65,8 +69,8 @@ const MAX_DENSITY: f32 = 1.001;
 pub struct Params {
     /// T of F_L1, seconds.
     pub t_l1_s: f64,
-    /// T of F_L2, cycles (days).
-    pub t_l2_days: f64,
+    /// How the long-term model learns and forecasts (F_L2, its rows and day types).
+    pub rules: Rules,
     /// T of F_S1, seconds.
     pub t_s1_s: f64,
     /// Fixed frame rate r; `None`: measured.
@@ -84,7 +88,7 @@ impl Params {
         let p = &config.presence;
         Params {
             t_l1_s: c.t_l1_s,
-            t_l2_days: c.t_l2_days,
+            rules: Rules::of(c),
             t_s1_s: c.t_s1_s,
             frame_rate: c.frame_rate,
             min_coverage: c.min_coverage,
@@ -195,9 +199,12 @@ struct SecondState {
 #[derive(Debug, Clone)]
 struct MinuteState {
     index: i64,
-    t_star: u32,
+    rows: Rows,
     frames: u32,
-    bin: Option<Bin>,
+    /// The stored bins of `rows` (cycle's, day type's).
+    stored: [Option<Bin>; 2],
+    /// The long-term forecast for the minute, read from them.
+    forecast: Option<Bin>,
 }
 
 /// The cascade of one camera: filters, timing, and long-term updates.
@@ -212,7 +219,8 @@ pub struct Cascade<B: FilterBank = CascadeBank> {
     l1_one_minus_alpha: f64,
     l1_frames: u64,
     alpha_s1: f32,
-    one_minus_alpha_l2: f64,
+    /// Whether this timeline has warned of a minute before the latest learned one.
+    warned_earlier: bool,
     resume: Option<Baseline>,
     last_capture_ns: Option<i64>,
     last_second_done: Option<i64>,
@@ -241,7 +249,7 @@ impl<B: FilterBank> Cascade<B> {
         Cascade {
             camera,
             alpha_s1: alpha(params.t_s1_s, 1.0) as f32,
-            one_minus_alpha_l2: 1.0 - alpha(params.t_l2_days, 1.0),
+            warned_earlier: false,
             params,
             clock,
             grid,
@@ -370,13 +378,7 @@ impl<B: FilterBank> Cascade<B> {
             self.finish_minute(m, model)?;
         }
         if self.minute.is_none() {
-            let t_star = self.clock.t_star(minute * 60 * NS_PER_S);
-            self.minute = Some(MinuteState {
-                index: minute,
-                t_star,
-                frames: 0,
-                bin: model.bin(t_star)?,
-            });
+            self.minute = Some(self.start_minute(minute, model)?);
         }
         let s = self.second.get_or_insert(SecondState {
             index: second,
@@ -422,8 +424,39 @@ impl<B: FilterBank> Cascade<B> {
         self.rate.reset();
         self.last_capture_ns = None;
         self.last_second_done = None;
+        self.warned_earlier = false;
         self.stats.timelines += 1;
         Ok(done)
+    }
+
+    /// The state of absolute minute `minute` as it starts: its rows, their stored
+    /// bins and the forecast read from them.
+    fn start_minute(
+        &self,
+        minute: i64,
+        model: &mut dyn LongTerm,
+    ) -> Result<MinuteState, StoreError> {
+        let (date, minute_of_day) = self
+            .clock
+            .local_date_minute(minute.saturating_mul(60 * NS_PER_S));
+        let rows = self.params.rules.rows(date, minute_of_day);
+        let read = |r: Option<u32>, model: &mut dyn LongTerm| r.map(|r| model.bin(r)).transpose();
+        let stored = [
+            read(rows.cycle, model)?.flatten(),
+            read(rows.day_type, model)?.flatten(),
+        ];
+        let forecast = self
+            .params
+            .rules
+            .forecast(rows, stored[0].as_ref(), stored[1].as_ref())
+            .map(std::borrow::Cow::into_owned);
+        Ok(MinuteState {
+            index: minute,
+            rows,
+            frames: 0,
+            stored,
+            forecast,
+        })
     }
 
     fn take_up(&mut self, b: Baseline, first_ns: i64) {
@@ -491,8 +524,11 @@ impl<B: FilterBank> Cascade<B> {
         );
         self.presence.second(s.index, &mut self.out);
         let (t_star, bin) = match &self.minute {
-            Some(m) => (m.t_star, m.bin.as_ref()),
-            None => (self.clock.t_star(s.index * NS_PER_S), None),
+            Some(m) => (m.rows.t_star, m.forecast.as_ref()),
+            None => {
+                let (date, minute) = self.clock.local_date_minute(s.index * NS_PER_S);
+                (self.params.rules.rows(date, minute).t_star, None)
+            }
         };
         match bin {
             Some(bin) => {
@@ -527,18 +563,81 @@ impl<B: FilterBank> Cascade<B> {
         }
     }
 
+    /// The long-term forecast for absolute minute `minute` (minutes since the Unix
+    /// epoch): the bin whose mean and sigma the activity of that minute carries.
+    pub fn forecast(
+        &self,
+        minute: i64,
+        model: &mut dyn LongTerm,
+    ) -> Result<Option<Bin>, StoreError> {
+        Ok(self.start_minute(minute, model)?.forecast)
+    }
+
+    /// Teaches the long-term model the per-block minute means `x` of absolute minute
+    /// `minute` as a completed minute with enough frames does; a minute completed
+    /// before teaches nothing (`false`). The seam a backtest is checked against.
+    pub fn learn_minute(
+        &mut self,
+        minute: i64,
+        x: &[f32],
+        model: &mut dyn LongTerm,
+    ) -> Result<bool, StoreError> {
+        if model.completed(minute) || x.len() != self.grid.len() {
+            return Ok(false);
+        }
+        let m = self.start_minute(minute, model)?;
+        self.teach(m, x, None, model)?;
+        Ok(true)
+    }
+
+    /// Teaches the rows of `m` the means `x` and commits them with `baseline`.
+    fn teach(
+        &mut self,
+        m: MinuteState,
+        x: &[f32],
+        baseline: Option<&Baseline>,
+        model: &mut dyn LongTerm,
+    ) -> Result<(), StoreError> {
+        if let Some(latest) = model.latest()
+            && m.index < latest
+            && !self.warned_earlier
+        {
+            self.warned_earlier = true;
+            tracing::warn!(
+                "minute {} comes before {}, the latest minute the long-term store completed, and was never delivered before: learning it (a clock corrected after running ahead, or an older recording); a minute delivered twice is still learned once",
+                isochron_config::clock::format_rfc3339(m.index.saturating_mul(60 * NS_PER_S)),
+                isochron_config::clock::format_rfc3339(latest.saturating_mul(60 * NS_PER_S)),
+            );
+        }
+        let k = self.grid.len();
+        let [a, b] = m.stored;
+        let bins: Vec<Bin> = [(m.rows.cycle, a), (m.rows.day_type, b)]
+            .into_iter()
+            .filter_map(|(row, stored)| {
+                let row = row?;
+                let mut bin = stored.unwrap_or_else(|| Bin::empty(row, k));
+                self.params.rules.learn(&mut bin, x, m.index);
+                Some(bin)
+            })
+            .collect();
+        model.commit(&MinuteCommit {
+            minute: m.index,
+            bins: &bins,
+            baseline,
+        })
+    }
+
     fn finish_minute(
         &mut self,
         m: MinuteState,
         model: &mut dyn LongTerm,
     ) -> Result<(), StoreError> {
-        let k = self.grid.len();
         self.bank.minute_mean(m.frames, &mut self.minute_means);
         let expected = self
             .rate_in_use
             .map(|r| r * 60.0 * self.params.min_coverage);
         let covered = expected.is_some_and(|e| m.frames as f64 >= e) && m.frames > 0;
-        let repeated = m.bin.as_ref().is_some_and(|b| b.last_minute >= m.index);
+        let repeated = model.completed(m.index);
         let baseline = Baseline {
             capture_ns: self.last_capture_ns.unwrap_or(0),
             frames: self.l1_frames,
@@ -546,23 +645,15 @@ impl<B: FilterBank> Cascade<B> {
             level: self.bank.baseline(),
         };
         if covered && !repeated {
-            let mut bin = m.bin.unwrap_or_else(|| Bin::empty(m.t_star, k));
-            let w = warmup_weight(self.one_minus_alpha_l2, bin.count as u64) as f32;
-            for (kk, &x) in self.minute_means.iter().enumerate() {
-                f_l2(&mut bin.mean[kk], &mut bin.var[kk], x, w);
-            }
-            bin.count = bin.count.saturating_add(1);
-            bin.last_minute = m.index;
-            model.commit(&MinuteCommit {
-                minute: m.index,
-                bin: Some(&bin),
-                baseline: Some(&baseline),
-            })?;
+            let means = std::mem::take(&mut self.minute_means);
+            let taught = self.teach(m, &means, Some(&baseline), model);
+            self.minute_means = means;
+            taught?;
             self.stats.minutes_learned += 1;
         } else {
             model.commit(&MinuteCommit {
                 minute: m.index,
-                bin: None,
+                bins: &[],
                 baseline: Some(&baseline),
             })?;
             if repeated {

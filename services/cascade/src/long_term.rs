@@ -6,23 +6,36 @@ use std::collections::HashMap;
 use std::time::Instant;
 
 use isochron_runtime::health::quantile;
-use isochron_store::{Baseline, Bin, MinuteCommit, Progress, Store, StoreError};
+use isochron_store::{Baseline, Bin, MinuteCommit, Progress, Spans, Store, StoreError};
 
-/// Where the long-term model lives: read one bin, commit one minute.
+/// Where the long-term model lives: read one row, commit one minute, and which
+/// minutes it completed.
 pub trait LongTerm {
-    /// The model of bin `t_star`, if it has learned anything.
-    fn bin(&mut self, t_star: u32) -> Result<Option<Bin>, StoreError>;
+    /// Row `row` of the model, if it has learned anything.
+    fn bin(&mut self, row: u32) -> Result<Option<Bin>, StoreError>;
     /// Writes one completed minute atomically and durably.
     fn commit(&mut self, commit: &MinuteCommit<'_>) -> Result<(), StoreError>;
+    /// Whether absolute minute `minute` was completed before (delivered twice).
+    fn completed(&self, minute: i64) -> bool;
+    /// The latest minute completed.
+    fn latest(&self) -> Option<i64>;
 }
 
 impl LongTerm for Store {
-    fn bin(&mut self, t_star: u32) -> Result<Option<Bin>, StoreError> {
-        self.read_bin(t_star)
+    fn bin(&mut self, row: u32) -> Result<Option<Bin>, StoreError> {
+        self.read_bin(row)
     }
 
     fn commit(&mut self, commit: &MinuteCommit<'_>) -> Result<(), StoreError> {
         self.commit_minute(commit)
+    }
+
+    fn completed(&self, minute: i64) -> bool {
+        self.spans().contains(minute)
+    }
+
+    fn latest(&self) -> Option<i64> {
+        self.spans().latest()
     }
 }
 
@@ -35,20 +48,25 @@ pub struct MemoryModel {
     pub baseline: Option<Baseline>,
     /// Progress as a store would keep it.
     pub progress: Progress,
+    /// The completed minutes.
+    pub spans: Spans,
 }
 
 impl LongTerm for MemoryModel {
-    fn bin(&mut self, t_star: u32) -> Result<Option<Bin>, StoreError> {
-        Ok(self.bins.get(&t_star).cloned())
+    fn bin(&mut self, row: u32) -> Result<Option<Bin>, StoreError> {
+        Ok(self.bins.get(&row).cloned())
     }
 
     fn commit(&mut self, commit: &MinuteCommit<'_>) -> Result<(), StoreError> {
-        if let Some(bin) = commit.bin {
+        for bin in commit.bins {
             self.bins.insert(bin.t_star, bin.clone());
-            self.progress.committed += 1;
-        } else {
-            self.progress.skipped += 1;
         }
+        if commit.bins.is_empty() {
+            self.progress.skipped += 1;
+        } else {
+            self.progress.committed += 1;
+        }
+        self.spans.add(commit.minute);
         if let Some(b) = commit.baseline {
             self.baseline = Some(b.clone());
         }
@@ -58,6 +76,14 @@ impl LongTerm for MemoryModel {
                 .map_or(commit.minute, |m| m.max(commit.minute)),
         );
         Ok(())
+    }
+
+    fn completed(&self, minute: i64) -> bool {
+        self.spans.contains(minute)
+    }
+
+    fn latest(&self) -> Option<i64> {
+        self.spans.latest()
     }
 }
 
@@ -92,8 +118,16 @@ impl TimedStore {
 }
 
 impl LongTerm for TimedStore {
-    fn bin(&mut self, t_star: u32) -> Result<Option<Bin>, StoreError> {
-        self.store.read_bin(t_star)
+    fn bin(&mut self, row: u32) -> Result<Option<Bin>, StoreError> {
+        self.store.read_bin(row)
+    }
+
+    fn completed(&self, minute: i64) -> bool {
+        LongTerm::completed(&self.store, minute)
+    }
+
+    fn latest(&self) -> Option<i64> {
+        LongTerm::latest(&self.store)
     }
 
     fn commit(&mut self, commit: &MinuteCommit<'_>) -> Result<(), StoreError> {

@@ -108,14 +108,22 @@ impl<'ipc> CascadeStage<'ipc> {
         };
         tracing::info!(
             camera = %camera.id,
-            "filtering motion: T_L1 = {} s, T_S1 = {} s, T_L2 = {} days, r = {}, cycle {:?}, min coverage {}",
+            "filtering motion: T_L1 = {} s, T_S1 = {} s, T_L2 = {} days{}, r = {}, cycle {}, min coverage {}",
             params.t_l1_s,
             params.t_s1_s,
-            params.t_l2_days,
+            config.cascade.t_l2_days,
+            if config.cascade.cycle == isochron_config::clock::Cycle::DayTypes {
+                format!(
+                    " (weekdays {} weeks, K {})",
+                    config.cascade.t_l2_weeks, config.cascade.weekday_prior_weeks
+                )
+            } else {
+                String::new()
+            },
             params
                 .frame_rate
                 .map_or("measured".to_string(), |r| format!("{r} frames/s")),
-            config.cascade.cycle,
+            config.cascade.cycle.name(),
             params.min_coverage
         );
         Ok(CascadeStage {

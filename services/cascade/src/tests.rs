@@ -21,6 +21,14 @@ fn grid(w: u32, h: u32) -> BlockGrid {
     BlockGrid::new(w * 16, h * 16, 16)
 }
 
+/// The default parameters with the paper's daily cycle, as `utc()` counts t*.
+fn params() -> Params {
+    Params {
+        rules: isochron_store::Rules::defaults(Cycle::Daily),
+        ..Params::default()
+    }
+}
+
 fn utc() -> SiteClock {
     SiteClock::new("UTC", Cycle::Daily).unwrap()
 }
@@ -154,7 +162,7 @@ impl Rig {
     /// A default cascade on grid `g` and `clock`.
     fn with_clock(g: BlockGrid, clock: SiteClock) -> Self {
         Rig {
-            c: Cascade::new(camera(), Params::default(), clock, g, None),
+            c: Cascade::new(camera(), params(), clock, g, None),
             feed: Feed::new(g),
             model: MemoryModel::default(),
             outs: Vec::new(),
@@ -261,8 +269,12 @@ fn cascade_and_non_cascade_give_the_same_outputs_on_a_long_random_stream() {
     let g = grid(6, 4);
     let k = g.len();
     let params = Params {
-        t_l2_days: 3.0,
-        ..Params::default()
+        rules: isochron_store::Rules::of(&isochron_config::CascadeConfig {
+            t_l2_days: 3.0,
+            cycle: Cycle::Daily,
+            ..Default::default()
+        }),
+        ..params()
     };
     // Both on the counting number type: the operations are counted as they run.
     let mut c: Cascade<CascadeBank<Counted>> =
@@ -433,8 +445,8 @@ fn data_delivered_twice_never_counts_twice() {
 fn bad_samples_are_rejected_and_change_nothing() {
     let g = grid(3, 2);
     let k = g.len();
-    let mut good: Cascade = Cascade::new(camera(), Params::default(), utc(), g, None);
-    let mut tested: Cascade = Cascade::new(camera(), Params::default(), utc(), g, None);
+    let mut good: Cascade = Cascade::new(camera(), params(), utc(), g, None);
+    let mut tested: Cascade = Cascade::new(camera(), params(), utc(), g, None);
     let (mut mg, mut mt) = (MemoryModel::default(), MemoryModel::default());
     let (mut og, mut ot) = (Vec::new(), Vec::new());
     let mut feed = Feed::new(g);
@@ -522,7 +534,7 @@ fn the_frame_rate_is_measured_from_headers_unless_configured() {
 
     let fixed = Params {
         frame_rate: Some(30.0),
-        ..Params::default()
+        ..params()
     };
     r.c = Cascade::new(camera(), fixed, utc(), g, None);
     r.run(start() + 100 * NS_PER_S, 5.0, 12.5, |_, _| {});
@@ -584,7 +596,7 @@ fn a_restart_resumes_the_baseline_and_the_model_from_the_store() {
     let mut outs = Vec::new();
     let t_end = {
         let mut store = Store::open_or_create(&path, &meta).unwrap();
-        let mut c: Cascade = Cascade::new(camera(), Params::default(), utc(), g, None);
+        let mut c: Cascade = Cascade::new(camera(), params(), utc(), g, None);
         let t = run(
             &mut c,
             &mut feed,
@@ -613,12 +625,12 @@ fn a_restart_resumes_the_baseline_and_the_model_from_the_store() {
     // Restarted 30 s later: the person's first second passes against the resumed
     // baseline (about 0.1), where a fresh cascade would take it as the baseline.
     let restart = t_end + 30 * NS_PER_S;
-    let mut c: Cascade = Cascade::new(camera(), Params::default(), utc(), g, Some(resumed));
+    let mut c: Cascade = Cascade::new(camera(), params(), utc(), g, Some(resumed));
     outs.clear();
     let t = run(
         &mut c, &mut feed, &mut store, restart, 120.0, 10.0, pulse, &mut outs,
     );
-    let mut fresh: Cascade = Cascade::new(camera(), Params::default(), utc(), g, None);
+    let mut fresh: Cascade = Cascade::new(camera(), params(), utc(), g, None);
     let mut fresh_outs = Vec::new();
     run(
         &mut fresh,
@@ -669,7 +681,7 @@ fn a_restart_resumes_the_baseline_and_the_model_from_the_store() {
         frame_rate: 10.0,
         level: vec![0.5; 3],
     };
-    let mut c: Cascade = Cascade::new(camera(), Params::default(), utc(), g, Some(old));
+    let mut c: Cascade = Cascade::new(camera(), params(), utc(), g, Some(old));
     let mut model = MemoryModel::default();
     run(
         &mut c,
@@ -698,7 +710,7 @@ mod never_panics {
                 1..60)
         ) {
             let g = grid(3, 2);
-            let mut c: Cascade = Cascade::new(camera(), Params::default(), utc(), g, None);
+            let mut c: Cascade = Cascade::new(camera(), params(), utc(), g, None);
             let mut model = MemoryModel::default();
             let mut feed = Feed::new(g);
             for (t, flags, gw, payload, sel, values) in samples {
@@ -717,4 +729,23 @@ mod never_panics {
             }
         }
     }
+}
+
+#[test]
+fn a_clock_that_ran_ahead_does_not_stop_learning_and_a_repeat_is_learned_once() {
+    let g = grid(2, 2);
+    let mut c: Cascade = Cascade::new(camera(), params(), utc(), g, None);
+    let mut model = MemoryModel::default();
+    let x = vec![0.5; g.len()];
+    // 2099, then the corrected clock's 2009: both learn.
+    let ahead = 4_102_444_800 / 60;
+    let now = 1_243_814_400 / 60;
+    assert!(c.learn_minute(ahead, &x, &mut model).unwrap());
+    assert!(c.learn_minute(now, &x, &mut model).unwrap());
+    assert!(c.learn_minute(now + 1, &x, &mut model).unwrap());
+    // The same minute delivered again teaches nothing.
+    assert!(!c.learn_minute(now, &x, &mut model).unwrap());
+    let f = c.forecast(now + 7 * 1440, &mut model).unwrap().unwrap();
+    // Both 00:00 minutes taught the daily row of 00:00.
+    assert_eq!((f.count, f.mean[0]), (2, 0.5));
 }

@@ -109,7 +109,7 @@ impl Planning {
                 let route = request.route_names().remove(0);
                 let cycle_offset = match planner.cycle() {
                     Cycle::Daily => 0,
-                    Cycle::Weekly => {
+                    Cycle::Weekly | Cycle::DayTypes => {
                         let day = if request.weekday == 7 {
                             clock.t_star(now_ns) / 1440
                         } else {
