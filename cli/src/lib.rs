@@ -3,6 +3,7 @@
 //! The binary's `main` calls [`main`]; [`command`] is its clap definition, from
 //! which `cargo xtask docs` makes the man pages and shell completions.
 
+mod backtest;
 mod common;
 mod costmap;
 mod daily;

@@ -12,6 +12,12 @@
 //!   `mean` and `sigma` and count 0.
 //! * `isochron store info --store PATH --camera ID [--json]`: what the store is
 //!   about, how far it got, and a full check of its checksums.
+//! * `isochron store migrate --store PATH --camera ID [--config FILE] [--cycle C]`:
+//!   converts a store of an older format, or of another cycle, to this format and
+//!   the site's cycle, keeping what it learned (the old file stays beside it).
+//! * `isochron store backtest --counts FILE.csv ...`: replays count series through
+//!   the long-term model and scores its forecasts against baselines
+//!   ([`crate::backtest`]).
 //!
 //! `--store` is the store file, or a directory (a `state_dir`, or what `isochron
 //! synth --out DIR` wrote): then `DIR/<camera>.isochron.sqlite`.
@@ -37,6 +43,23 @@ pub(crate) enum Command {
     Export(ExportArgs),
     /// Show what a store holds and check all of it.
     Info(InfoArgs),
+    /// Convert a store of an older format or another cycle, keeping what it learned.
+    Migrate(MigrateArgs),
+    /// Replay count series through the long-term model and score its forecasts.
+    Backtest(crate::backtest::BacktestArgs),
+}
+
+#[derive(clap::Args)]
+pub(crate) struct MigrateArgs {
+    #[command(flatten)]
+    store: StoreArgs,
+    /// The site's config: the cycle, rest days and holidays to convert to (default
+    /// the usual config file).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Another cycle than the config's: day_types, daily or weekly.
+    #[arg(long)]
+    cycle: Option<String>,
 }
 
 #[derive(clap::Args)]
@@ -76,7 +99,44 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     match args.command {
         Command::Export(a) => export(a),
         Command::Info(a) => info(a),
+        Command::Migrate(a) => migrate(a),
+        Command::Backtest(a) => crate::backtest::run(a),
     }
+}
+
+fn migrate(args: MigrateArgs) -> anyhow::Result<ExitCode> {
+    let loaded = crate::common::load_config(args.config)?;
+    let mut cascade = loaded.config.cascade;
+    if let Some(name) = &args.cycle {
+        cascade.cycle = Cycle::from_name(name).with_context(|| {
+            format!("--cycle: expected day_types, daily or weekly, found '{name}'")
+        })?;
+    }
+    let path = resolve(&args.store.store, &args.store.camera)?;
+    let done = isochron_store::migrate::migrate(
+        &path,
+        &args.store.camera,
+        &isochron_store::Rules::of(&cascade),
+    )?;
+    match &done.backup {
+        None => println!(
+            "store: {} is already format {} with the {} cycle: nothing to do",
+            path.display(),
+            isochron_store::FORMAT_VERSION,
+            done.to_cycle.name()
+        ),
+        Some(backup) => println!(
+            "store: {} converted from format {} ({}) to format {} ({}), {} rows; the old file is {}",
+            path.display(),
+            done.from_version,
+            done.from_cycle.name(),
+            isochron_store::FORMAT_VERSION,
+            done.to_cycle.name(),
+            done.rows,
+            backup.display()
+        ),
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 /// Which blocks a profile is taken over. A later `--segment NAME` (a floor polygon
@@ -131,7 +191,10 @@ impl Selection {
 /// The isochronal profile of `selection`: one point per bin of the cycle.
 pub fn profile(model: &Model, selection: &Selection) -> anyhow::Result<Vec<ProfilePoint>> {
     let blocks = selection.blocks(model.meta.grid.grid_w(), model.meta.grid.grid_h())?;
-    Ok(daily_profile(&[(model, &blocks)], model.bins.len()))
+    Ok(daily_profile(
+        &[(model, &blocks)],
+        model.meta.bins() as usize,
+    ))
 }
 
 /// Opens a store read-only with the error naming the file; `path` may be the
@@ -182,7 +245,7 @@ fn export(args: ExportArgs) -> anyhow::Result<ExitCode> {
     let mut text = String::with_capacity(points.len() * 32);
     text += match model.meta.cycle {
         Cycle::Daily => "minute_of_day,mean,sigma,count\n",
-        Cycle::Weekly => "minute_of_week,mean,sigma,count\n",
+        Cycle::Weekly | Cycle::DayTypes => "minute_of_week,mean,sigma,count\n",
     };
     for p in &points {
         match (p.mean, p.sigma) {

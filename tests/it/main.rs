@@ -84,6 +84,7 @@ mod conventions;
 mod costmap;
 mod doctor;
 mod exporter;
+mod forecast;
 mod gate;
 mod hostile;
 mod inputs;
