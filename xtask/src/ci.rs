@@ -11,8 +11,12 @@ use anyhow::{Context, bail};
 
 use crate::{cargo, run};
 
-/// The benchmarks, by bench target name (each unique in the workspace).
-pub(crate) const BENCHES: [&str; 6] = ["ipc", "motion", "cascade", "gate", "group", "site"];
+/// The benchmarks, by bench target name (each unique in the workspace): ipc,
+/// motion, cascade, gate, group, site, and forecast (the long-term model's
+/// backtest on real pedestrian counts).
+pub(crate) const BENCHES: [&str; 7] = [
+    "ipc", "motion", "cascade", "gate", "group", "site", "forecast",
+];
 
 /// The checks and tests CI runs, in order.
 pub(crate) fn test(root: &Path) -> anyhow::Result<()> {
@@ -105,9 +109,17 @@ pub(crate) fn quick_bench(mut cmd: Command, target: &str, extra: &[String]) -> a
     Ok(())
 }
 
+/// Whether benchmark `target` runs the workspace's binaries, which must be built
+/// first.
+pub(crate) fn needs_bins(target: &str) -> bool {
+    matches!(target, "gate" | "group" | "site" | "forecast")
+}
+
+/// Runs benchmark `target` with `cargo bench` (release profile), `extra` its options.
 pub(crate) fn bench(target: &str, extra: &[String]) -> anyhow::Result<()> {
-    if matches!(target, "gate" | "group" | "site") {
-        // These run the whole process group (site: the link and the bridge).
+    if needs_bins(target) {
+        // These run the whole process group (site: the link and the bridge;
+        // forecast: `isochron store backtest`).
         run(cargo().args(["build", "--release", "--workspace", "--bins"]))?;
     }
     // `--workspace`, not `-p`: the dependencies keep the features of the release

