@@ -56,6 +56,7 @@ use std::time::Duration;
 
 use rusqlite::{Connection, OpenFlags, OptionalExtension, TransactionBehavior, params};
 
+mod bin;
 mod error;
 mod file;
 pub mod isochronal;
@@ -66,9 +67,10 @@ mod spans;
 #[cfg(test)]
 mod tests;
 
+pub use bin::Bin;
 pub use error::StoreError;
 pub use isochronal::Rules;
-pub use model::{Baseline, Bin, MinuteCommit, Model, Progress, StoreMeta, VerifyReport};
+pub use model::{Baseline, MinuteCommit, Model, Progress, StoreMeta, VerifyReport};
 pub use spans::Spans;
 
 use error::sql_err;
