@@ -541,7 +541,9 @@ mod tests {
         });
         let mut planner = Planner::new(&loaded).unwrap();
         let west = planner.segment_daily("west").unwrap();
-        assert_eq!(west.points.len(), 1440);
+        // The site's cycle is a week (day types): the daily store serves every day.
+        assert_eq!(west.points.len(), 7 * 1440);
+        assert_eq!(west.points[6 * 1440].mean, Some(0.0));
         assert_eq!(west.points[0].mean, Some(0.0));
         assert_eq!(
             (west.points[0].sigma, west.points[0].count),
