@@ -60,6 +60,7 @@ fn err(context: &str, e: impl std::fmt::Display) -> IpcError {
     IpcError {
         context: context.to_string(),
         detail: format!("{e}"),
+        permanent: false,
     }
 }
 

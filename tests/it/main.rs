@@ -90,6 +90,7 @@ mod hostile;
 mod inputs;
 mod launcher;
 mod link;
+mod local_users;
 mod motion;
 mod mqtt;
 mod nav2;

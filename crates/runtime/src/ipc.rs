@@ -32,7 +32,16 @@
 //! SIGCONT right after SIGTERM (systemd's stop sequence) cannot erase the request
 //! as it would iceoryx2's own last-signal record.
 
-isochron_exit::always_exits_with!(UNAVAILABLE: IpcError;);
+impl isochron_exit::Classify for IpcError {
+    /// Shared memory that is not there yet may come; an unsafe one stays unsafe.
+    fn exit_code(&self) -> i32 {
+        if self.permanent {
+            isochron_exit::CONFIG
+        } else {
+            isochron_exit::UNAVAILABLE
+        }
+    }
+}
 
 use std::fmt::Debug;
 use std::mem::MaybeUninit;
@@ -53,6 +62,8 @@ use iceoryx2::service::port_factory::PortFactory as _;
 use iceoryx2::service::port_factory::event::PortFactory as PortFactoryEvent;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use iceoryx2::waitset::WaitSetRunResult;
+
+pub mod node_counter;
 
 use crate::names::ServiceNames;
 use crate::topology::StageKind;
@@ -79,6 +90,8 @@ pub struct IpcError {
     pub context: String,
     /// iceoryx2's error.
     pub detail: String,
+    /// Restarting cannot help (an unsafe node counter).
+    pub permanent: bool,
 }
 
 fn err(context: impl Into<String>) -> impl FnOnce(&dyn std::fmt::Display) -> IpcError {
@@ -86,6 +99,7 @@ fn err(context: impl Into<String>) -> impl FnOnce(&dyn std::fmt::Display) -> Ipc
     move |e| IpcError {
         context,
         detail: format!("{e}"),
+        permanent: false,
     }
 }
 
@@ -172,6 +186,32 @@ fn watch_stop_signals() {
     });
 }
 
+/// Makes this user's iceoryx2 node counter owner-only, or refuses one that other
+/// users may write ([`node_counter`]).
+fn guard_node_counter() -> Result<(), IpcError> {
+    let prefix = iceoryx2::config::Config::global_config()
+        .global
+        .prefix
+        .to_string();
+    let dir = std::path::Path::new(node_counter::SHM_DIR);
+    match node_counter::check(dir, &prefix, node_counter::euid()) {
+        Ok(repaired) => {
+            for file in repaired {
+                tracing::info!(
+                    "{} was writable by every local user (an older iceoryx2 made it so): now owner-only",
+                    file.display()
+                );
+            }
+            Ok(())
+        }
+        Err(unsafe_file) => Err(IpcError {
+            context: "checking the node counter before creating a node".into(),
+            detail: unsafe_file.to_string(),
+            permanent: true,
+        }),
+    }
+}
+
 /// True if a WaitSet's `result` asks the process to stop (SIGINT, SIGTERM); it
 /// then also makes [`Ipc::should_stop`] true in every thread of the process.
 pub fn stop_requested_by(result: &WaitSetRunResult) -> bool {
@@ -196,6 +236,7 @@ impl Ipc {
         // iceoryx2 warns when it runs on its built-in defaults, which isochron does
         // on purpose; keep its own log to errors unless IOX2_LOG_LEVEL says otherwise.
         set_log_level_from_env_or(LogLevel::Error);
+        guard_node_counter()?;
         let node = NodeBuilder::new()
             .name(&node_name)
             .create::<Ipc2>()

@@ -404,6 +404,7 @@ fn ipc_error(context: &str, e: impl Display) -> IpcError {
     IpcError {
         context: context.into(),
         detail: e.to_string(),
+        permanent: false,
     }
 }
 

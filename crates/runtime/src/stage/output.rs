@@ -160,6 +160,7 @@ impl<'ipc, S: StreamType> Output<'ipc, S> {
             return Err(SendError::NoLoan(IpcError {
                 context: format!("loaning a {} sample of {len} elements", S::STREAM),
                 detail: format!("the {capacity} samples of the memory output are all held"),
+                permanent: false,
             }));
         }
         let mut payload: Vec<MaybeUninit<S::Element>> = Vec::with_capacity(len);
