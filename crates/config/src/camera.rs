@@ -8,6 +8,13 @@ use serde::{Deserialize, Serialize};
 use super::{Invalid, check_at_least, check_polygon, check_range};
 use isochron_wire::{PixelFormat, is_valid_camera_id};
 
+/// The earliest `start` of a file source: 1971-01-01T00:00:00Z, UTC ns (a capture
+/// time must be after 1970, and a replay may begin a little before its start).
+const START_MIN_NS: i64 = 31_536_000 * 1_000_000_000;
+/// The latest `start`: 2200-01-01T00:00:00Z, UTC ns, well before i64 nanoseconds
+/// overflow in 2262 however long the file plays.
+const START_MAX_NS: i64 = 7_258_118_400 * 1_000_000_000;
+
 /// Playback speed of a file source.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Speed {
@@ -100,7 +107,8 @@ pub struct CameraConfig {
     /// Frame rate of a file source, overriding what the container states.
     #[serde(default)]
     pub fps: Option<f64>,
-    /// Capture time of a file's first frame (RFC 3339); default: when capture starts.
+    /// Capture time of a file's first frame (RFC 3339, 1971 to 2200); default: when
+    /// capture starts.
     #[serde(default)]
     pub start: Option<String>,
     /// Playback speed of a file source: `"max"` or a factor. Default 1 (real time).
@@ -305,14 +313,22 @@ impl CameraConfig {
         if let Some(fps) = self.fps {
             check_range(&key("fps"), fps, 0.01, 1000.0)?;
         }
-        if let Some(start) = &self.start
-            && crate::clock::parse_rfc3339(start).is_err()
-        {
-            return Err(Invalid::found(
-                key("start"),
-                "an RFC 3339 time such as \"2026-03-02T07:00:00Z\"",
-                start,
-            ));
+        if let Some(start) = &self.start {
+            let parsed = crate::clock::parse_rfc3339(start);
+            if parsed.is_err() {
+                return Err(Invalid::found(
+                    key("start"),
+                    "an RFC 3339 time such as \"2026-03-02T07:00:00Z\"",
+                    start,
+                ));
+            }
+            if !parsed.is_ok_and(|ns| (START_MIN_NS..=START_MAX_NS).contains(&ns)) {
+                return Err(Invalid::found(
+                    key("start"),
+                    "a time from 1971-01-01 to 2200-01-01 (capture times are nanoseconds after 1970 that must not overflow)",
+                    start,
+                ));
+            }
         }
         self.validate_replay(i)?;
         self.validate_areas(i)?;

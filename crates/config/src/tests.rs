@@ -125,6 +125,38 @@ fn start_frame_is_for_files_and_within_the_preload() {
 }
 
 #[test]
+fn a_file_start_outside_1971_to_2200_is_refused() {
+    let with =
+        |start: &str| parse(&GOOD.replace("fps = 10", &format!("fps = 10\nstart = \"{start}\"")));
+    assert!(with("2026-03-02T07:00:00Z").is_ok());
+    for start in [
+        "1969-12-31T00:00:00Z",
+        "2262-01-01T00:00:00Z",
+        "2201-01-01T00:00:00Z",
+    ] {
+        let err = with(start).unwrap_err();
+        assert_eq!(err.key.as_deref(), Some("camera[0].start"), "{start}");
+        assert!(
+            err.message.contains("from 1971-01-01 to 2200-01-01"),
+            "{err}"
+        );
+    }
+}
+
+#[test]
+fn day_types_settings_are_checked_with_their_keys() {
+    let c = parse(GOOD).unwrap();
+    assert_eq!(c.cascade.cycle, crate::clock::Cycle::DayTypes);
+    let text = format!("{GOOD}\n[cascade]\nrest_days = [\"fri\", \"sunday\"]\n");
+    let err = parse(&text).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("cascade.rest_days[1]"));
+    let text = format!("{GOOD}\n[cascade]\nholidays = [\"2026-12-25\", \"25/12/2026\"]\n");
+    let err = parse(&text).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("cascade.holidays[1]"));
+    assert!(err.message.contains("YYYY-MM-DD"), "{err}");
+}
+
+#[test]
 fn missing_cameras_is_an_error() {
     let err = parse("[site]\nname = \"x\"\n").unwrap_err();
     assert_eq!(err.key.as_deref(), Some("camera"));
