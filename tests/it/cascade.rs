@@ -766,6 +766,27 @@ fn foreign_or_damaged_stores_stop_the_service_with_a_clear_error() {
     assert!(stderr.contains("is damaged"), "{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
 
+    // A store the cascade cannot write (here immutable, as a read-only mount or
+    // another owner would make it): permanent, so no supervisor restarts it.
+    std::fs::remove_file(&store).unwrap();
+    write_store_for(&store, "cam01", (64, 32));
+    let immutable = std::process::Command::new("chattr")
+        .arg("+i")
+        .arg(&store)
+        .status()
+        .is_ok_and(|s| s.success());
+    if immutable {
+        let (code, stderr) = run(&site);
+        let _ = std::process::Command::new("chattr")
+            .arg("-i")
+            .arg(&store)
+            .status();
+        assert_eq!(code, Some(78), "{stderr}");
+        assert!(stderr.contains("cannot be written"), "{stderr}");
+    } else {
+        eprintln!("chattr +i is not supported here: the read-only store case is not checked");
+    }
+
     // A good store of another grid: the cascade starts, and stops at the first motion
     // sample, which shows that motion now runs with other settings.
     std::fs::remove_file(&store).unwrap();

@@ -117,6 +117,18 @@ pub enum StoreError {
         /// The file.
         file: PathBuf,
     },
+    /// The file (or its directory) cannot be written: permissions, a read-only
+    /// mount, an immutable file.
+    #[error(
+        "{} cannot be written ({detail}); the cascade needs to write its store: check the owner and mode of the file and of `site.state_dir` (the services run as the `isochron` user), and that the filesystem is mounted read-write",
+        file.display()
+    )]
+    NotWritable {
+        /// The file.
+        file: PathBuf,
+        /// What SQLite said.
+        detail: String,
+    },
     /// The operating system or SQLite failed (disk full, permissions, I/O error).
     #[error("{}: {detail}", file.display())]
     Io {
@@ -139,6 +151,10 @@ pub(crate) fn sql_err(path: &Path, e: rusqlite::Error) -> StoreError {
             file,
             detail: format!("SQLite: {e}"),
         },
+        Some(ErrorCode::ReadOnly | ErrorCode::PermissionDenied) => StoreError::NotWritable {
+            file,
+            detail: format!("SQLite: {e}"),
+        },
         _ => StoreError::Io {
             file,
             detail: format!("SQLite: {e}"),
@@ -158,7 +174,8 @@ impl isochron_exit::Classify for StoreError {
             | E::Version { .. }
             | E::Camera { .. }
             | E::Grid { .. }
-            | E::Cycle { .. } => CONFIG,
+            | E::Cycle { .. }
+            | E::NotWritable { .. } => CONFIG,
             E::Io { .. } | E::NotFound { .. } | E::ReadOnly { .. } => UNAVAILABLE,
         }
     }

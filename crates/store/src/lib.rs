@@ -191,6 +191,17 @@ impl Store {
             });
         }
         if !read_only {
+            // SQLite opens a file it cannot write read-only without a word; the
+            // writer would fail at its first commit.
+            if conn
+                .is_readonly(rusqlite::MAIN_DB)
+                .map_err(|e| sql_err(path, e))?
+            {
+                return Err(StoreError::NotWritable {
+                    file,
+                    detail: "SQLite could open it only read-only: its mode or owner, a read-only mount, or a header written by a newer SQLite".into(),
+                });
+            }
             conn.pragma_update(None, "synchronous", "FULL")
                 .map_err(|e| sql_err(path, e))?;
             let mode: String = conn

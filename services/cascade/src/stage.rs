@@ -2,11 +2,13 @@
 //! updated once per completed minute — run by the stage runtime
 //! ([`isochron_runtime::stage`]).
 //!
-//! A store write that fails with an I/O error (a full or read-only disk) does not
-//! end the cascade: that minute is not learned, the failure is warned about
-//! (rate-limited) and counted (`store_failures=` in the status detail), and the
-//! next minute tries again. Permanent store errors (foreign, damaged, another
-//! grid) still end it with their code. When the camera's size is configured, the
+//! A store write that fails with an I/O error (a full disk) or because the store
+//! became unwritable while running (a disk remounted read-only) does not end the
+//! cascade: that minute is not learned, the failure is warned about (rate-limited)
+//! and counted (`store_failures=` in the status detail), and the next minute tries
+//! again. Permanent store errors (foreign, damaged, another grid, a store that
+//! cannot be written when the cascade starts) end it with their code, which no
+//! supervisor restarts. When the camera's size is configured, the
 //! cascade knows the grid the config gives and rejects samples of any other grid
 //! before they can create or reach the store.
 
@@ -20,7 +22,7 @@ use isochron_runtime::ipc::{Activity, Ipc, Motion};
 use isochron_runtime::service::ServiceContext;
 use isochron_runtime::stage::{self, Context, Input, Output, Stage, Woken};
 use isochron_runtime::topology::StageKind;
-use isochron_store::{Store, StoreMeta, store_path};
+use isochron_store::{Store, StoreError, StoreMeta, store_path};
 use isochron_wire::geometry::BlockGrid;
 use isochron_wire::{CameraId, MotionHeader};
 
@@ -242,7 +244,14 @@ impl<'ipc> CascadeStage<'ipc> {
                 }
                 return Ok(());
             }
-            Err(PushError::Store(e)) if e.is_permanent() => return Err(e.into()),
+            // A store that became unwritable while running (a disk remounted
+            // read-only) may become writable again: pause learning, keep the
+            // activity flowing. One that cannot be written at start-up ends it.
+            Err(PushError::Store(e))
+                if e.is_permanent() && !matches!(e, StoreError::NotWritable { .. }) =>
+            {
+                return Err(e.into());
+            }
             Err(PushError::Store(e)) => {
                 self.store_failed(e.into(), cx);
                 return Ok(());
