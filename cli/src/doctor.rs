@@ -587,10 +587,12 @@ fn check_shared_memory(loaded: &LoadedConfig, report: &mut Report) {
     let mib = |b: usize| b as f64 / (1 << 20) as f64;
     let mut text = format!("the group preallocates about {:.0} MiB", mib(need));
     if !guessed.is_empty() {
-        text += &format!(
-            " (assuming 1920x1080 for {}: set width/height to size it exactly)",
+        let shown = if guessed.len() > 5 {
+            format!("{} and {} more", guessed[..5].join(", "), guessed.len() - 5)
+        } else {
             guessed.join(", ")
-        );
+        };
+        text += &format!(" (assuming 1920x1080 for {shown}: set width/height to size it exactly)");
     }
     match free {
         Some(free) if free < need => report.say(

@@ -89,6 +89,15 @@ pub fn collect(ipc: &Ipc, config: &LoadedConfig) -> anyhow::Result<Vec<Row>> {
             vec![String::new()]
         };
         for camera in targets {
+            // A site of thousands of cameras takes a while: SIGTERM or SIGINT stops
+            // here, and the readers made so far are dropped (their shared memory
+            // with them).
+            if ipc.should_stop() {
+                anyhow::bail!(
+                    "interrupted (SIGTERM or SIGINT) after {} of the status readers",
+                    readers.len()
+                );
+            }
             let reader = ipc.status_subscriber(&camera, stage)?;
             readers.push((stage, camera, reader));
         }
@@ -103,7 +112,7 @@ pub fn collect(ipc: &Ipc, config: &LoadedConfig) -> anyhow::Result<Vec<Row>> {
                 *last = Some(s);
             }
         }
-        if latest.iter().all(Option::is_some) || Instant::now() >= deadline {
+        if latest.iter().all(Option::is_some) || Instant::now() >= deadline || ipc.should_stop() {
             break;
         }
         std::thread::sleep(Duration::from_millis(20));

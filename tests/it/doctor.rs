@@ -220,3 +220,44 @@ fn json_prints_one_object_per_check_with_the_text_checks() {
         "{disk}"
     );
 }
+
+#[test]
+fn sigterm_stops_doctor_on_a_huge_site_and_leaves_no_shared_memory() {
+    // 3 000 cameras: doctor opens a status reader per camera and stage, which takes
+    // longer than the SIGTERM comes.
+    let cameras: String = (0..3000)
+        .map(|i| format!("[[camera]]\nid = \"c{i:05}\"\nsource = \"synthetic\"\n\n"))
+        .collect();
+    let site = TestSite::new("doctor-huge", &cameras);
+    let world = site.private_iceoryx2();
+    let text = std::fs::read_to_string(world.join("config/iceoryx2.toml")).unwrap();
+    let prefix = text
+        .lines()
+        .find(|l| l.starts_with("prefix"))
+        .and_then(|l| l.split('"').nth(1))
+        .unwrap()
+        .to_string();
+    let config = site.config_path().display().to_string();
+    let mut p = Proc::spawn_in(
+        &bin("isochron"),
+        &["doctor", "--config", config.as_str()],
+        Some(&world),
+    );
+    std::thread::sleep(Duration::from_secs(2));
+    p.signal(libc::SIGTERM);
+    let status = p.wait(Duration::from_secs(10));
+    assert!(status.is_some(), "doctor ignores SIGTERM\n{}", p.stderr());
+    assert!(p.stderr().contains("interrupted"), "{}", p.stderr());
+    let left: Vec<String> = std::fs::read_dir("/dev/shm")
+        .unwrap()
+        .filter_map(Result::ok)
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(&prefix) && !n.ends_with(".global_mgmt"))
+        .collect();
+    assert!(
+        left.is_empty(),
+        "{} files left: {:?}",
+        left.len(),
+        &left[..left.len().min(5)]
+    );
+}
