@@ -32,17 +32,6 @@
 //! SIGCONT right after SIGTERM (systemd's stop sequence) cannot erase the request
 //! as it would iceoryx2's own last-signal record.
 
-impl isochron_exit::Classify for IpcError {
-    /// Shared memory that is not there yet may come; an unsafe one stays unsafe.
-    fn exit_code(&self) -> i32 {
-        if self.permanent {
-            isochron_exit::CONFIG
-        } else {
-            isochron_exit::UNAVAILABLE
-        }
-    }
-}
-
 use std::fmt::Debug;
 use std::mem::MaybeUninit;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -63,7 +52,11 @@ use iceoryx2::service::port_factory::event::PortFactory as PortFactoryEvent;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use iceoryx2::waitset::WaitSetRunResult;
 
+mod error;
 pub mod node_counter;
+
+pub use error::IpcError;
+use error::err;
 
 use crate::names::ServiceNames;
 use crate::topology::StageKind;
@@ -81,27 +74,6 @@ pub type Ipc2 = ipc::Service;
 const MAX_BORROWED: usize = 2;
 /// Samples a publisher may have loaned at once.
 const MAX_LOANED: usize = 2;
-
-/// An iceoryx2 failure, with what isochron was doing.
-#[derive(Debug, thiserror::Error)]
-#[error("iceoryx2: {context}: {detail}")]
-pub struct IpcError {
-    /// What was being done.
-    pub context: String,
-    /// iceoryx2's error.
-    pub detail: String,
-    /// Restarting cannot help (an unsafe node counter).
-    pub permanent: bool,
-}
-
-fn err(context: impl Into<String>) -> impl FnOnce(&dyn std::fmt::Display) -> IpcError {
-    let context = context.into();
-    move |e| IpcError {
-        context,
-        detail: format!("{e}"),
-        permanent: false,
-    }
-}
 
 /// A stream's header and payload element types.
 pub trait StreamType {

@@ -29,9 +29,14 @@ pub struct Unsafe {
 
 impl std::fmt::Display for Unsafe {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let why = if self.mode & 0o022 != 0 {
+            "is writable by other users: any local user could freeze every isochron process of the site"
+        } else {
+            "is not this user's: iceoryx2 cannot open it, and every process of the site would fail to start (a command run as another user before the site started made it)"
+        };
         write!(
             f,
-            "{} (iceoryx2's node counter) belongs to uid {} and is writable by other users (mode {:o}): any local user could freeze every isochron process of the site; remove it as root (`rm {}`) while the site is stopped, then start it again",
+            "{} (iceoryx2's node counter) belongs to uid {} (mode {:o}) and {why}; remove it as root (`rm {}`) while the site is stopped, then start the site and run its commands as one user",
             self.file.display(),
             self.uid,
             self.mode,
@@ -60,7 +65,8 @@ pub fn files(dir: &Path, prefix: &str) -> Vec<PathBuf> {
 
 /// Checks the node counters of `prefix` in `dir` for a process running as `euid`:
 /// one of this user's that others may write is made owner-only (returned, to be
-/// logged); one of another user's that others may write is an error.
+/// logged); one of another user's that others may write is an error, and so is
+/// one of another user's that this user (not root) cannot open.
 pub fn check(dir: &Path, prefix: &str, euid: u32) -> Result<Vec<PathBuf>, Unsafe> {
     let mut repaired = Vec::new();
     for file in files(dir, prefix) {
@@ -68,7 +74,17 @@ pub fn check(dir: &Path, prefix: &str, euid: u32) -> Result<Vec<PathBuf>, Unsafe
             continue;
         };
         let mode = meta.mode() & 0o7777;
-        if !meta.is_file() || mode & 0o022 == 0 {
+        if !meta.is_file() {
+            continue;
+        }
+        if mode & 0o022 == 0 {
+            if meta.uid() != euid && euid != 0 && mode & 0o006 != 0o006 {
+                return Err(Unsafe {
+                    file,
+                    uid: meta.uid(),
+                    mode,
+                });
+            }
             continue;
         }
         if meta.uid() == euid
@@ -124,5 +140,9 @@ mod tests {
         let e = check(dir.path(), "iox2_", euid().wrapping_add(1)).unwrap_err();
         assert_eq!(e.file, counter);
         assert!(e.to_string().contains("remove it as root"), "{e}");
+        // Owner-only, but another user's: this one (not root) could not open it.
+        std::fs::set_permissions(&counter, std::fs::Permissions::from_mode(0o600)).unwrap();
+        let e = check(dir.path(), "iox2_", euid().wrapping_add(1)).unwrap_err();
+        assert!(e.to_string().contains("is not this user's"), "{e}");
     }
 }
