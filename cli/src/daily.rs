@@ -2,8 +2,89 @@
 //! day, its running means and its quiet times — what `isochron plot daily` and
 //! `isochron plot heatmap` draw.
 
+use anyhow::bail;
+use isochron_config::clock::Cycle;
 use isochron_config::clock::MINUTES_PER_DAY;
 use isochron_planning::profile::ProfilePoint;
+use isochron_store::Rules;
+use isochron_store::isochronal::DayType;
+
+/// Which days of a model of the week a plot shows (`--day`): all of them folded
+/// onto one day, one weekday, or the weekdays of one day type.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DayFilter {
+    /// Every day, folded (weighted by the days that taught each minute).
+    All,
+    /// One weekday, 0 = Monday.
+    Weekday(u32),
+    /// The weekdays of a day type (the site's rest days, default Saturday and Sunday).
+    Type(DayType),
+}
+
+/// `--day` names, Monday first.
+const DAY_NAMES: [&str; 7] = ["mon", "tue", "wed", "thu", "fri", "sat", "sun"];
+
+impl DayFilter {
+    /// Parses `--day`: `mon` .. `sun`, `workday` or `rest`; absent: all days.
+    pub fn parse(day: Option<&str>) -> anyhow::Result<DayFilter> {
+        let Some(text) = day else {
+            return Ok(DayFilter::All);
+        };
+        let lower = text.to_ascii_lowercase();
+        if let Some(d) = DAY_NAMES.iter().position(|n| *n == lower) {
+            return Ok(DayFilter::Weekday(d as u32));
+        }
+        match lower.as_str() {
+            "workday" | "workdays" => Ok(DayFilter::Type(DayType::Workday)),
+            "rest" | "rest-day" | "rest_day" | "weekend" => Ok(DayFilter::Type(DayType::RestDay)),
+            _ => bail!("--day: expected mon .. sun, workday or rest, found '{text}'"),
+        }
+    }
+
+    /// Whether the profile point at minute `t_star` of `cycle` is shown (a daily
+    /// model has one day: every filter shows it).
+    pub fn keeps(&self, t_star: u32, cycle: Cycle, rules: &Rules) -> bool {
+        let day = t_star / MINUTES_PER_DAY;
+        match (*self, cycle) {
+            (DayFilter::All, _) | (_, Cycle::Daily) => true,
+            (DayFilter::Weekday(d), _) => day == d,
+            (DayFilter::Type(kind), _) => rules.weekday_type(day) == kind,
+        }
+    }
+
+    /// For a title: ", Mondays", ", workdays", or how a week is folded.
+    pub fn describe(&self, cycle: Cycle) -> &'static str {
+        match (*self, cycle) {
+            (_, Cycle::Daily) => "",
+            (DayFilter::All, _) => ", week folded onto a day",
+            (DayFilter::Weekday(d), _) => [
+                ", Mondays",
+                ", Tuesdays",
+                ", Wednesdays",
+                ", Thursdays",
+                ", Fridays",
+                ", Saturdays",
+                ", Sundays",
+            ][d as usize % 7],
+            (DayFilter::Type(DayType::Workday), _) => ", workdays",
+            (DayFilter::Type(DayType::RestDay), _) => ", rest days",
+        }
+    }
+
+    /// The points of `points` this filter shows.
+    pub fn select(
+        &self,
+        points: &[ProfilePoint],
+        cycle: Cycle,
+        rules: &Rules,
+    ) -> Vec<ProfilePoint> {
+        points
+            .iter()
+            .filter(|p| self.keeps(p.t_star, cycle, rules))
+            .cloned()
+            .collect()
+    }
+}
 
 /// One day of activity, per minute: what the plot draws.
 #[derive(Debug, Clone)]
@@ -138,6 +219,34 @@ pub(crate) fn runs(values: &[Option<f64>]) -> Vec<std::ops::Range<usize>> {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
+
+    #[test]
+    fn a_day_filter_picks_a_weekday_or_the_days_of_a_type() {
+        let rules = Rules::defaults(Cycle::DayTypes);
+        let points: Vec<ProfilePoint> = (0..7 * MINUTES_PER_DAY)
+            .map(|t| ProfilePoint {
+                t_star: t,
+                mean: Some(f64::from(t / MINUTES_PER_DAY)),
+                sigma: Some(0.0),
+                count: 1,
+            })
+            .collect();
+        let tuesday = DayFilter::parse(Some("Tue")).unwrap();
+        let picked = tuesday.select(&points, Cycle::DayTypes, &rules);
+        assert_eq!(picked.len(), 1440);
+        assert_eq!(Daily::from_profile(&picked).mean[0], Some(1.0));
+        let rest = DayFilter::parse(Some("rest")).unwrap();
+        // Saturday (5) and Sunday (6), folded.
+        let daily = Daily::from_profile(&rest.select(&points, Cycle::DayTypes, &rules));
+        assert_eq!(daily.mean[0], Some(5.5));
+        assert_eq!(rest.describe(Cycle::DayTypes), ", rest days");
+        // A daily model has one day: every filter shows it.
+        assert_eq!(
+            tuesday.select(&points[..1440], Cycle::Daily, &rules).len(),
+            1440
+        );
+        assert!(DayFilter::parse(Some("someday")).is_err());
+    }
 
     /// An office day: busy 08:00–12:00 and 13:30–17:00, a lull at 12:45.
     pub(crate) fn office() -> Daily {

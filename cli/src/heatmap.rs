@@ -14,7 +14,7 @@ use isochron_planning::profile::daily_profile;
 use isochron_store::Model;
 use plotters::prelude::*;
 
-use crate::daily::Daily;
+use crate::daily::{Daily, DayFilter};
 use crate::store::{StoreArgs, open};
 
 /// Most block rows drawn; more blocks are averaged in groups.
@@ -30,6 +30,10 @@ pub(crate) struct HeatmapArgs {
     /// Title; default names the camera and the days of data.
     #[arg(long)]
     title: Option<String>,
+    /// With a model of the week: one weekday (`mon` .. `sun`) or the days of one
+    /// type (`workday`, `rest`) instead of the whole week folded onto a day.
+    #[arg(long)]
+    day: Option<String>,
 }
 
 /// Blocks × minutes of the day: `rows` rows of `MINUTES_PER_DAY` values.
@@ -45,8 +49,8 @@ pub struct Heat {
 }
 
 impl Heat {
-    /// The heat map of `model`'s blocks.
-    pub fn of(model: &Model) -> Heat {
+    /// The heat map of `model`'s blocks on the days `filter` shows.
+    pub fn of(model: &Model, filter: DayFilter) -> Heat {
         let blocks = model.meta.grid.len();
         let per = blocks.div_ceil(MAX_ROWS).max(1);
         let rows = blocks.div_ceil(per);
@@ -55,7 +59,9 @@ impl Heat {
         let mut days = 0;
         for r in 0..rows {
             let group: Vec<u32> = ((r * per) as u32..((r + 1) * per).min(blocks) as u32).collect();
-            let daily = Daily::from_profile(&daily_profile(&[(model, &group)], model.bins.len()));
+            let points = daily_profile(&[(model, &group)], model.meta.bins() as usize);
+            let daily =
+                Daily::from_profile(&filter.select(&points, model.meta.cycle, &model.rules));
             days = days.max(daily.days);
             values.extend(daily.mean);
         }
@@ -111,7 +117,8 @@ pub(crate) fn heatmap(args: HeatmapArgs) -> anyhow::Result<ExitCode> {
     }
     let store = open(&args.store.store, &args.store.camera)?;
     let model = store.read_model()?;
-    let heat = Heat::of(&model);
+    let filter = DayFilter::parse(args.day.as_deref())?;
+    let heat = Heat::of(&model, filter);
     if heat.days == 0 {
         bail!(
             "{} has not learned anything yet: nothing to plot",
@@ -130,11 +137,7 @@ pub(crate) fn heatmap(args: HeatmapArgs) -> anyhow::Result<ExitCode> {
             },
             heat.days,
             if heat.days == 1 { "day" } else { "days" },
-            if model.meta.cycle.days() == 7 {
-                ", week folded onto a day"
-            } else {
-                ""
-            }
+            filter.describe(model.meta.cycle)
         )
     });
     crate::font::load()?;

@@ -24,7 +24,7 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use crate::common::{Subcommands, load_config};
-use crate::daily::{Daily, running_mean, runs};
+use crate::daily::{Daily, DayFilter, running_mean, runs};
 use crate::store::{Selection, StoreArgs, open, profile};
 
 /// Plot a camera's long-term activity.
@@ -56,6 +56,10 @@ pub(crate) struct DailyArgs {
     /// One block, `X,Y`, instead of all blocks.
     #[arg(long)]
     block: Option<String>,
+    /// With a model of the week: one weekday (`mon` .. `sun`) or the days of one
+    /// type (`workday`, `rest`) instead of the whole week folded onto a day.
+    #[arg(long)]
+    day: Option<String>,
     /// Title; default names the camera, the blocks and the days of data.
     #[arg(long)]
     title: Option<String>,
@@ -109,8 +113,9 @@ fn daily(args: DailyArgs) -> anyhow::Result<ExitCode> {
         .with_context(|| format!("--day-start: expected HH:MM, found '{}'", args.day_start))?;
     let day_end = isochron_config::clock::parse_hhmm(&args.day_end)
         .with_context(|| format!("--day-end: expected HH:MM, found '{}'", args.day_end))?;
+    let filter = DayFilter::parse(args.day.as_deref())?;
     if let Some(segment) = &args.segment {
-        let (daily, title) = segment_daily(args.config.clone(), segment)?;
+        let (daily, title) = segment_daily(args.config.clone(), segment, filter)?;
         let title = args.title.clone().unwrap_or(title);
         return render(&args, format, day_start, day_end, &daily, &title);
     }
@@ -122,7 +127,8 @@ fn daily(args: DailyArgs) -> anyhow::Result<ExitCode> {
     let store = open(&store_args.store, &store_args.camera)?;
     let model: Model = store.read_model()?;
     let selection = Selection::parse(args.block.as_deref())?;
-    let points = profile(&model, &selection)?;
+    let cycle = model.meta.cycle;
+    let points = filter.select(&profile(&model, &selection)?, cycle, &model.rules);
     let daily = Daily::from_profile(&points);
     if daily.days == 0 {
         bail!(
@@ -137,11 +143,7 @@ fn daily(args: DailyArgs) -> anyhow::Result<ExitCode> {
             model.meta.camera,
             daily.days,
             if daily.days == 1 { "day" } else { "days" },
-            if model.meta.cycle.days() == 7 {
-                ", week folded onto a day"
-            } else {
-                ""
-            }
+            filter.describe(cycle)
         )
     });
     render(&args, format, day_start, day_end, &daily, &title)
@@ -150,11 +152,16 @@ fn daily(args: DailyArgs) -> anyhow::Result<ExitCode> {
 /// The long-term activity of a path segment over the day, for
 /// `isochron plot daily --segment NAME`, and the plot's default title. A weekly
 /// cycle is folded onto one day (weighted by the days that taught each minute).
-fn segment_daily(config: Option<PathBuf>, segment: &str) -> anyhow::Result<(Daily, String)> {
+fn segment_daily(
+    config: Option<PathBuf>,
+    segment: &str,
+    filter: DayFilter,
+) -> anyhow::Result<(Daily, String)> {
     let loaded = load_config(config)?;
     let mut planner = Planner::new(&loaded)?;
     let seg = planner.segment_daily(segment)?;
-    let daily = Daily::from_profile(&seg.points);
+    let rules = isochron_store::Rules::of(&loaded.config.cascade);
+    let daily = Daily::from_profile(&filter.select(&seg.points, planner.cycle(), &rules));
     if daily.days == 0 {
         bail!("segment '{segment}' has no long-term data yet: nothing to plot");
     }
@@ -163,11 +170,7 @@ fn segment_daily(config: Option<PathBuf>, segment: &str) -> anyhow::Result<(Dail
         "Isochronal activity M_p(t*), segment {segment}, {} {}{} (Cost = 100·M/{}, cap {}){}",
         daily.days,
         if daily.days == 1 { "day" } else { "days" },
-        if planner.cycle().days() == 7 {
-            ", week folded onto a day"
-        } else {
-            ""
-        },
+        filter.describe(planner.cycle()),
         c.cost_scale,
         c.cap,
         if seg.profile.m_prime {
