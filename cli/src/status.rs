@@ -92,7 +92,7 @@ pub fn collect(ipc: &Ipc, config: &LoadedConfig) -> anyhow::Result<Vec<Row>> {
             // A site of thousands of cameras takes a while: SIGTERM or SIGINT stops
             // here, and the readers made so far are dropped (their shared memory
             // with them).
-            if ipc.should_stop() {
+            if isochron_runtime::ipc::stop_signalled() {
                 anyhow::bail!(
                     "interrupted (SIGTERM or SIGINT) after {} of the status readers",
                     readers.len()

@@ -139,6 +139,12 @@ pub fn request_stop() {
     STOP_REQUESTED.store(true, Ordering::SeqCst);
 }
 
+/// True once SIGINT or SIGTERM arrived (or a stop was requested), without asking
+/// iceoryx2: for loops that must stop on a signal but wait on nothing.
+pub fn stop_signalled() -> bool {
+    STOP_REQUESTED.load(Ordering::Relaxed)
+}
+
 /// Makes SIGINT and SIGTERM set the process's stop flag, once per process.
 ///
 /// iceoryx2 remembers only the last signal that arrived, so a SIGTERM followed at
