@@ -12,6 +12,7 @@
 //! * the bridge's start-up warning when its grid is not the robots' map.
 
 use std::path::PathBuf;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use isochron_config::clock::parse_rfc3339;
@@ -377,11 +378,90 @@ fn malformed_plan_requests_are_answered_and_floods_are_counted() {
     assert!(row["dropped"].as_i64().unwrap() > 0, "{row}");
     assert_eq!(row["rejected"], 3, "{row}");
     assert!(
-        costmap.stderr().contains("dropped, the queue is full"),
+        costmap
+            .stderr()
+            .contains("dropped, its client's queue is full"),
         "{}",
         costmap.stderr()
     );
     // The loop went on: its status is fresh.
     assert!(row["age_s"].as_f64().unwrap() < 6.0, "{row}");
+    drop(costmap);
+}
+
+/// The JSON line a peer printed on standard output.
+fn peer_json(name: &str, out: &std::process::Output) -> Value {
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    serde_json::from_str(stdout.trim()).unwrap_or_else(|e| {
+        panic!(
+            "{name}: {e}: {stdout}\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+    })
+}
+
+/// One Cyclone DDS participant floods `plan_now` with 500 requests a second for
+/// a route that exists (each one planned) while a robot asks every half second
+/// (the Cyclone DDS client, sending each request once): at least 90 % of the
+/// robot's plans come back within 1 s, and the flood is dropped and counted.
+#[test]
+fn a_plan_flood_from_one_participant_does_not_starve_a_robot() {
+    python();
+    let dds = dds_domain();
+    let domain = dds.to_string();
+    let routes =
+        format!("{HALVES}\n[[costmap.route]]\nname = \"via-west\"\nsegments = [\"west\"]\n");
+    let site = costmap_site("nav2-fair", dds, &routes);
+    write_store(&site);
+    let (_ipc, mut source, costmap) = start_bridge(&site, "2026-03-02T12:30:00Z");
+    source.send(&[(HOT_BLOCK, 0.05)], 750);
+    let service = ["--domain", &domain, "--service", "/isochron/plan_now"];
+
+    // 10 000 requests in 20 s; the robot's 28 (14 s) start once the flood runs.
+    let flood = Command::new(python())
+        .arg(repo_root().join("tests/ros2/plan_attacker.py"))
+        .args(service)
+        .args(["--wait", "2", "flood", "10000", "20", "via-west"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_secs(4));
+    let robot = Command::new(python())
+        .arg(repo_root().join("tests/ros2/plan_client.py"))
+        .args(service)
+        .args(["--poll", "28", "--timeout", "3", "now", "via-west"])
+        .output()
+        .unwrap();
+    let robot = peer_json("plan_client.py --poll", &robot);
+    let flood = peer_json("plan_attacker.py", &flood.wait_with_output().unwrap());
+    let row = site.status_row("costmap");
+    eprintln!("robot: {robot}\nflood: {flood}\nbridge: {row}");
+
+    let rate = flood["sent"].as_f64().unwrap() / flood["seconds"].as_f64().unwrap();
+    assert!(rate > 450.0, "the flood was {rate:.0}/s: {flood}");
+    let mut latency: Vec<f64> = robot["latency_ms"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|l| l.as_f64().unwrap_or(f64::INFINITY))
+        .collect();
+    assert_eq!(latency.len(), 28, "{robot}");
+    latency.sort_by(f64::total_cmp);
+    let within = latency.iter().filter(|&&l| l <= 1000.0).count();
+    eprintln!(
+        "robot under a {rate:.0}/s flood: {within}/28 within 1 s, p50 {} ms, max {} ms",
+        latency[14], latency[27]
+    );
+    assert!(within * 10 >= 28 * 9, "{within}/28 within 1 s: {robot}");
+    let answered = latency.iter().filter(|l| l.is_finite()).count();
+    assert_eq!(
+        robot["statuses"]["0"], answered,
+        "plans of a known route: {robot}"
+    );
+    assert!(
+        row["dropped"].as_i64().unwrap() > 0,
+        "the flood is dropped: {row}"
+    );
     drop(costmap);
 }

@@ -14,7 +14,13 @@ Prints one JSON line: {"kind": "reply", ...fields} with costs as numbers, "inf",
 or null (NaN), or {"kind": "timeout"}. DDS stays on the loopback interface, as in
 costmap_listener.py.
 
-Usage: plan_client.py --domain D --service /isochron/plan_now now ROUTE [ROUTE...]
+With --poll N, it is a robot asking every half second: once the service is
+matched, it sends N requests 0.5 s apart (each once, with its own sequence
+number, as a ROS 2 client's async_send_request), waits --timeout seconds after
+the last, and prints {"kind": "poll", "sent": N, "latency_ms": [the reply's
+latency of each request, or null if none came], "statuses": {status: count}}.
+
+Usage: plan_client.py --domain D --service /isochron/plan_now [--poll N] now ROUTE [ROUTE...]
        plan_client.py --domain D --service /isochron/plan_offline offline ROUTE
               START_MINUTE END_MINUTE STEP_MIN [WEEKDAY]
 """
@@ -40,6 +46,7 @@ def main():
     parser.add_argument("--domain", type=int, required=True)
     parser.add_argument("--service", required=True)
     parser.add_argument("--timeout", type=float, default=20.0)
+    parser.add_argument("--poll", type=int, default=0)
     parser.add_argument("kind", choices=["offline", "now"])
     parser.add_argument("args", nargs="+")
     args = parser.parse_args()
@@ -134,6 +141,9 @@ def main():
     writer = DataWriter(participant, Topic(participant, "rq" + name + "Request", req_type), qos=qos)
     reader = DataReader(participant, Topic(participant, "rr" + name + "Reply", resp_type), qos=qos)
 
+    if args.poll:
+        poll(args, writer, reader, request, client)
+        return
     sent = set()
     end_at = time.monotonic() + args.timeout
     next_send = 0.0
@@ -150,6 +160,36 @@ def main():
                 return
         time.sleep(0.02)
     emit({"kind": "timeout"})
+
+
+def poll(args, writer, reader, request, client):
+    """--poll: args.poll requests 0.5 s apart, each sent once; their latencies."""
+    end = time.monotonic() + 30
+    while not (writer.get_matched_subscriptions() and reader.get_matched_publications()):
+        if time.monotonic() > end:
+            emit({"kind": "timeout"})
+            return
+        time.sleep(0.05)
+    time.sleep(0.5)  # the bridge's side of the match
+    sent_at, latency, statuses = {}, {}, {}
+    start = time.monotonic()
+    last = start + (args.poll - 1) * 0.5
+    while time.monotonic() < last + args.timeout and len(latency) < args.poll:
+        due = int((time.monotonic() - start) / 0.5) + 1
+        for seq in range(len(sent_at) + 1, min(due, args.poll) + 1):
+            sent_at[seq] = time.monotonic()
+            writer.write(request(seq))
+        for r in reader.take(N=64):
+            if r.client == client and r.seq in sent_at and r.seq not in latency:
+                latency[r.seq] = round((time.monotonic() - sent_at[r.seq]) * 1000.0, 1)
+                statuses[str(r.status)] = statuses.get(str(r.status), 0) + 1
+        time.sleep(0.005)
+    emit({
+        "kind": "poll",
+        "sent": len(sent_at),
+        "latency_ms": [latency.get(seq) for seq in range(1, args.poll + 1)],
+        "statuses": statuses,
+    })
 
 
 if __name__ == "__main__":

@@ -22,13 +22,22 @@
 //! length counts its NUL, and a string without one is malformed (not cut short).
 //! A malformed
 //! request gets `STATUS_BAD_REQUEST` (1) with the reason and is counted as
-//! rejected; one that cannot be answered (no identity) is counted only. Each
-//! service queues at most [`QUEUE`] requests and answers at most
-//! [`ANSWERS_PER_PASS`] per pass of the bridge's loop: a flood beyond that is
-//! dropped and counted, as are the requests DDS overwrote in the reader's history
-//! before the bridge took them (gaps in each client's sequence numbers).
+//! rejected; one that cannot be answered (no identity) is counted only.
+//!
+//! Requests are queued per client, the DDS writer that sent them, and answered
+//! round robin across clients ([`fair`]): each client may have [`PER_CLIENT`]
+//! requests queued, all together [`QUEUE`], and each service answers at most
+//! [`ANSWERS_PER_PASS`] per pass of the bridge's loop, [`CLIENT_ANSWERS_PER_PASS`]
+//! of one client. A flood beyond its
+//! client's share is dropped and counted, as are the requests DDS overwrote in
+//! the reader's history before the bridge took them (gaps in each client's
+//! sequence numbers); a client with one request outstanding is answered within
+//! one round, whatever another client sends. The writer, not the client id of
+//! rmw_cyclonedds's header nor the reader named by rmw_fastrtps's related sample
+//! identity, is the client: those are the request's bytes, a new one per
+//! request if its sender likes.
 
-use std::collections::{HashMap, HashSet, VecDeque};
+use std::collections::{HashMap, HashSet};
 use std::time::{Duration, Instant};
 
 use ros2_client::dds::DEFAULT_PUBLISHER_QOS;
@@ -46,10 +55,20 @@ use isochron_runtime::stage::Context;
 /// Requests DDS keeps for a service between two passes of the bridge's loop (at
 /// least 4 a second): a flood of 1 000 requests a second fits.
 const REQUEST_HISTORY: i32 = 256;
-/// Requests a service holds for an answer; more are dropped and counted.
+/// Requests a service holds for an answer, of all clients together; past it a
+/// newcomer displaces the newest request of the longest lane, if that is longer
+/// than the newcomer's ([`fair`]).
 pub const QUEUE: usize = 64;
+/// Requests one client (DDS writer) may have queued; more are dropped and
+/// counted. A ROS 2 client waits for each answer: it has one or two queued.
+pub const PER_CLIENT: usize = 8;
 /// Requests a service answers per pass of the loop.
 pub const ANSWERS_PER_PASS: usize = 16;
+/// Requests of one client a service answers per pass of the loop: what a flood
+/// costs the planner, and the burst of replies every client's reply reader
+/// receives (ROS 2 clients share the reply topic, and keep the last 10), stay
+/// small.
+pub const CLIENT_ANSWERS_PER_PASS: usize = 2;
 /// Replies the reply writer keeps until their clients acknowledge them.
 const REPLY_HISTORY: i32 = 256;
 /// Longest a reply waits for its client's reply reader to be matched.
@@ -88,8 +107,8 @@ pub struct PlanCounts {
     /// Malformed requests: answered with `STATUS_BAD_REQUEST` when they carried an
     /// identity, else only counted.
     pub rejected: u64,
-    /// Requests dropped: beyond a full queue, or overwritten in DDS before the
-    /// bridge took them.
+    /// Requests dropped: beyond their client's share of the queue, or
+    /// overwritten in DDS before the bridge took them.
     pub dropped: u64,
 }
 
@@ -99,7 +118,8 @@ struct Service {
     name: String,
     reader: SimpleDataReader<RawSample, Raw>,
     writer: DataWriter<RawReply, Raw>,
-    queue: VecDeque<Pending>,
+    /// Requests waiting for an answer, per request writer.
+    queue: FairQueue<GUID, Pending>,
     gaps: Gaps,
     /// Readers matched with the reply writer.
     matched: HashSet<GUID>,
@@ -210,7 +230,7 @@ impl Service {
             name: name.to_string(),
             reader,
             writer,
-            queue: VecDeque::new(),
+            queue: FairQueue::new(PER_CLIENT, QUEUE),
             gaps: Gaps::default(),
             matched: HashSet::new(),
         })
@@ -234,12 +254,13 @@ impl Service {
                     continue;
                 }
             };
-            let skipped = self.gaps.seen(sample.writer_guid, sample.sequence_number);
+            let writer = sample.writer_guid;
+            let skipped = self.gaps.seen(writer, sample.sequence_number);
             if skipped > 0 {
                 self.dropped(
                     cx,
                     counts,
-                    skipped,
+                    (skipped, writer),
                     "overwritten in DDS before it was taken",
                 );
             }
@@ -261,22 +282,40 @@ impl Service {
                         format!("{name}: a malformed request that cannot be answered: {why}")
                     });
                 }
-                Ok(_) if self.queue.len() >= QUEUE => {
-                    self.dropped(cx, counts, 1, "the queue is full");
-                }
-                Ok(pending) => self.queue.push_back(pending),
+                Ok(pending) => match self.queue.push(writer, pending) {
+                    Pushed::Queued => {}
+                    Pushed::ClientFull => {
+                        let why = "its client's queue is full";
+                        self.dropped(cx, counts, (1, writer), why);
+                    }
+                    Pushed::Full => self.dropped(cx, counts, (1, writer), "the queue is full"),
+                    Pushed::Displaced { client, .. } => {
+                        let why = "displaced from the longest queue by another client's";
+                        self.dropped(cx, counts, (1, client), why);
+                    }
+                },
             }
         }
     }
 
-    /// Counts `n` dropped requests, with a rate-limited warning saying `why`.
-    fn dropped(&self, cx: &mut Context, counts: &mut PlanCounts, n: u64, why: &str) {
+    /// Counts `n` dropped requests of `client`, with a rate-limited warning
+    /// saying `why`.
+    fn dropped(
+        &self,
+        cx: &mut Context,
+        counts: &mut PlanCounts,
+        (n, client): (u64, GUID),
+        why: &str,
+    ) {
         counts.dropped += n;
         cx.health.dropped(n);
-        let name = &self.name;
+        let (name, queue) = (&self.name, &self.queue);
+        let of_client = queue.counts(&client).map_or(n, |c| c.dropped.max(n));
         cx.warnings.warn("plan request dropped", || {
             format!(
-                "{name}: {n} request(s) dropped, {why} ({QUEUE} queued, {ANSWERS_PER_PASS} answered per pass; {} dropped so far)",
+                "{name}: {n} request(s) of client {:?} dropped, {why} ({PER_CLIENT} per client, {QUEUE} in all, {CLIENT_ANSWERS_PER_PASS} of a client answered per pass, round robin over {} client(s); {of_client} of its requests and {} in all dropped so far)",
+                client.prefix,
+                queue.clients(),
                 counts.dropped
             )
         });
@@ -291,19 +330,26 @@ impl Service {
     ) -> usize {
         // Every pass, so that the writer's status queue never fills up.
         self.update_matched();
-        if self.queue.is_empty() {
-            return 0;
-        }
         let now = Instant::now();
-        let mut waiting = VecDeque::new();
-        let mut n = 0;
-        while n < ANSWERS_PER_PASS
-            && let Some(pending) = self.queue.pop_front()
+        let matched = &self.matched;
+        let mut this_pass: HashMap<GUID, usize> = HashMap::new();
+        // A reply is sent once its client's reader is matched, or waited enough;
+        // at most CLIENT_ANSWERS_PER_PASS to a client.
+        let mut ready = |writer: &GUID, pending: &Pending| {
+            let n = this_pass.entry(*writer).or_default();
+            let due = *n < CLIENT_ANSWERS_PER_PASS
+                && (client_matched(matched, pending)
+                    || now.duration_since(pending.arrived) >= REPLY_WAIT);
+            *n += usize::from(due);
+            due
+        };
+        let mut due = Vec::new();
+        while due.len() < ANSWERS_PER_PASS
+            && let Some((_, pending)) = self.queue.next(&mut ready)
         {
-            if !self.client_matched(&pending) && now.duration_since(pending.arrived) < REPLY_WAIT {
-                waiting.push_back(pending);
-                continue;
-            }
+            due.push(pending);
+        }
+        for pending in &due {
             let response = match &pending.request {
                 Ok(request) => answer(self.kind, request),
                 Err(why) => {
@@ -316,13 +362,10 @@ impl Service {
                     PlanResponse::new(self.kind as u32, PlanStatus::BadRequest, why)
                 }
             };
-            self.reply(cx, &pending, &response);
+            self.reply(cx, pending, &response);
             counts.answered += 1;
-            n += 1;
         }
-        waiting.append(&mut self.queue);
-        self.queue = waiting;
-        n
+        due.len()
     }
 
     /// Follows which readers the reply writer is matched with.
@@ -338,18 +381,6 @@ impl Service {
                     self.matched.remove(&reader);
                 }
             }
-        }
-    }
-
-    /// True if the reply to `pending` would reach its client: the reader it names
-    /// (Fast DDS), or a reader of its writer's participant, is matched.
-    fn client_matched(&self, pending: &Pending) -> bool {
-        if pending.client.entity_id.entity_kind.is_reader() {
-            self.matched.contains(&pending.client)
-        } else {
-            self.matched
-                .iter()
-                .any(|r| r.prefix == pending.client.prefix)
         }
     }
 
@@ -382,7 +413,20 @@ impl Service {
     }
 }
 
+/// True if the reply to `pending` would reach its client: the reader it names
+/// (Fast DDS), or a reader of its writer's participant, is `matched`.
+fn client_matched(matched: &HashSet<GUID>, pending: &Pending) -> bool {
+    if pending.client.entity_id.entity_kind.is_reader() {
+        matched.contains(&pending.client)
+    } else {
+        matched.iter().any(|r| r.prefix == pending.client.prefix)
+    }
+}
+
+pub mod fair;
 mod request;
+
+use fair::{FairQueue, Pushed};
 
 use request::{
     Pending, Raw, RawReply, RawSample, ReplyTo, now_response, offline_response, read_request,

@@ -28,6 +28,11 @@ use crate::ros::{RosOutput, RosSettings, interfaces};
 
 /// How long a read long-term model is trusted before the store is checked again.
 const STORE_REFRESH: Duration = Duration::from_secs(60);
+/// The longest a ROS 2 planning request waits for the loop's next pass: DDS
+/// wakes no pass, so with the services on the loop ticks at least this often
+/// (a flood of 1 000 requests a second is then 100 a pass, well within the
+/// reader's history).
+const PLAN_TICK: Duration = Duration::from_millis(100);
 
 /// The cost-map stage's inputs: every camera's activity, every camera's
 /// detections, and planning requests.
@@ -326,9 +331,13 @@ impl Stage for CostmapStage {
         Ok(())
     }
 
-    /// The publish period: the grid goes out on time.
+    /// The publish period, so that the grid goes out on time; at most
+    /// [`PLAN_TICK`] while the ROS 2 planning services are on.
     fn timer(&self) -> Duration {
-        self.period
+        match self.ros {
+            Some(_) => self.period.min(PLAN_TICK),
+            None => self.period,
+        }
     }
 
     fn detail(&self) -> String {
