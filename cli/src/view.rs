@@ -1,6 +1,7 @@
 //! `isochron view --config site.toml [--listen ADDR]`: the site live in Foxglove —
 //! a Foxglove WebSocket server (subprotocol `foxglove.websocket.v1` or its new
-//! names `foxglove.sdk.v1[.1]`, each client held to `view.client_budget_mib`) with
+//! names `foxglove.sdk.v1[.1]`, each client held to `view.client_budget_mib`, all
+//! of them to `view.memory_budget_mib`, at most `view.max_clients` at once) with
 //! the same channels as
 //! `isochron record` ([`isochron_view::channels`]). Listens on `view.listen`
 //! (default 127.0.0.1:8765, loopback) unless `--listen` says otherwise. Open
@@ -57,12 +58,14 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         Until::default(),
     )?;
     println!(
-        "view: Foxglove WebSocket on ws://{addr} (images {})",
+        "view: Foxglove WebSocket on ws://{addr} (images {}; at most {} clients, {} MiB for all of them)",
         if loaded.config.view.frames {
             "on"
         } else {
             "off: view.frames = false"
-        }
+        },
+        limits.max_clients,
+        loaded.config.view.memory_budget_mib
     );
     if !addr.ip().is_loopback() {
         eprintln!("isochron view: listening on {addr}, reachable from the network");

@@ -740,6 +740,167 @@ fn a_client_that_stops_reading_costs_the_view_its_budget_and_is_disconnected() {
     assert!(!detail.contains("client_drops=0 "), "{detail}");
 }
 
+/// Publishes cam01's frames at the analysis size, one a second of capture time
+/// (so that the view, at most 2 images a second, makes a JPEG of each).
+struct FrameSource {
+    publisher: isochron_runtime::ipc::StreamPublisher<isochron_runtime::ipc::Frames>,
+    sent: u64,
+}
+
+impl FrameSource {
+    const SIZE: (u32, u32) = (320, 240);
+
+    fn new(ipc: &isochron_runtime::ipc::Ipc) -> FrameSource {
+        let bytes = (Self::SIZE.0 * Self::SIZE.1) as usize;
+        FrameSource {
+            publisher: ipc.publisher("cam01", bytes).unwrap(),
+            sent: 0,
+        }
+    }
+
+    fn send(&mut self) {
+        use isochron_wire::{CameraId, FrameHeader, PixelFormat, Preamble, Stream};
+        let (w, h) = Self::SIZE;
+        let k = self.sent;
+        // A texture that moves, so that no two JPEGs are alike.
+        let pixels: Vec<u8> = (0..w * h)
+            .map(|i| ((i % w) as u64 * 7 + (i / w) as u64 * 13 + k * 29) as u8 ^ (i as u8))
+            .collect();
+        let cam = CameraId::new("cam01").unwrap();
+        let mut preamble = Preamble::new::<u8>(Stream::Frames, cam, k, pixels.len());
+        preamble.capture_time_ns = 1_714_989_600_000_000_000 + k as i64 * 1_000_000_000;
+        preamble.origin_wall_ns = isochron_config::clock::wall_now_ns();
+        let header = FrameHeader {
+            preamble,
+            width: w,
+            height: h,
+            stride: w,
+            pixel_format: PixelFormat::Gray8 as u32,
+            source_index: k,
+        };
+        self.publisher.send_copy(header, &pixels).unwrap();
+        self.sent += 1;
+    }
+}
+
+#[test]
+fn many_stalled_clients_cost_the_view_its_memory_budget_and_the_rest_are_refused() {
+    use crate::costmap::{HOT_BLOCK, HOT_S1, Source, camera_toml};
+    const CLIENTS: u64 = 150;
+    // view.max_clients and view.memory_budget_mib at their defaults (32, 128 MiB);
+    // each client may hold 16 MiB, so 32 of them could hold 512 MiB but for the
+    // view's memory budget.
+    const MAX_CLIENTS: u64 = 32;
+    const STALL_S: u64 = 8;
+    let site = TestSite::new(
+        "live-many",
+        &format!(
+            "{}{BIG_GRID}\n[view]\nframes = true\nclient_budget_mib = 16\nclient_stall_s = {STALL_S}\n",
+            camera_toml()
+        ),
+    );
+    let port = free_port();
+    let mut view = spawn_view(&site.config_path(), port);
+    wait_for_view(&mut view);
+    // Cost maps of 1 MiB as fast as the view composes them, and images.
+    let ipc = site.ipc("source");
+    let mut source = Source::new(&ipc, "2024-05-06T10:00:00Z");
+    let mut frames = FrameSource::new(&ipc);
+    source.wait_for_subscriber(&view);
+    let hot = [(HOT_BLOCK, HOT_S1)];
+    let mut publish_for = |d: Duration, rss: &mut Vec<u64>| {
+        let end = Instant::now() + d;
+        while Instant::now() < end {
+            source.send(&hot, 600);
+            frames.send();
+            rss.push(rss_bytes(view.pid()).unwrap_or(0));
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    };
+    let mut rss = Vec::new();
+    publish_for(Duration::from_secs(3), &mut rss);
+    let baseline = *rss[rss.len() / 2..].iter().max().unwrap();
+
+    // 150 clients that subscribe to everything and never read.
+    let script = repo_root().join("tests/view/stalled_clients.py");
+    let url = format!("ws://127.0.0.1:{port}");
+    let (n, stall_arg) = (CLIENTS.to_string(), (STALL_S + 4).to_string());
+    let mut clients = Proc::spawn(&python(), &[script.to_str().unwrap(), &url, &n, &stall_arg]);
+    let started = Instant::now();
+    let mut during = Vec::new();
+    let mut line = |clients: &mut Proc, needle: &str, within: Duration, during: &mut Vec<u64>| {
+        let end = Instant::now() + within;
+        loop {
+            if let Some(line) = clients.wait_for_line(needle, Duration::ZERO) {
+                return serde_json::from_str::<Value>(&line).unwrap();
+            }
+            assert!(Instant::now() < end, "no {needle}: {}", clients.stderr());
+            publish_for(Duration::from_millis(500), during);
+        }
+    };
+    let hello = line(
+        &mut clients,
+        "subscribed",
+        Duration::from_secs(30),
+        &mut during,
+    );
+    assert_eq!(
+        hello["subscribed"],
+        MAX_CLIENTS,
+        "{hello}\n{}",
+        view.stderr()
+    );
+    assert_eq!(hello["refused"]["503"], CLIENTS - MAX_CLIENTS, "{hello}");
+    assert_eq!(hello["failed"], serde_json::json!([]), "{hello}");
+    let end = line(
+        &mut clients,
+        "closed",
+        Duration::from_secs(STALL_S + 30),
+        &mut during,
+    );
+    let took = started.elapsed();
+    let log = view.stderr();
+    let peak = *during.iter().max().unwrap();
+    let grown = peak.saturating_sub(baseline);
+    eprintln!(
+        "view RSS: {} MiB before {CLIENTS} stalled clients, {} MiB at most in the {took:?} after ({} samples); {end}",
+        baseline >> 20,
+        peak >> 20,
+        during.len()
+    );
+    // Every subscribed client was disconnected for stalling, none left open.
+    assert_eq!(end["closed"], MAX_CLIENTS, "{end}\n{log}");
+    assert!(
+        grown <= 256 << 20,
+        "the view grew by {} MiB for {CLIENTS} stalled clients (bound 256 MiB)",
+        grown >> 20
+    );
+    assert!(log.contains("refused (HTTP 503)"), "{log}");
+    assert!(log.contains("(view.max_clients)"), "{log}");
+    assert!(log.contains("disconnected: over its budget"), "{log}");
+    // The view's status counts them all.
+    let want = [
+        format!("refused_clients={}", CLIENTS - MAX_CLIENTS),
+        format!("stalled_clients={MAX_CLIENTS}"),
+        " clients=0 ".to_string(),
+    ];
+    let detail = eventually(Duration::from_secs(15), || {
+        let row = site
+            .status_rows()
+            .into_iter()
+            .find(|r| r["stage"] == "view")?;
+        let detail = row["detail"].as_str()?.to_string();
+        want.iter()
+            .all(|w| detail.contains(w.as_str()))
+            .then_some(detail)
+    });
+    assert!(
+        detail.is_some(),
+        "view status never said {want:?}: {:?}",
+        site.status_rows()
+    );
+}
+
 fn channels_schema(got: &Value, topic: &str) -> String {
     got["channels"][topic]["schema"]
         .as_str()

@@ -10,8 +10,10 @@
 //!   (`StageKind::View`: its own status, the runtime's drop counting);
 //! * [`record`]: the MCAP file, closed cleanly also when the disk runs low;
 //! * [`live`]: the WebSocket server, on loopback unless the site says otherwise,
-//!   for every name of the protocol, each client held to a byte budget
-//!   ([`outbox`]);
+//!   for every name of the protocol, each client held to a byte budget and all of
+//!   them to one ([`outbox`]), at most `view.max_clients` at once;
+//! * [`session`]: one client's side of the protocol, a sink of the channels'
+//!   context inside the view's process;
 //! * [`jpeg`]: camera frames as small JPEGs (only with `view.frames = true`).
 //!
 //! The `foxglove` crate (and with it tokio) lives here only, so that the services
@@ -25,6 +27,7 @@ pub mod jpeg;
 pub mod live;
 pub mod outbox;
 pub mod record;
+pub mod session;
 pub mod stage;
 
 pub use foxglove::Context;

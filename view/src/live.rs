@@ -1,51 +1,51 @@
 //! The live view: the site's channels over the Foxglove WebSocket protocol, for
-//! any client that speaks it, at a bounded cost per client.
+//! any client that speaks it, at a bounded cost per client and in total.
 //!
-//! The `foxglove` crate's server implements the protocol, but accepts only the
-//! subprotocol names `foxglove.sdk.v1` and `foxglove.sdk.v1.1`, and queues up to
-//! 1 024 messages per client whatever their size. So it listens on an ephemeral
-//! loopback port, and the view's own address is a front door:
+//! The view serves every client itself, inside its process: each client is a
+//! [`Session`], a sink of the view's `foxglove` [`Context`] that encodes with the
+//! crate's protocol types straight into the client's [`Outbox`]. There is no
+//! internal port: nothing but the view's own address, on which
 //!
+//! * at most `view.max_clients` clients are served at once (counted from the
+//!   accepted connection, handshake included); one more is answered HTTP 503,
+//!   warned about (rate-limited) and counted (`refused_clients`);
 //! * it negotiates the subprotocol: `foxglove.sdk.v1.1`, `foxglove.sdk.v1`, or
 //!   `foxglove.websocket.v1`, the name of the same protocol that
 //!   `@foxglove/ws-protocol`'s `FoxgloveClient` (Lichtblick, older Foxglove
 //!   Studio) asks for (preferred in that order); anything else gets HTTP 400;
-//! * it connects to the crate's server for the client, with the crate's name for
-//!   what was agreed (`foxglove.websocket.v1` is `foxglove.sdk.v1`: the same
-//!   messages), and relays messages both ways unchanged;
-//! * it reads the crate's side as fast as it comes, into the client's
-//!   [`Outbox`], bounded in bytes (`view.client_budget_mib`): message data is
-//!   dropped oldest first when the client reads more slowly than the site
-//!   publishes, and a client over its budget that takes nothing for
-//!   `view.client_stall_s` is disconnected (its socket reset, so that the
-//!   kernel lets go of what it held for it). Warnings are rate-limited and never
-//!   carry a payload.
+//! * every message for a client goes to its [`Outbox`], bounded in bytes
+//!   (`view.client_budget_mib`): message data is dropped oldest first when the
+//!   client reads more slowly than the site publishes;
+//! * every outbox is in one [`Pool`], bounded over all clients
+//!   (`view.memory_budget_mib`): over it, the clients holding the most message
+//!   data lose their oldest first;
+//! * a client losing messages (over either budget) that takes nothing for
+//!   `view.client_stall_s` is disconnected (its socket reset, so that the kernel
+//!   lets go of what it held for it). Warnings are rate-limited and never carry a
+//!   payload.
 //!
-//! The group never waits for a client: the crate's server hands messages to the
-//! relay, which never waits for the client.
+//! The group never waits for a client: the stage hands each message to every
+//! subscribed session, which queues it and returns.
 //!
-//! Why a front door rather than the crate's server alone: the crate's server
-//! (0.30.3, `src/websocket/handshake.rs`) answers any other subprotocol with HTTP
-//! 400, has no option for other names and no way to hand it an accepted
-//! connection, and never disconnects a client that reads nothing (the
+//! Why not the crate's own server: it (0.30.3, `src/websocket/handshake.rs`)
+//! answers any other subprotocol with HTTP 400, has no option for other names and
+//! no way to hand it an accepted connection, queues up to 1 024 messages per
+//! client whatever their size, never disconnects a client that reads nothing (the
 //! stalled-client test, run against the crate's server alone, saw the view grow by
-//! 351 MiB in 21 s on a 1 MiB-per-message grid). The price: every message crosses
-//! loopback once more (one extra WebSocket per client; measured with one client
-//! taking 1 MiB cost maps at ~14 Hz: the view used 8.1–9.0 % of a core through the
-//! relay, 8.4 % with the crate's server alone), and the internal port is reachable
-//! by local processes, which would meet the crate's own 1 024-message backlog there
-//! (never from the network, whatever `view.listen` says). A server of our own on
-//! the crate's `Context` (its `Sink` trait is public but hidden, "until Sink is
-//! public") would have saved the hop at the cost of re-implementing the protocol on
-//! an unstable API; a byte-level proxy that only rewrote the header could not bound
-//! bytes without parsing frames anyway.
+//! 351 MiB in 21 s on a 1 MiB-per-message grid), and has no client limit. An
+//! earlier view put a front door before it and relayed each client over an
+//! internal loopback port, which any local process could use past every limit,
+//! unseen in the view's status. The price of the sessions: they implement the
+//! part of the protocol the view offers (channels; no client publishing,
+//! services or parameters) on the crate's `Sink` trait, public but hidden ("until
+//! Sink is public").
 
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use foxglove::{Context, WebSocketServer, WebSocketServerHandle};
+use foxglove::Context;
 use futures_util::{SinkExt, StreamExt};
 use isochron_config::ViewConfig;
 use isochron_runtime::stage::Warnings;
@@ -53,28 +53,27 @@ use parking_lot::Mutex;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::watch;
 use tokio_tungstenite::WebSocketStream;
-use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 use tokio_tungstenite::tungstenite::handshake::server::{ErrorResponse, Request, Response};
 use tokio_tungstenite::tungstenite::http::{HeaderValue, StatusCode};
 use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 use tokio_tungstenite::tungstenite::{self, Message};
 
-use crate::outbox::{Drops, Outbox};
+use crate::outbox::{Drops, Outbox, Pool};
+use crate::session::{Report, Session};
 
 /// The subprotocols a client may ask for, in the order the view prefers them,
-/// each with the name the `foxglove` crate's server speaks it under.
+/// each with the name the `foxglove` crate knows it under.
 pub const SUBPROTOCOLS: [(&str, &str); 3] = [
     ("foxglove.sdk.v1.1", "foxglove.sdk.v1.1"),
     ("foxglove.sdk.v1", "foxglove.sdk.v1"),
     ("foxglove.websocket.v1", "foxglove.sdk.v1"),
 ];
 
-/// Opcode of a binary server message that carries message data (the only kind
-/// that may be dropped).
-const MESSAGE_DATA: u8 = 0x01;
-
 /// How long a client has for its WebSocket handshake.
 const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// How long a refused client has to send its request and take the answer.
+const REFUSAL_TIMEOUT: Duration = Duration::from_secs(2);
 
 /// Largest message a client may send (subscriptions and the like are small; the
 /// view takes no client data).
@@ -94,14 +93,6 @@ pub enum LiveError {
         /// Why.
         error: std::io::Error,
     },
-    /// The server failed to start.
-    #[error("starting the Foxglove server on {addr}: {error}")]
-    Start {
-        /// The address.
-        addr: SocketAddr,
-        /// Why.
-        error: foxglove::FoxgloveError,
-    },
     /// The server's threads could not be made.
     #[error("starting the Foxglove server on {addr}: {error}")]
     Runtime {
@@ -112,12 +103,17 @@ pub enum LiveError {
     },
 }
 
-/// What one client may cost the view.
+/// What clients may cost the view.
 #[derive(Debug, Clone, Copy)]
 pub struct ClientLimits {
-    /// Bytes queued for it at most (`view.client_budget_mib`).
+    /// Bytes queued for one client at most (`view.client_budget_mib`).
     pub budget_bytes: usize,
-    /// Disconnected when over its budget and taking nothing this long
+    /// Bytes queued for every client together at most
+    /// (`view.memory_budget_mib`).
+    pub memory_budget_bytes: usize,
+    /// Clients served at once at most (`view.max_clients`).
+    pub max_clients: usize,
+    /// Disconnected when losing messages and taking nothing this long
     /// (`view.client_stall_s`).
     pub stall: Duration,
 }
@@ -127,6 +123,8 @@ impl ClientLimits {
     pub fn of(view: &ViewConfig) -> ClientLimits {
         ClientLimits {
             budget_bytes: view.client_budget_bytes(),
+            memory_budget_bytes: view.memory_budget_bytes(),
+            max_clients: view.max_clients as usize,
             stall: Duration::from_secs_f64(view.client_stall_s),
         }
     }
@@ -135,21 +133,22 @@ impl ClientLimits {
 /// Counters over every client, for the view's status.
 #[derive(Debug, Default)]
 pub struct ClientStats {
-    /// Clients connected now.
+    /// Clients served now (from the accepted connection, handshake included).
     pub connected: AtomicUsize,
+    /// Clients refused so far, because `view.max_clients` were served.
+    pub refused: AtomicU64,
     /// Messages dropped for slow clients so far.
     pub dropped: AtomicU64,
     /// Clients disconnected for stalling so far.
     pub stalled: AtomicU64,
 }
 
-/// The running live view: the front door, the crate's server behind it, and the
-/// threads they run on.
+/// The running live view: the listener, the clients, and the threads they run on.
 pub struct LiveServer {
     runtime: tokio::runtime::Runtime,
-    crate_server: WebSocketServerHandle,
     stop: watch::Sender<bool>,
     stats: Arc<ClientStats>,
+    pool: Arc<Pool<Message>>,
 }
 
 impl LiveServer {
@@ -158,18 +157,21 @@ impl LiveServer {
         &self.stats
     }
 
+    /// Bytes queued for every client now.
+    pub fn queued_bytes(&self) -> usize {
+        self.pool.queued_bytes()
+    }
+
     /// Stops accepting, closes every client, and stops the threads (waiting at
     /// most a second for them).
     pub fn stop(self) {
         let _ = self.stop.send(true);
-        // The crate closes its side of every relay; the relays close their clients.
-        self.crate_server.stop().detach_all();
         self.runtime.shutdown_timeout(CLOSE_TIMEOUT);
     }
 }
 
 /// Starts the live view for `ctx`'s channels on `addr`, named `name` in
-/// `serverInfo`, each client held to `limits`.
+/// `serverInfo`, its clients held to `limits`.
 pub fn serve(
     ctx: &Arc<Context>,
     addr: SocketAddr,
@@ -185,35 +187,28 @@ pub fn serve(
         .enable_all()
         .build()
         .map_err(|error| LiveError::Runtime { addr, error })?;
-    // Started inside the runtime, the crate's server runs on it.
-    let crate_server = runtime
-        .block_on(
-            WebSocketServer::new()
-                .name(name)
-                .bind("127.0.0.1", 0)
-                .context(ctx)
-                .start(),
-        )
-        .map_err(|error| LiveError::Start { addr, error })?;
-    let behind = SocketAddr::from(([127, 0, 0, 1], crate_server.port()));
     let listener = {
         let _guard = runtime.enter();
         TcpListener::from_std(listener).map_err(|error| LiveError::Bind { addr, error })?
     };
     let (stop, stopped) = watch::channel(false);
     let stats = Arc::new(ClientStats::default());
+    let pool = Pool::new(limits.memory_budget_bytes);
     let door = FrontDoor {
-        behind,
+        ctx: ctx.clone(),
+        name: name.into(),
         limits,
         stats: stats.clone(),
+        pool: pool.clone(),
         warnings: Arc::new(Mutex::new(Warnings::default())),
+        stopped,
     };
-    runtime.spawn(door.accept(listener, stopped));
+    runtime.spawn(door.accept(listener));
     Ok(LiveServer {
         runtime,
-        crate_server,
         stop,
         stats,
+        pool,
     })
 }
 
@@ -229,26 +224,61 @@ pub fn negotiate(offered: &[&str]) -> Option<(&'static str, &'static str)> {
     })
 }
 
-/// The view's listening side: accepts clients and relays each to the crate's
-/// server.
+/// The view's listening side: admits clients and serves each one a [`Session`].
 #[derive(Clone)]
 struct FrontDoor {
-    /// The crate's server.
-    behind: SocketAddr,
+    ctx: Arc<Context>,
+    /// The server's name in `serverInfo`.
+    name: Arc<str>,
     limits: ClientLimits,
     stats: Arc<ClientStats>,
+    pool: Arc<Pool<Message>>,
     /// Rate-limited warnings, shared by every client.
     warnings: Arc<Mutex<Warnings>>,
+    stopped: watch::Receiver<bool>,
 }
 
-/// How a relay ended.
+/// How a client's connection ended.
 enum End {
     /// The client closed the connection (or it broke).
     ClientLeft,
-    /// The crate's server closed it (the view is stopping).
+    /// The view is stopping.
     ServerClosed,
-    /// Over its budget, the client took nothing for this long.
+    /// Losing messages, the client took nothing for this long.
     Stalled(Duration),
+}
+
+/// A client's place among `view.max_clients`, given back when dropped.
+struct Slot(Arc<ClientStats>);
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        self.0.connected.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
+/// What sessions report, into the view's counters and warnings.
+struct Reporter {
+    stats: Arc<ClientStats>,
+    warnings: Arc<Mutex<Warnings>>,
+    budget_mib: f64,
+}
+
+impl Report for Reporter {
+    fn dropped(&self, dropped: usize) {
+        self.stats
+            .dropped
+            .fetch_add(dropped as u64, Ordering::Relaxed);
+    }
+
+    fn first_time_over(&self, peer: SocketAddr) {
+        let mib = self.budget_mib;
+        self.warnings.lock().warn("slow", || {
+            format!(
+                "view: client {peer} reads more slowly than the site publishes: dropping its oldest messages (over view.client_budget_mib = {mib})"
+            )
+        });
+    }
 }
 
 impl FrontDoor {
@@ -256,15 +286,21 @@ impl FrontDoor {
         self.warnings.lock().warn(kind, message);
     }
 
-    /// Accepts clients until `stopped`.
-    async fn accept(self, listener: TcpListener, mut stopped: watch::Receiver<bool>) {
+    /// Accepts clients until the view stops.
+    async fn accept(self, listener: TcpListener) {
+        let mut stopped = self.stopped.clone();
         loop {
             tokio::select! {
                 _ = stopped.changed() => return,
                 accepted = listener.accept() => match accepted {
-                    Ok((stream, peer)) => {
-                        tokio::spawn(self.clone().client(stream, peer));
-                    }
+                    Ok((stream, peer)) => match self.admit() {
+                        Some(slot) => {
+                            tokio::spawn(self.clone().client(stream, peer, slot));
+                        }
+                        None => {
+                            tokio::spawn(self.clone().refuse(stream, peer));
+                        }
+                    },
                     Err(error) => {
                         // Out of file descriptors, most likely: wait a little.
                         self.warn("accept", || format!("view: accepting a client: {error}"));
@@ -275,9 +311,77 @@ impl FrontDoor {
         }
     }
 
+    /// A slot for one more client, unless `view.max_clients` are served.
+    fn admit(&self) -> Option<Slot> {
+        let max = self.limits.max_clients;
+        self.stats
+            .connected
+            .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |n| {
+                (n < max).then_some(n + 1)
+            })
+            .ok()
+            .map(|_| Slot(self.stats.clone()))
+    }
+
+    /// Answers a client beyond `view.max_clients` with HTTP 503, and counts it.
+    async fn refuse(self, stream: TcpStream, peer: SocketAddr) {
+        let n = self.stats.refused.fetch_add(1, Ordering::Relaxed) + 1;
+        let max = self.limits.max_clients;
+        self.warn("refused", || {
+            format!(
+                "view: client {peer} refused (HTTP 503): {max} clients already (view.max_clients); {n} refused so far"
+            )
+        });
+        #[allow(clippy::result_large_err, reason = "tungstenite's callback type")]
+        let busy = |_: &Request, _: Response| -> Result<Response, ErrorResponse> {
+            let mut response = ErrorResponse::new(Some(format!(
+                "the view serves at most {max} clients (view.max_clients)"
+            )));
+            *response.status_mut() = StatusCode::SERVICE_UNAVAILABLE;
+            Err(response)
+        };
+        let answer = tokio_tungstenite::accept_hdr_async(stream, busy);
+        let _ = tokio::time::timeout(REFUSAL_TIMEOUT, answer).await;
+    }
+
     /// Serves one client from its TCP connection to its end.
-    async fn client(self, stream: TcpStream, peer: SocketAddr) {
+    async fn client(self, stream: TcpStream, peer: SocketAddr, _slot: Slot) {
         let _ = stream.set_nodelay(true);
+        let Some((outer, offered, spoken)) = self.handshake(stream, peer).await else {
+            return;
+        };
+        tracing::info!("view: client {peer} connected ({offered})");
+        let (end, drops) = self.serve_client(outer, spoken, peer).await;
+        let budget_mib = self.limits.budget_bytes as f64 / (1u64 << 20) as f64;
+        match end {
+            End::Stalled(took) => {
+                self.stats.stalled.fetch_add(1, Ordering::Relaxed);
+                self.warn("stalled", || {
+                    format!(
+                        "view: client {peer} disconnected: over its budget (view.client_budget_mib = {budget_mib}, view.memory_budget_mib for all) and taking nothing for {:.0} s; {} messages ({} bytes) dropped for it",
+                        took.as_secs_f64(),
+                        drops.messages,
+                        drops.bytes
+                    )
+                });
+            }
+            End::ClientLeft | End::ServerClosed => {
+                tracing::info!(
+                    "view: client {peer} left; {} messages ({} bytes) dropped for it",
+                    drops.messages,
+                    drops.bytes
+                );
+            }
+        }
+    }
+
+    /// The WebSocket handshake: the connection, and the subprotocol agreed (its
+    /// name, the crate's name for it); `None` (warned) if it failed.
+    async fn handshake(
+        &self,
+        stream: TcpStream,
+        peer: SocketAddr,
+    ) -> Option<(WebSocketStream<TcpStream>, &'static str, &'static str)> {
         let mut agreed = None;
         let config = WebSocketConfig::default()
             .read_buffer_size(16 << 10)
@@ -305,8 +409,8 @@ impl FrontDoor {
         };
         let handshake =
             tokio_tungstenite::accept_hdr_async_with_config(stream, choose, Some(config));
-        let outer = match tokio::time::timeout(HANDSHAKE_TIMEOUT, handshake).await {
-            Ok(Ok(ws)) => ws,
+        match tokio::time::timeout(HANDSHAKE_TIMEOUT, handshake).await {
+            Ok(Ok(ws)) => agreed.map(|(offered, spoken)| (ws, offered, spoken)),
             Ok(Err(tungstenite::Error::Http(_))) => {
                 // Only the subprotocol callback answers with an HTTP error.
                 self.warn("handshake", || {
@@ -315,100 +419,48 @@ impl FrontDoor {
                         subprotocol_names()
                     )
                 });
-                return;
+                None
             }
             Ok(Err(error)) => {
                 self.warn("handshake", || {
                     format!("view: client {peer} refused: WebSocket handshake failed: {error}")
                 });
-                return;
+                None
             }
             Err(_) => {
                 self.warn("handshake", || {
                     format!("view: client {peer} refused: no WebSocket handshake within {HANDSHAKE_TIMEOUT:?}")
                 });
-                return;
-            }
-        };
-        let Some((offered, spoken)) = agreed else {
-            return;
-        };
-        let inner = match connect(self.behind, spoken).await {
-            Ok(ws) => ws,
-            Err(error) => {
-                self.warn("behind", || {
-                    format!(
-                        "view: client {peer} dropped: the Foxglove server behind the view: {error}"
-                    )
-                });
-                return;
-            }
-        };
-        tracing::info!("view: client {peer} connected ({offered})");
-        self.stats.connected.fetch_add(1, Ordering::Relaxed);
-        let (end, drops) = self.relay(outer, inner, peer).await;
-        self.stats.connected.fetch_sub(1, Ordering::Relaxed);
-        let budget_mib = self.limits.budget_bytes as f64 / (1u64 << 20) as f64;
-        match end {
-            End::Stalled(took) => {
-                self.stats.stalled.fetch_add(1, Ordering::Relaxed);
-                self.warn("stalled", || {
-                    format!(
-                        "view: client {peer} disconnected: over its budget (view.client_budget_mib = {budget_mib}) and taking nothing for {:.0} s; {} messages ({} bytes) dropped for it",
-                        took.as_secs_f64(),
-                        drops.messages,
-                        drops.bytes
-                    )
-                });
-            }
-            End::ClientLeft | End::ServerClosed => {
-                tracing::info!(
-                    "view: client {peer} left; {} messages ({} bytes) dropped for it",
-                    drops.messages,
-                    drops.bytes
-                );
+                None
             }
         }
     }
 
-    /// Relays between a client (`outer`) and the crate's server (`inner`) until
-    /// either side ends, or the client stalls.
-    async fn relay(
+    /// Serves the client at `peer` over `ws` in `subprotocol` until it leaves,
+    /// stalls, or the view stops.
+    async fn serve_client(
         &self,
-        outer: WebSocketStream<TcpStream>,
-        inner: WebSocketStream<TcpStream>,
+        ws: WebSocketStream<TcpStream>,
+        subprotocol: &'static str,
         peer: SocketAddr,
     ) -> (End, Drops) {
-        let outbox = Outbox::new(self.limits.budget_bytes);
-        let (mut to_client, mut from_client) = outer.split();
-        let (mut to_server, mut from_server) = inner.split();
+        let outbox = Outbox::pooled(self.limits.budget_bytes, &self.pool);
+        let report = Arc::new(Reporter {
+            stats: self.stats.clone(),
+            warnings: self.warnings.clone(),
+            budget_mib: self.limits.budget_bytes as f64 / (1u64 << 20) as f64,
+        });
+        let session = Session::new(
+            &self.ctx,
+            &self.name,
+            peer,
+            subprotocol,
+            outbox.clone(),
+            report,
+        );
+        session.attach();
+        let (mut to_client, mut from_client) = ws.split();
         let end = {
-            // Everything the server sends goes to the outbox, at once.
-            let down = async {
-                while let Some(Ok(msg)) = from_server.next().await {
-                    let (bytes, droppable) = match &msg {
-                        Message::Binary(b) => (b.len(), b.first() == Some(&MESSAGE_DATA)),
-                        Message::Text(t) => (t.len(), false),
-                        Message::Close(_) => break,
-                        Message::Ping(_) | Message::Pong(_) | Message::Frame(_) => continue,
-                    };
-                    let pushed = outbox.push(msg, bytes, droppable, Instant::now());
-                    if pushed.dropped > 0 {
-                        self.stats
-                            .dropped
-                            .fetch_add(pushed.dropped as u64, Ordering::Relaxed);
-                    }
-                    if pushed.first_time_over {
-                        let mib = self.limits.budget_bytes as f64 / (1u64 << 20) as f64;
-                        self.warn("slow", || {
-                            format!(
-                                "view: client {peer} reads more slowly than the site publishes: dropping its oldest messages (over view.client_budget_mib = {mib})"
-                            )
-                        });
-                    }
-                }
-                End::ServerClosed
-            };
             // The outbox goes to the client as fast as it takes it.
             let write = async {
                 loop {
@@ -419,17 +471,14 @@ impl FrontDoor {
                     outbox.taken();
                 }
             };
-            // What the client sends (subscriptions) goes to the server.
-            let up = async {
+            // What the client sends (subscriptions) goes to its session.
+            let read = async {
                 while let Some(Ok(msg)) = from_client.next().await {
                     match msg {
-                        Message::Text(_) | Message::Binary(_) => {
-                            if to_server.send(msg).await.is_err() {
-                                return End::ServerClosed;
-                            }
-                        }
+                        Message::Text(text) => session.on_client_text(text.as_str()),
                         Message::Close(_) => break,
-                        Message::Ping(_) | Message::Pong(_) | Message::Frame(_) => {}
+                        Message::Binary(_) | Message::Ping(_) | Message::Pong(_) => {}
+                        Message::Frame(_) => {}
                     }
                 }
                 End::ClientLeft
@@ -446,15 +495,20 @@ impl FrontDoor {
                     }
                 }
             };
+            let mut stopped = self.stopped.clone();
+            let stopping = async {
+                let _ = stopped.wait_for(|s| *s).await;
+                End::ServerClosed
+            };
             tokio::select! {
-                end = down => end,
                 end = write => end,
-                end = up => end,
+                end = read => end,
                 end = watchdog => end,
+                end = stopping => end,
             }
         };
+        session.detach();
         let drops = outbox.drops();
-        let _ = tokio::time::timeout(CLOSE_TIMEOUT, to_server.close()).await;
         match end {
             End::Stalled(_) => {
                 // Nothing more can reach it: reset the connection, so that the
@@ -495,22 +549,6 @@ fn refusal() -> ErrorResponse {
     )));
     *response.status_mut() = StatusCode::BAD_REQUEST;
     response
-}
-
-/// Connects to the crate's server at `addr` speaking `subprotocol`.
-async fn connect(
-    addr: SocketAddr,
-    subprotocol: &'static str,
-) -> Result<WebSocketStream<TcpStream>, tungstenite::Error> {
-    let tcp = TcpStream::connect(addr).await?;
-    tcp.set_nodelay(true)?;
-    let mut request = format!("ws://{addr}/").into_client_request()?;
-    request.headers_mut().insert(
-        "sec-websocket-protocol",
-        HeaderValue::from_static(subprotocol),
-    );
-    let (ws, _) = tokio_tungstenite::client_async_with_config(request, tcp, None).await?;
-    Ok(ws)
 }
 
 #[cfg(test)]

@@ -271,10 +271,12 @@ impl Stage for ViewStage {
         if let Sink::Live(server) = &self.sink {
             let stats = server.stats();
             detail += &format!(
-                " clients={} client_drops={} stalled_clients={}",
+                " clients={} refused_clients={} client_drops={} stalled_clients={} queued_bytes={}",
                 stats.connected.load(Ordering::Relaxed),
+                stats.refused.load(Ordering::Relaxed),
                 stats.dropped.load(Ordering::Relaxed),
-                stats.stalled.load(Ordering::Relaxed)
+                stats.stalled.load(Ordering::Relaxed),
+                server.queued_bytes()
             );
         }
         detail

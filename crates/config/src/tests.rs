@@ -338,6 +338,13 @@ fn view_is_off_and_on_loopback_by_default_and_checked() {
     assert_eq!(err.key.as_deref(), Some("view.client_budget_mib"), "{err}");
     let err = parse(&format!("{GOOD}\n[view]\nclient_stall_s = 0.5\n")).unwrap_err();
     assert_eq!(err.key.as_deref(), Some("view.client_stall_s"), "{err}");
+    // 32 clients at most, 128 MiB for all of them together.
+    assert_eq!(c.view.max_clients, 32);
+    assert_eq!(c.view.memory_budget_bytes(), 128 << 20);
+    let err = parse(&format!("{GOOD}\n[view]\nmax_clients = 0\n")).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("view.max_clients"), "{err}");
+    let err = parse(&format!("{GOOD}\n[view]\nmemory_budget_mib = 0.5\n")).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("view.memory_budget_mib"), "{err}");
 }
 
 #[test]

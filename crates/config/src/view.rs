@@ -32,6 +32,14 @@ pub struct ViewConfig {
     /// A client over its budget that takes nothing for this long is disconnected,
     /// seconds. Default 10.
     pub client_stall_s: f64,
+    /// Most clients the live view serves at once; one more is refused (HTTP 503,
+    /// a warning, counted as `refused_clients` in the view's status). Default 32.
+    pub max_clients: u32,
+    /// Bytes the live view may hold for all its clients together, MiB. Past it the
+    /// oldest messages of the clients holding the most are dropped first (and
+    /// counted), and a client that takes nothing while it loses messages is
+    /// disconnected after `client_stall_s`. Default 128.
+    pub memory_budget_mib: f64,
 }
 
 impl Default for ViewConfig {
@@ -44,6 +52,8 @@ impl Default for ViewConfig {
             listen: "127.0.0.1:8765".into(),
             client_budget_mib: 4.0,
             client_stall_s: 10.0,
+            max_clients: 32,
+            memory_budget_mib: 128.0,
         }
     }
 }
@@ -61,6 +71,13 @@ impl ViewConfig {
             1024.0,
         )?;
         check_range("view.client_stall_s", self.client_stall_s, 1.0, 3600.0)?;
+        check_range("view.max_clients", self.max_clients as f64, 1.0, 4096.0)?;
+        check_range(
+            "view.memory_budget_mib",
+            self.memory_budget_mib,
+            1.0,
+            65536.0,
+        )?;
         if self.listen.parse::<SocketAddr>().is_err() {
             return Err(Invalid::found(
                 "view.listen",
@@ -74,5 +91,10 @@ impl ViewConfig {
     /// [`ViewConfig::client_budget_mib`] in bytes.
     pub fn client_budget_bytes(&self) -> usize {
         (self.client_budget_mib * (1u64 << 20) as f64) as usize
+    }
+
+    /// [`ViewConfig::memory_budget_mib`] in bytes.
+    pub fn memory_budget_bytes(&self) -> usize {
+        (self.memory_budget_mib * (1u64 << 20) as f64) as usize
     }
 }

@@ -1,0 +1,104 @@
+"""Many Foxglove WebSocket clients that stop reading, for tests/it/view.rs: the
+`websockets` package, N connections from one process, each over a socket with a
+4 KiB receive buffer. Each completes the handshake (subprotocol foxglove.sdk.v1),
+reads serverInfo and the advertised channels, subscribes to all of them, and then
+reads nothing (`websockets` stops taking bytes from the socket once one message
+waits, so the server's sends back up). A client the server refuses records the
+HTTP status it answered with.
+
+usage: python3 stalled_clients.py URL N STALL_S
+prints one JSON line once every client has subscribed or been refused
+({"subscribed": n, "refused": {status: n}, "failed": [reasons]}), then, after
+STALL_S, a second line: how many of the subscribed connections the server had
+closed by then ({"closed": n, "open": n}).
+"""
+
+import asyncio
+import json
+import socket
+import sys
+import time
+
+import websockets
+from websockets.exceptions import ConnectionClosed, InvalidStatus
+
+
+async def subscribe(url: str):
+    """A connection subscribed to every advertised channel, or why there is none."""
+    host, port = url.removeprefix("ws://").rstrip("/").rsplit(":", 1)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    # Before connecting, so the window the server sees stays small.
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    sock.setblocking(False)
+    await asyncio.get_running_loop().sock_connect(sock, (host, int(port)))
+    try:
+        ws = await websockets.connect(
+            url,
+            sock=sock,
+            subprotocols=["foxglove.sdk.v1"],
+            max_size=None,
+            max_queue=1,
+            ping_interval=None,
+            close_timeout=1,
+            open_timeout=20,
+        )
+    except InvalidStatus as e:
+        sock.close()
+        return ("refused", e.response.status_code)
+    topics = {}
+    deadline = time.monotonic() + 20
+    while not topics and time.monotonic() < deadline:
+        msg = await asyncio.wait_for(ws.recv(), 20)
+        if isinstance(msg, str):
+            m = json.loads(msg)
+            if m.get("op") == "advertise":
+                for ch in m["channels"]:
+                    topics[ch["topic"]] = ch["id"]
+    subs = [{"id": k, "channelId": cid} for k, cid in enumerate(topics.values())]
+    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+    return ("subscribed", ws)
+
+
+async def closed_by_server(ws) -> bool:
+    """Reads what is left for up to 10 s: whether the server had closed it."""
+    end = time.monotonic() + 10
+    try:
+        while time.monotonic() < end:
+            await asyncio.wait_for(ws.recv(), max(end - time.monotonic(), 0.01))
+    except ConnectionClosed:
+        return True
+    except (asyncio.TimeoutError, ConnectionError):
+        pass
+    return False
+
+
+async def run(url: str, n: int, stall_s: float) -> None:
+    results = await asyncio.gather(
+        *(subscribe(url) for _ in range(n)), return_exceptions=True
+    )
+    open_ws, refused, failed = [], {}, []
+    for r in results:
+        if isinstance(r, BaseException):
+            failed.append(repr(r))
+        elif r[0] == "refused":
+            refused[str(r[1])] = refused.get(str(r[1]), 0) + 1
+        else:
+            open_ws.append(r[1])
+    print(
+        json.dumps({"subscribed": len(open_ws), "refused": refused, "failed": failed}),
+        flush=True,
+    )
+    # Read nothing.
+    await asyncio.sleep(stall_s)
+    closed = await asyncio.gather(*(closed_by_server(ws) for ws in open_ws))
+    n_closed = sum(1 for c in closed if c)
+    print(json.dumps({"closed": n_closed, "open": len(closed) - n_closed}), flush=True)
+
+
+def main() -> int:
+    asyncio.run(run(sys.argv[1], int(sys.argv[2]), float(sys.argv[3])))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
