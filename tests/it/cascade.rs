@@ -12,7 +12,7 @@ use isochron_config::clock::{Cycle, NS_PER_S, parse_rfc3339};
 use isochron_runtime::ipc::{Activity, Ipc, Motion, StreamPublisher};
 use isochron_runtime::names::ServiceNames;
 use isochron_store::{Store, StoreMeta, store_path};
-use isochron_tests::{Proc, TestSite, bin, eventually, named_thread, read_samples};
+use isochron_tests::{Proc, TestSite, bin, eventually, named_thread, read_samples, vtest};
 use isochron_wire::geometry::BlockGrid;
 use isochron_wire::{
     ActivityHeader, BlockMotion, CameraId, FLAG_END_OF_STREAM, MotionHeader, Preamble, Stream,
@@ -939,4 +939,42 @@ fn a_full_disk_pauses_learning_and_it_resumes_when_space_returns() {
         .verify()
         .unwrap_or_else(|e| panic!("the store is damaged: {e}"));
     cascade.terminate(Duration::from_secs(10));
+}
+
+#[test]
+fn a_store_that_saw_a_time_years_ahead_keeps_learning_with_one_warning() {
+    // The first replay stamps 2099 into the state directory; the second, the
+    // correct 2009, must still learn (it learned nothing before the store kept
+    // spans: "learned 0 / repeated 1").
+    let site = TestSite::with_source("cascade-clock-jump", "", "replaced-by-replay");
+    let out = site.path("out");
+    site.replay_ok(&vtest(), &out, "2099-06-01T10:00:00Z");
+    let store = out.join("state/cam01.isochron.sqlite");
+    let learned = || {
+        Store::open_read_only(&store, "cam01")
+            .unwrap()
+            .progress()
+            .unwrap()
+            .committed
+    };
+    let ahead = learned();
+    assert!(ahead >= 1, "the first replay learned {ahead} minutes");
+    site.replay_ok(&vtest(), &out, "2009-06-01T10:00:00Z");
+    assert!(learned() > ahead, "the corrected clock learned nothing");
+    let log: String = std::fs::read_dir(out.join("logs"))
+        .unwrap()
+        .filter_map(Result::ok)
+        .filter(|e| e.file_name().to_string_lossy().contains("cascade"))
+        .map(|e| std::fs::read_to_string(e.path()).unwrap())
+        .collect();
+    assert_eq!(
+        log.matches("the latest minute the long-term store completed")
+            .count(),
+        1,
+        "{log}"
+    );
+    // The same recording at the same time again teaches nothing twice.
+    let before = learned();
+    site.replay_ok(&vtest(), &out, "2009-06-01T10:00:00Z");
+    assert_eq!(learned(), before);
 }
