@@ -75,7 +75,7 @@ pub use spans::Spans;
 
 use error::sql_err;
 use file::{check_sqlite_header, create, cycle_name, read_meta};
-use rows::{RawBin, SELECT_BINS, f32_bytes, f32s_from, span_crc};
+use rows::{RawBin, SELECT_BINS, f32_bytes, f32s_from, insert_bin, span_crc};
 
 use isochron_config::clock::Cycle;
 use isochron_wire::geometry::BlockGrid;
@@ -468,19 +468,7 @@ impl Store {
                     ),
                 });
             }
-            tx.prepare_cached(
-                "INSERT OR REPLACE INTO bins (t_star, count, last_minute, mean, var, crc) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
-            )
-            .map_err(err)?
-            .execute(params![
-                bin.t_star as i64,
-                bin.count as i64,
-                bin.last_minute,
-                f32_bytes(&bin.mean),
-                f32_bytes(&bin.var),
-                bin.crc() as i64
-            ])
-            .map_err(err)?;
+            insert_bin(&tx, bin).map_err(err)?;
         }
         if let Some(b) = commit.baseline
             && b.level.len() == blocks
@@ -509,8 +497,7 @@ impl Store {
         .map_err(err)?
         .execute(params![commit.minute, committed, skipped])
         .map_err(err)?;
-        let mut spans = self.spans.clone();
-        let (start, end) = spans.add(commit.minute);
+        let (start, end) = self.spans.merged(commit.minute);
         tx.prepare_cached("DELETE FROM spans WHERE start BETWEEN ?1 AND ?2")
             .map_err(err)?
             .execute(params![start, end])
@@ -520,7 +507,7 @@ impl Store {
             .execute(params![start, end, span_crc(start, end) as i64])
             .map_err(err)?;
         tx.commit().map_err(err)?;
-        self.spans = spans;
+        self.spans.add(commit.minute);
         Ok(())
     }
 }

@@ -24,7 +24,7 @@ use rusqlite::{Connection, OpenFlags, OptionalExtension, params};
 use crate::error::sql_err;
 use crate::file::{check_sqlite_header, create, read_meta};
 use crate::isochronal::{DayType, mix};
-use crate::rows::{RawBin, SELECT_BINS, f32_bytes, span_crc};
+use crate::rows::{RawBin, SELECT_BINS, insert_bin, span_crc};
 use crate::{APPLICATION_ID, Bin, FORMAT_VERSION, Model, Rules, StoreError, StoreMeta};
 
 /// What [`migrate`] did.
@@ -256,17 +256,7 @@ fn copy_into(
     let write = |new: &mut Connection| -> rusqlite::Result<()> {
         let tx = new.transaction()?;
         for b in rows {
-            tx.execute(
-                "INSERT INTO bins (t_star, count, last_minute, mean, var, crc) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
-                params![
-                    b.t_star as i64,
-                    b.count as i64,
-                    b.last_minute,
-                    f32_bytes(&b.mean),
-                    f32_bytes(&b.var),
-                    b.crc() as i64
-                ],
-            )?;
+            insert_bin(&tx, b)?;
         }
         if let Some((capture_ns, frames, rate, level, crc)) = &baseline {
             tx.execute(

@@ -74,6 +74,22 @@ pub(crate) fn crc_of(parts: &[&[u8]]) -> u32 {
     h.finalize()
 }
 
+/// Writes `bin` as its `bins` row (replacing one of the same row), with its CRC.
+pub(crate) fn insert_bin(tx: &rusqlite::Transaction<'_>, bin: &Bin) -> rusqlite::Result<()> {
+    tx.prepare_cached(
+        "INSERT OR REPLACE INTO bins (t_star, count, last_minute, mean, var, crc) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+    )?
+    .execute(rusqlite::params![
+        bin.t_star as i64,
+        bin.count as i64,
+        bin.last_minute,
+        f32_bytes(&bin.mean),
+        f32_bytes(&bin.var),
+        bin.crc() as i64
+    ])?;
+    Ok(())
+}
+
 /// The CRC-32 of a `spans` row.
 pub(crate) fn span_crc(start: i64, end: i64) -> u32 {
     crc_of(&[&start.to_le_bytes(), &end.to_le_bytes()])

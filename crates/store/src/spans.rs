@@ -37,6 +37,24 @@ impl Spans {
         (i > 0 && self.spans[i - 1].1 >= minute).then(|| i - 1)
     }
 
+    /// The span that would hold `minute` once added (every span it would replace
+    /// lies inside it), without adding it.
+    pub fn merged(&self, minute: i64) -> (i64, i64) {
+        if let Some(i) = self.holding(minute) {
+            return self.spans[i];
+        }
+        let i = self.spans.partition_point(|&(a, _)| a <= minute);
+        let start = match i.checked_sub(1).map(|j| self.spans[j]) {
+            Some((a, b)) if b.saturating_add(1) == minute => a,
+            _ => minute,
+        };
+        let end = match self.spans.get(i) {
+            Some(&(a, b)) if a == minute.saturating_add(1) => b,
+            _ => minute,
+        };
+        (start, end)
+    }
+
     /// Adds `minute`; returns the span that now holds it (every span it replaced lies
     /// inside it).
     pub fn add(&mut self, minute: i64) -> (i64, i64) {
@@ -85,9 +103,11 @@ mod tests {
     #[test]
     fn minutes_merge_into_spans_and_repeats_are_found() {
         let mut s = Spans::default();
+        assert_eq!(s.merged(10), (10, 10));
         assert_eq!(s.add(10), (10, 10));
         assert_eq!(s.add(11), (10, 11));
         assert_eq!(s.add(13), (13, 13));
+        assert_eq!(s.merged(12), (10, 13));
         assert_eq!(s.add(12), (10, 13));
         assert_eq!(s.iter().count(), 1);
         assert!(s.contains(12) && !s.contains(14) && !s.contains(9));
