@@ -27,7 +27,7 @@ use anyhow::{Context, bail};
 use isochron_config::clock::{
     Cycle, MINUTES_PER_DAY, SiteClock, format_t_star, parse_hhmm, wall_now_ns,
 };
-use isochron_config::{CameraConfig, LoadedConfig, SourceKind};
+use isochron_config::{CameraConfig, DAY_NAMES as DAYS, LoadedConfig, SourceKind};
 use isochron_exit::UsageError;
 use isochron_planning::calibration::Calibration;
 use isochron_planning::grid::MapGrid;
@@ -154,9 +154,6 @@ fn snapshot(args: SnapshotArgs) -> anyhow::Result<ExitCode> {
     }
     Ok(ExitCode::SUCCESS)
 }
-
-/// Day names, Monday first (as the weekly cycle counts).
-const DAYS: [&str; 7] = ["mon", "tue", "wed", "thu", "fri", "sat", "sun"];
 
 /// `costmap snapshot --at`: the cost map the long-term model expects.
 fn expected_snapshot(args: SnapshotArgs, at: &str) -> anyhow::Result<ExitCode> {

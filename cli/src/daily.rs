@@ -21,19 +21,16 @@ pub enum DayFilter {
     Type(DayType),
 }
 
-/// `--day` names, Monday first.
-const DAY_NAMES: [&str; 7] = ["mon", "tue", "wed", "thu", "fri", "sat", "sun"];
-
 impl DayFilter {
     /// Parses `--day`: `mon` .. `sun`, `workday` or `rest`; absent: all days.
     pub fn parse(day: Option<&str>) -> anyhow::Result<DayFilter> {
         let Some(text) = day else {
             return Ok(DayFilter::All);
         };
-        let lower = text.to_ascii_lowercase();
-        if let Some(d) = DAY_NAMES.iter().position(|n| *n == lower) {
-            return Ok(DayFilter::Weekday(d as u32));
+        if let Some(d) = crate::plan::parse_day(text) {
+            return Ok(DayFilter::Weekday(d));
         }
+        let lower = text.to_ascii_lowercase();
         match lower.as_str() {
             "workday" | "workdays" => Ok(DayFilter::Type(DayType::Workday)),
             "rest" | "rest-day" | "rest_day" | "weekend" => Ok(DayFilter::Type(DayType::RestDay)),

@@ -108,7 +108,7 @@ fn parse_time(s: &str) -> Option<u32> {
 /// Parses a weekday, `mon` .. `sun` (or longer: `monday`), Monday = 0.
 pub(crate) fn parse_day(s: &str) -> Option<u32> {
     let s = s.trim().to_ascii_lowercase();
-    ["mon", "tue", "wed", "thu", "fri", "sat", "sun"]
+    isochron_config::DAY_NAMES
         .iter()
         .position(|d| s.starts_with(d))
         .map(|d| d as u32)

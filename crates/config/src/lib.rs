@@ -45,7 +45,7 @@ use serde::{Deserialize, Serialize};
 pub use camera::{
     CameraConfig, FloorPoint, Polygon, SourceKind, Speed, ZoneConfig, degenerate_points,
 };
-pub use cascade::CascadeConfig;
+pub use cascade::{CascadeConfig, DAY_NAMES};
 use check::{check_at_least, check_dds, check_polygon};
 pub use check::{check_positive, check_range};
 pub use costmap::{
