@@ -359,6 +359,22 @@ fn replay_live(site: &TestSite) -> (Proc, PathBuf) {
 }
 
 /// Starts `isochron view` of `config` on loopback port `port`.
+/// A site of cam01 on the 1 MiB cost map grid whose `[view]` is `view_keys`, and
+/// its running view on a free port.
+fn big_grid_view(name: &str, view_keys: &str) -> (TestSite, u16, Proc) {
+    let site = TestSite::new(
+        name,
+        &format!(
+            "{}{BIG_GRID}\n[view]\n{view_keys}",
+            crate::costmap::camera_toml()
+        ),
+    );
+    let port = free_port();
+    let mut view = spawn_view(&site.config_path(), port);
+    wait_for_view(&mut view);
+    (site, port, view)
+}
+
 fn spawn_view(config: &Path, port: u16) -> Proc {
     Proc::spawn(
         &bin("isochron"),
@@ -621,19 +637,13 @@ weight_long_term = 0.0
 
 #[test]
 fn a_client_that_stops_reading_costs_the_view_its_budget_and_is_disconnected() {
-    use crate::costmap::{HOT_BLOCK, HOT_S1, Source, camera_toml};
+    use crate::costmap::{HOT_BLOCK, HOT_S1, Source};
     const BUDGET_MIB: u64 = 2;
     const STALL_S: u64 = 6;
-    let site = TestSite::new(
+    let (site, port, view) = big_grid_view(
         "live-budget",
-        &format!(
-            "{}{BIG_GRID}\n[view]\nclient_budget_mib = {BUDGET_MIB}\nclient_stall_s = {STALL_S}\n",
-            camera_toml()
-        ),
+        &format!("client_budget_mib = {BUDGET_MIB}\nclient_stall_s = {STALL_S}\n"),
     );
-    let port = free_port();
-    let mut view = spawn_view(&site.config_path(), port);
-    wait_for_view(&mut view);
     // The test is cam01's cascade: activity as fast as the view composes cost
     // maps of it, each one 1 MiB to every client that subscribed to /costmap.
     let ipc = site.ipc("source");
@@ -785,23 +795,17 @@ impl FrameSource {
 
 #[test]
 fn many_stalled_clients_cost_the_view_its_memory_budget_and_the_rest_are_refused() {
-    use crate::costmap::{HOT_BLOCK, HOT_S1, Source, camera_toml};
+    use crate::costmap::{HOT_BLOCK, HOT_S1, Source};
     const CLIENTS: u64 = 150;
     // view.max_clients and view.memory_budget_mib at their defaults (32, 128 MiB);
     // each client may hold 16 MiB, so 32 of them could hold 512 MiB but for the
     // view's memory budget.
     const MAX_CLIENTS: u64 = 32;
     const STALL_S: u64 = 8;
-    let site = TestSite::new(
+    let (site, port, view) = big_grid_view(
         "live-many",
-        &format!(
-            "{}{BIG_GRID}\n[view]\nframes = true\nclient_budget_mib = 16\nclient_stall_s = {STALL_S}\n",
-            camera_toml()
-        ),
+        &format!("frames = true\nclient_budget_mib = 16\nclient_stall_s = {STALL_S}\n"),
     );
-    let port = free_port();
-    let mut view = spawn_view(&site.config_path(), port);
-    wait_for_view(&mut view);
     // Cost maps of 1 MiB as fast as the view composes them, and images.
     let ipc = site.ipc("source");
     let mut source = Source::new(&ipc, "2024-05-06T10:00:00Z");

@@ -20,6 +20,23 @@ import time
 import websockets
 
 
+async def subscribe_to_everything(ws) -> dict:
+    """Waits (20 s at most) for the view's advertise, subscribes to every channel
+    it names, and returns them, topic -> channel id."""
+    topics = {}
+    deadline = time.monotonic() + 20
+    while not topics and time.monotonic() < deadline:
+        msg = await asyncio.wait_for(ws.recv(), 20)
+        if isinstance(msg, str):
+            m = json.loads(msg)
+            if m.get("op") == "advertise":
+                for ch in m["channels"]:
+                    topics[ch["topic"]] = ch["id"]
+    subs = [{"id": k, "channelId": cid} for k, cid in enumerate(topics.values())]
+    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+    return topics
+
+
 async def run(url: str, stall_s: float) -> None:
     host, port = url.removeprefix("ws://").rstrip("/").rsplit(":", 1)
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -36,17 +53,7 @@ async def run(url: str, stall_s: float) -> None:
         ping_interval=None,
         close_timeout=1,
     ) as ws:
-        topics = {}
-        deadline = time.monotonic() + 20
-        while not topics and time.monotonic() < deadline:
-            msg = await asyncio.wait_for(ws.recv(), 20)
-            if isinstance(msg, str):
-                m = json.loads(msg)
-                if m.get("op") == "advertise":
-                    for ch in m["channels"]:
-                        topics[ch["topic"]] = ch["id"]
-        subs = [{"id": k, "channelId": cid} for k, cid in enumerate(topics.values())]
-        await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+        topics = await subscribe_to_everything(ws)
         print(
             json.dumps(
                 {"local_port": sock.getsockname()[1], "subscribed": sorted(topics)}

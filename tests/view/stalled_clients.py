@@ -22,6 +22,8 @@ import time
 import websockets
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
+from stalled_client import subscribe_to_everything
+
 
 async def subscribe(url: str):
     """A connection subscribed to every advertised channel, or why there is none."""
@@ -45,17 +47,7 @@ async def subscribe(url: str):
     except InvalidStatus as e:
         sock.close()
         return ("refused", e.response.status_code)
-    topics = {}
-    deadline = time.monotonic() + 20
-    while not topics and time.monotonic() < deadline:
-        msg = await asyncio.wait_for(ws.recv(), 20)
-        if isinstance(msg, str):
-            m = json.loads(msg)
-            if m.get("op") == "advertise":
-                for ch in m["channels"]:
-                    topics[ch["topic"]] = ch["id"]
-    subs = [{"id": k, "channelId": cid} for k, cid in enumerate(topics.values())]
-    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+    await subscribe_to_everything(ws)
     return ("subscribed", ws)
 
 
