@@ -56,16 +56,11 @@ impl StoreMeta {
             ("block_px", self.grid.block_px.to_string()),
             ("frame_width", self.grid.frame_width.to_string()),
             ("frame_height", self.grid.frame_height.to_string()),
-            ("cycle", cycle_name(self.cycle).to_string()),
+            ("cycle", self.cycle.name().to_string()),
             ("created", format_rfc3339(self.created_ns)),
             ("created_ns", self.created_ns.to_string()),
         ]
     }
-}
-
-/// The cycle as the meta table and errors name it.
-pub(crate) fn cycle_name(cycle: Cycle) -> &'static str {
-    cycle.name()
 }
 
 /// CRC-32 of the meta rows, sorted by key.

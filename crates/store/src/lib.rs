@@ -74,7 +74,7 @@ pub use model::{Baseline, MinuteCommit, Model, Progress, StoreMeta, VerifyReport
 pub use spans::Spans;
 
 use error::sql_err;
-use file::{check_sqlite_header, create, cycle_name, read_meta};
+use file::{check_sqlite_header, create, read_meta};
 use rows::{RawBin, SELECT_BINS, f32_bytes, f32s_from, insert_bin, span_crc};
 
 use isochron_config::clock::Cycle;
@@ -137,8 +137,8 @@ impl Store {
         if store.meta.cycle != cycle {
             return Err(StoreError::Cycle {
                 file: path.to_path_buf(),
-                expected: cycle_name(cycle).into(),
-                found: cycle_name(store.meta.cycle).into(),
+                expected: cycle.name().into(),
+                found: store.meta.cycle.name().into(),
             });
         }
         store.verify()?;
