@@ -25,6 +25,8 @@ pub(crate) fn test(root: &Path) -> anyhow::Result<()> {
     crate::config_ref::check(root, linted_cargo()?)?;
     // Lint and build every target in one pass (clippy --all-targets, but building).
     run(linted_cargo()?.args(["test", "--workspace", "--all-targets", "--no-run"]))?;
+    // After the build: every crate is downloaded, so `cargo metadata` runs offline.
+    crate::deps::check(root)?;
     run(linted_cargo()?.args(["build", "--workspace", "--bins"]))?;
     run(linted_cargo()?.args(["test", "--workspace"]))?;
     // Every benchmark in quick mode, so that none can rot.

@@ -1,4 +1,4 @@
-//! Developer tasks: `cargo xtask <setup|demo|test|structure|bench NAME|docs|install|deb>`.
+//! Developer tasks: `cargo xtask <setup|demo|test|structure|deps|bench NAME|docs|install|deb>`.
 //!
 //! * `setup`: installs the system packages isochron builds and tests with
 //!   (Debian/Ubuntu, [`setup::PACKAGES`]) if they are missing, fetches the sample
@@ -13,6 +13,8 @@
 //!   benchmark in quick mode (dev profile), each checked for its closing JSON line;
 //! * `structure`: no source file over 700 lines but tests, no module cycles
 //!   (`structure.rs`);
+//! * `deps`: the dependency policy — licences, sources, duplicate versions —
+//!   from `cargo metadata`, offline ([`deps`]; `test` runs it);
 //! * `bench NAME`: setup and one benchmark (motion, cascade, gate, ipc, group, site,
 //!   forecast; [`ci::BENCHES`]), after a release build of the binaries for those that
 //!   run them (gate, group, site, forecast); `bench NAME --quick`: the same code with
@@ -43,6 +45,7 @@ mod ci;
 mod config_ref;
 mod deb;
 mod demo;
+mod deps;
 mod install;
 mod setup;
 mod structure;
@@ -59,6 +62,7 @@ fn main() -> anyhow::Result<()> {
             setup::setup(&root)?;
             demo::demo(&root)
         }
+        Some("deps") => deps::check(&root),
         Some("test") => {
             setup::setup(&root)?;
             ci::test(&root)
