@@ -16,10 +16,7 @@ use std::path::Path;
 
 use ros2_client::dds::{Context, Node};
 use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions};
-use rustdds::{
-    DomainParticipantBuilder, DomainParticipantSecurityConfigFiles, QosPolicies, QosPolicyBuilder,
-    Topic, TopicKind, policy,
-};
+use rustdds::{DomainParticipantBuilder, QosPolicies, QosPolicyBuilder, Topic, TopicKind, policy};
 
 /// Highest DDS domain id whose RTPS ports fit in 16 bits.
 pub const MAX_DOMAIN_ID: u16 = 232;
@@ -112,11 +109,7 @@ impl RosNode {
             builder = builder.with_only_networks(interfaces.iter().copied());
         }
         if let Some(dir) = enclave {
-            // The keystore's private keys are not encrypted (RustDDS reads no
-            // encrypted ones): the enclave's file permissions protect them.
-            builder = builder.builtin_security(
-                DomainParticipantSecurityConfigFiles::with_ros_default_names(dir, String::new()),
-            );
+            builder = secure(builder, dir).map_err(dds)?;
         }
         let participant = builder.build().map_err(|e| dds(format!("{e}")))?;
         let context =
@@ -200,6 +193,28 @@ impl RosNode {
             )
             .map_err(|e| self.error(format!("creating topic {name}: {e}")))
     }
+}
+
+/// `builder` with DDS Security's built-in plugins reading the enclave `dir`.
+#[cfg(feature = "security")]
+fn secure(
+    builder: DomainParticipantBuilder,
+    dir: &Path,
+) -> Result<DomainParticipantBuilder, String> {
+    // The keystore's private keys are not encrypted (RustDDS reads no encrypted
+    // ones): the enclave's file permissions protect them.
+    Ok(builder.builtin_security(
+        rustdds::DomainParticipantSecurityConfigFiles::with_ros_default_names(dir, String::new()),
+    ))
+}
+
+/// Without the `security` feature: an error saying so.
+#[cfg(not(feature = "security"))]
+fn secure(_: DomainParticipantBuilder, dir: &Path) -> Result<DomainParticipantBuilder, String> {
+    Err(format!(
+        "the enclave {} needs DDS Security, which this binary is built without (isochron-dds feature `security`)",
+        dir.display()
+    ))
 }
 
 /// The files of an SROS2 enclave that DDS Security reads.
