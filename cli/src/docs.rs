@@ -21,11 +21,12 @@ pub fn write(out: &Path) -> std::io::Result<Vec<PathBuf>> {
     man_pages(&command, &man, "1", &mut written)?;
     // Section 8, as daemons: `isochron-costmap.8` (the service) beside
     // `isochron-costmap.1` (`isochron costmap`).
-    for stage in StageKind::EVERY {
+    for stage in StageKind::services() {
         let mut service = isochron_runtime::service::command(stage);
         service.build();
         man_pages(&service, &man, "8", &mut written)?;
     }
+    written.push(write_services(out)?);
     let completions = out.join("completions");
     std::fs::create_dir_all(&completions)?;
     for shell in [Shell::Bash, Shell::Zsh, Shell::Fish] {
@@ -37,6 +38,35 @@ pub fn write(out: &Path) -> std::io::Result<Vec<PathBuf>> {
         )?);
     }
     Ok(written)
+}
+
+/// The file the installer reads the service binaries and units from.
+pub const SERVICES_FILE: &str = "services.tsv";
+
+/// Writes `out/services.tsv`: one line per stage with a service binary, from the
+/// stage table — `binary`, `unit`, `per-camera` or `site`, and `always` or the
+/// config section that turns it on — so `cargo xtask install` and `deb` list no
+/// stage of their own.
+fn write_services(out: &Path) -> std::io::Result<PathBuf> {
+    use isochron_runtime::topology::Runs;
+    let mut text = String::new();
+    for stage in StageKind::services() {
+        let spec = stage.spec();
+        let scope = if spec.per_camera {
+            "per-camera"
+        } else {
+            "site"
+        };
+        let when = match spec.runs {
+            Runs::Always => "always",
+            _ => spec.section,
+        };
+        let unit = spec.unit.unwrap_or("-");
+        text += &format!("{}\t{unit}\t{scope}\t{when}\n", spec.binary);
+    }
+    let path = out.join(SERVICES_FILE);
+    std::fs::write(&path, text)?;
+    Ok(path)
 }
 
 /// Writes the page of the built `command` and of each of its subcommands into
@@ -100,8 +130,14 @@ mod tests {
         assert!(dir.path().join("completions/isochron.fish").is_file());
         assert_eq!(
             written.len(),
-            std::fs::read_dir(&man).unwrap().count() + 3,
+            std::fs::read_dir(&man).unwrap().count() + 3 + 1,
             "every file is reported"
         );
+        let services = std::fs::read_to_string(dir.path().join(super::SERVICES_FILE)).unwrap();
+        assert!(
+            services
+                .starts_with("isochron-capture\tisochron-capture@.service\tper-camera\talways\n")
+        );
+        assert!(services.contains("isochron-link\tisochron-link.service\tsite\t[link]\n"));
     }
 }

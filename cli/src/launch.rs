@@ -29,11 +29,10 @@ pub fn bin_dir() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from("."))
 }
 
-/// The stages whose binaries are installed, in pipeline order.
-pub fn installed_stages() -> Vec<(StageKind, PathBuf)> {
+/// Those of `stages` whose binaries are installed, with their paths.
+pub fn installed(stages: impl Iterator<Item = StageKind>) -> Vec<(StageKind, PathBuf)> {
     let dir = bin_dir();
-    StageKind::ALL
-        .into_iter()
+    stages
         .map(|stage| (stage, dir.join(stage.binary())))
         .filter(|(_, path)| path.is_file())
         .collect()
@@ -52,42 +51,18 @@ pub struct ServiceSpec {
     pub args: Vec<OsString>,
 }
 
-/// The optional services of `config` whose binaries are installed: the exporter
-/// when the config has an `[exporter]` section, the MQTT sink when it has `[mqtt]`.
-pub fn optional_services(config: &LoadedConfig) -> Vec<(StageKind, PathBuf)> {
-    let dir = bin_dir();
-    [
-        (StageKind::Exporter, config.config.exporter.is_some()),
-        (StageKind::Mqtt, config.config.mqtt.is_some()),
-    ]
-    .into_iter()
-    .filter(|(_, wanted)| *wanted)
-    .map(|(stage, _)| (stage, dir.join(stage.binary())))
-    .filter(|(_, path)| path.is_file())
-    .collect()
-}
-
-/// The services of every stage for every camera of `config` — one process per
-/// `site.cameras_per_process` cameras — the costmap bridge once per site, and the
-/// optional services the config asks for ([`optional_services`]), downstream
-/// first, so consumers are up before producers.
-pub fn group_specs(config: &LoadedConfig) -> Vec<ServiceSpec> {
+/// The services of `stages` (those installed) for `config`: a per-camera stage
+/// once per `site.cameras_per_process` cameras, a site-wide one once,
+/// downstream first, so consumers are up before producers.
+pub fn group_specs(config: &LoadedConfig, stages: &[(StageKind, PathBuf)]) -> Vec<ServiceSpec> {
     let config_arg = OsString::from(
         config
             .path
             .canonicalize()
             .unwrap_or_else(|_| config.path.clone()),
     );
-    let mut specs: Vec<ServiceSpec> = optional_services(config)
-        .into_iter()
-        .map(|(stage, program)| ServiceSpec {
-            name: stage.name().to_string(),
-            stage,
-            program,
-            args: vec!["--config".into(), config_arg.clone()],
-        })
-        .collect();
-    for (stage, program) in installed_stages().into_iter().rev() {
+    let mut specs = Vec::new();
+    for (stage, program) in stages.iter().cloned().rev() {
         if !stage.per_camera() {
             specs.push(ServiceSpec {
                 name: stage.name().to_string(),
@@ -98,7 +73,8 @@ pub fn group_specs(config: &LoadedConfig) -> Vec<ServiceSpec> {
             continue;
         }
         let per_process = config.config.site.cameras_per_process.max(1);
-        for cameras in config.config.cameras.chunks(per_process) {
+        let local: Vec<_> = config.config.local_cameras().collect();
+        for cameras in local.chunks(per_process) {
             let ids = cameras
                 .iter()
                 .map(|c| c.id.as_str())

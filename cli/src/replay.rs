@@ -32,13 +32,14 @@ use std::time::{Duration, Instant};
 use anyhow::{Context as _, bail};
 use isochron_config::{Config, LoadedConfig, Speed};
 use isochron_exit::Fatal;
+use isochron_runtime::counters::Counters;
 use isochron_runtime::health::InputCompleteness;
 use isochron_runtime::ipc::{Ipc, StatusSubscriber};
-use isochron_runtime::stage::{self, Context, Stage, Woken};
+use isochron_runtime::stage::{self, Context, Stage};
 use isochron_runtime::topology::StageKind;
-use isochron_wire::{Stream, fixed_str};
+use isochron_wire::{StageStatus, Stream};
 
-use crate::launch::{ServiceSpec, State, Supervisor, group_specs, installed_stages};
+use crate::launch::{ServiceSpec, State, Supervisor, group_specs, installed};
 use crate::record::RecorderThread;
 use tally::{ReplayInputs, Tally};
 
@@ -75,7 +76,7 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let (video, speed, out) = check_args(&args)?;
     let (loaded, camera) = effective_config(&args, &video, speed, &out)?;
-    let stages = installed_stages();
+    let stages = installed(StageKind::replayed(&loaded.config));
     if !stages.iter().any(|(s, _)| *s == StageKind::Capture) {
         bail!(
             "{} is not installed next to this binary ({})",
@@ -93,7 +94,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .transpose()?;
     let tally = Tally::new(&camera, &inputs, &out)?;
 
-    let specs = group_specs(&loaded);
+    let specs = group_specs(&loaded, &stages);
     let mut supervisor = Supervisor::new(false, Duration::from_secs(60), Some(out.join("logs")))?;
     // The wall time counts the services' start-up too, as it always has.
     let started = Instant::now();
@@ -105,11 +106,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         supervisor.add(spec)?;
     }
     // Optional consumers (the MQTT sink) get every sample too.
-    let consumers: Vec<_> = stages
-        .iter()
-        .cloned()
-        .chain(crate::launch::optional_services(&loaded))
-        .collect();
+    let consumers = stages.clone();
     let banner = format!(
         "replay: {} → {} (speed {speed}, prefix {})",
         video.display(),
@@ -129,7 +126,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         },
         tally,
         capture_status: None,
-        capture_detail: None,
+        capture_last: None,
         stall: Duration::from_secs_f64(args.stall_timeout_s),
         last_total: 0,
         last_progress: Instant::now(),
@@ -183,9 +180,9 @@ fn finish(
         .transpose()?
         .is_some_and(|code| code != ExitCode::SUCCESS);
     let input = replay
-        .capture_detail
-        .as_deref()
-        .and_then(InputCompleteness::from_detail);
+        .capture_last
+        .as_ref()
+        .and_then(InputCompleteness::from_status);
     replay.tally.finish(out, video, wall, input)?;
     println!(
         "replay: {} in {:.1} s",
@@ -254,10 +251,12 @@ source = """#,
     Ok((loaded, id))
 }
 
-/// True for the service `name` of an optional stage (the exporter, the MQTT
-/// sink): its failure is logged (in `DIR/logs`) but does not stop the replay.
+/// True for the service `name` (`stage` or `stage/cameras`) of an optional stage
+/// (the exporter, the MQTT sink): its failure is logged (in `DIR/logs`) but does
+/// not stop the replay.
 fn is_optional(name: &str) -> bool {
-    name == StageKind::Exporter.name() || name == StageKind::Mqtt.name()
+    let stage = name.split('/').next().and_then(StageKind::from_name);
+    stage.is_some_and(StageKind::optional)
 }
 
 /// How long the services may take to subscribe to their inputs.
@@ -297,7 +296,7 @@ struct ReplayStage<'ipc> {
     /// Capture's last status says how much of the file it read (it publishes
     /// it before the end of stream); subscribed before capture starts.
     capture_status: Option<StatusSubscriber>,
-    capture_detail: Option<String>,
+    capture_last: Option<StageStatus>,
     stall: Duration,
     last_total: u64,
     last_progress: Instant,
@@ -344,7 +343,7 @@ impl ReplayStage<'_> {
     /// While collecting: the services' changes, a failed one, no progress.
     fn supervise(&mut self) -> anyhow::Result<()> {
         if let Some(status) = self.capture_status.as_ref().and_then(|s| s.latest()) {
-            self.capture_detail = Some(fixed_str(&status.detail));
+            self.capture_last = Some(status);
         }
         if !matches!(self.phase, Phase::Collecting) || self.tally.all_ended() {
             return Ok(());
@@ -399,12 +398,7 @@ impl Stage for ReplayStage<'_> {
         Ok(())
     }
 
-    fn on_wake(
-        &mut self,
-        inputs: &ReplayInputs,
-        _woken: &Woken,
-        cx: &mut Context,
-    ) -> Result<(), Fatal> {
+    fn on_wake(&mut self, inputs: &ReplayInputs, cx: &mut Context) -> Result<(), Fatal> {
         let taken = self.tally.take(inputs, cx);
         self.settle(taken)
     }
@@ -427,9 +421,7 @@ impl Stage for ReplayStage<'_> {
         SUPERVISE_EVERY
     }
 
-    fn detail(&self) -> String {
-        self.tally.counts_line()
-    }
+    fn counters(&self, _: &mut Counters) {}
 }
 
 /// The streams of `camera` that some consumer of `stages` has not subscribed to

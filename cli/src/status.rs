@@ -7,13 +7,14 @@ use std::time::{Duration, Instant};
 
 use isochron_config::LoadedConfig;
 use isochron_config::clock::wall_now_ns;
+use isochron_runtime::health::{status_counters, status_detail};
 use isochron_runtime::ipc::Ipc;
 use isochron_runtime::topology::StageKind;
 use isochron_wire::{StageStatus, fixed_str};
 use serde_json::json;
 
 use crate::common::load_config;
-use crate::launch::{bin_dir, installed_stages, optional_services};
+use crate::launch::installed;
 
 /// Show the status of every service of the site. Exits with 0 when every
 /// service runs, 3 when some does not.
@@ -60,47 +61,34 @@ impl Row {
 /// How long `collect` waits for the stages' reports.
 const STATUS_WAIT: Duration = Duration::from_millis(1000);
 
-/// The stages whose status the site should publish: every installed pipeline
-/// stage, the exporter when the config has an `[exporter]` section, and the link
-/// when `[link]` exports or imports a camera (each if its binary is installed).
+/// The stages whose status the site should publish: those `isochron up` starts
+/// for `config` ([`StageKind::started`]) whose binaries are installed.
 pub fn expected_stages(config: &LoadedConfig) -> Vec<StageKind> {
-    let link = (config.config.link.is_enabled()
-        && bin_dir().join(StageKind::Link.binary()).is_file())
-    .then_some(StageKind::Link);
-    installed_stages()
+    installed(StageKind::started(&config.config))
         .into_iter()
-        .chain(optional_services(config))
         .map(|(stage, _)| stage)
-        .chain(link)
         .collect()
 }
 
 /// Reads the last status of every expected stage ([`expected_stages`]) of every
 /// camera of `config`, and of the view while one runs.
 pub fn collect(ipc: &Ipc, config: &LoadedConfig) -> anyhow::Result<Vec<Row>> {
-    let cameras: Vec<String> = config.config.cameras.iter().map(|c| c.id.clone()).collect();
     let mut readers = Vec::new();
     // A view or recorder (`isochron view`, `record`) has a row while it runs.
     let view = (ipc.status_publishers("", StageKind::View) > 0).then_some(StageKind::View);
-    for stage in expected_stages(config).into_iter().chain(view) {
-        let targets: Vec<String> = if stage.per_camera() {
-            cameras.clone()
-        } else {
-            vec![String::new()]
-        };
-        for camera in targets {
-            // A site of thousands of cameras takes a while: SIGTERM or SIGINT stops
-            // here, and the readers made so far are dropped (their shared memory
-            // with them).
-            if isochron_runtime::ipc::stop_signalled() {
-                anyhow::bail!(
-                    "interrupted (SIGTERM or SIGINT) after {} of the status readers",
-                    readers.len()
-                );
-            }
-            let reader = ipc.status_subscriber(&camera, stage)?;
-            readers.push((stage, camera, reader));
+    let services = StageKind::services_of(expected_stages(config).into_iter(), &config.config);
+    for (stage, camera) in services.into_iter().chain(view.map(|v| (v, String::new()))) {
+        // A site of thousands of cameras takes a while: SIGTERM or SIGINT stops
+        // here, and the readers made so far are dropped (their shared memory
+        // with them).
+        if isochron_runtime::ipc::stop_signalled() {
+            anyhow::bail!(
+                "interrupted (SIGTERM or SIGINT) after {} of the status readers",
+                readers.len()
+            );
         }
+        let reader = ipc.status_subscriber(&camera, stage)?;
+        readers.push((stage, camera, reader));
     }
     // A running stage hands its last report to a new reader on its next tick
     // (within 250 ms); wait a little longer, or until every stage has answered.
@@ -149,7 +137,15 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 o["stage_latency_ms"] = json!(s.stage_latency_ms);
                 o["e2e_latency_p50_ms"] = json!(s.e2e_latency_p50_ms);
                 o["e2e_latency_p99_ms"] = json!(s.e2e_latency_p99_ms);
-                o["detail"] = json!(fixed_str(&s.detail));
+                o["detail"] = json!(status_detail(s));
+                o["info"] = json!(fixed_str(&s.info));
+                if let Some(c) = status_counters(s) {
+                    let counters: serde_json::Map<String, serde_json::Value> = c
+                        .iter()
+                        .map(|(spec, v)| (spec.name.into(), json!(v)))
+                        .collect();
+                    o["counters"] = counters.into();
+                }
             }
             println!("{o}");
         }
@@ -188,7 +184,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                     s.stage_latency_ms,
                     s.e2e_latency_p50_ms,
                     s.e2e_latency_p99_ms,
-                    fixed_str(&s.detail)
+                    status_detail(s)
                 ),
             }
         }

@@ -6,9 +6,10 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use isochron_runtime::ipc::Ipc;
+use isochron_runtime::topology::StageKind;
 
 use crate::common::load_config;
-use crate::launch::{Supervisor, group_specs};
+use crate::launch::{Supervisor, group_specs, installed};
 
 /// Start the configured services as separate processes and keep them running.
 #[derive(clap::Args)]
@@ -31,7 +32,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let loaded = load_config(args.config)?;
     // The node is only for the SIGINT/SIGTERM handling every isochron process shares.
     let ipc = Ipc::of_site("isochron-up", &loaded.config)?;
-    let specs = group_specs(&loaded);
+    let stages = installed(StageKind::started(&loaded.config));
+    let specs = group_specs(&loaded, &stages);
     if specs.is_empty() {
         anyhow::bail!(
             "no service binaries found in {} (build them with `cargo build`, or set ISOCHRON_BIN_DIR)",

@@ -30,3 +30,63 @@ fn tap_timing_out_is_75_and_status_of_a_stopped_group_is_3() {
     assert_eq!(status.status.code(), Some(3), "{}", status.stdout);
     assert!(status.stdout.contains("not running"), "{}", status.stdout);
 }
+
+/// The stage table is the one place a stage is declared: every service binary
+/// of the workspace has a row, every row's binary is built by a crate of the
+/// workspace, and every row's systemd unit is in `systemd/`, which has no
+/// service unit without a row.
+#[test]
+fn every_service_binary_and_unit_has_a_row_of_the_stage_table_and_every_row_both() {
+    use isochron_runtime::topology::StageKind;
+    let root = isochron_tests::repo_root();
+    let metadata = std::process::Command::new(env!("CARGO"))
+        .args([
+            "metadata",
+            "--no-deps",
+            "--offline",
+            "--format-version",
+            "1",
+        ])
+        .current_dir(&root)
+        .output()
+        .expect("cargo metadata");
+    assert!(
+        metadata.status.success(),
+        "{}",
+        String::from_utf8_lossy(&metadata.stderr)
+    );
+    let metadata: serde_json::Value = serde_json::from_slice(&metadata.stdout).unwrap();
+    let mut bins: Vec<String> = metadata["packages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|p| p["targets"].as_array().unwrap().iter())
+        .filter(|t| t["kind"].as_array().unwrap().iter().any(|k| k == "bin"))
+        .map(|t| t["name"].as_str().unwrap().to_string())
+        .filter(|name| name.starts_with("isochron-"))
+        .collect();
+    bins.sort();
+    let mut rows: Vec<String> = StageKind::services()
+        .map(|s| s.binary().to_string())
+        .collect();
+    rows.sort();
+    assert_eq!(
+        bins, rows,
+        "service binaries of the workspace vs rows of the stage table"
+    );
+
+    let mut units: Vec<String> = std::fs::read_dir(root.join("systemd"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|name| name.ends_with(".service"))
+        .collect();
+    units.sort();
+    let mut row_units: Vec<String> = StageKind::all()
+        .filter_map(|s| s.spec().unit.map(String::from))
+        .collect();
+    row_units.sort();
+    assert_eq!(
+        units, row_units,
+        "units in systemd/ vs rows of the stage table"
+    );
+}

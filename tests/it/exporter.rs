@@ -44,7 +44,7 @@ fn scrape(port: u16) -> Option<String> {
 
 /// The value of the sample `name{labels}` in `text`, e.g.
 /// `value(t, "isochron_up", "stage=\"capture\",camera=\"cam01\"")`.
-fn value(text: &str, name: &str, labels: &str) -> Option<f64> {
+pub(crate) fn value(text: &str, name: &str, labels: &str) -> Option<f64> {
     let prefix = format!("{name}{{{labels}}} ");
     text.lines()
         .find_map(|l| l.strip_prefix(&prefix))
@@ -52,7 +52,7 @@ fn value(text: &str, name: &str, labels: &str) -> Option<f64> {
 }
 
 /// Runs `promtool args` with `stdin`: success and what it printed.
-fn promtool(args: &[&str], stdin: &str, dir: &Path) -> (bool, String) {
+pub(crate) fn promtool(args: &[&str], stdin: &str, dir: &Path) -> (bool, String) {
     let mut child = Command::new("promtool")
         .args(args)
         .current_dir(dir)

@@ -17,15 +17,17 @@
 //! B's link). Measured
 //! (printed): bytes per second on the link and origin-to-B latency.
 
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use isochron_config::clock::{NS_PER_S, parse_rfc3339, wall_now_ns};
-use isochron_runtime::health::detail_value;
+use isochron_runtime::counters::{CounterId, link};
+use isochron_runtime::health::status_counters;
 use isochron_runtime::ipc::{Activity, Detections, Events, Ipc, StreamSubscriber};
 use isochron_runtime::topology::StageKind;
 use isochron_tests::{NetnsPair, Proc, TestSite, bin, eventually, repo_root};
 use isochron_wire::{
-    CameraId, Detection, DetectionHeader, EventHeader, Preamble, Stream, fixed_str, to_fixed,
+    CameraId, Detection, DetectionHeader, EventHeader, Preamble, Stream, to_fixed,
 };
 
 use crate::costmap::{
@@ -70,18 +72,16 @@ const QUEUE: usize = 8;
 /// Events A publishes at once.
 const BURST: u64 = 200;
 
-/// The `[link]` status detail `key` of the link of `ipc`'s site, from a report
-/// made after `after_ns` (waits for one).
-fn link_counter(ipc: &Ipc, key: &str, after_ns: i64) -> u64 {
+/// The link's counter `id` of `ipc`'s site, from a report made after
+/// `after_ns` (waits for one).
+fn link_counter(ipc: &Ipc, id: CounterId, after_ns: i64) -> u64 {
     let reader = ipc.status_subscriber("", StageKind::Link).unwrap();
     let status = eventually(Duration::from_secs(8), || {
         reader.latest().filter(|s| s.report_wall_ns > after_ns)
     })
     .expect("a link status report");
-    let detail = fixed_str(&status.detail);
-    detail_value(&detail, key)
-        .and_then(|v| v.parse().ok())
-        .unwrap_or_else(|| panic!("no {key} in the link's status detail: {detail}"))
+    let counters = status_counters(&status).expect("the link's counters");
+    counters.get(id) as u64
 }
 
 /// An event record of cam01 as the gate writes it.
@@ -453,8 +453,8 @@ fn records_cross_and_a_burst_is_counted(ipc_a: &Ipc, ipc_b: &Ipc, scene: &mut Sc
         assert_eq!((*id, *capture), (100 + seq, 1_000 + *seq as i64));
     }
     assert!(burst.windows(2).all(|w| w[0].0 < w[1].0), "in order, once");
-    let dropped_a = link_counter(ipc_a, "ev_drop", done_ns);
-    let gaps_b = link_counter(ipc_b, "ev_gap", done_ns);
+    let dropped_a = link_counter(ipc_a, link::EV_DROP, done_ns);
+    let gaps_b = link_counter(ipc_b, link::EV_GAP, done_ns);
     eprintln!(
         "MEASURED burst of {BURST} events (queue {QUEUE}): {} reached B in {t:?}; A's link dropped {dropped_a}, B counts {gaps_b} missing",
         burst.len()
@@ -733,4 +733,109 @@ fn a_link_without_enough_open_files_says_which_limit_to_raise() {
             && line.contains("raise LimitNOFILE= of isochron-link.service"),
         "{line}"
     );
+}
+
+/// With `[link]` configured, `isochron up` runs the link, and the exporter
+/// serves the link's counters and the remote box's liveness: the imported
+/// camera live, and its remote stage (relayed) up — both going down when the
+/// exporting box's link stops. promtool checks the page.
+#[test]
+fn up_runs_a_configured_link_and_the_exporter_serves_its_counters_and_remote_liveness() {
+    let Some(pair) = netns_pair(4) else {
+        return;
+    };
+    let (link_domain, bridge_domain) = (dds_domain(), dds_domain());
+    let site_a = box_site(
+        "link-up-a",
+        &camera_toml(),
+        ("box_a", "export", &pair.addrs[0]),
+        link_domain,
+        "",
+    );
+    let port = isochron_tests::free_port();
+    let site_b = box_site(
+        "link-up-b",
+        &format!(
+            "[exporter]\nlisten = \"127.0.0.1:{port}\"\nstale_after_s = 6\n\n{}{}",
+            camera_toml(),
+            costmap_toml(bridge_domain, "")
+        ),
+        ("box_b", "import", &pair.addrs[1]),
+        link_domain,
+        "",
+    );
+    let config_a = site_a.config_path().display().to_string();
+    let config_b = site_b.config_path().display().to_string();
+    let ipc_a = site_a.ipc("source");
+    let mut source = Source::new(&ipc_a, START);
+    let capture_a = ipc_a.status_publisher("cam01", StageKind::Capture).unwrap();
+    let mut link_a = pair.spawn(0, &bin("isochron-link"), &["--config", &config_a]);
+    source.wait_for_subscriber(&link_a);
+    // B runs no camera of its own: cam01 is imported, so `up` starts the
+    // bridge, the exporter and the link only.
+    let mut up_b = pair.spawn(1, &bin("isochron"), &["up", "--config", &config_b]);
+    let scrape = || {
+        let url = format!("http://127.0.0.1:{port}/metrics");
+        let mut curl = pair.spawn(
+            1,
+            Path::new("/usr/bin/curl"),
+            &["-sf", "--max-time", "3", &url],
+        );
+        // The page ends in a newline, which the process output loses.
+        curl.finish(Duration::from_secs(10))
+            .stdout
+            .trim_end()
+            .to_string()
+            + "\n"
+    };
+    let link = "stage=\"link\",camera=\"\"";
+    let remote = "stage=\"capture\",camera=\"cam01\"";
+    let mut page = String::new();
+    let started = Instant::now();
+    let live = eventually(Duration::from_secs(60), || {
+        source.send(&[(HOT_BLOCK, HOT_S1)], 660);
+        let status = isochron_runtime::health::starting_status(
+            isochron_wire::CameraId::new("cam01").unwrap(),
+            StageKind::Capture,
+        );
+        let _ = capture_a.publish(isochron_wire::StageStatus {
+            report_wall_ns: wall_now_ns(),
+            ..status
+        });
+        capture_a.update_connections();
+        std::thread::sleep(Duration::from_millis(500));
+        page = scrape();
+        let value = |name: &str, labels: &str| crate::exporter::value(&page, name, labels);
+        (value("isochron_up", link) == Some(1.0)
+            && value("isochron_link_imports_live", link) == Some(1.0)
+            && value("isochron_link_activity_received_total", link).is_some_and(|n| n > 0.0)
+            && value("isochron_up", remote) == Some(1.0))
+        .then_some(())
+    });
+    assert!(
+        live.is_some(),
+        "B's metrics after {:?}:\n{page}\nup:\n{}",
+        started.elapsed(),
+        up_b.stderr()
+    );
+    let (ok, lint) = crate::exporter::promtool(&["check", "metrics"], &page, site_b.dir.path());
+    assert!(ok && lint.trim().is_empty(), "promtool: {lint}\n{page}");
+
+    // A's link stops: the remote stage goes down at the exporter's stale time,
+    // the import at the link's LIVE_WITHIN.
+    link_a.terminate(Duration::from_secs(10));
+    let down = eventually(Duration::from_secs(40), || {
+        std::thread::sleep(Duration::from_millis(500));
+        page = scrape();
+        let value = |name: &str, labels: &str| crate::exporter::value(&page, name, labels);
+        (value("isochron_up", remote) == Some(0.0)
+            && value("isochron_link_imports_live", link) == Some(0.0)
+            && value("isochron_link_imports", link) == Some(1.0))
+        .then_some(())
+    });
+    assert!(
+        down.is_some(),
+        "B's metrics after A's link stopped:\n{page}"
+    );
+    up_b.terminate(Duration::from_secs(20));
 }

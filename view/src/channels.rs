@@ -32,11 +32,12 @@ use isochron_planning::cost::{CostParams, Layer, compose};
 use isochron_planning::grid::MapGrid;
 use isochron_planning::homography::Homography;
 use isochron_planning::raster::Footprint;
+use isochron_runtime::health::status_detail;
 use isochron_runtime::topology::StageKind;
 use isochron_wire::geometry::BlockGrid;
 use isochron_wire::{
     ActivityHeader, ActivityKind, BlockActivity, BlockMotion, Detection, DetectionHeader,
-    EventHeader, EventPhase, FrameHeader, MotionHeader, PixelFormat, StageStatus, fixed_str,
+    EventHeader, EventPhase, FrameHeader, MotionHeader, PixelFormat, StageStatus,
 };
 
 use crate::jpeg;
@@ -272,7 +273,7 @@ impl SiteChannels {
                     "pid {}: {} (+{dropped} dropped, +{rejected} rejected); {}",
                     s.pid,
                     s.counters(),
-                    fixed_str(&s.detail)
+                    status_detail(s)
                 ),
                 name: service,
                 file: String::new(),

@@ -124,8 +124,9 @@ pub fn open_inputs(
     ))
 }
 
-/// Readers of every pipeline service's status (each stage of each camera, the
-/// costmap once), if `streams.status`.
+/// Readers of the status of every service `isochron up` runs for the config
+/// and of the imported cameras' stages ([`StageKind::services_of`]), if
+/// `streams.status`.
 pub fn status_readers(
     ipc: &Ipc,
     loaded: &LoadedConfig,
@@ -135,16 +136,10 @@ pub fn status_readers(
     if !streams.status {
         return Ok(readers);
     }
-    for stage in StageKind::ALL {
-        let cameras: Vec<String> = if stage.per_camera() {
-            loaded.config.cameras.iter().map(|c| c.id.clone()).collect()
-        } else {
-            vec![String::new()]
-        };
-        for camera in cameras {
-            let reader = ipc.status_subscriber(&camera, stage)?;
-            readers.push((camera, stage, reader));
-        }
+    let config = &loaded.config;
+    for (stage, camera) in StageKind::services_of(StageKind::started(config), config) {
+        let reader = ipc.status_subscriber(&camera, stage)?;
+        readers.push((camera, stage, reader));
     }
     Ok(readers)
 }

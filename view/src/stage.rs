@@ -25,8 +25,9 @@ use std::time::{Duration, Instant};
 
 use isochron_config::LoadedConfig;
 use isochron_exit::Fatal;
+use isochron_runtime::counters::{Counters, view};
 use isochron_runtime::ipc::{Ipc, IpcError, StreamType};
-use isochron_runtime::stage::{Context, Input, Stage, Woken};
+use isochron_runtime::stage::{Context, Input, Stage};
 use isochron_runtime::topology::StageKind;
 use isochron_wire::StreamHeader;
 
@@ -196,7 +197,7 @@ impl Stage for ViewStage {
     type Inputs = ViewInputs;
     const KIND: StageKind = StageKind::View;
 
-    fn on_wake(&mut self, inputs: &ViewInputs, _: &Woken, cx: &mut Context) -> Result<(), Fatal> {
+    fn on_wake(&mut self, inputs: &ViewInputs, cx: &mut Context) -> Result<(), Fatal> {
         let (activity, events, detections, frames, motion) = inputs;
         let (channels, ended) = (&mut self.channels, &mut self.ended);
         take(frames, true, cx, |k, h, pixels| {
@@ -258,27 +259,23 @@ impl Stage for ViewStage {
         TICK
     }
 
-    fn detail(&self) -> String {
-        let sink = match self.sink {
-            Sink::Live(_) => "live",
-            Sink::Record(_) => "record",
-        };
-        let mut detail = format!(
-            "sink={sink} published={} topics={}",
-            self.published(),
-            self.channels.counts().len()
-        );
+    fn counters(&self, c: &mut Counters) {
+        c.set(view::PUBLISHED, self.published());
+        c.set(view::TOPICS, self.channels.counts().len());
         if let Sink::Live(server) = &self.sink {
             let stats = server.stats();
-            detail += &format!(
-                " clients={} refused_clients={} client_drops={} stalled_clients={} queued_bytes={}",
-                stats.connected.load(Ordering::Relaxed),
-                stats.refused.load(Ordering::Relaxed),
-                stats.dropped.load(Ordering::Relaxed),
-                stats.stalled.load(Ordering::Relaxed),
-                server.queued_bytes()
-            );
+            c.set(view::CLIENTS, stats.connected.load(Ordering::Relaxed));
+            c.set(view::REFUSED_CLIENTS, stats.refused.load(Ordering::Relaxed));
+            c.set(view::CLIENT_DROPS, stats.dropped.load(Ordering::Relaxed));
+            c.set(view::STALLED_CLIENTS, stats.stalled.load(Ordering::Relaxed));
+            c.set(view::QUEUED_BYTES, server.queued_bytes());
         }
-        detail
+    }
+
+    fn info(&self) -> String {
+        match self.sink {
+            Sink::Live(_) => "sink=live".into(),
+            Sink::Record(_) => "sink=record".into(),
+        }
     }
 }

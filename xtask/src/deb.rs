@@ -5,8 +5,8 @@ use std::process::Command;
 
 use anyhow::{Context, bail};
 
-use crate::install::{BINARIES, Layout, docs, lay_out, print_enable_steps};
-use crate::{cargo, output, run};
+use crate::install::{Layout, docs, lay_out, print_enable_steps};
+use crate::{output, run};
 
 /// The package's name.
 const PACKAGE: &str = "isochron";
@@ -79,12 +79,7 @@ pub(crate) fn deb(root: &Path, args: &[String]) -> anyhow::Result<()> {
         other => bail!("deb: --profile is dev or release, not '{other}'"),
     };
     if build {
-        let mut cmd = cargo();
-        cmd.args(["build", "--workspace", "--bins"]);
-        if release {
-            cmd.arg("--release");
-        }
-        run(&mut cmd)?;
+        crate::install::build_shipped(release)?;
     }
     let target = root.join("target").join(dir);
     let docs_dir = target.join("docs");
@@ -128,7 +123,7 @@ pub(crate) fn deb(root: &Path, args: &[String]) -> anyhow::Result<()> {
     println!(
         "  $EDITOR /etc/isochron/isochron.toml   # from /usr/share/doc/isochron/examples/isochron.toml"
     );
-    print_enable_steps(Path::new("/usr/bin"));
+    print_enable_steps(Path::new("/usr/bin"), &docs_dir)?;
     println!("{}", file.display());
     Ok(())
 }
@@ -254,8 +249,13 @@ fn depends(work: &Path) -> anyhow::Result<String> {
     )?;
     let mut cmd = Command::new("dpkg-shlibdeps");
     cmd.arg("-O").current_dir(work);
-    for name in BINARIES {
-        cmd.arg(format!("-edebian/{PACKAGE}/usr/bin/{name}"));
+    // Every binary laid out in the package (the stage table's and `isochron`).
+    for entry in std::fs::read_dir(work.join("debian").join(PACKAGE).join("usr/bin"))? {
+        let name = entry?.file_name();
+        cmd.arg(format!(
+            "-edebian/{PACKAGE}/usr/bin/{}",
+            name.to_string_lossy()
+        ));
     }
     let line = output(&mut cmd)?;
     let shlibs = line

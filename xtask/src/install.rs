@@ -8,18 +8,60 @@ use anyhow::{Context, bail};
 
 use crate::{cargo, run};
 
-/// The binaries a site runs.
-pub(crate) const BINARIES: [&str; 9] = [
-    "isochron",
-    "isochron-capture",
-    "isochron-motion",
-    "isochron-cascade",
-    "isochron-gate",
-    "isochron-costmap",
-    "isochron-exporter",
-    "isochron-link",
-    "isochron-mqtt",
-];
+/// One service of the stage table, as the docs example writes it
+/// (`services.tsv`: binary, unit, `per-camera` or `site`, and `always` or the
+/// config section that turns it on).
+pub(crate) struct Service {
+    pub(crate) binary: String,
+    unit: String,
+    per_camera: bool,
+    when: String,
+}
+
+/// The services of the stage table, from what [`docs`] wrote into `docs_dir`.
+pub(crate) fn services(docs_dir: &Path) -> anyhow::Result<Vec<Service>> {
+    let path = docs_dir.join("services.tsv");
+    let text = std::fs::read_to_string(&path)
+        .with_context(|| format!("reading {} (made by cargo xtask docs)", path.display()))?;
+    text.lines()
+        .map(|line| match line.split('\t').collect::<Vec<_>>()[..] {
+            [binary, unit, scope, when] => Ok(Service {
+                binary: binary.into(),
+                unit: unit.into(),
+                per_camera: scope == "per-camera",
+                when: when.into(),
+            }),
+            _ => bail!("{}: a malformed line: {line:?}", path.display()),
+        })
+        .collect()
+}
+
+/// The binaries a site runs: `isochron` and every service's.
+pub(crate) fn binaries(docs_dir: &Path) -> anyhow::Result<Vec<String>> {
+    let services = services(docs_dir)?;
+    Ok(std::iter::once("isochron".to_string())
+        .chain(services.into_iter().map(|s| s.binary))
+        .collect())
+}
+
+/// Builds the binaries a site runs, the costmap bridge on its own: built with
+/// the rest, cargo would unify the link's `security` feature of isochron-dds into
+/// it, and the bridge would link OpenSSL and cryptoki it never uses.
+pub(crate) fn build_shipped(release: bool) -> anyhow::Result<()> {
+    let profile: &[&str] = if release { &["--release"] } else { &[] };
+    run(cargo()
+        .args([
+            "build",
+            "--workspace",
+            "--bins",
+            "--exclude",
+            "isochron-costmap",
+        ])
+        .args(profile))?;
+    run(cargo()
+        .args(["build", "-p", "isochron-costmap", "--bins"])
+        .args(profile))
+}
 
 /// Writes the man pages (`isochron` and the services) and completions of
 /// `isochron` into `out` (see the `isochron-docs` example of the cli crate).
@@ -88,22 +130,22 @@ pub(crate) fn lay_out(l: &Layout) -> anyhow::Result<()> {
     lay_out_completions(l)
 }
 
-/// The [`BINARIES`] into `bin`, stripped of their debug sections if packaged.
+/// The [`binaries`] into `bin`, stripped of their debug sections if packaged.
 fn lay_out_binaries(l: &Layout, bin: &Path) -> anyhow::Result<()> {
-    let mut binaries = Vec::new();
-    for name in BINARIES {
-        let from = l.bins.join(name);
-        let to = l.under(&bin.join(name));
+    let mut laid_out = Vec::new();
+    for name in binaries(l.docs)? {
+        let from = l.bins.join(&name);
+        let to = l.under(&bin.join(&name));
         std::fs::copy(&from, &to).with_context(|| {
             format!(
                 "installing {} (is it built? cargo build --workspace --bins)",
                 from.display()
             )
         })?;
-        binaries.push(to);
+        laid_out.push(to);
     }
     if l.packaged {
-        run(Command::new("strip").arg("--strip-debug").args(&binaries))?;
+        run(Command::new("strip").arg("--strip-debug").args(&laid_out))?;
     }
     Ok(())
 }
@@ -243,7 +285,7 @@ pub(crate) fn install(root: &Path, args: &[String]) -> anyhow::Result<()> {
         }
     }
     anyhow::ensure!(prefix.is_absolute(), "--prefix must be an absolute path");
-    run(cargo().args(["build", "--release", "--workspace", "--bins"]))?;
+    build_shipped(true)?;
     let docs_dir = root.join("target/release/docs");
     let _ = std::fs::remove_dir_all(&docs_dir);
     docs(&docs_dir, true)?;
@@ -268,24 +310,46 @@ pub(crate) fn install(root: &Path, args: &[String]) -> anyhow::Result<()> {
     );
     println!("  $EDITOR /etc/isochron/isochron.toml              # cameras, zones, floor points");
     println!("  systemctl daemon-reload");
-    print_enable_steps(&prefix.join("bin"));
+    print_enable_steps(&prefix.join("bin"), &docs_dir)?;
     Ok(())
 }
 
-/// What to enable after installing (nothing is enabled by the install itself).
-pub(crate) fn print_enable_steps(bin: &Path) {
-    println!("  systemctl enable --now isochron.target isochron-costmap.service");
+/// What to enable after installing (nothing is enabled by the install itself),
+/// from the stage table's services in `docs_dir`.
+pub(crate) fn print_enable_steps(bin: &Path, docs_dir: &Path) -> anyhow::Result<()> {
+    let services = services(docs_dir)?;
+    let unit = |s: &Service| s.unit.trim_end_matches(".service").to_string();
+    let site: Vec<String> = (services.iter())
+        .filter(|s| !s.per_camera && s.when == "always")
+        .map(|s| format!("{}.service", unit(s)))
+        .collect();
     println!(
-        "  for c in cam01; do systemctl enable --now isochron-{{capture,motion,cascade,gate}}@$c; done"
+        "  systemctl enable --now isochron.target {}",
+        site.join(" ")
     );
+    let per_camera: Vec<String> = (services.iter())
+        .filter(|s| s.per_camera)
+        .map(|s| {
+            unit(s)
+                .trim_start_matches("isochron-")
+                .trim_end_matches('@')
+                .to_string()
+        })
+        .collect();
     println!(
-        "  systemctl enable --now isochron-exporter         # optional: metrics at 127.0.0.1:9464"
+        "  for c in cam01; do systemctl enable --now isochron-{{{}}}@$c; done",
+        per_camera.join(",")
     );
-    println!(
-        "  systemctl enable --now isochron-mqtt             # optional: events to [mqtt] broker"
-    );
+    for s in services.iter().filter(|s| s.when != "always") {
+        println!(
+            "  systemctl enable --now {:<24} # when the config has {}",
+            unit(s),
+            s.when
+        );
+    }
     println!(
         "  sudo -u isochron {}/isochron doctor               # checks it all",
         bin.display()
     );
+    Ok(())
 }

@@ -274,6 +274,14 @@ pub struct UnknownCamera {
 }
 
 impl Config {
+    /// The cameras this box runs: every `[[camera]]` but those `[link]` imports
+    /// (their `[[camera]]` gives the bridge their floor; another box runs them).
+    pub fn local_cameras(&self) -> impl Iterator<Item = &CameraConfig> {
+        self.cameras
+            .iter()
+            .filter(|c| !self.link.import.contains(&c.id))
+    }
+
     /// Reads, parses and validates a config file.
     pub fn load(path: &Path) -> Result<LoadedConfig, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|e| ConfigError {

@@ -5,11 +5,13 @@ use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, OnceLock, Weak};
 use std::time::{Duration, Instant};
 
+use crate::counters::{Counters, fingerprint};
 use crate::ipc::{Ipc, StatusPublisher};
 use crate::topology::StageKind;
 use isochron_config::clock::wall_now_ns;
 use isochron_wire::{
-    CameraId, LAYOUT_VERSION, MAGIC, STAGE_NAME_LEN, STATUS_DETAIL_LEN, StageStatus, to_fixed,
+    CameraId, LAYOUT_VERSION, MAGIC, STAGE_NAME_LEN, STATUS_COUNTERS, STATUS_INFO_LEN, StageStatus,
+    fixed_str, to_fixed,
 };
 use parking_lot::Mutex;
 
@@ -110,7 +112,38 @@ pub fn starting_status(camera: CameraId, stage: StageKind) -> StageStatus {
         stage_latency_ms: 0.0,
         e2e_latency_p50_ms: 0.0,
         e2e_latency_p99_ms: 0.0,
-        detail: [0; STATUS_DETAIL_LEN],
+        schema: fingerprint(stage.counters()),
+        counter_count: stage.counters().len() as u32,
+        counters: [0.0; STATUS_COUNTERS],
+        info: [0; STATUS_INFO_LEN],
+    }
+}
+
+/// The counters of `status`, read with this build's schema of its stage; `None`
+/// when the status names no stage this build knows or was written with other
+/// counters (another build: see [`fingerprint`]).
+pub fn status_counters(status: &StageStatus) -> Option<Counters> {
+    let stage = StageKind::from_name(&fixed_str(&status.stage))?;
+    let schema = stage.counters();
+    (status.schema == fingerprint(schema) && status.counter_count as usize == schema.len())
+        .then(|| Counters::from_slots(schema, status.counters))
+}
+
+/// The counters of `status` as `name=value` words and its info, as a status line
+/// shows them (`events=3 open=1 … detector=hog`); a status of another build's
+/// counters says so.
+pub fn status_detail(status: &StageStatus) -> String {
+    let info = fixed_str(&status.info);
+    let words = match status_counters(status) {
+        Some(c) => c.words(),
+        None => "(counters of another isochron build)".to_string(),
+    };
+    if info.is_empty() {
+        words
+    } else if words.is_empty() {
+        info
+    } else {
+        format!("{words} {info}")
     }
 }
 
@@ -221,12 +254,18 @@ impl Health {
     }
 
     /// Call often from the main loop: feeds the watchdog and, when due, reports.
-    /// `detail` gives the stage-specific counters as text.
-    pub fn tick(&mut self, detail: impl FnOnce() -> String) {
+    /// `counters` gives the stage's counters and info text.
+    pub fn tick(&mut self, counters: impl FnOnce() -> (Counters, String)) {
         let now = self.keep_alive();
         if self.report_due(now) {
-            self.report(detail());
+            let (c, info) = counters();
+            self.report(&c, &info);
         }
+    }
+
+    /// All-zero counters of this health's stage, for the stage to fill.
+    pub fn counters(&self) -> Counters {
+        Counters::new(self.stage.counters())
     }
 
     /// Says this loop is alive (call it also while waiting, e.g. between reconnect
@@ -254,8 +293,8 @@ impl Health {
         now
     }
 
-    /// Logs and publishes the status now.
-    pub fn report(&mut self, detail: String) {
+    /// Logs and publishes the status now, with the stage's `counters` and `info`.
+    pub fn report(&mut self, counters: &Counters, info: &str) {
         let now = Instant::now();
         let secs = now.duration_since(self.last_report).as_secs_f32().max(1e-3);
         let s = &mut self.status;
@@ -266,7 +305,9 @@ impl Health {
         s.e2e_latency_p50_ms = self.e2e_latency_ms.quantile(0.5);
         s.e2e_latency_p99_ms = self.e2e_latency_ms.quantile(0.99);
         s.report_wall_ns = wall_now_ns();
-        s.detail = to_fixed::<STATUS_DETAIL_LEN>(&detail);
+        s.counters = counters.slots();
+        s.info = to_fixed::<STATUS_INFO_LEN>(info);
+        let detail = status_detail(s);
         self.last_report = now;
         tracing::info!(
             stage = self.stage.name(),
@@ -286,19 +327,9 @@ impl Health {
     }
 }
 
-/// The value of `key` in a status detail of `key=value` words (`None` if absent).
-pub fn detail_value<'a>(detail: &'a str, key: &str) -> Option<&'a str> {
-    detail
-        .split_whitespace()
-        .filter_map(|word| word.split_once('='))
-        .find(|(k, _)| *k == key)
-        .map(|(_, v)| v)
-}
-
 /// How much of a video file capture read, against the frame count the file
-/// states. Capture puts it into its last status detail before the end of stream
-/// (`frames_read=N frames_stated=M truncated=true`), where `isochron replay` reads
-/// it back: the wire layout does not change.
+/// states. Capture puts it into its last status's counters before the end of
+/// stream, where `isochron replay` reads it back.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct InputCompleteness {
     /// Frames decoded.
@@ -320,20 +351,24 @@ impl InputCompleteness {
         }
     }
 
-    /// As status detail words.
-    pub fn to_detail(&self) -> String {
-        format!(
-            "frames_read={} frames_stated={} truncated={}",
-            self.frames_read, self.frames_stated, self.truncated
-        )
+    /// Into capture's counters.
+    pub fn set(&self, c: &mut Counters) {
+        use crate::counters::capture;
+        c.set(capture::FRAMES_READ, self.frames_read);
+        c.set(capture::FRAMES_STATED, self.frames_stated);
+        c.set(capture::TRUNCATED, self.truncated);
     }
 
-    /// Read back from a status detail; `None` if it has none.
-    pub fn from_detail(detail: &str) -> Option<Self> {
-        Some(InputCompleteness {
-            frames_read: detail_value(detail, "frames_read")?.parse().ok()?,
-            frames_stated: detail_value(detail, "frames_stated")?.parse().ok()?,
-            truncated: detail_value(detail, "truncated")?.parse().ok()?,
+    /// Read back from a capture status; `None` if it has none (a camera, or a
+    /// file not ended yet).
+    pub fn from_status(status: &StageStatus) -> Option<Self> {
+        use crate::counters::capture;
+        let c = status_counters(status)?;
+        let read = c.get(capture::FRAMES_READ) as u64;
+        (read > 0).then(|| InputCompleteness {
+            frames_read: read,
+            frames_stated: c.get(capture::FRAMES_STATED) as u64,
+            truncated: c.get(capture::TRUNCATED) > 0.0,
         })
     }
 }
@@ -408,7 +443,7 @@ mod tests {
     }
 
     #[test]
-    fn input_completeness_travels_in_a_status_detail() {
+    fn input_completeness_travels_in_a_status() {
         let cut = InputCompleteness::of(318, 795);
         assert!(cut.truncated);
         assert!(
@@ -417,14 +452,55 @@ mod tests {
         );
         assert!(!InputCompleteness::of(795, 795).truncated);
         assert!(!InputCompleteness::of(12, 0).truncated, "unknown count");
-        let detail = format!("reconnects=0 loops=0 source_fps=10.00 {}", cut.to_detail());
-        assert_eq!(
-            detail,
-            "reconnects=0 loops=0 source_fps=10.00 frames_read=318 frames_stated=795 truncated=true"
+        let mut h = Health::new(StageKind::Capture, "cam01", None);
+        let mut c = h.counters();
+        assert_eq!(InputCompleteness::from_status(h.status()), None);
+        cut.set(&mut c);
+        h.report(&c, "");
+        assert_eq!(InputCompleteness::from_status(h.status()), Some(cut));
+        assert!(
+            status_detail(h.status()).contains("frames_read=318 frames_stated=795 truncated=1")
         );
-        assert_eq!(InputCompleteness::from_detail(&detail), Some(cut));
-        assert_eq!(detail_value(&detail, "loops"), Some("0"));
-        assert_eq!(InputCompleteness::from_detail("reconnects=0 loops=0"), None);
+    }
+
+    #[test]
+    fn counters_longer_than_the_old_160_byte_detail_arrive_whole() {
+        use crate::counters::costmap;
+        let mut h = Health::new(StageKind::Costmap, "", None);
+        let mut c = h.counters();
+        for (k, spec) in StageKind::Costmap.counters().iter().enumerate() {
+            c.set(crate::counters::CounterId(k), 1_000_000_000u64 + k as u64);
+            assert!(!spec.name.is_empty());
+        }
+        h.report(&c, "");
+        let words = status_detail(h.status());
+        assert!(words.len() > 160, "{} bytes: {words}", words.len());
+        let back = status_counters(h.status()).unwrap();
+        assert_eq!(
+            back.get(costmap::FORECASTS),
+            1_000_000_014.0,
+            "the last one, whole"
+        );
+        assert!(words.ends_with("forecasts=1000000014"), "{words}");
+    }
+
+    #[test]
+    fn a_status_of_other_counters_is_not_read_as_ours() {
+        let mut h = Health::new(StageKind::Gate, "cam01", None);
+        let mut c = h.counters();
+        c.set(crate::counters::gate::EVENTS, 7u64);
+        h.report(&c, "detector=hog");
+        let mut s = *h.status();
+        assert_eq!(
+            status_counters(&s)
+                .unwrap()
+                .get(crate::counters::gate::EVENTS),
+            7.0
+        );
+        assert!(status_detail(&s).ends_with("detector=hog"));
+        s.schema ^= 1;
+        assert!(status_counters(&s).is_none());
+        assert!(status_detail(&s).contains("another isochron build"));
     }
 
     #[test]

@@ -8,6 +8,7 @@
 //! * [`logging`]: `tracing` to journald or stderr;
 //! * [`service`]: the start-up every service binary shares.
 
+pub mod counters;
 pub mod health;
 pub mod ipc;
 pub mod logging;

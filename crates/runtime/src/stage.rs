@@ -7,7 +7,8 @@
 //! the I/O and the waiting around it, the same way for every stage:
 //!
 //! * it creates the one iceoryx2 WaitSet of the loop, attaches the stage's inputs,
-//!   and wakes the stage with the inputs that notified ([`Woken`]);
+//!   and wakes the stage when one of them notified (the stage takes what every
+//!   input holds: taking from an empty input costs one atomic load);
 //! * **timers** are the WaitSet's timeout, so no thread sleeps and nothing polls:
 //!   the wait ends at the stage's alarm ([`Context::alarm_at`],
 //!   [`Context::alarm_in`]: then [`Stage::on_alarm`] runs; one alarm per stage,
@@ -72,6 +73,7 @@ use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
 
+use crate::counters::Counters;
 use crate::health::{Health, notify_ready};
 use crate::ipc::{Ipc, Ipc2, IpcError, StreamType, stop_requested_by};
 use crate::topology::StageKind;
@@ -103,14 +105,9 @@ pub trait Stage {
         Ok(())
     }
 
-    /// Inputs in `woken` have samples (or may have: a pass after a full batch wakes
-    /// every input). Take them with [`Input::next`] until `None`.
-    fn on_wake(
-        &mut self,
-        inputs: &Self::Inputs,
-        woken: &Woken,
-        cx: &mut Context,
-    ) -> Result<(), Fatal>;
+    /// Some input has samples (or may have). Take them with [`Input::next`] until
+    /// `None`.
+    fn on_wake(&mut self, inputs: &Self::Inputs, cx: &mut Context) -> Result<(), Fatal>;
 
     /// The time of the alarm the stage set ([`Context::alarm_at`]) has come; the
     /// alarm is cleared first, so the stage sets the next one here if it wants
@@ -152,8 +149,15 @@ pub trait Stage {
         IDLE_TICK
     }
 
-    /// Stage-specific counters for the status line (`key=value ...`).
-    fn detail(&self) -> String;
+    /// The stage's counters now: fill `counters` (its row's schema,
+    /// [`crate::counters`]) by their constants.
+    fn counters(&self, counters: &mut Counters);
+
+    /// What the stage is and talks to, as text for status lines (`detector=hog`,
+    /// `broker=…`; at most 96 bytes are published). Default none.
+    fn info(&self) -> String {
+        String::new()
+    }
 }
 
 /// What a stage's callbacks get besides its inputs: its health, its warnings and
@@ -227,10 +231,10 @@ impl Context {
             .map_or(limit, |at| at.saturating_duration_since(now).min(limit))
     }
 
-    /// The health's share of a pass: the watchdog, and the report when due.
-    fn tick(&mut self, detail: impl FnOnce() -> String) {
+    /// The health's share of a pass: the watchdog, and `stage`'s report when due.
+    fn tick<S: Stage>(&mut self, stage: &S) {
         if self.reported {
-            self.health.tick(detail);
+            self.health.tick(|| counters_of(stage));
         } else {
             self.health.keep_alive();
         }
@@ -312,7 +316,6 @@ fn drive<S: Stage>(
     // alarm ticks too, so the timer adds no wake-up to a busy loop.
     let mut last_pass = Instant::now();
     while !ipc.should_stop() && !stage.finished() {
-        let mut woken = Woken::default();
         let now = Instant::now();
         // After a full batch, samples are still waiting: look again at once.
         let wait = if more {
@@ -321,54 +324,44 @@ fn drive<S: Stage>(
             cx.wait_at(now, (last_pass + idle).saturating_duration_since(now))
         };
         let result = waitset
-            .wait_and_process_once_with_timeout(
-                |id| {
-                    for (k, g) in guards.iter().enumerate() {
-                        if id.has_event_from(g) {
-                            woken.set(k);
-                        }
-                    }
-                    CallbackProgression::Continue
-                },
-                wait,
-            )
+            .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, wait)
             .map_err(|e| ipc_error("waiting on the WaitSet", e))?;
         if stop_requested_by(&result) {
             break;
         }
-        if more {
-            woken = Woken::all();
-        }
         last_pass = Instant::now();
-        more = pass(stage, inputs, &woken, cx)?;
+        more = pass(stage, inputs, cx)?;
     }
     if stage.take_inputs_on_stop() {
         inputs.drain_wakeups();
-        stage.on_wake(inputs, &Woken::all(), cx)?;
+        stage.on_wake(inputs, cx)?;
     }
     stage.on_stop(cx)?;
     if cx.reported {
-        cx.health.report(stage.detail());
+        let (counters, info) = counters_of(stage);
+        cx.health.report(&counters, &info);
     }
     Ok(())
 }
 
-/// One pass of the loop after its wait: the inputs in `woken`, the alarm if it
-/// is due, the tick. Returns true if an input stopped at a full batch.
-fn pass<S: Stage>(
-    stage: &mut S,
-    inputs: &S::Inputs,
-    woken: &Woken,
-    cx: &mut Context,
-) -> Result<bool, Fatal> {
+/// `stage`'s counters and info now.
+pub fn counters_of<S: Stage>(stage: &S) -> (Counters, String) {
+    let mut counters = Counters::new(S::KIND.counters());
+    stage.counters(&mut counters);
+    (counters, stage.info())
+}
+
+/// One pass of the loop after its wait: the inputs, the alarm if it is due, the
+/// tick. Returns true if an input stopped at a full batch.
+fn pass<S: Stage>(stage: &mut S, inputs: &S::Inputs, cx: &mut Context) -> Result<bool, Fatal> {
     inputs.drain_wakeups();
-    stage.on_wake(inputs, woken, cx)?;
+    stage.on_wake(inputs, cx)?;
     let more = inputs.take_batch_full();
     if cx.take_due_alarm(Instant::now()) {
         stage.on_alarm(cx)?;
     }
     stage.on_tick(cx)?;
-    cx.tick(|| stage.detail());
+    cx.tick(stage);
     Ok(more)
 }
 
@@ -377,7 +370,7 @@ fn pass<S: Stage>(
 /// with [`Input::memory`] and [`Output::memory`].
 pub fn step<S: Stage>(stage: &mut S, inputs: &S::Inputs, cx: &mut Context) -> Result<(), Fatal> {
     loop {
-        stage.on_wake(inputs, &Woken::all(), cx)?;
+        stage.on_wake(inputs, cx)?;
         if !inputs.take_batch_full() {
             break;
         }
@@ -408,33 +401,6 @@ fn ipc_error(context: &str, e: impl Display) -> IpcError {
     }
 }
 
-/// Which inputs notified, by their position in [`Inputs::attachables`].
-#[derive(Debug, Clone, Default)]
-pub struct Woken {
-    bits: u128,
-    all: bool,
-}
-
-impl Woken {
-    /// Every input.
-    pub fn all() -> Self {
-        Woken { bits: 0, all: true }
-    }
-
-    fn set(&mut self, k: usize) {
-        if k < 128 {
-            self.bits |= 1 << k;
-        } else {
-            self.all = true;
-        }
-    }
-
-    /// True if input `k` notified.
-    pub fn contains(&self, k: usize) -> bool {
-        self.all || (k < 128 && self.bits & (1 << k) != 0)
-    }
-}
-
 /// Something the WaitSet can wake on: a subscriber's listener, a server.
 pub trait Attachable: FileDescriptorBased + Debug {}
 impl<T: FileDescriptorBased + Debug> Attachable for T {}
@@ -442,7 +408,7 @@ impl SynchronousMultiplexing for dyn Attachable + '_ {}
 
 /// A stage's set of inputs.
 pub trait Inputs {
-    /// What the WaitSet wakes on, in a fixed order (the positions [`Woken`] names).
+    /// What the WaitSet wakes on.
     fn attachables(&self) -> Vec<&dyn Attachable>;
     /// Consumes the pending wake-up notifications (before samples are taken, so a
     /// sample arriving meanwhile wakes the next wait).

@@ -44,7 +44,7 @@ pub use fixed::{fixed_str, to_fixed};
 pub use frame::{FrameHeader, PixelFormat};
 pub use motion::{BlockMotion, DIRECTION_NONE, MotionHeader};
 pub use preamble::{CameraId, Preamble, check_layout, is_valid_camera_id};
-pub use status::{STAGE_NAME_LEN, STATUS_DETAIL_LEN, StageStatus};
+pub use status::{STAGE_NAME_LEN, STATUS_COUNTERS, STATUS_INFO_LEN, StageStatus};
 pub use stream::Stream;
 
 isochron_exit::always_exits_with!(DATA: WireError;);
@@ -54,7 +54,7 @@ pub const MAGIC: u32 = u32::from_le_bytes(*b"ISOC");
 
 /// Version of the layout of all headers and payload elements in this crate. Bump it on
 /// any change to one of its `#[repr(C)]` types.
-pub const LAYOUT_VERSION: u16 = 3;
+pub const LAYOUT_VERSION: u16 = 4;
 
 /// Longest camera id, in bytes.
 pub const CAMERA_ID_LEN: usize = 24;

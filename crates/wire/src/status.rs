@@ -8,8 +8,11 @@ use crate::{CameraId, WireError, check_layout};
 
 /// Longest stage name in a [`StageStatus`].
 pub const STAGE_NAME_LEN: usize = 16;
-/// Length of the free-text detail of a [`StageStatus`].
-pub const STATUS_DETAIL_LEN: usize = 160;
+/// Counter slots of a [`StageStatus`]: at most this many counters per stage
+/// (their schema is the stage's row of the runtime's stage table).
+pub const STATUS_COUNTERS: usize = 24;
+/// Length of the free-text identity of a [`StageStatus`] (detector, broker).
+pub const STATUS_INFO_LEN: usize = 96;
 
 /// Periodic health of one stage of one camera, published on
 /// `<prefix>/<camera>/status/<stage>` (history 1, so `isochron status` sees the
@@ -52,9 +55,17 @@ pub struct StageStatus {
     pub e2e_latency_p50_ms: f32,
     /// 99th percentile of the end-to-end latency, ms.
     pub e2e_latency_p99_ms: f32,
-    /// Stage-specific counters as text (`detected=3 detector_ms=410`).
+    /// Fingerprint of the stage's counter schema: a reader whose schema of this
+    /// stage differs (another build) does not read the slots as its own.
+    pub schema: u32,
+    /// Counter slots in use.
+    pub counter_count: u32,
+    /// The stage's counters, in its schema's order (integers exact to 2⁵³).
+    pub counters: [f64; STATUS_COUNTERS],
+    /// What the stage is and talks to, as text (`detector=hog`, `broker=…`),
+    /// zero-padded; never parsed.
     #[serde(with = "fixed_bytes")]
-    pub detail: [u8; STATUS_DETAIL_LEN],
+    pub info: [u8; STATUS_INFO_LEN],
 }
 
 impl StageStatus {

@@ -19,9 +19,10 @@ use std::time::{Duration, Instant};
 use isochron_config::Speed;
 use isochron_config::clock::{format_rfc3339, wall_now_ns};
 use isochron_exit::{self as exit, Fatal};
+use isochron_runtime::counters::{Counters, capture};
 use isochron_runtime::health::InputCompleteness;
 use isochron_runtime::ipc::Frames;
-use isochron_runtime::stage::{Context, Output, SendError, Stage, Woken};
+use isochron_runtime::stage::{self, Context, Output, SendError, Stage};
 use isochron_runtime::topology::StageKind;
 use isochron_wire::{FLAG_DISCONTINUITY, FrameHeader, PixelFormat, Preamble};
 
@@ -378,7 +379,8 @@ impl<'ipc> CaptureStage<'ipc> {
         self.input = input;
         self.ended = true;
         cx.cancel_alarm();
-        cx.health.report(self.detail());
+        let (counters, info) = stage::counters_of(self);
+        cx.health.report(&counters, &info);
         let capture_time_ns = self
             .playback
             .as_ref()
@@ -406,7 +408,7 @@ impl Stage for CaptureStage<'_> {
         Ok(())
     }
 
-    fn on_wake(&mut self, _: &(), _: &Woken, _: &mut Context) -> Result<(), Fatal> {
+    fn on_wake(&mut self, _: &(), _: &mut Context) -> Result<(), Fatal> {
         Ok(())
     }
 
@@ -422,18 +424,22 @@ impl Stage for CaptureStage<'_> {
         self.ended
     }
 
-    fn detail(&self) -> String {
-        if self.source.is_none() && !self.ended {
-            return "source unavailable".into();
-        }
+    fn counters(&self, c: &mut Counters) {
         let fps = self.playback.as_ref().map_or(0.0, |p| p.fps);
-        let detail = format!(
-            "reconnects={} loops={} source_fps={fps:.2}",
-            self.reconnects, self.loops
-        );
-        match self.input {
-            Some(input) => format!("{detail} {}", input.to_detail()),
-            None => detail,
+        c.set(capture::RECONNECTS, self.reconnects);
+        c.set(capture::LOOPS, self.loops);
+        c.set(capture::SOURCE_FPS, fps);
+        c.set(capture::SOURCE_UP, self.source.is_some());
+        if let Some(input) = self.input {
+            input.set(c);
+        }
+    }
+
+    fn info(&self) -> String {
+        if self.source.is_none() && !self.ended {
+            "source unavailable".into()
+        } else {
+            String::new()
         }
     }
 }

@@ -18,9 +18,10 @@ use std::time::Instant;
 use isochron_config::clock::{SiteClock, wall_now_ns};
 use isochron_config::{CameraConfig, LoadedConfig};
 use isochron_exit::{self as exit, Classify, Fatal};
+use isochron_runtime::counters::{Counters, cascade};
 use isochron_runtime::ipc::{Activity, Ipc, Motion};
 use isochron_runtime::service::ServiceContext;
-use isochron_runtime::stage::{self, Context, Input, Output, Stage, Woken};
+use isochron_runtime::stage::{self, Context, Input, Output, Stage};
 use isochron_runtime::topology::StageKind;
 use isochron_store::{Store, StoreError, StoreMeta, store_path};
 use isochron_wire::geometry::BlockGrid;
@@ -334,12 +335,7 @@ impl Stage for CascadeStage<'_> {
     type Inputs = Input<Motion>;
     const KIND: StageKind = StageKind::Cascade;
 
-    fn on_wake(
-        &mut self,
-        motion: &Input<Motion>,
-        _woken: &Woken,
-        cx: &mut Context,
-    ) -> Result<(), Fatal> {
+    fn on_wake(&mut self, motion: &Input<Motion>, cx: &mut Context) -> Result<(), Fatal> {
         while let Some(sample) = motion.next(cx) {
             let header = *sample.header();
             self.on_motion(&header, sample.payload(), cx)?;
@@ -349,32 +345,26 @@ impl Stage for CascadeStage<'_> {
 
     /// The minute in progress is not complete: it is not learned (a crash would
     /// lose it the same way).
-    fn detail(&self) -> String {
-        let mut s = String::new();
-        if let Some(c) = &self.cascade {
-            let st = c.stats();
-            s += &format!(
-                "seconds={} learned={} sparse={} repeated={} r={:.2}",
-                st.seconds,
-                st.minutes_learned,
-                st.minutes_sparse,
-                st.minutes_repeated,
-                c.frame_rate().unwrap_or(0.0)
-            );
-            let p = c.presence_stats();
-            s += &format!(
-                " present={} absorbed={} ghosts={}",
-                p.present, p.absorbed, p.ghosts
-            );
+    fn counters(&self, c: &mut Counters) {
+        if let Some(k) = &self.cascade {
+            let st = k.stats();
+            c.set(cascade::SECONDS, st.seconds);
+            c.set(cascade::LEARNED, st.minutes_learned);
+            c.set(cascade::SPARSE, st.minutes_sparse);
+            c.set(cascade::REPEATED, st.minutes_repeated);
+            c.set(cascade::FRAME_RATE, k.frame_rate().unwrap_or(0.0));
+            let p = k.presence_stats();
+            c.set(cascade::PRESENT, p.present);
+            c.set(cascade::ABSORBED, p.absorbed);
+            c.set(cascade::GHOSTS, p.ghosts);
         }
         if let Some(t) = &self.store {
             let (p50, p99) = t.latency_ms();
-            s += &format!(" commits={} commit_ms={p50:.2}/{p99:.2}", t.commits);
+            c.set(cascade::COMMITS, t.commits);
+            c.set(cascade::COMMIT_P50, p50);
+            c.set(cascade::COMMIT_P99, p99);
         }
-        if self.store_failures > 0 {
-            s += &format!(" store_failures={}", self.store_failures);
-        }
-        s
+        c.set(cascade::STORE_FAILURES, self.store_failures);
     }
 }
 

@@ -12,8 +12,9 @@ use isochron_planning::grid::MapGrid;
 use isochron_planning::plan_service::PlanServer;
 use isochron_planning::planner::Planner;
 use isochron_planning::snapshot;
+use isochron_runtime::counters::{Counters as StatusCounters, costmap};
 use isochron_runtime::ipc::{Activity, Detections, Ipc};
-use isochron_runtime::stage::{Context, Input, Notified, Stage, Woken};
+use isochron_runtime::stage::{Context, Input, Notified, Stage};
 use isochron_runtime::topology::StageKind;
 
 use crate::bridge::{Bridge, count_non_finite};
@@ -245,7 +246,6 @@ impl Stage for CostmapStage {
     fn on_wake(
         &mut self,
         (activity, detections, plans): &CostmapInputs,
-        _woken: &Woken,
         cx: &mut Context,
     ) -> Result<(), Fatal> {
         for (k, input) in activity.iter().enumerate() {
@@ -340,42 +340,34 @@ impl Stage for CostmapStage {
         }
     }
 
-    fn detail(&self) -> String {
+    fn counters(&self, c: &mut StatusCounters) {
         let now = Instant::now();
         let bridge = &self.bridge;
         let live = (0..bridge.cameras.len())
             .filter(|&k| bridge.is_live(k, now))
             .count();
-        let c = &self.counters;
-        // Only when some happened: the detail is 160 bytes in the status.
         let plans = self
             .ros
             .as_ref()
             .map(|r| r.output.plan_counts())
             .unwrap_or_default();
-        let refused = if plans.rejected + plans.dropped > 0 {
-            format!(
-                " plans_rejected={} plans_dropped={}",
-                plans.rejected, plans.dropped
-            )
-        } else {
-            String::new()
-        };
-        format!(
-            "cameras_live={live}/{} grids={} updates={} ros_subscribers={} publish_errors={} plans={}{refused} snapshots={} confirmed={} people_msgs={} markers={} speed_masks={} forecasts={}",
-            bridge.cameras.len(),
-            c.grids,
-            c.updates,
-            self.ros.as_ref().map_or(0, |r| r.output.grid_subscribers()),
-            c.publish_errors,
-            c.plans,
-            c.snapshots,
-            c.confirmed,
-            c.people,
-            c.markers,
-            c.masks,
-            c.forecasts
-        )
+        let n = &self.counters;
+        c.set(costmap::CAMERAS_LIVE, live);
+        c.set(costmap::CAMERAS, bridge.cameras.len());
+        c.set(costmap::GRIDS, n.grids);
+        c.set(costmap::UPDATES, n.updates);
+        let subscribers = self.ros.as_ref().map_or(0, |r| r.output.grid_subscribers());
+        c.set(costmap::ROS_SUBSCRIBERS, subscribers as u64);
+        c.set(costmap::PUBLISH_ERRORS, n.publish_errors);
+        c.set(costmap::PLANS, n.plans);
+        c.set(costmap::PLANS_REJECTED, plans.rejected);
+        c.set(costmap::PLANS_DROPPED, plans.dropped);
+        c.set(costmap::SNAPSHOTS, n.snapshots);
+        c.set(costmap::CONFIRMED, n.confirmed);
+        c.set(costmap::PEOPLE_MSGS, n.people);
+        c.set(costmap::MARKERS, n.markers);
+        c.set(costmap::SPEED_MASKS, n.masks);
+        c.set(costmap::FORECASTS, n.forecasts);
     }
 }
 

@@ -4,8 +4,10 @@
 //! Every family carries the labels `stage` and `camera` (empty for site-wide
 //! stages). Counters are the services' own totals: they restart from 0 when a
 //! service restarts, which Prometheus's `rate()` and `increase()` handle as a
-//! counter reset. Stage-specific counters come from the status detail
-//! (`key=value` words, see each stage's `detail`), named in [`DETAIL_METRICS`].
+//! counter reset. Stage-specific metrics are the stages' counters, named,
+//! typed and described by their schemas in the stage table
+//! (`isochron_runtime::counters`); a status written with other counters (another
+//! build) gives none of them.
 //!
 //! `isochron_up` is 1 while the last report is younger than
 //! `exporter.stale_after_s` and its pid exists (`kill(pid, 0)` ≠ ESRCH), so a
@@ -19,9 +21,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use isochron_config::clock::wall_now_ns;
-use isochron_runtime::health::detail_value;
-use isochron_runtime::topology::StageKind;
-use isochron_wire::{StageStatus, fixed_str};
+use isochron_runtime::counters::CounterKind as Kind;
+use isochron_runtime::health::status_counters;
+use isochron_runtime::topology::{STAGES, StageKind};
+use isochron_wire::StageStatus;
 use parking_lot::{Mutex, MutexGuard};
 use prometheus_client::collector::Collector;
 use prometheus_client::encoding::{DescriptorEncoder, NoLabelSet};
@@ -105,287 +108,6 @@ fn process_exists(pid: u32) -> bool {
     // SAFETY: signal 0 only checks that the process exists; nothing is sent.
     let r = unsafe { libc::kill(pid, 0) };
     r == 0 || std::io::Error::last_os_error().raw_os_error() != Some(libc::ESRCH)
-}
-
-/// Counter or gauge.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Kind {
-    /// A total that only grows (until its service restarts).
-    Counter,
-    /// A value that goes up and down.
-    Gauge,
-}
-
-/// Which part of a detail value: `a` or `b` of `a/b` (`commit_ms=p50/p99`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Part {
-    /// The whole value.
-    Whole,
-    /// Before the `/`.
-    First,
-    /// After the `/`.
-    Second,
-}
-
-/// A metric read from a stage's status detail.
-#[derive(Debug, Clone, Copy)]
-pub struct DetailMetric {
-    /// The stage whose detail has it.
-    pub stage: StageKind,
-    /// The detail key.
-    pub key: &'static str,
-    /// The metric's name (counters get `_total` when encoded).
-    pub name: &'static str,
-    /// Its help text.
-    pub help: &'static str,
-    /// Counter or gauge.
-    pub kind: Kind,
-    /// The part of the value.
-    pub part: Part,
-    /// Factor from the detail's unit to the metric's (ms → s: 1e-3).
-    pub scale: f64,
-    /// The key is left out of the detail while it is 0.
-    pub absent_is_zero: bool,
-}
-
-const fn detail(
-    stage: StageKind,
-    key: &'static str,
-    name: &'static str,
-    help: &'static str,
-    kind: Kind,
-) -> DetailMetric {
-    DetailMetric {
-        stage,
-        key,
-        name,
-        help,
-        kind,
-        part: Part::Whole,
-        scale: 1.0,
-        absent_is_zero: false,
-    }
-}
-
-/// The stage-specific metrics, from the status details.
-pub const DETAIL_METRICS: &[DetailMetric] = &[
-    detail(
-        StageKind::Capture,
-        "reconnects",
-        "isochron_capture_reconnects",
-        "Times capture reopened its camera or file after a failure.",
-        Kind::Counter,
-    ),
-    detail(
-        StageKind::Motion,
-        "restarts",
-        "isochron_motion_restarts",
-        "Times motion restarted its detector (a new frame size or stream).",
-        Kind::Counter,
-    ),
-    detail(
-        StageKind::Gate,
-        "events",
-        "isochron_gate_events",
-        "Zone events the gate started.",
-        Kind::Counter,
-    ),
-    detail(
-        StageKind::Gate,
-        "open",
-        "isochron_gate_open_events",
-        "Zone events open now.",
-        Kind::Gauge,
-    ),
-    detail(
-        StageKind::Gate,
-        "detected",
-        "isochron_detector_frames",
-        "Frames the detector finished.",
-        Kind::Counter,
-    ),
-    DetailMetric {
-        scale: 1e-3,
-        ..detail(
-            StageKind::Gate,
-            "detector_ms",
-            "isochron_detector_busy_seconds",
-            "Time the detector spent detecting.",
-            Kind::Counter,
-        )
-    },
-    detail(
-        StageKind::Gate,
-        "jobs_dropped",
-        "isochron_detector_jobs_dropped",
-        "Detection jobs dropped because the detector was busy.",
-        Kind::Counter,
-    ),
-    detail(
-        StageKind::Cascade,
-        "commits",
-        "isochron_store_commits",
-        "Commits to the long-term store.",
-        Kind::Counter,
-    ),
-    DetailMetric {
-        part: Part::First,
-        scale: 1e-3,
-        ..detail(
-            StageKind::Cascade,
-            "commit_ms",
-            "isochron_store_commit_latency_p50_seconds",
-            "Median time of a store commit (recent commits).",
-            Kind::Gauge,
-        )
-    },
-    DetailMetric {
-        part: Part::Second,
-        scale: 1e-3,
-        ..detail(
-            StageKind::Cascade,
-            "commit_ms",
-            "isochron_store_commit_latency_p99_seconds",
-            "99th percentile time of a store commit (recent commits).",
-            Kind::Gauge,
-        )
-    },
-    DetailMetric {
-        absent_is_zero: true,
-        ..detail(
-            StageKind::Cascade,
-            "store_failures",
-            "isochron_store_failures",
-            "Store commits that failed.",
-            Kind::Counter,
-        )
-    },
-    detail(
-        StageKind::Costmap,
-        "ros_subscribers",
-        "isochron_ros_subscribers",
-        "ROS 2 subscribers of the cost map topic.",
-        Kind::Gauge,
-    ),
-    detail(
-        StageKind::Costmap,
-        "publish_errors",
-        "isochron_ros_publish_errors",
-        "Cost map publications to ROS 2 that failed.",
-        Kind::Counter,
-    ),
-    detail(
-        StageKind::Costmap,
-        "updates",
-        "isochron_costmap_updates",
-        "Cost map updates published.",
-        Kind::Counter,
-    ),
-    DetailMetric {
-        part: Part::First,
-        ..detail(
-            StageKind::Costmap,
-            "cameras_live",
-            "isochron_costmap_cameras_live",
-            "Cameras whose activity reached the cost map recently.",
-            Kind::Gauge,
-        )
-    },
-    detail(
-        StageKind::Mqtt,
-        "connected",
-        "isochron_mqtt_connected",
-        "1 while the MQTT sink is connected to its broker.",
-        Kind::Gauge,
-    ),
-    detail(
-        StageKind::Mqtt,
-        "messages",
-        "isochron_mqtt_messages",
-        "Messages (zone events, detections) the MQTT sink queued for the broker.",
-        Kind::Counter,
-    ),
-    detail(
-        StageKind::Mqtt,
-        "queued",
-        "isochron_mqtt_queued",
-        "Messages waiting for the broker.",
-        Kind::Gauge,
-    ),
-    detail(
-        StageKind::Mqtt,
-        "queue_dropped",
-        "isochron_mqtt_queue_dropped",
-        "Messages dropped because the queue to the broker was full.",
-        Kind::Counter,
-    ),
-    detail(
-        StageKind::Mqtt,
-        "reconnects",
-        "isochron_mqtt_reconnects",
-        "Times the MQTT sink connected to its broker again.",
-        Kind::Counter,
-    ),
-    detail(
-        StageKind::Mqtt,
-        "refused",
-        "isochron_mqtt_refused",
-        "Connection attempts the MQTT broker refused (bad user name or password, not authorized).",
-        Kind::Counter,
-    ),
-    detail(
-        StageKind::Mqtt,
-        "tls_failures",
-        "isochron_mqtt_tls_failures",
-        "Connection attempts to the MQTT broker whose TLS handshake failed.",
-        Kind::Counter,
-    ),
-    detail(
-        StageKind::Mqtt,
-        "events_rejected",
-        "isochron_mqtt_events_rejected",
-        "Zone event records the MQTT sink rejected as impossible (ending before they start) and did not publish.",
-        Kind::Counter,
-    ),
-    DetailMetric {
-        part: Part::First,
-        scale: 1e-3,
-        ..detail(
-            StageKind::Mqtt,
-            "ack_ms",
-            "isochron_mqtt_ack_latency_p50_seconds",
-            "Median time from the sink receiving a gate's sample to the broker's acknowledgement (recent messages).",
-            Kind::Gauge,
-        )
-    },
-    DetailMetric {
-        part: Part::Second,
-        scale: 1e-3,
-        ..detail(
-            StageKind::Mqtt,
-            "ack_ms",
-            "isochron_mqtt_ack_latency_p99_seconds",
-            "99th percentile time from the sink receiving a gate's sample to the broker's acknowledgement (recent messages).",
-            Kind::Gauge,
-        )
-    },
-];
-
-impl DetailMetric {
-    /// The value in `detail`, if it has one.
-    pub fn value(&self, detail: &str) -> Option<f64> {
-        let Some(raw) = detail_value(detail, self.key) else {
-            return self.absent_is_zero.then_some(0.0);
-        };
-        let part = match (self.part, raw.split_once('/')) {
-            (Part::Whole, _) => raw,
-            (Part::First, Some((a, _))) => a,
-            (Part::Second, Some((_, b))) => b,
-            (_, None) => return None,
-        };
-        let v: f64 = part.parse().ok()?;
-        v.is_finite().then_some(v * self.scale)
-    }
 }
 
 /// A metric of every reporting service, from its [`StageStatus`].
@@ -528,13 +250,25 @@ impl Collector for StatusCollector {
                 .collect();
             family(&mut encoder, m.name, m.help, m.kind, &samples)?;
         }
-        for m in DETAIL_METRICS {
-            let samples: Vec<_> = reporting
+        for spec in &STAGES {
+            let counters: Vec<_> = reporting
                 .iter()
-                .filter(|(s, _)| s.stage == m.stage)
-                .filter_map(|(s, st)| Some((labels(s), m.value(&fixed_str(&st.detail))?)))
+                .filter(|(s, _)| s.stage == spec.kind)
+                .filter_map(|(s, st)| Some((labels(s), status_counters(st)?)))
                 .collect();
-            family(&mut encoder, m.name, m.help, m.kind, &samples)?;
+            for (k, c) in spec.counters.iter().enumerate() {
+                if c.metric.is_empty() {
+                    continue;
+                }
+                let samples: Vec<_> = counters
+                    .iter()
+                    .map(|(l, values)| {
+                        let v = values.iter().nth(k).map_or(0.0, |(_, v)| v);
+                        (l.clone(), c.metric_value(v))
+                    })
+                    .collect();
+                family(&mut encoder, c.metric, c.help, c.kind, &samples)?;
+            }
         }
         Ok(())
     }

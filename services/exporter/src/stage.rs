@@ -3,14 +3,9 @@
 //! each scrape. The HTTP server ([`crate::http`]) answers scrapes on its own
 //! thread, within the `[exporter]` bounds.
 //!
-//! It watches every pipeline stage of every configured camera, and the site-wide
-//! costmap, whether or not they run: a service that never reported is `up` 0.
-//!
-//! The exporter is not a pipeline stage (not in `StageKind::ALL`): `isochron up`
-//! starts it only when the config has `[exporter]` (`launch::optional_services`),
-//! and `isochron replay` goes on if it fails. `isochron status` and `doctor` show
-//! its row (and the link's when `[link]` exports or imports a camera) next to the
-//! pipeline's (`status::expected_stages`).
+//! It watches every service `isochron up` runs for the config (the stage table's
+//! `StageKind::started`), and the stages of the cameras `[link]` imports,
+//! whether or not they run: a service that never reported is `up` 0.
 
 use std::net::{SocketAddr, TcpListener};
 use std::sync::Arc;
@@ -19,9 +14,10 @@ use std::time::Duration;
 use isochron_config::clock::wall_now_ns;
 use isochron_config::{ExporterConfig, LoadedConfig};
 use isochron_exit::{self as exit, Fatal};
+use isochron_runtime::counters::{Counters, exporter};
 use isochron_runtime::ipc::{Ipc, StatusSubscriber};
 use isochron_runtime::service::ServiceContext;
-use isochron_runtime::stage::{self, Context, Stage, Woken};
+use isochron_runtime::stage::{self, Context, Stage};
 use isochron_runtime::topology::StageKind;
 use prometheus_client::registry::Registry;
 
@@ -47,25 +43,19 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
     stage::run(&ctx.ipc, "", &mut exporter, &())
 }
 
-/// The services of `loaded`'s site the exporter watches: every pipeline stage of
-/// every camera, the site-wide ones once, and the MQTT sink when `[mqtt]` is
-/// configured.
+/// The services of `loaded`'s site the exporter watches: every service `isochron
+/// up` runs for it, and the stages of the cameras `[link]` imports (their remote
+/// status, as the link relays it: their liveness is the remote box's).
 pub fn watched(loaded: &LoadedConfig) -> Vec<Service> {
-    let mut services = Vec::new();
-    let optional = loaded.config.mqtt.is_some().then_some(StageKind::Mqtt);
-    for stage in StageKind::ALL.into_iter().chain(optional) {
-        let cameras: Vec<String> = if stage.per_camera() {
-            loaded.config.cameras.iter().map(|c| c.id.clone()).collect()
-        } else {
-            vec![String::new()]
-        };
-        services.extend(cameras.into_iter().map(|camera| Service {
+    let config = &loaded.config;
+    StageKind::services_of(StageKind::started(config), config)
+        .into_iter()
+        .map(|(stage, camera)| Service {
             stage,
             camera,
             status: None,
-        }));
-    }
-    services
+        })
+        .collect()
 }
 
 impl ExporterStage {
@@ -157,7 +147,7 @@ impl Stage for ExporterStage {
     type Inputs = ();
     const KIND: StageKind = StageKind::Exporter;
 
-    fn on_wake(&mut self, _: &(), _: &Woken, _: &mut Context) -> Result<(), Fatal> {
+    fn on_wake(&mut self, _: &(), _: &mut Context) -> Result<(), Fatal> {
         Ok(())
     }
 
@@ -195,14 +185,16 @@ impl Stage for ExporterStage {
         TICK
     }
 
-    fn detail(&self) -> String {
+    fn counters(&self, c: &mut Counters) {
         let (up, watched) = self.table.count_up(wall_now_ns());
-        format!(
-            "listen={} scrapes={} up={up}/{watched} connections={} refused={}",
-            self.listen,
-            self.http.scrapes.get(),
-            self.http.connections.get(),
-            self.http.refused_total()
-        )
+        c.set(exporter::SCRAPES, self.http.scrapes.get());
+        c.set(exporter::UP, up);
+        c.set(exporter::WATCHED, watched);
+        c.set(exporter::CONNECTIONS, self.http.connections.get());
+        c.set(exporter::REFUSED, self.http.refused_total());
+    }
+
+    fn info(&self) -> String {
+        format!("listen={}", self.listen)
     }
 }

@@ -23,9 +23,10 @@ use std::time::{Duration, Instant};
 use isochron_config::clock::NS_PER_S;
 use isochron_config::{CameraConfig, LoadedConfig};
 use isochron_exit::{self as exit, Fatal};
+use isochron_runtime::counters::{Counters as StatusCounters, gate};
 use isochron_runtime::ipc::{Activity, Detections, Events, Frames, Ipc};
 use isochron_runtime::service::ServiceContext;
-use isochron_runtime::stage::{Context, Input, Output, Received, Stage, Wakeup, Woken};
+use isochron_runtime::stage::{Context, Input, Output, Received, Stage, Wakeup};
 use isochron_runtime::topology::StageKind;
 use isochron_wire::{
     ActivityHeader, DetectionHeader, EventHeader, EventPhase, PixelFormat, Preamble, ZONE_NAME_LEN,
@@ -433,12 +434,7 @@ impl Stage for GateStage<'_> {
     type Inputs = GateInputs;
     const KIND: StageKind = StageKind::Gate;
 
-    fn on_wake(
-        &mut self,
-        inputs: &GateInputs,
-        _woken: &Woken,
-        cx: &mut Context,
-    ) -> Result<(), Fatal> {
+    fn on_wake(&mut self, inputs: &GateInputs, cx: &mut Context) -> Result<(), Fatal> {
         // The detector's results (its wake-up is the third input).
         for report in self.worker.reports() {
             self.handle_report(report)?;
@@ -454,19 +450,22 @@ impl Stage for GateStage<'_> {
         }
     }
 
-    fn detail(&self) -> String {
-        format!(
-            "detector={} events={} open={} confirmed={} frames_seen={} detected={} detector_ms={} jobs={} jobs_dropped={}",
-            self.detector_name,
-            self.gate.events_started(),
-            self.gate.open_events(),
-            self.gate.confirmed(),
-            self.counters.frames_seen,
-            self.counters.frames_detected,
-            self.counters.detector_total_us / 1000,
-            self.worker.submitted,
-            self.jobs_dropped()
-        )
+    fn counters(&self, c: &mut StatusCounters) {
+        c.set(gate::EVENTS, self.gate.events_started());
+        c.set(gate::OPEN, self.gate.open_events());
+        c.set(gate::CONFIRMED, self.gate.confirmed());
+        c.set(gate::FRAMES_SEEN, self.counters.frames_seen);
+        c.set(gate::DETECTED, self.counters.frames_detected);
+        c.set(
+            gate::DETECTOR_MS,
+            self.counters.detector_total_us as f64 / 1e3,
+        );
+        c.set(gate::JOBS, self.worker.submitted);
+        c.set(gate::JOBS_DROPPED, self.jobs_dropped());
+    }
+
+    fn info(&self) -> String {
+        format!("detector={}", self.detector_name)
     }
 }
 

@@ -164,5 +164,5 @@ fn qos(delivery: Delivery, queue: usize) -> QosPolicies {
 /// reports of a camera's stages, sent together every few seconds, all arrive
 /// (latest-only per stage).
 fn status_qos() -> QosPolicies {
-    qos(Delivery::Queued, StageKind::ALL.len())
+    qos(Delivery::Queued, StageKind::pipeline().count())
 }

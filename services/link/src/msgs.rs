@@ -318,14 +318,15 @@ mod tests {
             e2e_latency_p99_ms: 10.0,
             ..starting_status(cam(), StageKind::Gate)
         };
-        status.detail[..5].copy_from_slice(b"a=1 b");
+        status.info[..5].copy_from_slice(b"a=1 b");
+        status.counters[3] = 42.0;
         let back = round_trip(&Status {
             box_id: "box_a".into(),
             status,
         })
         .status;
         back.validate().unwrap();
-        assert_eq!(back.detail, status.detail);
+        assert_eq!((back.info, back.counters), (status.info, status.counters));
         assert_eq!((back.dropped, back.e2e_latency_p99_ms), (5, 10.0));
     }
 

@@ -18,19 +18,22 @@
 //!   receiving writes nothing: the bridge's `costmap.stale_s` then turns the
 //!   camera's cells unknown.
 //!
-//! The status detail counts per stream across cameras (`act`, `ev`, `det`,
-//! `st`): `<s>_out` sent, `<s>_in` received; for events and detections also
+//! The status counts per stream across cameras (`act`, `ev`, `det`, `st`):
+//! `<s>_out` sent, `<s>_in` received; for events and detections also
 //! `<s>_drop`, dropped on this box before sending (a full queue, or lost in
 //! its iceoryx2 buffer), and `<s>_gap`, missing in the received sequences (dropped
-//! on the exporting box, or lost in this box's DDS history).
+//! on the exporting box, or lost in this box's DDS history); `imports_live`, the
+//! imported cameras heard from within [`LIVE_WITHIN`]. Each imported camera's
+//! remote stages report as local ones (their liveness is their arrival here).
 
 use std::net::IpAddr;
 use std::time::{Duration, Instant};
 
 use isochron_config::LoadedConfig;
+use isochron_runtime::counters::{Counters, link};
 use isochron_runtime::ipc::{Activity, Detections, Events, Ipc};
 use isochron_runtime::service::Fatal;
-use isochron_runtime::stage::{Context, Input, Stage, Woken};
+use isochron_runtime::stage::{Context, Input, Stage};
 use isochron_runtime::topology::StageKind;
 
 use crate::dds::LinkDds;
@@ -51,7 +54,7 @@ pub const POLL: Duration = Duration::from_millis(20);
 
 /// The stages whose status crosses with a camera.
 fn camera_stages() -> impl Iterator<Item = StageKind> {
-    StageKind::ALL.into_iter().filter(|s| s.per_camera())
+    StageKind::pipeline().filter(|s| s.per_camera())
 }
 
 /// The inputs of the exported cameras, in `link.export` order.
@@ -159,21 +162,15 @@ impl<'ipc> LinkStage<'ipc> {
     }
 }
 
-/// Short names of the streams in the status detail.
-const SHORT: [&str; 4] = ["act", "ev", "det", "st"];
-/// The queued streams among them (whose drops and gaps the detail shows).
-const QUEUED: [usize; 2] = [1, 2];
+/// An imported camera is live while a message of it arrived this recently
+/// (its box reports every stage's status every 5 s, activity every second).
+pub const LIVE_WITHIN: Duration = Duration::from_secs(15);
 
 impl Stage for LinkStage<'_> {
     type Inputs = LinkInputs;
     const KIND: StageKind = StageKind::Link;
 
-    fn on_wake(
-        &mut self,
-        inputs: &Self::Inputs,
-        _woken: &Woken,
-        cx: &mut Context,
-    ) -> Result<(), Fatal> {
+    fn on_wake(&mut self, inputs: &Self::Inputs, cx: &mut Context) -> Result<(), Fatal> {
         let (activity, events, detections) = inputs;
         for (k, e) in self.exports.iter_mut().enumerate() {
             let inputs = (&activity[k], &events[k], &detections[k]);
@@ -213,30 +210,30 @@ impl Stage for LinkStage<'_> {
         }
     }
 
-    fn detail(&self) -> String {
-        // Kept short: a status detail holds 160 bytes.
+    fn counters(&self, c: &mut Counters) {
         let (out, inc) = self.totals();
-        let mut d = format!("box={}", self.box_id);
-        if !self.exports.is_empty() {
-            for (k, (name, c)) in SHORT.iter().zip(out).enumerate() {
-                d += &format!(" {name}_out={}", c.messages);
-                if QUEUED.contains(&k) {
-                    d += &format!(" {name}_drop={}", c.dropped);
-                }
-            }
-        }
-        if !self.imports.is_empty() {
-            for (k, (name, c)) in SHORT.iter().zip(inc).enumerate() {
-                d += &format!(" {name}_in={}", c.messages);
-                if QUEUED.contains(&k) {
-                    d += &format!(" {name}_gap={}", c.gaps);
-                }
-            }
-        }
-        let errors: u64 = out.iter().map(|c| c.errors).sum();
-        if errors > 0 {
-            d += &format!(" err={errors}");
-        }
-        d
+        let [act, ev, det, st] = out;
+        c.set(link::ACT_OUT, act.messages);
+        c.set(link::EV_OUT, ev.messages);
+        c.set(link::EV_DROP, ev.dropped);
+        c.set(link::DET_OUT, det.messages);
+        c.set(link::DET_DROP, det.dropped);
+        c.set(link::ST_OUT, st.messages);
+        let [act, ev, det, st] = inc;
+        c.set(link::ACT_IN, act.messages);
+        c.set(link::EV_IN, ev.messages);
+        c.set(link::EV_GAP, ev.gaps);
+        c.set(link::DET_IN, det.messages);
+        c.set(link::DET_GAP, det.gaps);
+        c.set(link::ST_IN, st.messages);
+        c.set(link::ERRORS, out.iter().map(|c| c.errors).sum::<u64>());
+        let now = Instant::now();
+        c.set(link::IMPORTS, self.imports.len());
+        let live = self.imports.iter().filter(|i| i.live(now, LIVE_WITHIN));
+        c.set(link::IMPORTS_LIVE, live.count());
+    }
+
+    fn info(&self) -> String {
+        format!("box={}", self.box_id)
     }
 }

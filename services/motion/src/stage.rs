@@ -5,9 +5,10 @@ use std::time::Instant;
 
 use isochron_config::{CameraConfig, MotionConfig, Polygon};
 use isochron_exit::{self as exit, Fatal};
+use isochron_runtime::counters::{Counters, motion};
 use isochron_runtime::ipc::{Frames, Ipc, Motion};
 use isochron_runtime::service::ServiceContext;
-use isochron_runtime::stage::{self, Context, Input, Output, Received, SendError, Stage, Woken};
+use isochron_runtime::stage::{self, Context, Input, Output, Received, SendError, Stage};
 use isochron_runtime::topology::StageKind;
 use isochron_wire::{FLAG_ILLUMINATION, FrameHeader, MotionHeader, PixelFormat};
 
@@ -259,31 +260,34 @@ impl Stage for MotionStage<'_> {
     type Inputs = Input<Frames>;
     const KIND: StageKind = StageKind::Motion;
 
-    fn on_wake(
-        &mut self,
-        frames: &Input<Frames>,
-        _woken: &Woken,
-        cx: &mut Context,
-    ) -> Result<(), Fatal> {
+    fn on_wake(&mut self, frames: &Input<Frames>, cx: &mut Context) -> Result<(), Fatal> {
         while let Some(sample) = frames.next(cx) {
             self.on_frame(sample, cx)?;
         }
         Ok(())
     }
 
-    fn detail(&self) -> String {
-        let (backend, grid, masked) = match &self.detector {
-            Some(d) => (
+    fn counters(&self, c: &mut Counters) {
+        c.set(motion::ILLUMINATION, self.illumination_frames);
+        c.set(motion::SUPPRESSED, self.suppressed_frames);
+        c.set(motion::RESTARTS, self.restarts);
+        if let Some(d) = &self.detector {
+            let g = d.geometry();
+            c.set(motion::MASKED_BLOCKS, d.masked_blocks());
+            c.set(motion::GRID_BLOCKS, g.grid_w as u64 * g.grid_h as u64);
+        }
+    }
+
+    fn info(&self) -> String {
+        match &self.detector {
+            Some(d) => format!(
+                "backend={} grid={}x{}",
                 d.backend_name(),
-                format!("{}x{}", d.geometry().grid_w, d.geometry().grid_h),
-                d.masked_blocks(),
+                d.geometry().grid_w,
+                d.geometry().grid_h
             ),
-            None => (format!("{:?}", self.config.backend), "-".into(), 0),
-        };
-        format!(
-            "illumination={} suppressed={} masked_blocks={masked} backend={backend} grid={grid} restarts={}",
-            self.illumination_frames, self.suppressed_frames, self.restarts
-        )
+            None => format!("backend={:?} grid=-", self.config.backend),
+        }
     }
 }
 
@@ -433,6 +437,6 @@ mod tests {
         assert_eq!(sent.len(), 1);
         assert_eq!((sent[0].header.grid_w, sent[0].header.grid_h), (8, 4));
         assert_eq!(sent[0].header.source_index, 3);
-        assert!(rig.stage.detail().contains("grid=8x4"));
+        assert!(rig.stage.info().contains("grid=8x4"));
     }
 }

@@ -13,10 +13,11 @@ use std::time::{Duration, Instant};
 
 use isochron_config::LoadedConfig;
 use isochron_exit::{self as exit, Fatal};
+use isochron_runtime::counters::{Counters, mqtt};
 use isochron_runtime::health::LatencyWindow;
 use isochron_runtime::ipc::{Detections, Events, Ipc};
 use isochron_runtime::service::ServiceContext;
-use isochron_runtime::stage::{self, Context, Input, Stage, Woken};
+use isochron_runtime::stage::{self, Context, Input, Stage};
 use isochron_runtime::topology::StageKind;
 
 use crate::client::{self, Settings, Shared};
@@ -151,7 +152,6 @@ impl Stage for MqttStage {
     fn on_wake(
         &mut self,
         (events, detections): &MqttInputs,
-        _: &Woken,
         cx: &mut Context,
     ) -> Result<(), Fatal> {
         let before = self.messages;
@@ -222,23 +222,24 @@ impl Stage for MqttStage {
         Ok(())
     }
 
-    fn detail(&self) -> String {
+    fn counters(&self, c: &mut Counters) {
         let (queued, dropped) = {
             let outbox = self.shared.outbox();
             (outbox.len(), outbox.dropped())
         };
-        // The broker last: a long host name is what the fixed-size detail cuts.
-        format!(
-            "connected={} messages={} queued={queued} queue_dropped={dropped} reconnects={} refused={} tls_failures={} events_rejected={} ack_ms={:.1}/{:.1} broker={}",
-            u8::from(self.shared.connected()),
-            self.messages,
-            self.shared.reconnects(),
-            self.shared.refused(),
-            self.shared.tls_failures(),
-            self.events_rejected,
-            self.ack_ms.quantile(0.5),
-            self.ack_ms.quantile(0.99),
-            self.broker
-        )
+        c.set(mqtt::CONNECTED, self.shared.connected());
+        c.set(mqtt::MESSAGES, self.messages);
+        c.set(mqtt::QUEUED, queued);
+        c.set(mqtt::QUEUE_DROPPED, dropped);
+        c.set(mqtt::RECONNECTS, self.shared.reconnects());
+        c.set(mqtt::REFUSED, self.shared.refused());
+        c.set(mqtt::TLS_FAILURES, self.shared.tls_failures());
+        c.set(mqtt::EVENTS_REJECTED, self.events_rejected);
+        c.set(mqtt::ACK_P50, self.ack_ms.quantile(0.5));
+        c.set(mqtt::ACK_P99, self.ack_ms.quantile(0.99));
+    }
+
+    fn info(&self) -> String {
+        format!("broker={}", self.broker)
     }
 }

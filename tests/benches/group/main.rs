@@ -127,8 +127,15 @@ const MAX_END_LAG_MS: f32 = 1000.0;
 /// running job may hold three HOG runs of a few hundred ms each.
 const MAX_DETECTION_MS: f32 = 4000.0;
 
-/// The per-camera services, in pipeline order, and the site-wide one.
-const STAGES: [StageKind; 5] = StageKind::ALL;
+/// The per-camera services, in pipeline order, and the site-wide one: the
+/// stage table's pipeline (checked at start), as an array for the tables below.
+const STAGES: [StageKind; 5] = [
+    StageKind::Capture,
+    StageKind::Motion,
+    StageKind::Cascade,
+    StageKind::Gate,
+    StageKind::Costmap,
+];
 /// Index of the cost map bridge in [`STAGES`].
 const COSTMAP: usize = 4;
 

@@ -1,5 +1,7 @@
 //! The stages' status reports within the measurement window.
 
+use isochron_runtime::counters::{CounterId, gate};
+use isochron_runtime::health::status_counters;
 use isochron_runtime::ipc::{Ipc, StatusSubscriber};
 use isochron_runtime::topology::StageKind;
 use isochron_wire::StageStatus;
@@ -82,16 +84,9 @@ impl StatusBoard {
     }
 }
 
-/// The number after `key=` in a status report's detail text.
-pub(crate) fn detail_value(status: &StageStatus, key: &str) -> Option<u64> {
-    let end = status
-        .detail
-        .iter()
-        .position(|&b| b == 0)
-        .unwrap_or(status.detail.len());
-    let text = std::str::from_utf8(&status.detail[..end]).ok()?;
-    text.split_whitespace()
-        .find_map(|kv| kv.strip_prefix(key)?.strip_prefix('=')?.parse().ok())
+/// Counter `id` of a status report (`None` if it was written with other counters).
+pub(crate) fn counter(status: &StageStatus, id: CounterId) -> Option<u64> {
+    status_counters(status).map(|c| c.get(id) as u64)
 }
 
 impl Track {
@@ -99,11 +94,10 @@ impl Track {
     pub(crate) fn window(&self) -> Option<Window> {
         let (a, b) = self.span()?;
         let seconds = (b.report_wall_ns - a.report_wall_ns) as f64 / 1e9;
-        let between = |x: &StageStatus, key: &str| {
-            Some(detail_value(b, key)?.saturating_sub(detail_value(x, key)?))
-        };
+        let between =
+            |x: &StageStatus, id: CounterId| Some(counter(b, id)?.saturating_sub(counter(x, id)?));
         let done = if self.stage == StageKind::Gate {
-            between(a, "frames_seen").unwrap_or(0)
+            between(a, gate::FRAMES_SEEN).unwrap_or(0)
         } else {
             b.sent.saturating_sub(a.sent)
         };
@@ -113,7 +107,7 @@ impl Track {
         Some(Window {
             rate: done as f64 / seconds,
             dropped: b.dropped.saturating_sub(a.dropped),
-            jobs: between(from, "jobs").zip(between(from, "jobs_dropped")),
+            jobs: between(from, gate::JOBS).zip(between(from, gate::JOBS_DROPPED)),
         })
     }
 }

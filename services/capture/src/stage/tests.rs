@@ -228,9 +228,14 @@ fn at_speed_max_every_frame_is_due_at_once_and_the_end_reports_the_file() {
             (0, 0, 0, true)
         ]
     );
-    assert_eq!(
-        stage.detail(),
-        "reconnects=0 loops=0 source_fps=10.00 frames_read=3 frames_stated=3 truncated=false"
+    let words = words(&stage);
+    assert!(
+        words.starts_with("reconnects=0 loops=0 source_fps=10.00"),
+        "{words}"
+    );
+    assert!(
+        words.ends_with("frames_read=3 frames_stated=3 truncated=0"),
+        "{words}"
     );
     assert_eq!(cx.health.status().sent, 3);
     assert_ne!(
@@ -252,11 +257,7 @@ fn a_truncated_file_publishes_what_it_has_and_says_so_before_its_end() {
     run_due(&mut stage, &mut cx, 10);
     assert!(stage.finished());
     assert_eq!(queue.borrow().len(), 5);
-    assert!(
-        stage
-            .detail()
-            .ends_with("frames_read=4 frames_stated=10 truncated=true")
-    );
+    assert!(words(&stage).ends_with("frames_read=4 frames_stated=10 truncated=1"));
 
     // A file that breaks mid-way: what was decodable, then the end.
     let broken = Box::new(MemorySource {
@@ -304,7 +305,7 @@ fn a_looped_file_starts_again_from_its_first_frame_on_the_same_clock() {
         [0, 1, 2, 3].map(|i| 1_000_000_000 + i * 100_000_000),
         "the file clock goes on"
     );
-    assert!(stage.detail().starts_with("reconnects=0 loops=1"));
+    assert!(words(&stage).starts_with("reconnects=0 loops=1"));
 }
 
 #[test]
@@ -347,7 +348,8 @@ fn a_camera_is_reconnected_with_backoff_alarms_and_marks_the_discontinuity() {
     let mut stage = CaptureStage::connecting(settings(false, Speed::Max), open, output);
     let mut cx = Context::new(StageKind::Capture, CAMERA, None);
     stage.on_start(&mut cx).unwrap();
-    assert_eq!(stage.detail(), "source unavailable");
+    assert_eq!(stage.info(), "source unavailable");
+    assert!(words(&stage).contains("source_up=0"));
     let mut delays = Vec::new();
     step(&mut stage, &(), &mut cx).unwrap();
     for _ in 0..3 {
@@ -364,11 +366,7 @@ fn a_camera_is_reconnected_with_backoff_alarms_and_marks_the_discontinuity() {
     // Connected: its frames are due at once (the read blocks in the source).
     run_due(&mut stage, &mut cx, 3);
     assert_eq!(queue.borrow().len(), 2);
-    assert_eq!(
-        stage.detail(),
-        "source unavailable",
-        "lost after two frames"
-    );
+    assert_eq!(stage.info(), "source unavailable", "lost after two frames");
     // The backoff starts again from its first delay.
     step(&mut stage, &(), &mut cx).unwrap();
     let at = cx.alarm().expect("a retry");
@@ -383,11 +381,7 @@ fn a_camera_is_reconnected_with_backoff_alarms_and_marks_the_discontinuity() {
             (0, 0, FLAG_DISCONTINUITY, false)
         ]
     );
-    assert!(
-        stage
-            .detail()
-            .starts_with("reconnects=1 loops=0 source_fps=25.00")
-    );
+    assert!(words(&stage).starts_with("reconnects=1 loops=0 source_fps=25.00 source_up=1"));
     assert!(!stage.finished(), "a camera never ends");
 }
 
@@ -428,4 +422,9 @@ fn a_source_of_unknown_size_without_a_configured_one_is_a_config_error() {
     let err = Playback::of(&s, &mut nofps).expect_err("no frame rate");
     assert_eq!(err.code, exit::CONFIG);
     assert!(err.to_string().contains("set fps"), "{err}");
+}
+
+/// The stage's counters as a status line shows them.
+fn words(stage: &CaptureStage) -> String {
+    isochron_runtime::stage::counters_of(stage).0.words()
 }

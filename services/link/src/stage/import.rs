@@ -3,7 +3,7 @@
 //! stages' status as this box saw it.
 
 use std::collections::HashMap;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use ros2_client::dds::Subscription;
 
@@ -138,6 +138,8 @@ pub(super) struct Import<'ipc> {
     status_in: Subscription<Status>,
     status_out: HashMap<StageKind, StatusPublisher>,
     status: Counts,
+    /// When a valid message of this camera last arrived.
+    heard: Option<Instant>,
 }
 
 impl<'ipc> Import<'ipc> {
@@ -160,6 +162,7 @@ impl<'ipc> Import<'ipc> {
             status_in: dds.status(camera)?,
             status_out: HashMap::new(),
             status: Counts::default(),
+            heard: None,
         })
     }
 
@@ -171,12 +174,27 @@ impl<'ipc> Import<'ipc> {
         limit: usize,
         cx: &mut Context,
     ) -> Result<(), Fatal> {
+        let before = self.messages();
         let (camera, id) = (&self.camera, &self.id);
         self.activity.receive(camera, id, limit, cx)?;
         self.events.receive(camera, id, limit, cx)?;
         self.detections.receive(camera, id, limit, cx)?;
         self.receive_status(ipc, cx);
+        if self.messages() > before {
+            self.heard = Some(Instant::now());
+        }
         Ok(())
+    }
+
+    fn messages(&self) -> u64 {
+        self.counts().iter().map(|c| c.messages).sum()
+    }
+
+    /// True if a valid message of this camera arrived within `within` of `now`:
+    /// its box is alive and reaches this one.
+    pub(super) fn live(&self, now: Instant, within: Duration) -> bool {
+        self.heard
+            .is_some_and(|t| now.saturating_duration_since(t) <= within)
     }
 
     /// What each stream received: activity, events, detections, status.
