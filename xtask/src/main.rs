@@ -43,6 +43,7 @@ mod ci;
 mod config_ref;
 mod deb;
 mod demo;
+mod detector_model;
 mod install;
 mod setup;
 mod structure;
