@@ -139,6 +139,10 @@ pub struct DetectorConfig {
     /// Detections that run at once on the site, all cameras and gate processes
     /// together. Default 1.
     pub concurrent: usize,
+    /// Threads OpenCV may use for one detection (it sets them process-wide, for
+    /// the gate's OpenCV work). With `concurrent` this bounds the detector's share
+    /// of the box: at most `concurrent × threads` cores. Default 1.
+    pub threads: u32,
     /// How long a job waits for one of the `concurrent` slots before it is dropped
     /// and counted, seconds (a lossless replay waits as long as it takes). The
     /// waiting is on the detector's thread: activity and events never wait.
@@ -170,6 +174,7 @@ impl Default for DetectorConfig {
             crop_margin_px: 64,
             queue: 2,
             concurrent: 1,
+            threads: 1,
             slot_wait_s: 1.0,
         }
     }
@@ -287,6 +292,7 @@ impl DetectorConfig {
             1.0,
             64.0,
         )?;
+        check_range("gate.detector.threads", self.threads as f64, 1.0, 256.0)?;
         check_range("gate.detector.slot_wait_s", self.slot_wait_s, 0.0, 60.0)
     }
 }

@@ -28,11 +28,15 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use isochron_config::DetectorConfig;
+use isochron_config::{DetectorConfig, MotionConfig};
 use isochron_gate::detector::{Detector, INSTALLED_NETWORK, Region};
+use isochron_gate::gate::crop_region;
+use isochron_motion::detector::MotionDetector;
 use isochron_motion::eval::GroundTruth;
 use isochron_tests::repo_root;
+use isochron_wire::BlockMotion;
 use isochron_wire::Detection;
+use isochron_wire::geometry::BlockGrid;
 use opencv::core::Mat;
 use opencv::prelude::*;
 use opencv::{imgproc, videoio};
@@ -209,6 +213,8 @@ fn read_labels(path: &Path) -> Result<Vec<Label>, Error> {
 struct Scene {
     frames: usize,
     frames_found: usize,
+    /// Frames where a detection's centre lies in a labelled person.
+    frames_hit: usize,
     people: usize,
     people_found: usize,
     detections: usize,
@@ -217,9 +223,44 @@ struct Scene {
     empty: usize,
     empty_alarms: usize,
     time: Duration,
+    /// Sum over the frames of the share of the frame searched.
+    searched: f64,
 }
 
-fn score_scene(detector: &mut Detector, root: &Path, quick: bool) -> Result<Scene, Error> {
+/// The gate's search region for frame `n` of `frames` (60 frames/s): around the
+/// blocks the motion stage saw active in the second before it, margin 64
+/// (`gate.detector.crop_margin_px`), as `gate::crop_region` makes it; the whole
+/// frame when nothing moved (frame 0).
+fn gate_crop(frames: &[Vec<u8>], n: usize, w: u32, h: u32) -> Result<Region, Error> {
+    let config = MotionConfig::default();
+    let mut motion = MotionDetector::new(&config, w as usize, h as usize, &[])?;
+    let mut blocks = vec![BlockMotion::default(); motion.geometry().blocks()];
+    let mut active = std::collections::BTreeSet::new();
+    for i in n.saturating_sub(60).max(1)..=n {
+        let t = i as i64 * 1_000_000_000 / 60;
+        motion.process(&frames[i - 1], &frames[i], t, &mut blocks)?;
+        for (b, m) in blocks.iter().enumerate() {
+            if m.density >= config.density_threshold {
+                active.insert(b as u32);
+            }
+        }
+    }
+    let active: Vec<u32> = active.into_iter().collect();
+    let grid = BlockGrid::new(w, h, config.block_px);
+    Ok(crop_region(
+        &grid,
+        &active,
+        &[],
+        DetectorConfig::default().crop_margin_px,
+    ))
+}
+
+fn score_scene(
+    detector: &mut Detector,
+    root: &Path,
+    quick: bool,
+    crop: bool,
+) -> Result<Scene, Error> {
     let labels = read_labels(&root.join("tests/data/pose2sim-labels.csv"))?;
     let mut cameras: Vec<&str> = labels.iter().map(|l| l.camera.as_str()).collect();
     cameras.sort_unstable();
@@ -235,8 +276,20 @@ fn score_scene(detector: &mut Detector, root: &Path, quick: bool) -> Result<Scen
         wanted.sort_unstable();
         wanted.dedup();
         let video = root.join(format!("target/detector-scenes/pose2sim/{camera}.mp4"));
-        let (frames, w, h) = grey_frames(&video, &wanted)?;
-        for (n, pixels) in wanted.iter().zip(&frames) {
+        let last = wanted.last().copied().unwrap_or(0);
+        let (all, w, h) = grey_frames(&video, &(0..=last).collect::<Vec<_>>())?;
+        for n in &wanted {
+            let pixels = &all[*n];
+            let region = if crop {
+                gate_crop(&all, *n, w, h)?
+            } else {
+                Region::WHOLE
+            };
+            if !region.is_whole() {
+                s.searched += (region.w * region.h) as f64 / (w * h) as f64;
+            } else {
+                s.searched += 1.0;
+            }
             let here = |l: &&Label| l.camera == camera && l.frame.is_none_or(|f| f == *n);
             let people: Vec<Boxed> = labels
                 .iter()
@@ -245,7 +298,7 @@ fn score_scene(detector: &mut Detector, root: &Path, quick: bool) -> Result<Scen
                 .map(|l| l.at)
                 .collect();
             let t0 = Instant::now();
-            let dets = detector.detect(pixels, w, h, Region::WHOLE)?;
+            let dets = detector.detect(pixels, w, h, region)?;
             s.time += t0.elapsed();
             let m = matches(&dets, &people);
             if std::env::var_os("DETECTOR_BENCH_SHOW").is_some() {
@@ -265,6 +318,11 @@ fn score_scene(detector: &mut Detector, root: &Path, quick: bool) -> Result<Scen
             }
             s.frames += 1;
             s.frames_found += usize::from(m.iter().any(Option::is_some));
+            let inside = |d: &Detection, p: &Boxed| {
+                let (cx, cy) = ((d.x + d.w / 2.0) as f64, (d.y + d.h / 2.0) as f64);
+                cx >= p.0 && cy >= p.1 && cx <= p.0 + p.2 && cy <= p.1 + p.3
+            };
+            s.frames_hit += usize::from(dets.iter().any(|d| people.iter().any(|p| inside(d, p))));
             s.people += people.len();
             s.people_found += m.iter().flatten().count();
             s.detections += dets.len();
@@ -292,6 +350,9 @@ fn ratio(a: usize, b: usize) -> f64 {
 
 fn main() -> Result<(), Error> {
     let quick = std::env::args().any(|a| a == "--quick");
+    // The second scene alone, the network alone, its settings as `key=value`
+    // pairs (st, tp): for trying settings; the targets are not checked.
+    let trial: Option<String> = std::env::args().skip_while(|a| a != "--trial").nth(1);
     let root = repo_root();
     let network = root.join("target/detector").join(INSTALLED_NETWORK);
     if !network.is_file() {
@@ -303,6 +364,40 @@ fn main() -> Result<(), Error> {
     }
     let step = if quick { QUICK_PETS_STEP } else { PETS_STEP };
     let mut rows = Vec::new();
+    if let Some(spec) = &trial {
+        let mut config = DetectorConfig {
+            model: Some(network.clone()),
+            ..Default::default()
+        };
+        for kv in spec.split(',').filter(|s| !s.is_empty()) {
+            match kv.split_once('=') {
+                _ if kv == "crop" => {}
+                Some(("st", v)) => config.ssd_score_threshold = v.parse()?,
+                Some(("tp", v)) => config.ssd_tile_px = v.parse()?,
+                _ => return Err(format!("--trial: unknown setting {kv}").into()),
+            }
+        }
+        let crop = spec.contains("crop");
+        let spec = spec.replace("crop", "");
+        let mut detector = Detector::from_config(&config, &root)?;
+        let s = score_scene(&mut detector, &root, quick, crop)?;
+        println!(
+            "{spec} crop={crop}: frame recall {}/{} (centre in a person {}) person recall {}/{} false {}/{} mean IoU {:.2} empty alarms {}/{} {:.0} ms/frame, searched {:.2}",
+            s.frames_found,
+            s.frames,
+            s.frames_hit,
+            s.people_found,
+            s.people,
+            s.false_detections,
+            s.detections,
+            s.iou_sum / s.people_found.max(1) as f64,
+            s.empty_alarms,
+            s.empty,
+            s.time.as_secs_f64() * 1e3 / s.frames.max(1) as f64,
+            s.searched / s.frames.max(1) as f64
+        );
+        return Ok(());
+    }
     for (label, config) in [
         (
             "ssdlite (installed)",
@@ -321,7 +416,7 @@ fn main() -> Result<(), Error> {
     ] {
         let mut detector = Detector::from_config(&config, &root)?;
         let pets = score_pets(&mut detector, &root, step)?;
-        let scene = score_scene(&mut detector, &root, quick)?;
+        let scene = score_scene(&mut detector, &root, quick, true)?;
         rows.push((label, pets, scene));
     }
     println!(

@@ -218,6 +218,10 @@ impl Detector {
     /// Builds the configured detector; `base_dir` resolves a relative model path.
     /// Logs which detector runs, and from which file.
     pub fn from_config(config: &DetectorConfig, base_dir: &Path) -> Result<Self, DetectorError> {
+        // The detector's share of the box: `concurrent` slots of `threads` each.
+        if let Err(e) = opencv::core::set_num_threads(config.threads as i32) {
+            tracing::warn!("setting OpenCV's threads to {}: {e}", config.threads);
+        }
         let path = match &config.model {
             Some(model) if model.is_absolute() => Some(model.clone()),
             Some(model) => Some(base_dir.join(model)),
