@@ -184,8 +184,9 @@ pub enum DetectorError {
     },
     /// The TensorFlow SSD could not be loaded.
     #[error(
-        "people detector {}: {source} (a file `cargo xtask setup` installed: run it again; \
-         gate.detector.model names another model, gate.detector.installed = false runs HOG)",
+        "people detector {} cannot be loaded (if `cargo xtask setup` installed it, run it \
+         again; gate.detector.model names another model, gate.detector.installed = false \
+         runs HOG)",
         path.display()
     )]
     Graph {

@@ -41,10 +41,7 @@ impl SsdDetector {
         nms_threshold: f32,
     ) -> Result<Self, TextGraphError> {
         let (text, _classes) = ssd_text_graph(pb)?;
-        let model = std::fs::read(pb).map_err(|source| TextGraphError::Io {
-            path: pb.display().to_string(),
-            source,
-        })?;
+        let model = std::fs::read(pb).map_err(TextGraphError::Read)?;
         let net = dnn::read_net_from_tensorflow_buffer(
             &Vector::<u8>::from_slice(&model),
             &Vector::<u8>::from_slice(text.as_bytes()),

@@ -40,16 +40,19 @@ use pbtxt::{Node, Value, parse_graph, write_graph};
 #[derive(Debug, thiserror::Error)]
 pub enum TextGraphError {
     /// OpenCV could not read the frozen graph.
-    #[error("OpenCV cannot read it as a TensorFlow graph: {0}")]
+    #[error("OpenCV cannot read it as a TensorFlow graph")]
     OpenCv(#[from] opencv::Error),
     /// The temporary text file could not be written or read.
-    #[error("writing its text graph to {path}: {source}")]
+    #[error("writing its text graph to {path}")]
     Io {
         /// The temporary file.
         path: String,
         /// The error.
         source: std::io::Error,
     },
+    /// The frozen graph could not be read.
+    #[error("reading it")]
+    Read(#[source] std::io::Error),
     /// The graph is not the kind of SSD this module knows.
     #[error("not a TensorFlow Object Detection API SSD graph this detector can load: {0}")]
     Shape(String),
