@@ -258,6 +258,17 @@ fn out_channels(consts: &HashMap<String, Node>, weights: &str) -> Option<usize> 
 /// Steps 2–5 of the module doc on the nodes of the frozen graph: the text graph's
 /// nodes and the number of classes.
 fn transform(mut nodes: Vec<Node>) -> Result<(Vec<Node>, usize), TextGraphError> {
+    let classes = classes(&nodes)?;
+    prune(&mut nodes);
+    let input = connect_input(&mut nodes)?;
+    add_head(&mut nodes, classes, &input)?;
+    remove_dead(&mut nodes);
+    Ok((nodes, classes))
+}
+
+/// The number of classes, read from the class predictors; each box predictor
+/// checked to give 4 values per anchor of its layer.
+fn classes(nodes: &[Node]) -> Result<usize, TextGraphError> {
     let shape = |s: String| TextGraphError::Shape(s);
     let consts: HashMap<String, Node> = nodes
         .iter()
@@ -281,7 +292,7 @@ fn transform(mut nodes: Vec<Node>) -> Result<(Vec<Node>, usize), TextGraphError>
     let mut classes = None;
     for (i, anchors) in anchors_per_layer.iter().enumerate() {
         let boxes = weights_of(
-            &nodes,
+            nodes,
             &format!("BoxPredictor_{i}/BoxEncodingPredictor/Conv2D"),
         )
         .ok_or_else(|| shape(format!("no BoxPredictor_{i}/BoxEncodingPredictor/Conv2D")))?;
@@ -291,7 +302,7 @@ fn transform(mut nodes: Vec<Node>) -> Result<(Vec<Node>, usize), TextGraphError>
                 anchors * 4
             )));
         }
-        let scores = weights_of(&nodes, &format!("BoxPredictor_{i}/ClassPredictor/Conv2D"))
+        let scores = weights_of(nodes, &format!("BoxPredictor_{i}/ClassPredictor/Conv2D"))
             .ok_or_else(|| shape(format!("no BoxPredictor_{i}/ClassPredictor/Conv2D")))?;
         if scores % anchors != 0 || scores / anchors < 2 {
             return Err(shape(format!(
@@ -304,11 +315,15 @@ fn transform(mut nodes: Vec<Node>) -> Result<(Vec<Node>, usize), TextGraphError>
         }
         classes = Some(c);
     }
-    let classes = classes.unwrap_or(1);
+    Ok(classes.unwrap_or(1))
+}
 
+/// Bypasses `Identity` nodes; drops constants, the ops OpenCV does not need and
+/// TensorFlow's pre- and post-processing.
+fn prune(nodes: &mut Vec<Node>) {
     // Bypass Identity nodes.
     let mut identity: HashMap<String, String> = HashMap::new();
-    for n in &nodes {
+    for n in nodes.iter() {
         if (n.op == "Identity" || n.op == "IdentityN")
             && let Some(first) = n.input.first()
         {
@@ -320,7 +335,7 @@ fn transform(mut nodes: Vec<Node>) -> Result<(Vec<Node>, usize), TextGraphError>
         }
     }
     nodes.retain(|n| !identity.contains_key(&n.name));
-    for n in &mut nodes {
+    for n in nodes.iter_mut() {
         for i in &mut n.input {
             if let Some(to) = identity.get(i) {
                 *i = to.clone();
@@ -339,11 +354,15 @@ fn transform(mut nodes: Vec<Node>) -> Result<(Vec<Node>, usize), TextGraphError>
         }
         !drop
     });
-    for n in &mut nodes {
+    for n in nodes.iter_mut() {
         n.input.retain(|i| !removed.contains(i));
         n.attr.retain(|(k, _)| !UNUSED_ATTRS.contains(&k.as_str()));
     }
+}
 
+/// Feeds the input placeholder to the first kept node; the input's name.
+fn connect_input(nodes: &mut [Node]) -> Result<String, TextGraphError> {
+    let shape = |s: String| TextGraphError::Shape(s);
     // The input feeds the first kept node.
     if nodes.len() < 4 || nodes[0].op != "Placeholder" {
         return Err(shape(
@@ -365,8 +384,12 @@ fn transform(mut nodes: Vec<Node>) -> Result<(Vec<Node>, usize), TextGraphError>
         let name = nodes[2].name.clone();
         nodes[3].input.insert(0, name);
     }
+    Ok(input)
+}
 
-    // The SSD head: flattened predictions, anchors, decoding.
+/// The SSD head: flattened predictions, anchors, decoding.
+fn add_head(nodes: &mut Vec<Node>, classes: usize, input: &str) -> Result<(), TextGraphError> {
+    let shape = |s: String| TextGraphError::Shape(s);
     nodes.push(const_node("concat/axis_flatten", &[-1]));
     for label in ["ClassPredictor", "BoxEncodingPredictor"] {
         let mut flat = Vec::new();
@@ -381,7 +404,7 @@ fn transform(mut nodes: Vec<Node>) -> Result<(Vec<Node>, usize), TextGraphError>
         nodes.push(node(&format!("{label}/concat"), "ConcatV2", &refs));
     }
     let mut transposed = 0;
-    for n in &mut nodes {
+    for n in nodes.iter_mut() {
         let is_box_conv = (0..ANCHORS.layers).any(|i| {
             n.name == format!("BoxPredictor_{i}/BoxEncodingPredictor/Conv2D")
                 || n.name == format!("BoxPredictor_{i}/BoxEncodingPredictor/convolution")
@@ -402,7 +425,7 @@ fn transform(mut nodes: Vec<Node>) -> Result<(Vec<Node>, usize), TextGraphError>
     for i in 0..ANCHORS.layers {
         let name = format!("PriorBox_{i}");
         let from = format!("BoxPredictor_{i}/BoxEncodingPredictor/BiasAdd");
-        let mut p = node(&name, "PriorBox", &[&from, &input]);
+        let mut p = node(&name, "PriorBox", &[&from, input]);
         let (w, h) = ANCHORS.sizes(i);
         p.attr.push(("clip".into(), scalar("b", "false")));
         p.attr.push(("flip".into(), scalar("b", "false")));
@@ -457,8 +480,11 @@ fn transform(mut nodes: Vec<Node>) -> Result<(Vec<Node>, usize), TextGraphError>
         .push(("share_location".into(), scalar("b", "true")));
     out.attr.push(("top_k".into(), scalar("i", 100)));
     nodes.push(out);
+    Ok(())
+}
 
-    // Remove what no longer leads anywhere (the output aside), until stable.
+/// Removes what no longer leads anywhere (the output aside), until stable.
+fn remove_dead(nodes: &mut Vec<Node>) {
     loop {
         let used: HashSet<&str> = nodes
             .iter()
@@ -474,7 +500,6 @@ fn transform(mut nodes: Vec<Node>) -> Result<(Vec<Node>, usize), TextGraphError>
         }
         nodes.retain(|n| !dead.contains(&n.name));
     }
-    Ok((nodes, classes))
 }
 
 #[cfg(test)]
