@@ -11,7 +11,8 @@
 //! the one case isochron uses: an `ssd_anchor_generator` with a convolutional box
 //! predictor, such as SSDLite-MobileNetV2):
 //!
-//! 1. `cv::dnn::writeTextGraph` writes the frozen graph as text, without weights;
+//! 1. `cv::dnn::writeTextGraph` writes the frozen graph as text, without weights
+//!    (to a file in `/dev/shm`, read back and removed at once);
 //! 2. `Identity` nodes are bypassed; constants, the ops OpenCV does not need and
 //!    the nodes under `Preprocessor/map`, `MultipleGridAnchorGenerator`,
 //!    `Postprocessor` and `Concatenate` are dropped (references to dropped
@@ -159,7 +160,15 @@ pub const OUTPUT: &str = "detection_out";
 /// The text graph of the SSD frozen graph `pb`, and the number of object classes
 /// it detects (without the background).
 pub fn ssd_text_graph(pb: &Path) -> Result<(String, usize), TextGraphError> {
-    let dump = std::env::temp_dir().join(format!(
+    // In /dev/shm where there is one: under the systemd units the rest of the
+    // filesystem, /tmp included, is read-only for the gate.
+    let shm = Path::new("/dev/shm");
+    let dir = if shm.is_dir() {
+        shm.to_path_buf()
+    } else {
+        std::env::temp_dir()
+    };
+    let dump = dir.join(format!(
         "isochron-ssd-{}-{:?}.pbtxt",
         std::process::id(),
         std::thread::current().id()
