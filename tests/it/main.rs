@@ -82,6 +82,7 @@ mod capture;
 mod cascade;
 mod conventions;
 mod costmap;
+mod detector;
 mod doctor;
 mod exporter;
 mod forecast;

@@ -101,7 +101,7 @@ fn vtest_through_all_stages_gates_the_detector_onto_people() {
     let recall = found as f64 / boxes.max(1) as f64;
     let precision = correct as f64 / reported.max(1) as f64;
     println!(
-        "HOG on {gated} gated frames: found {found} of {boxes} PETS09 people (hit rate {:.0} %), {correct} of {reported} detections are people ({:.0} %)",
+        "the default detector on {gated} gated frames: found {found} of {boxes} PETS09 people (hit rate {:.0} %), {correct} of {reported} detections are people ({:.0} %)",
         recall * 100.0,
         precision * 100.0
     );

@@ -46,6 +46,7 @@ mod config_ref;
 mod deb;
 mod demo;
 mod deps;
+mod detector_model;
 mod install;
 mod setup;
 mod structure;

@@ -87,7 +87,8 @@ pub(crate) fn setup(root: &Path) -> anyhow::Result<()> {
     ros2_venv(root)?;
     node_peers(root)?;
     fastdds_peer(root)?;
-    fetch_forecast_data(root)
+    fetch_forecast_data(root)?;
+    crate::detector_model::setup(root)
 }
 
 /// The sources of the Fast DDS client (`tests/ros2/fastdds/`).

@@ -68,23 +68,45 @@ impl Default for GateConfig {
     }
 }
 
-/// `[gate.detector]`: OpenCV's HOG people detector (default, needs no download),
-/// or an ONNX model through OpenCV's dnn module when `model` is set.
+/// `[gate.detector]`: the people detector. By default the network `cargo xtask
+/// setup` installed (SSDLite-MobileNetV2, a TensorFlow SSD, through OpenCV's dnn
+/// module), OpenCV's HOG where none is installed; or the model file `model`
+/// names (a TensorFlow SSD `.pb` or a YOLO `.onnx`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DetectorConfig {
     /// Run the detector at all. Default true. `false`: events and presence come
     /// from activity and the presence band alone (no boxes, no confirmed people).
     pub enabled: bool,
-    /// ONNX model file (a YOLOv5/YOLOv8 export; docs/pipeline.md); relative to the
-    /// config file. Default: none (HOG).
+    /// Model file, relative to the config file: a TensorFlow Object Detection API
+    /// SSD frozen graph (`.pb`, e.g. SSDLite-MobileNetV2) or a YOLOv5/YOLOv8 ONNX
+    /// export (any other name; docs/pipeline.md). A file that is missing or cannot
+    /// be loaded stops the gate (exit 78). Default: none (the installed network,
+    /// see `installed`).
     pub model: Option<PathBuf>,
+    /// Without `model`: run the network `cargo xtask setup` installed
+    /// (`detector/ssdlite-person.pb` in the directory above the binaries',
+    /// `target/` in a checkout, or `share/isochron/detector/` beside it), with
+    /// the SSD settings below, if it is there, and OpenCV's HOG if not (the gate
+    /// logs which runs). `false`: HOG. Default true.
+    pub installed: bool,
     /// Square input size of the ONNX model, pixels. Frames are letterboxed into
     /// it (scaled to fit, aspect kept, padded with grey 114). Default 640.
     pub input_px: u32,
     /// Channels the ONNX model's input has: 3 (the frame as RGB, grey frames
     /// replicated) or 1 (grey). Default 3.
     pub input_channels: u32,
+    /// Square input size of a TensorFlow SSD (`model` ending in `.pb`), pixels:
+    /// the search region is letterboxed into it. Default 300 (what SSDLite trains at).
+    pub ssd_input_px: u32,
+    /// Lowest person score a TensorFlow SSD detection is kept at. Default 0.5
+    /// (measured on PETS09, docs/benchmarks.md).
+    pub ssd_score_threshold: f32,
+    /// A TensorFlow SSD searches a region larger than this, pixels, in
+    /// overlapping square tiles of this side (people stay large enough in its
+    /// input); 0: the region in one piece. Default 288 (measured on PETS09:
+    /// people 50×100 px in a 768×576 frame are found at 288, not in one piece).
+    pub ssd_tile_px: u32,
     /// Lowest score of a kept detection (ONNX: class score; HOG: SVM margin).
     /// Default 0.4 (ONNX) — HOG uses `hog_hit_threshold`.
     pub score_threshold: f32,
@@ -117,6 +139,10 @@ pub struct DetectorConfig {
     /// Detections that run at once on the site, all cameras and gate processes
     /// together. Default 1.
     pub concurrent: usize,
+    /// Threads OpenCV may use for one detection (it sets them process-wide, for
+    /// the gate's OpenCV work). With `concurrent` this bounds the detector's share
+    /// of the box: at most `concurrent × threads` cores. Default 1.
+    pub threads: u32,
     /// How long a job waits for one of the `concurrent` slots before it is dropped
     /// and counted, seconds (a lossless replay waits as long as it takes). The
     /// waiting is on the detector's thread: activity and events never wait.
@@ -131,8 +157,12 @@ impl Default for DetectorConfig {
         DetectorConfig {
             enabled: true,
             model: None,
+            installed: true,
             input_px: 640,
             input_channels: 3,
+            ssd_input_px: 300,
+            ssd_score_threshold: 0.5,
+            ssd_tile_px: 288,
             score_threshold: 0.4,
             nms_threshold: 0.45,
             hog_upscale: 1.5,
@@ -144,6 +174,7 @@ impl Default for DetectorConfig {
             crop_margin_px: 64,
             queue: 2,
             concurrent: 1,
+            threads: 1,
             slot_wait_s: 1.0,
         }
     }
@@ -187,6 +218,27 @@ impl DetectorConfig {
     /// Checks the `gate.detector.*` keys.
     fn validate(&self) -> Result<(), Invalid> {
         check_range("gate.detector.input_px", self.input_px as f64, 32.0, 4096.0)?;
+        check_range(
+            "gate.detector.ssd_input_px",
+            self.ssd_input_px as f64,
+            64.0,
+            2048.0,
+        )?;
+        check_range(
+            "gate.detector.ssd_score_threshold",
+            self.ssd_score_threshold as f64,
+            0.0,
+            1.0,
+        )?;
+        if self.ssd_tile_px != 0 && self.ssd_tile_px < 64 {
+            return Err(Invalid::new(
+                "gate.detector.ssd_tile_px",
+                format!(
+                    "expected 0 (no tiles) or at least 64, found {}",
+                    self.ssd_tile_px
+                ),
+            ));
+        }
         if !matches!(self.input_channels, 1 | 3) {
             return Err(Invalid::new(
                 "gate.detector.input_channels",
@@ -240,6 +292,7 @@ impl DetectorConfig {
             1.0,
             64.0,
         )?;
+        check_range("gate.detector.threads", self.threads as f64, 1.0, 256.0)?;
         check_range("gate.detector.slot_wait_s", self.slot_wait_s, 0.0, 60.0)
     }
 }

@@ -1,9 +1,15 @@
 //! Gate benchmark: the paper's hybrid scheme on vtest.avi, in one run.
 //!
-//! * **detect all**: the detector (HOG, as configured in `config/demo.toml`) on
+//! * **detect all**: the detector (as configured in `config/demo.toml`: the
+//!   network `cargo xtask setup` installed, HOG without one, as the gate picks) on
 //!   every frame, one thread — what a detector-only pipeline costs;
 //! * **hybrid**: the whole process group (`isochron replay`, release build) with the
 //!   detector gated by events — frames/s of the group and frames detected.
+//!
+//! Beside the frames/s ratio, the power proxy: CPU seconds per frame of the
+//! detector on every frame (this process's CPU time over the timed frames) against
+//! those of the whole hybrid group (the CPU time of every process of the replay,
+//! `getrusage(RUSAGE_CHILDREN)` once it has ended, over the frames it read).
 //!
 //! Also checks that gating missed no person-present interval: every PETS09 frame
 //! with people in it must lie inside an event.
@@ -22,7 +28,7 @@ use std::process::Command;
 use std::time::Instant;
 
 use isochron_config::Config;
-use isochron_gate::detector::{Detector, Region};
+use isochron_gate::detector::{Detector, INSTALLED_NETWORK, Region};
 use isochron_tests::{bin_dir, mjpg_writer, repo_root};
 use opencv::core::Size;
 use opencv::prelude::*;
@@ -89,14 +95,28 @@ fn read_frames(video: &Path, out: &Path, quick: bool) -> Result<(Frames, PathBuf
     Ok((Frames { grey, w, h }, path))
 }
 
-/// The detector on an even sample of `sample` frames: frames/s, frames timed and
-/// people found.
+/// CPU seconds (user + system) of this process (`RUSAGE_SELF`) or of its
+/// children that ended and were waited for (`RUSAGE_CHILDREN`).
+fn cpu_seconds(who: libc::c_int) -> f64 {
+    // SAFETY: `getrusage` writes one `rusage` into the zeroed value it is given.
+    let usage = unsafe {
+        let mut usage: libc::rusage = std::mem::zeroed();
+        libc::getrusage(who, &mut usage);
+        usage
+    };
+    let s = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    s(usage.ru_utime) + s(usage.ru_stime)
+}
+
+/// The detector on an even sample of `sample` frames: frames/s, frames timed,
+/// people found, and CPU seconds per frame.
 fn detect_all(
     detector: &mut Detector,
     frames: &Frames,
     sample: usize,
-) -> Result<(f64, usize, usize), Error> {
+) -> Result<(f64, usize, usize, f64), Error> {
     let step = (frames.grey.len() / sample).max(1);
+    let cpu0 = cpu_seconds(libc::RUSAGE_SELF);
     let t0 = Instant::now();
     let mut people = 0;
     let mut timed = 0;
@@ -104,7 +124,13 @@ fn detect_all(
         people += detector.detect(f, frames.w, frames.h, Region::WHOLE)?.len();
         timed += 1;
     }
-    Ok((timed as f64 / t0.elapsed().as_secs_f64(), timed, people))
+    let cpu = (cpu_seconds(libc::RUSAGE_SELF) - cpu0) / timed.max(1) as f64;
+    Ok((
+        timed as f64 / t0.elapsed().as_secs_f64(),
+        timed,
+        people,
+        cpu,
+    ))
 }
 
 /// What the group's `summary.json` says of a replay.
@@ -115,6 +141,8 @@ struct Hybrid {
     fps: f64,
     /// Frames the gated detector ran on.
     detected: u64,
+    /// CPU seconds of every process of the group.
+    cpu_s: f64,
 }
 
 /// Runs the whole group (`isochron replay`) on `video` into `out`.
@@ -126,6 +154,7 @@ fn run_hybrid(video: &Path, out: &Path, config_path: &Path) -> Result<Hybrid, Er
          builds the release ones; `cargo build --workspace --bins` the dev ones)",
         isochron.display()
     );
+    let cpu0 = cpu_seconds(libc::RUSAGE_CHILDREN);
     let status = Command::new(&isochron)
         .arg("replay")
         .arg(video)
@@ -150,6 +179,7 @@ fn run_hybrid(video: &Path, out: &Path, config_path: &Path) -> Result<Hybrid, Er
             .as_f64()
             .ok_or("summary: frames_per_s")?,
         detected: summary["gate"]["frames_detected"].as_u64().unwrap_or(0),
+        cpu_s: cpu_seconds(libc::RUSAGE_CHILDREN) - cpu0,
     })
 }
 
@@ -215,13 +245,26 @@ fn main() -> Result<(), Error> {
     // Detect all: decode every frame, time the detector on an even sample of them.
     let (frames, video) = read_frames(&root.join("data/vtest.avi"), &out, quick)?;
     let (w, h, total) = (frames.w, frames.h, frames.grey.len());
-    let mut detector = Detector::from_config(&config.config.gate.detector, &config.base_dir())?;
+    // The network the group's gate finds beside its binaries (this bench's own
+    // binary lies deeper, in `deps/`).
+    let mut detector_config = config.config.gate.detector.clone();
+    let installed = bin_dir()
+        .parent()
+        .map(|target| target.join("detector").join(INSTALLED_NETWORK));
+    if detector_config.model.is_none()
+        && detector_config.installed
+        && let Some(network) = installed.filter(|p| p.is_file())
+    {
+        detector_config.model = Some(network);
+    }
+    let mut detector = Detector::from_config(&detector_config, &config.base_dir())?;
     let sample = if quick {
         QUICK_DETECT_ALL_FRAMES
     } else {
         DETECT_ALL_FRAMES
     };
-    let (detect_all_fps, timed, people) = detect_all(&mut detector, &frames, sample)?;
+    let (detect_all_fps, timed, people, detect_cpu_per_frame) =
+        detect_all(&mut detector, &frames, sample)?;
 
     // Hybrid: the whole group on the whole video (the clip with `--quick`).
     let hybrid = run_hybrid(&video, &out, &config_path)?;
@@ -239,6 +282,8 @@ fn main() -> Result<(), Error> {
     let (present, missed) = missed_frames(&root, &events, total, quick)?;
 
     let speedup = hybrid_fps / detect_all_fps;
+    let hybrid_cpu_per_frame = hybrid.cpu_s / hybrid.frames.max(1) as f64;
+    let cpu_ratio = detect_cpu_per_frame / hybrid_cpu_per_frame.max(1e-9);
     println!(
         "gate benchmark on {}vtest.avi ({w}x{h}, {total} frames), detector: {}",
         if quick { "the start of " } else { "" },
@@ -261,11 +306,16 @@ fn main() -> Result<(), Error> {
         events.len()
     );
     println!(
+        "CPU per frame: detector on every frame {:.1} ms, hybrid group {:.2} ms (all processes): {cpu_ratio:.1}× less CPU (the paper's power proxy: 6.5× less power)",
+        detect_cpu_per_frame * 1e3,
+        hybrid_cpu_per_frame * 1e3
+    );
+    println!(
         "person-present frames outside any event: {missed} of {present} (missed intervals: {})",
         if missed == 0 { "none" } else { "SOME" }
     );
     println!(
-        "{{\"bench\":\"gate\",\"detect_all_fps\":{detect_all_fps:.2},\"hybrid_fps\":{hybrid_fps:.1},\"speedup\":{speedup:.1},\"detected_fraction\":{detected_fraction:.4}{}}}",
+        "{{\"bench\":\"gate\",\"detect_all_fps\":{detect_all_fps:.2},\"hybrid_fps\":{hybrid_fps:.1},\"speedup\":{speedup:.1},\"cpu_ratio\":{cpu_ratio:.1},\"detected_fraction\":{detected_fraction:.4}{}}}",
         if quick { ",\"quick\":true" } else { "" }
     );
     Ok(())

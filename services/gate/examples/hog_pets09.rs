@@ -65,6 +65,10 @@ impl Setting {
                 "k" => c.hog_scale_step = v.parse().ok()?,
                 "g" => c.hog_group_threshold = v.parse().ok()?,
                 "c" => s.crop = Some(v.parse().ok()?),
+                "m" => c.model = Some(v.into()),
+                "st" => c.ssd_score_threshold = v.parse().ok()?,
+                "si" => c.ssd_input_px = v.parse().ok()?,
+                "tp" => c.ssd_tile_px = v.parse().ok()?,
                 _ => return None,
             }
         }
@@ -81,6 +85,17 @@ impl Setting {
 
     fn label(&self) -> String {
         let c = &self.config;
+        if let Some(m) = &c.model {
+            return format!(
+                "{} st={} si={} tp={} {}",
+                m.file_name().unwrap_or_default().to_string_lossy(),
+                c.ssd_score_threshold,
+                c.ssd_input_px,
+                c.ssd_tile_px,
+                self.crop
+                    .map_or("whole".to_string(), |m| format!("crop={m}"))
+            );
+        }
         format!(
             "u={} t={} s={} k={} g={} {}",
             c.hog_upscale,

