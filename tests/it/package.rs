@@ -153,6 +153,9 @@ fn the_package_holds_the_site_and_installs_enabling_nothing() {
             "./usr/share/bash-completion/completions/isochron",
             "./usr/share/zsh/vendor-completions/_isochron",
             "./usr/share/fish/vendor_completions.d/isochron.fish",
+            // The people detector setup installed, where the gate finds it.
+            "./usr/share/isochron/detector/ssdlite-person.pb",
+            "./usr/share/isochron/detector/LICENSE.ssdlite-person",
         ]
         .map(String::from),
     );

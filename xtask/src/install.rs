@@ -126,6 +126,7 @@ pub(crate) fn lay_out(l: &Layout) -> anyhow::Result<()> {
     lay_out_binaries(l, &bin)?;
     lay_out_units(l, &bin, &units)?;
     lay_out_files(l, &doc)?;
+    lay_out_detector(l)?;
     lay_out_man_pages(l)?;
     lay_out_completions(l)
 }
@@ -222,6 +223,33 @@ fn lay_out_files(l: &Layout, doc: &Path) -> anyhow::Result<()> {
             std::fs::copy(&from, l.under(&doc.join("docs").join(name)))
                 .with_context(|| format!("installing {}", from.display()))?;
         }
+    }
+    Ok(())
+}
+
+/// The people detector `cargo xtask setup` installed (`target/detector/`: the
+/// network and its licence) into `share/isochron/detector/`, where the gate
+/// finds it (`gate.detector.installed`); without one, a line says the site will
+/// run HOG.
+fn lay_out_detector(l: &Layout) -> anyhow::Result<()> {
+    let from = l.root.join("target/detector");
+    let files: Vec<PathBuf> = match std::fs::read_dir(&from) {
+        Ok(entries) => entries.filter_map(|e| Some(e.ok()?.path())).collect(),
+        Err(_) => Vec::new(),
+    };
+    if files.is_empty() {
+        eprintln!(
+            "xtask: no people detector in {} (cargo xtask setup installs it): the site will run HOG",
+            from.display()
+        );
+        return Ok(());
+    }
+    let to = l.under(&l.prefix.join("share/isochron/detector"));
+    std::fs::create_dir_all(&to)?;
+    for file in files {
+        let name = file.file_name().context("file name")?;
+        std::fs::copy(&file, to.join(name))
+            .with_context(|| format!("installing {}", file.display()))?;
     }
     Ok(())
 }
