@@ -98,6 +98,7 @@ mod operations;
 mod package;
 mod pipeline;
 mod presence;
+mod rclpy;
 mod reliability;
 mod scale;
 mod systemd;
