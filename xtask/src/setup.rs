@@ -70,7 +70,7 @@ fn missing_packages() -> Vec<&'static str> {
 }
 
 /// Installs Debian `packages` (after `apt-get update`), saying so.
-pub(crate) fn apt_install(packages: &[&str]) -> anyhow::Result<()> {
+fn apt_install(packages: &[&str]) -> anyhow::Result<()> {
     eprintln!("xtask: installing {}", packages.join(" "));
     run(&mut apt_get(&["update", "-qq"]))?;
     let mut args = vec!["install", "-y", "-qq", "--no-install-recommends"];
@@ -85,7 +85,7 @@ pub(crate) fn setup(root: &Path) -> anyhow::Result<()> {
     }
     fetch_vtest(root)?;
     ros2_venv(root)?;
-    crate::setup_ros2::rclpy_venvs(root)?;
+    crate::setup_ros2::rclpy_venvs(root, apt_install)?;
     node_peers(root)?;
     fastdds_peer(root)?;
     fetch_forecast_data(root)

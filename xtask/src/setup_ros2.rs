@@ -23,7 +23,9 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 
 use crate::output;
-use crate::setup::apt_install;
+
+/// Installs Debian packages (`setup`'s apt-get).
+type AptInstall = fn(&[&str]) -> anyhow::Result<()>;
 
 /// The ROS 2 releases of the rclpy peers; `tests/ros2/rclpy/<release>.txt` pins
 /// every distribution of its venv.
@@ -43,15 +45,16 @@ const MSG_PACKAGES: [(&str, &str); 3] = [
 const READY: &str = "import rclpy, nav_msgs.msg, geometry_msgs.msg, visualization_msgs.msg, \
                      map_msgs.msg, nav2_msgs.msg, isochron_msgs.srv";
 
-/// Makes (or checks) the venv of every release in [`RELEASES`].
-pub(crate) fn rclpy_venvs(root: &Path) -> anyhow::Result<()> {
+/// Makes (or checks) the venv of every release in [`RELEASES`]; `apt_install`
+/// brings cmake (and Debian's Python headers) when they are missing.
+pub(crate) fn rclpy_venvs(root: &Path, apt_install: AptInstall) -> anyhow::Result<()> {
     for release in RELEASES {
-        rclpy_venv(root, release)?;
+        rclpy_venv(root, release, apt_install)?;
     }
     Ok(())
 }
 
-fn rclpy_venv(root: &Path, release: &str) -> anyhow::Result<()> {
+fn rclpy_venv(root: &Path, release: &str, apt_install: AptInstall) -> anyhow::Result<()> {
     let venv = root.join(format!("target/rclpy-{release}"));
     let python = venv.join("bin/python3");
     let pins_path = root.join(format!("tests/ros2/rclpy/{release}.txt"));
@@ -91,7 +94,7 @@ fn rclpy_venv(root: &Path, release: &str) -> anyhow::Result<()> {
                 .arg(&pins_path),
             &venv.join("pip.log"),
         )?;
-        rewrite_builder_paths(&venv, &python)?;
+        rewrite_builder_paths(&venv, &python, apt_install)?;
         std::fs::write(&wheels_stamp, &wheels)?;
     }
     if !has_cmake() {
@@ -183,7 +186,11 @@ fn quiet(cmd: &mut Command, log: &Path) -> anyhow::Result<()> {
 /// their Python typesupport targets name the wheel builder's interpreter
 /// (`/opt/python/cpXY-cpXY/include/pythonX.Y` and its NumPy), which CMake refuses
 /// when they do not exist.
-fn rewrite_builder_paths(venv: &Path, python: &Path) -> anyhow::Result<()> {
+fn rewrite_builder_paths(
+    venv: &Path,
+    python: &Path,
+    apt_install: AptInstall,
+) -> anyhow::Result<()> {
     let paths = output(Command::new(python).args([
         "-c",
         "import sysconfig, numpy; print(sysconfig.get_paths()['include']); print(numpy.get_include())",
