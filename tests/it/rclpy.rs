@@ -239,7 +239,8 @@ fn exchange(release: &str, netns: Option<&NetnsPair>) {
                 .is_some_and(|s| (start_s + 15 * 60..start_s + 3600).contains(&s))
     };
     // The updates are volatile: the node sees every change only once the bridge
-    // knows its readers. It knows the bridge's writers first.
+    // knows its readers (its status line counts the grid's, discovered with the
+    // rest). The node knows the bridge's writers first.
     wait_until(
         "the bridge's publishers in the node's graph",
         &mut node,
@@ -248,7 +249,11 @@ fn exchange(release: &str, netns: Option<&NetnsPair>) {
         Duration::from_secs(30),
         |msgs| msgs.iter().filter(|m| m["kind"] == "endpoints").count() == OFFERED.len(),
     );
-    std::thread::sleep(Duration::from_secs(1));
+    assert!(
+        bridge.wait_for_stderr("ros_subscribers=1", Duration::from_secs(30)),
+        "the bridge never matched the node's grid reader: {}",
+        bridge.stderr()
+    );
     let t0 = Instant::now();
     wait_until(
         &format!("every topic from rclpy {release} ({mode})"),
