@@ -29,7 +29,7 @@ const BLOCKS: usize = 20 * 15;
 /// The camera's view of the floor, floor → image (homogeneous), with perspective:
 /// `u = (80x + 10y + 20) / (0.05y + 1)`, `v = (400 − 60y) / (0.05y + 1)`.
 /// The test knows it; the bridge only gets point pairs from it.
-fn floor_to_image(p: [f64; 2]) -> [f64; 2] {
+pub(crate) fn floor_to_image(p: [f64; 2]) -> [f64; 2] {
     let w = 0.05 * p[1] + 1.0;
     [
         (80.0 * p[0] + 10.0 * p[1] + 20.0) / w,

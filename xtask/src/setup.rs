@@ -85,6 +85,7 @@ pub(crate) fn setup(root: &Path) -> anyhow::Result<()> {
     }
     fetch_vtest(root)?;
     ros2_venv(root)?;
+    crate::setup_ros2::rclpy_venvs(root, apt_install)?;
     node_peers(root)?;
     fastdds_peer(root)?;
     fetch_forecast_data(root)?;

@@ -44,7 +44,7 @@ use crate::{
     cache_change::CacheChange,
     duration::Duration,
     entity::RTPSEntity,
-    guid::{EntityId, GuidPrefix, GUID},
+    guid::{EntityId, EntityKind, GuidPrefix, GUID},
     locator::Locator,
     sequence_number::{FragmentNumber, SequenceNumber},
     time::Timestamp,
@@ -2077,6 +2077,22 @@ impl Writer {
                                                 // Capture the interface set once; resolution consults current observations.
     let multicast_ifaces = self.udp_sender.multicast_interfaces();
     let selector = DefaultRouteSelector::new(self.prefer_loopback_same_host);
+    // A late joiner of a no-key (one instance) transient-local writer that keeps
+    // the last `depth` samples gets those and no older one still in the buffer
+    // (awaiting another reader's acknowledgement or the next cache cleaning):
+    // they are irrelevant to it, as to a volatile reader.
+    let history_skip = match self.qos().history {
+      Some(History::KeepLast { depth })
+        if !is_volatile
+          && depth > 0
+          && self.my_guid.entity_id.entity_kind == EntityKind::WRITER_NO_KEY_USER_DEFINED =>
+      {
+        let last = self.send_buffer.last_change_sequence_number();
+        Some(last - SequenceNumber::from(i64::from(depth)))
+          .filter(|&skip| skip >= SequenceNumber::new(1))
+      }
+      _ => None,
+    };
     self
       .readers
       .entry(updated_reader_proxy.remote_reader_guid)
@@ -2102,6 +2118,8 @@ impl Writer {
           // before matching with this reader. Therefore we set the reader as pending GAP
           // for all existing sequence numbers
           new_proxy.set_pending_gap_up_to(self.send_buffer.last_change_sequence_number());
+        } else if let Some(skip) = history_skip {
+          new_proxy.set_pending_gap_up_to(skip);
         }
         new_proxy.resolve_send_route(
           &self.interface_observations.borrow(),
