@@ -949,7 +949,10 @@ fn a_running_view_is_a_row_of_isochron_status() {
     assert_eq!(row["info"], "sink=live", "{row}");
     assert!(row["counters"]["published"].as_f64() > Some(0.0), "{row}");
     let detail = row["detail"].as_str().unwrap();
-    assert!(detail.starts_with("published=") && detail.ends_with(" sink=live"), "{row}");
+    assert!(
+        detail.starts_with("published=") && detail.ends_with(" sink=live"),
+        "{row}"
+    );
     assert!(row["sent"].as_u64() > Some(0), "it published: {row}");
 
     // Stopped, it has no row any more.

@@ -53,6 +53,7 @@ mod install;
 mod setup;
 mod setup_ros2;
 mod structure;
+mod wheel;
 
 use ci::{BENCHES, bench, quick_bench};
 

