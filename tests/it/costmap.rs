@@ -515,6 +515,29 @@ pub(crate) fn write_store(site: &TestSite) {
     }
 }
 
+/// The forecast for 11:55 from the store of [`write_store`], computed from the
+/// true mapping: west blocks 80, the rest of the view 20, -1 unseen.
+pub(crate) fn expected_forecast() -> Vec<i64> {
+    let (x0, y0, res, w, h) = GRID;
+    let mut cells = Vec::new();
+    for j in 0..h {
+        for i in 0..w {
+            let c = [x0 + (i as f64 + 0.5) * res, y0 + (j as f64 + 0.5) * res];
+            let [u, v] = floor_to_image(c);
+            cells.push(
+                if !(0.0..320.0).contains(&u) || !(0.0..240.0).contains(&v) {
+                    -1
+                } else if u < 160.0 {
+                    80
+                } else {
+                    20
+                },
+            );
+        }
+    }
+    cells
+}
+
 /// The west and east halves of the camera's view on the floor, as cost map segments.
 pub(crate) const HALVES: &str = r#"[[costmap.segment]]
 name = "west"
@@ -1106,23 +1129,7 @@ fn a_ros2_peer_gets_the_forecast_of_the_long_term_model() {
         &["--forecast".into(), "/isochron/activity_forecast".into()],
     );
     // Independently: each cell's block through the true mapping.
-    let (x0, y0, res, w, h) = GRID;
-    let mut expected = Vec::new();
-    for j in 0..h {
-        for i in 0..w {
-            let c = [x0 + (i as f64 + 0.5) * res, y0 + (j as f64 + 0.5) * res];
-            let [u, v] = floor_to_image(c);
-            expected.push(
-                if !(0.0..320.0).contains(&u) || !(0.0..240.0).contains(&v) {
-                    -1
-                } else if u < 160.0 {
-                    80
-                } else {
-                    20
-                },
-            );
-        }
-    }
+    let expected = expected_forecast();
     let start_ns = parse_rfc3339(start).unwrap();
     // Before the first activity arrives the bridge forecasts from the wall
     // clock (no camera is live); those forecasts are not the ones asked for here,

@@ -24,8 +24,8 @@ use isochron_tests::{NetnsPair, Proc, TestSite, bin, json_list, repo_root, setup
 use serde_json::{Value, json};
 
 use crate::costmap::{
-    GRID, HALVES, HOT_BLOCK, HOT_S1, Source, camera_toml, costmap_toml, data, dds_domain,
-    floor_to_image, held_grid, last, messages, send_person, wait_until, write_store,
+    HALVES, HOT_BLOCK, HOT_S1, Source, camera_toml, costmap_toml, data, dds_domain,
+    expected_forecast, held_grid, last, messages, send_person, wait_until, write_store,
 };
 
 /// The grid topic of the test sites.
@@ -176,29 +176,6 @@ fn start_bridge(site: &TestSite, netns: Option<&NetnsPair>) -> (Ipc, Source, Pro
     };
     source.wait_for_subscriber(&bridge);
     (ipc, source, bridge)
-}
-
-/// The forecast for 11:55 from the store of [`write_store`], computed from the
-/// true mapping: west blocks 80, the rest of the view 20, -1 unseen.
-fn expected_forecast() -> Vec<i64> {
-    let (x0, y0, res, w, h) = GRID;
-    let mut cells = Vec::new();
-    for j in 0..h {
-        for i in 0..w {
-            let c = [x0 + (i as f64 + 0.5) * res, y0 + (j as f64 + 0.5) * res];
-            let [u, v] = floor_to_image(c);
-            cells.push(
-                if !(0.0..320.0).contains(&u) || !(0.0..240.0).contains(&v) {
-                    -1
-                } else if u < 160.0 {
-                    80
-                } else {
-                    20
-                },
-            );
-        }
-    }
-    cells
 }
 
 /// The whole exchange with the rclpy node of `release`; `netns` for SUBNET

@@ -390,6 +390,11 @@ fn shortfall_cause(runs: &[Run], mode: Mode) -> Option<String> {
 
 fn main() {
     let opts = bench_options(parse_args);
+    assert_eq!(
+        STAGES.to_vec(),
+        StageKind::pipeline().collect::<Vec<_>>(),
+        "STAGES is the stage table's pipeline"
+    );
     // Fail early, with what to do, when something is missing.
     for stage in STAGES {
         bin(&format!("isochron-{stage}"));
