@@ -255,11 +255,10 @@ fn forge(
 }
 
 /// On a link without DDS Security (loopback), the first sample of an imported
-/// camera comes from a forger with another grid (640x480 in 16-px blocks, not
+/// camera comes from a forger with another grid (160x128 in 16-px blocks, not
 /// the camera's 320x240): it is refused, as the camera's `[[camera]]`
-/// `width`/`height` give its grid (required without `link.security_dir`; the
-/// reader's sample bound follows from it, so the forged 43 KB sample is not even
-/// reassembled), nothing is pinned and the real box's activity arrives after it.
+/// `width`/`height` give its grid (required without `link.security_dir`),
+/// nothing is pinned and the real box's activity arrives after it.
 #[test]
 fn a_forged_first_sample_does_not_pin_an_imported_camera_grid() {
     python();
@@ -271,13 +270,17 @@ fn a_forged_first_sample_does_not_pin_an_imported_camera_grid() {
         sent["matched"].as_u64() >= Some(1) && sent["count"].as_u64() >= Some(10),
         "the forger reached no reader: {sent}"
     );
-    // Refused by the reader's bound (the configured grid's largest message)
-    // before it is even reassembled, or else by the grid check.
     let log = lab.link_b.stderr();
     assert!(
-        log.contains("exceeds the reader's max_sample_size")
-            || log.contains("as camera.width/height and motion.block_px give"),
+        log.contains("rejected activity of cam01 from box \"evil\"")
+            && log.contains("as camera.width/height and motion.block_px give"),
         "{log}"
+    );
+    let rejected = lab.link_row()["rejected"].as_u64().unwrap();
+    assert!(rejected >= 1, "nothing counted as rejected");
+    eprintln!(
+        "MEASURED forged first sample of another grid: {} sent, link B rejected {rejected}, nothing pinned",
+        sent["count"]
     );
     assert!(!log.contains("pinned"), "{log}");
     lab.still_serving("a forged first sample");
