@@ -38,7 +38,7 @@ use anyhow::{Context, bail};
 
 use crate::common::{Subcommands, load_config};
 
-/// Make the DDS Security keystore of the site's links (an SROS2-style layout).
+/// Make the DDS Security keystore of the site: its links, costmap bridge and robots (an SROS2-style layout).
 pub type Args = Subcommands<KeystoreCommand>;
 
 /// `isochron keystore` subcommands.

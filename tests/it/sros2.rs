@@ -242,3 +242,25 @@ fn an_open_bridge_says_so_at_start() {
         "{line}"
     );
 }
+
+/// A `costmap.security_dir` without the enclave's files stops the bridge at
+/// start (exit 78) with one line naming the key and the missing file.
+#[test]
+fn a_bridge_enclave_without_its_files_is_a_config_error() {
+    let empty = tempfile::tempdir().unwrap();
+    let site = costmap_site(
+        "sros2-missing",
+        dds_domain(),
+        &format!("security_dir = \"{}\"\n", empty.path().display()),
+    );
+    let done = site
+        .spawn("isochron-costmap", &[])
+        .finish(Duration::from_secs(30));
+    assert_eq!(done.status.code(), Some(78), "{}", done.stderr);
+    assert!(
+        done.stderr.contains("costmap.security_dir")
+            && done.stderr.contains("identity_ca.cert.pem is missing"),
+        "{}",
+        done.stderr
+    );
+}

@@ -414,3 +414,19 @@ fn an_unauthenticated_link_needs_the_grid_of_each_imported_camera() {
     ))
     .unwrap();
 }
+
+#[test]
+fn the_bridge_enclave_is_a_directory_when_given() {
+    let c = parse(&format!(
+        "{GOOD}\n[costmap]\nsecurity_dir = \"keys/enclaves/costmap\"\n"
+    ))
+    .unwrap();
+    assert_eq!(
+        c.costmap.security_dir.as_deref(),
+        Some("keys/enclaves/costmap")
+    );
+    assert_eq!(parse(GOOD).unwrap().costmap.security_dir, None);
+    let err = parse(&format!("{GOOD}\n[costmap]\nsecurity_dir = \" \"\n")).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("costmap.security_dir"), "{err}");
+    assert!(err.message.contains("isochron keystore bridge"), "{err}");
+}
