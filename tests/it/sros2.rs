@@ -143,7 +143,8 @@ fn a_secured_bridge_reaches_only_robots_of_its_keystore() {
         "{}",
         bridge.stderr()
     );
-    let mut spoof = spoofer(domain, 60);
+    // Long enough for all three robots on a loaded machine; stopped at the end.
+    let mut spoof = spoofer(domain, 300);
 
     let robot = Robot::run(
         domain,
