@@ -15,6 +15,21 @@
 //!   the CA certificate as identity and permissions CA, the governance, and its
 //!   signed permissions: publish the topics of the cameras it exports, subscribe
 //!   to those of the cameras it imports, on its domain, nothing else.
+//! * `bridge DIR --config site.toml`: the enclave of that box's costmap bridge
+//!   (`DIR/enclaves/<box_id>_costmap`, or `costmap` without a `link.box_id`; the
+//!   directory `costmap.security_dir` names): publish its grid, updates, people,
+//!   markers, speed filter, mask and forecast topics (`rt/<topic>`), read its
+//!   planning services' requests (`rq/<service>Request`) and write their replies
+//!   (`rr/<service>Reply`), on `costmap.ros_domain_id`.
+//! * `robot DIR NAME --config site.toml`: the enclave of robot NAME
+//!   (`DIR/enclaves/robots/NAME`, subject `CN=NAME,O=isochron`), for its ROS 2
+//!   node (`ROS_SECURITY_ENCLAVE`-style, the same six files): read the bridge's
+//!   topics and the services' replies, write their requests; nothing else of the
+//!   bridge's — a robot cannot publish a grid or answer a plan.
+//!
+//! One CA and one governance serve the links and the robots: a box, a bridge or
+//! a robot of another keystore is not authenticated, and each is held to its
+//! own permissions.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
@@ -23,7 +38,7 @@ use anyhow::{Context, bail};
 
 use crate::common::{Subcommands, load_config};
 
-/// Make the DDS Security keystore of the site's links (an SROS2-style layout).
+/// Make the DDS Security keystore of the site: its links, costmap bridge and robots (an SROS2-style layout).
 pub type Args = Subcommands<KeystoreCommand>;
 
 /// `isochron keystore` subcommands.
@@ -47,6 +62,35 @@ pub enum KeystoreCommand {
         #[arg(long, default_value_t = 3650)]
         days: u32,
     },
+    /// Make the enclave of the costmap bridge a config describes (for
+    /// `costmap.security_dir`): publish its topics, serve its planning services.
+    Bridge {
+        /// The keystore directory (made by `isochron keystore init`).
+        dir: PathBuf,
+        /// The box's site configuration (default: $ISOCHRON_CONFIG or
+        /// /etc/isochron/isochron.toml).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Days the certificate and permissions are valid.
+        #[arg(long, default_value_t = 3650)]
+        days: u32,
+    },
+    /// Make the enclave of a robot: read the bridge's topics (of the config's
+    /// `[costmap]`), call its planning services.
+    Robot {
+        /// The keystore directory (made by `isochron keystore init`).
+        dir: PathBuf,
+        /// The robot's name (letters, digits, '_'): its certificate's common name
+        /// and its enclave `DIR/enclaves/robots/NAME`.
+        name: String,
+        /// The site configuration whose bridge the robot uses (default:
+        /// $ISOCHRON_CONFIG or /etc/isochron/isochron.toml).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Days the certificate and permissions are valid.
+        #[arg(long, default_value_t = 3650)]
+        days: u32,
+    },
 }
 
 /// Runs `isochron keystore`.
@@ -63,21 +107,104 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 );
             }
             let domain = link.ros_domain_id.map_or_else(env_domain, Ok)?;
-            let enclave = enclave(
-                &dir,
-                &Grant {
-                    box_id: &link.box_id,
-                    domain,
-                    namespace: link.namespace(),
-                    export: &link.export,
-                    import: &link.import,
-                },
-                days,
-            )?;
+            let grant = Grant {
+                subject: &link.box_id,
+                domain,
+                publish: link_topics(link.namespace(), &link.export),
+                subscribe: link_topics(link.namespace(), &link.import),
+            };
+            let enclave = enclave(&dir, Path::new(&link.box_id), &grant, days)?;
+            println!("{}", enclave.display());
+        }
+        KeystoreCommand::Bridge { dir, config, days } => {
+            let loaded = load_config(config)?;
+            let name = bridge_name(&loaded.config.link.box_id);
+            let (topics, requests, replies) = bridge_names(&loaded.config.costmap);
+            let grant = Grant {
+                subject: &name,
+                domain: loaded
+                    .config
+                    .costmap
+                    .ros_domain_id
+                    .map_or_else(env_domain, Ok)?,
+                publish: with_graph(topics.into_iter().chain(replies)),
+                subscribe: with_graph(requests),
+            };
+            let enclave = enclave(&dir, Path::new(&name), &grant, days)?;
+            println!("{}", enclave.display());
+        }
+        KeystoreCommand::Robot {
+            dir,
+            name,
+            config,
+            days,
+        } => {
+            if !isochron_config::is_ros_token(&name) || name.len() > 64 {
+                bail!(
+                    "robot name \"{name}\": expected up to 64 letters, digits and '_', not starting with a digit"
+                );
+            }
+            let loaded = load_config(config)?;
+            let (topics, requests, replies) = bridge_names(&loaded.config.costmap);
+            let grant = Grant {
+                subject: &name,
+                domain: loaded
+                    .config
+                    .costmap
+                    .ros_domain_id
+                    .map_or_else(env_domain, Ok)?,
+                publish: with_graph(requests),
+                subscribe: with_graph(topics.into_iter().chain(replies)),
+            };
+            let enclave = enclave(&dir, &Path::new("robots").join(&name), &grant, days)?;
             println!("{}", enclave.display());
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The bridge's enclave (and subject) name: `<box_id>_costmap`, or `costmap` on a
+/// site without `link.box_id`.
+pub fn bridge_name(box_id: &str) -> String {
+    if box_id.is_empty() {
+        "costmap".to_string()
+    } else {
+        format!("{box_id}_costmap")
+    }
+}
+
+/// The bridge's DDS names: its topics (`rt/...`), its services' request topics
+/// (`rq/<service>Request`) and reply topics (`rr/<service>Reply`).
+fn bridge_names(c: &isochron_config::CostmapConfig) -> (Vec<String>, Vec<String>, Vec<String>) {
+    let absolute = |n: &str| {
+        if n.starts_with('/') {
+            n.to_string()
+        } else {
+            format!("/{n}")
+        }
+    };
+    let topics = [
+        c.topic.clone(),
+        c.updates_topic(),
+        c.people_topic.clone(),
+        c.markers_topic.clone(),
+        c.speed_filter_info_topic.clone(),
+        c.speed_mask_topic.clone(),
+        c.forecast_topic.clone(),
+    ]
+    .iter()
+    .map(|t| format!("rt{}", absolute(t)))
+    .collect();
+    let services = [&c.plan_now_service, &c.plan_offline_service];
+    let requests = services
+        .iter()
+        .map(|s| format!("rq{}Request", absolute(s)))
+        .collect();
+    let replies = services
+        .iter()
+        .map(|s| format!("rr{}Reply", absolute(s)))
+        .collect();
+    (topics, requests, replies)
 }
 
 /// The domain the link joins when its config names none: `$ROS_DOMAIN_ID`, else 0.
@@ -216,18 +343,16 @@ fn governance() -> String {
     )
 }
 
-/// What one box may do on the link.
+/// What one participant (a box's link, a bridge, a robot) may do.
 pub struct Grant<'a> {
-    /// `link.box_id`: the subject's common name.
-    pub box_id: &'a str,
+    /// The subject's common name (`link.box_id`, the bridge's or robot's name).
+    pub subject: &'a str,
     /// The DDS domain.
     pub domain: u16,
-    /// `link.namespace`.
-    pub namespace: &'a str,
-    /// Cameras whose topics it publishes.
-    pub export: &'a [String],
-    /// Cameras whose topics it reads.
-    pub import: &'a [String],
+    /// DDS topic names (or `*` patterns) it may publish.
+    pub publish: Vec<String>,
+    /// DDS topic names (or `*` patterns) it may subscribe to.
+    pub subscribe: Vec<String>,
 }
 
 /// The topics every ROS 2 node (ros2-client) creates: the graph
@@ -241,11 +366,22 @@ const ROS_GRAPH_TOPICS: [&str; 4] = [
 
 /// The DDS topic names of a box's cameras, `rt<namespace>/<camera>/*`, and the
 /// ROS 2 graph's topics.
-fn topics(namespace: &str, cameras: &[String]) -> String {
-    cameras
-        .iter()
-        .map(|c| format!("rt{namespace}/{c}/*"))
+fn link_topics(namespace: &str, cameras: &[String]) -> Vec<String> {
+    with_graph(cameras.iter().map(|c| format!("rt{namespace}/{c}/*")))
+}
+
+/// `names` and the ROS 2 graph's topics.
+fn with_graph(names: impl IntoIterator<Item = String>) -> Vec<String> {
+    names
+        .into_iter()
         .chain(ROS_GRAPH_TOPICS.map(String::from))
+        .collect()
+}
+
+/// `<topic>` elements of `names`.
+fn topics(names: &[String]) -> String {
+    names
+        .iter()
         .map(|t| format!("<topic>{t}</topic>"))
         .collect()
 }
@@ -259,8 +395,8 @@ fn permissions(grant: &Grant, days: u32) -> String {
         r#"<?xml version="1.0" encoding="UTF-8"?>
 <dds xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" xsi:noNamespaceSchemaLocation="http://www.omg.org/spec/DDS-Security/20170901/omg_shared_ca_permissions.xsd">
   <permissions>
-    <grant name="{box}">
-      <subject_name>CN={box},O={ORGANISATION}</subject_name>
+    <grant name="{subject}">
+      <subject_name>CN={subject},O={ORGANISATION}</subject_name>
       <validity><not_before>{from}</not_before><not_after>{until}</not_after></validity>
       <allow_rule>
         <domains><id>{domain}</id></domains>
@@ -272,17 +408,17 @@ fn permissions(grant: &Grant, days: u32) -> String {
   </permissions>
 </dds>
 "#,
-        box = grant.box_id,
+        subject = grant.subject,
         from = fmt(now - jiff::SignedDuration::from_hours(1)),
         until = fmt(until),
         domain = grant.domain,
-        publish = topics(grant.namespace, grant.export),
-        subscribe = topics(grant.namespace, grant.import),
+        publish = topics(&grant.publish),
+        subscribe = topics(&grant.subscribe),
     )
 }
 
-/// Makes `DIR/enclaves/<box_id>/` for `grant`; returns it.
-pub fn enclave(dir: &Path, grant: &Grant, days: u32) -> anyhow::Result<PathBuf> {
+/// Makes the enclave `DIR/enclaves/<name>/` for `grant`; returns it.
+pub fn enclave(dir: &Path, name: &Path, grant: &Grant, days: u32) -> anyhow::Result<PathBuf> {
     let ca_key = dir.join("private/ca.key.pem");
     let ca_cert = dir.join("public/ca.cert.pem");
     let governance = dir.join("enclaves/governance.p7s");
@@ -295,7 +431,7 @@ pub fn enclave(dir: &Path, grant: &Grant, days: u32) -> anyhow::Result<PathBuf> 
             );
         }
     }
-    let out = dir.join("enclaves").join(grant.box_id);
+    let out = dir.join("enclaves").join(name);
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     for name in ["identity_ca.cert.pem", "permissions_ca.cert.pem"] {
         std::fs::copy(&ca_cert, out.join(name))
@@ -306,7 +442,7 @@ pub fn enclave(dir: &Path, grant: &Grant, days: u32) -> anyhow::Result<PathBuf> 
     let request = out.join("cert.csr.pem");
     new_key(
         (&out.join("key.pem"), &request),
-        &format!("/O={ORGANISATION}/CN={}", grant.box_id),
+        &format!("/O={ORGANISATION}/CN={}", grant.subject),
         &[],
     )?;
     let serial = format!(

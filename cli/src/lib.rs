@@ -64,7 +64,7 @@ enum Command {
     View(view::Args),
     /// Record the site's streams into an MCAP file (opens in Foxglove).
     Record(record::Args),
-    /// Make the DDS Security keystore of the site's links (SROS2 layout, openssl).
+    /// Make the DDS Security keystore of the site: links, costmap bridge, robots (SROS2 layout, openssl).
     Keystore(keystore::Args),
 }
 

@@ -145,7 +145,7 @@ fn site_body(cameras: &[String], link_domain: u16, bridge_domain: u16) -> String
             )
         };
         body += &format!(
-            "[[camera]]\nid = \"{id}\"\nsource = \"remote\"\nfloor_points = [\n{}{}{}{}{}]\n\n",
+            "[[camera]]\nid = \"{id}\"\nsource = \"remote\"\nwidth = {w}\nheight = {h}\nfloor_points = [\n{}{}{}{}{}]\n\n",
             p(0, 0),
             p(w, 0),
             p(w, h),

@@ -74,6 +74,20 @@ pub(crate) fn netns_pair(subnet: u8) -> Option<NetnsPair> {
 
 /// The camera table, with floor points taken from [`floor_to_image`] at 5 floor
 /// positions (so the bridge fits by least squares).
+/// [`camera_toml`] with the camera's `width` and `height` (the test sources'
+/// [`FRAME`]): a box that imports it over a link without DDS Security must
+/// configure its grid (`link.security_dir` absent).
+pub(crate) fn sized_camera_toml() -> String {
+    camera_toml().replacen(
+        "source = \"unused.avi\"\n",
+        &format!(
+            "source = \"unused.avi\"\nwidth = {}\nheight = {}\n",
+            FRAME.0, FRAME.1
+        ),
+        1,
+    )
+}
+
 pub(crate) fn camera_toml() -> String {
     let floor = [[0.0, 2.5], [3.5, 2.5], [4.0, 6.0], [-0.5, 6.0], [1.5, 4.0]];
     let pairs: Vec<String> = floor

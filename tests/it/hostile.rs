@@ -18,7 +18,7 @@ use serde_json::Value;
 
 use crate::costmap::{
     HOT_BLOCK, HOT_S1, Source, camera_toml, costmap_toml, dds_domain, expected_cells, held_grid,
-    listener_with, messages, netns_pair, python,
+    listener_with, messages, netns_pair, python, sized_camera_toml,
 };
 
 const START: &str = "2026-03-02T11:00:00Z";
@@ -46,6 +46,16 @@ impl Lab {
     /// Starts both boxes; B's config starts with `b_sections`, and ends its
     /// `[costmap]` with `costmap_extra` and its `[link]` with `b_link_extra`.
     fn new(name: &str, b_sections: &str, costmap_extra: &str, b_link_extra: &str) -> Lab {
+        Lab::start(name, (b_sections, costmap_extra, b_link_extra), |_| {})
+    }
+
+    /// [`Lab::new`], running `before_a(link_domain)` once B's link and bridge
+    /// run and before A's link starts (so nothing of A has reached B yet).
+    fn start(
+        name: &str,
+        (b_sections, costmap_extra, b_link_extra): (&str, &str, &str),
+        before_a: impl FnOnce(u16),
+    ) -> Lab {
         let (link_domain, bridge_domain) = (dds_domain(), dds_domain());
         let link = |box_id: &str, key: &str, extra: &str| {
             format!(
@@ -60,18 +70,19 @@ impl Lab {
             &format!("{name}-b"),
             &format!(
                 "{b_sections}{}{}{}",
-                camera_toml(),
+                sized_camera_toml(),
                 costmap_toml(bridge_domain, costmap_extra),
                 link("box_b", "import", b_link_extra)
             ),
         );
         let ipc_a = site_a.ipc("source");
         let source = Source::new(&ipc_a, START);
-        let link_a = site_a.spawn("isochron-link", &[]);
-        source.wait_for_subscriber(&link_a);
         let link_b = site_b.spawn("isochron-link", &[]);
         let bridge = site_b.spawn("isochron-costmap", &[]);
         let listener = listener_with(bridge_domain, 300, &["--updates".into()]);
+        before_a(link_domain);
+        let link_a = site_a.spawn("isochron-link", &[]);
+        source.wait_for_subscriber(&link_a);
         let mut lab = Lab {
             link_domain,
             bridge_domain,
@@ -172,35 +183,7 @@ impl Lab {
     /// Runs the forger (`--forge kind`, `seconds`) against B's link while A's
     /// feed goes on; its JSON summary.
     fn forge(&mut self, kind: &str, seconds: u32, extra: &[&str]) -> Value {
-        let mut args = vec![
-            repo_root()
-                .join("tests/ros2/link_forger.py")
-                .display()
-                .to_string(),
-            "--domain".into(),
-            self.link_domain.to_string(),
-            "--forge".into(),
-            kind.into(),
-            "--layout-version".into(),
-            LAYOUT_VERSION.to_string(),
-            "--seconds".into(),
-            seconds.to_string(),
-        ];
-        args.extend(extra.iter().map(|s| s.to_string()));
-        let mut forger = Proc::spawn(&python(), &args);
-        let end = Instant::now() + Duration::from_secs(seconds as u64 + 30);
-        while forger.wait(Duration::ZERO).is_none() {
-            assert!(Instant::now() < end, "the forger did not finish");
-            self.feed();
-            std::thread::sleep(Duration::from_millis(100));
-        }
-        let out = forger.stdout();
-        serde_json::from_str(out.lines().last().unwrap_or("")).unwrap_or_else(|e| {
-            panic!(
-                "link_forger.py --forge {kind}: {e}: {out}\n{}",
-                forger.stderr()
-            )
-        })
+        forge(self.link_domain, (kind, seconds, extra), || self.feed())
     }
 
     /// B's link's status row (`isochron status --json` on B).
@@ -231,6 +214,76 @@ impl Lab {
             );
         }
     }
+}
+
+/// Runs the forger (`--forge kind` for `seconds`, with `extra` arguments) on
+/// `domain`, calling `meanwhile` every 100 ms until it ends; its JSON summary.
+fn forge(
+    domain: u16,
+    (kind, seconds, extra): (&str, u32, &[&str]),
+    mut meanwhile: impl FnMut(),
+) -> Value {
+    let mut args = vec![
+        repo_root()
+            .join("tests/ros2/link_forger.py")
+            .display()
+            .to_string(),
+        "--domain".into(),
+        domain.to_string(),
+        "--forge".into(),
+        kind.into(),
+        "--layout-version".into(),
+        LAYOUT_VERSION.to_string(),
+        "--seconds".into(),
+        seconds.to_string(),
+    ];
+    args.extend(extra.iter().map(|s| s.to_string()));
+    let mut forger = Proc::spawn(&python(), &args);
+    let end = Instant::now() + Duration::from_secs(seconds as u64 + 30);
+    while forger.wait(Duration::ZERO).is_none() {
+        assert!(Instant::now() < end, "the forger did not finish");
+        meanwhile();
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let out = forger.stdout();
+    serde_json::from_str(out.lines().last().unwrap_or("")).unwrap_or_else(|e| {
+        panic!(
+            "link_forger.py --forge {kind}: {e}: {out}\n{}",
+            forger.stderr()
+        )
+    })
+}
+
+/// On a link without DDS Security (loopback), the first sample of an imported
+/// camera comes from a forger with another grid (160x128 in 16-px blocks, not
+/// the camera's 320x240): it is refused, as the camera's `[[camera]]`
+/// `width`/`height` give its grid (required without `link.security_dir`),
+/// nothing is pinned and the real box's activity arrives after it.
+#[test]
+fn a_forged_first_sample_does_not_pin_an_imported_camera_grid() {
+    python();
+    let mut sent = Value::Null;
+    let mut lab = Lab::start("first-forged", ("", "", ""), |domain| {
+        sent = forge(domain, ("other-grid", 4, &[]), || {});
+    });
+    assert!(
+        sent["matched"].as_u64() >= Some(1) && sent["count"].as_u64() >= Some(10),
+        "the forger reached no reader: {sent}"
+    );
+    let log = lab.link_b.stderr();
+    assert!(
+        log.contains("rejected activity of cam01 from box \"evil\"")
+            && log.contains("as camera.width/height and motion.block_px give"),
+        "{log}"
+    );
+    let rejected = lab.link_row()["rejected"].as_u64().unwrap();
+    assert!(rejected >= 1, "nothing counted as rejected");
+    eprintln!(
+        "MEASURED forged first sample of another grid: {} sent, link B rejected {rejected}, nothing pinned",
+        sent["count"]
+    );
+    assert!(!log.contains("pinned"), "{log}");
+    lab.still_serving("a forged first sample");
 }
 
 /// The last 60 lines of a log.
@@ -492,7 +545,7 @@ fn a_remote_status_is_live_only_while_it_arrives() {
 }
 
 /// Runs `isochron keystore args`, which must succeed.
-fn keystore(args: &[&str]) {
+pub(crate) fn keystore(args: &[&str]) {
     let mut p = Proc::spawn(
         &isochron_tests::bin("isochron"),
         &[&["keystore"], args].concat(),

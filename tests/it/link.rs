@@ -32,7 +32,7 @@ use isochron_wire::{
 
 use crate::costmap::{
     HOT_BLOCK, HOT_S1, Source, camera_toml, costmap_toml, dds_domain, expected_cells, held_grid,
-    messages, netns_pair, python,
+    messages, netns_pair, python, sized_camera_toml,
 };
 
 const START: &str = "2026-03-02T11:00:00Z";
@@ -493,7 +493,10 @@ fn activity_crosses_boxes_and_goes_unknown_while_the_link_is_down() {
     // B's services buffer a whole burst, so the test's reader loses nothing.
     let site_b = box_site(
         "link-b",
-        &format!("[ipc]\nstream_buffer = 256\n\n{}{costmap}", camera_toml()),
+        &format!(
+            "[ipc]\nstream_buffer = 256\n\n{}{costmap}",
+            sized_camera_toml()
+        ),
         ("box_b", "import", &pair.addrs[1]),
         link_domain,
         "",
@@ -584,6 +587,8 @@ fn demo_camera_and_grid(bridge_domain: u16) -> String {
         r#"[[camera]]
 id = "cam01"
 source = "{}"
+width = 768
+height = 576
 speed = 1
 loop = true
 start = "2009-03-02T11:00:00Z"
@@ -704,11 +709,19 @@ fn the_real_pipeline_on_one_box_feeds_the_bridge_on_another() {
 /// (`prlimit` sets a hard limit of 300: 20 imported cameras need more).
 #[test]
 fn a_link_without_enough_open_files_says_which_limit_to_raise() {
-    let imports: Vec<String> = (0..20).map(|k| format!("\"cam{k:02}\"")).collect();
+    let ids: Vec<String> = (0..20).map(|k| format!("remote{k:02}")).collect();
+    let imports: Vec<String> = ids.iter().map(|id| format!("\"{id}\"")).collect();
+    // Without DDS Security each imported camera's grid is configured.
+    let remote: String = ids
+        .iter()
+        .map(|id| {
+            format!("[[camera]]\nid = \"{id}\"\nsource = \"remote\"\nwidth = 320\nheight = 240\n\n")
+        })
+        .collect();
     let site = TestSite::new(
         "link-files",
         &format!(
-            "{}\n[link]\nbox_id = \"site\"\nimport = [{}]\nros_domain_id = {}\ndds_interfaces = [\"127.0.0.1\"]\n",
+            "{}{remote}\n[link]\nbox_id = \"site\"\nimport = [{}]\nros_domain_id = {}\ndds_interfaces = [\"127.0.0.1\"]\n",
             camera_toml(),
             imports.join(", "),
             dds_domain()
@@ -757,7 +770,7 @@ fn up_runs_a_configured_link_and_the_exporter_serves_its_counters_and_remote_liv
         "link-up-b",
         &format!(
             "[exporter]\nlisten = \"127.0.0.1:{port}\"\nstale_after_s = 6\n\n{}{}",
-            camera_toml(),
+            sized_camera_toml(),
             costmap_toml(bridge_domain, "")
         ),
         ("box_b", "import", &pair.addrs[1]),

@@ -51,6 +51,11 @@
 //!   (`tests/ros2/link_forger.py`), raw DATA_FRAG datagrams, a forged status, a
 //!   stalled subscriber, two secured links in two network namespaces; RSS bounds
 //!   from `/proc`; link: two boxes in two network namespaces joined by a veth pair;
+//! * sros2: the bridge with DDS Security against a secured robot it did not
+//!   write (the Fast DDS client with Fast DDS's built-in security plugins and a
+//!   robot enclave of `isochron keystore`), an unauthenticated Cyclone DDS
+//!   participant in the bridge's place (`tests/ros2/robot_spoofer.py`) and a
+//!   robot of another keystore;
 //! * systemd (`systemd-analyze verify` and `security`); exporter (scraped during a
 //!   replay and linted by `promtool check metrics`, a killed service's
 //!   `isochron_up`, a taken port; the alert rules through `promtool check rules`
@@ -105,5 +110,6 @@ mod presence;
 mod rclpy;
 mod reliability;
 mod scale;
+mod sros2;
 mod systemd;
 mod view;

@@ -221,7 +221,7 @@ fn the_bridge_warns_when_its_grid_is_not_the_robots_map() {
 }
 
 /// The Fast DDS requester `cargo xtask setup` builds (`tests/ros2/fastdds/`).
-fn fastdds_requester() -> PathBuf {
+pub(crate) fn fastdds_requester() -> PathBuf {
     setup_file(
         "ISOCHRON_FASTDDS_REQUESTER",
         "target/fastdds-peer/plan_requester",

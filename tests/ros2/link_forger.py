@@ -11,7 +11,8 @@ repository's messages), with their ROS 2 DDS names
 What it forges (--forge):
   huge-grid    Activity whose grid is 0xFFFFFFFF x 0xFFFFFFFF blocks, with one block
   empty-grid   Activity of a 65 536 x 65 536 grid with no blocks
-  other-grid   a well-formed Activity of a 640x480 frame in 16-px blocks
+  other-grid   a well-formed Activity of a 160x128 frame in 16-px blocks (smaller
+               than the test camera's, so a reader's sample bound admits it)
   evil         a well-formed Activity of the test camera (320x240, 16 px) from
                box "evil", every block at s1 = 1
   events       Event records that end before they start, or start before 1970
@@ -40,7 +41,7 @@ from ros2_dds import configure, emit, reliable_qos
 MSG_DIR = Path(__file__).resolve().parents[2] / "ros/isochron_msgs/msg"
 MAGIC = int.from_bytes(b"ISOC", "little")
 # Bytes of one payload element in shared memory (wire.rs): BlockActivity, u32, Detection.
-ELEMENT_SIZE = {"activity": 32, "events": 4, "detections": 24}
+ELEMENT_SIZE = {"activity": 36, "events": 4, "detections": 24}
 STREAM = {"activity": 3, "events": 4, "detections": 5}
 
 
@@ -186,7 +187,7 @@ def main():
         if args.forge == "empty-grid":
             return [activity(seq, (65536 * 16,) * 2, 16, (65536,) * 2, 0)]
         if args.forge == "other-grid":
-            return [activity(seq, (640, 480), 16, (40, 30), 1200, s1=1.0)]
+            return [activity(seq, (160, 128), 16, (10, 8), 80, s1=1.0)]
         if args.forge == "evil":
             return [activity(seq, (320, 240), 16, (20, 15), 300, s1=1.0)]
         if args.forge == "events":

@@ -44,22 +44,13 @@ pub(crate) fn binaries(docs_dir: &Path) -> anyhow::Result<Vec<String>> {
         .collect())
 }
 
-/// Builds the binaries a site runs, the costmap bridge on its own: built with
-/// the rest, cargo would unify the link's `security` feature of isochron-dds into
-/// it, and the bridge would link OpenSSL and cryptoki it never uses.
+/// Builds the binaries a site runs, in one build: the link and the costmap
+/// bridge both carry DDS Security (isochron-dds's `security` feature; a site turns
+/// it on with `link.security_dir` and `costmap.security_dir`, never by rebuilding).
 pub(crate) fn build_shipped(release: bool) -> anyhow::Result<()> {
     let profile: &[&str] = if release { &["--release"] } else { &[] };
     run(cargo()
-        .args([
-            "build",
-            "--workspace",
-            "--bins",
-            "--exclude",
-            "isochron-costmap",
-        ])
-        .args(profile))?;
-    run(cargo()
-        .args(["build", "-p", "isochron-costmap", "--bins"])
+        .args(["build", "--workspace", "--bins"])
         .args(profile))
 }
 

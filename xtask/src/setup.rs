@@ -97,7 +97,9 @@ pub(crate) fn setup(root: &Path) -> anyhow::Result<()> {
 const FASTDDS_SOURCES: [&str; 2] = ["isochron_msgs.idl", "plan_requester.cpp"];
 
 /// Builds `target/fastdds-peer/plan_requester`, the independent Fast DDS client of
-/// the planning services (`tests/it/nav2.rs`): fastddsgen makes the C++ types of
+/// the planning services (`tests/it/nav2.rs`) and, with Fast DDS's DDS Security
+/// plugins and a robot enclave, the secured robot of `tests/it/sros2.rs` (it
+/// reads the grid too): fastddsgen makes the C++ types of
 /// `tests/ros2/fastdds/isochron_msgs.idl`, g++ links them with
 /// `plan_requester.cpp` against Debian's Fast DDS. Skipped when the binary was
 /// built from the same sources (a hash of them in `sources.hash`).

@@ -107,6 +107,15 @@ pub struct CostmapConfig {
     /// 0.0.0.0: to make loopback-only a hard limit, add `IPAddressDeny=any` and
     /// `IPAddressAllow=localhost` to the unit (docs/security.md).
     pub dds_interfaces: Vec<String>,
+    /// The bridge's SROS2 enclave (DDS Security), the directory `isochron keystore
+    /// bridge` makes: `identity_ca.cert.pem`, `cert.pem`, `key.pem`,
+    /// `permissions_ca.cert.pem`, `governance.p7s`, `permissions.p7s`. With it only
+    /// participants with a certificate of the site's keystore and permissions for
+    /// the topic (robots: `isochron keystore robot`) read the grids or call the
+    /// planning services, and none can publish on the bridge's topics or answer
+    /// its services. Default none: the robots' topics and services are open to
+    /// every participant on the network `dds_interfaces` reaches.
+    pub security_dir: Option<String>,
     /// Weight of in-place activity S1 in the cost. Default 1.
     pub weight_in_place: f64,
     /// Weight of moving activity S2 in the cost. Default 1.
@@ -210,6 +219,7 @@ impl Default for CostmapConfig {
             full_every_s: 10.0,
             ros_domain_id: None,
             dds_interfaces: Vec::new(),
+            security_dir: None,
             weight_in_place: 1.0,
             weight_moving: 1.0,
             weight_long_term: 0.5,
@@ -461,6 +471,16 @@ impl CostmapConfig {
             &self.dds_interfaces,
             "127.0.0.1",
         )?;
+        if self
+            .security_dir
+            .as_deref()
+            .is_some_and(|d| d.trim().is_empty())
+        {
+            return Err(Invalid::new(
+                "costmap.security_dir",
+                "expected the directory of the bridge's enclave (isochron keystore bridge)",
+            ));
+        }
         Ok(())
     }
 

@@ -18,7 +18,10 @@ pub struct LinkConfig {
     /// Cameras of this box (`[[camera]]` ids) whose activity is sent. Default none.
     pub export: Vec<String>,
     /// Remote cameras whose activity is received and published into this box's
-    /// iceoryx2 services as if local. Default none.
+    /// iceoryx2 services as if local. Without `security_dir` each needs a
+    /// `[[camera]]` with its `width` and `height` (the size it is analysed at on
+    /// its box): the camera's grid is then configured, never taken from the first,
+    /// unauthenticated sample. Default none.
     pub import: Vec<String>,
     /// DDS domain (`ROS_DOMAIN_ID`) of the link; default `$ROS_DOMAIN_ID`, else 0.
     pub ros_domain_id: Option<u16>,
@@ -89,6 +92,36 @@ impl LinkConfig {
         !self.export.is_empty() || !self.import.is_empty()
     }
 
+    /// Without DDS Security nothing authenticates a sample, so an imported
+    /// camera's block grid must be configured (its `[[camera]]` `width` and
+    /// `height`), never pinned by the first sample on the wire: a forger's first
+    /// sample would otherwise fix a wrong geometry until the link restarts.
+    fn check_unauthenticated_imports(&self, cameras: &[CameraConfig]) -> Result<(), Invalid> {
+        for (i, id) in self.import.iter().enumerate() {
+            let why = "the link runs without link.security_dir, so the grid of an imported camera is configured, not taken from unauthenticated samples";
+            match cameras.iter().position(|c| &c.id == id) {
+                None => {
+                    return Err(Invalid::new(
+                        format!("link.import[{i}]"),
+                        format!(
+                            "expected a [[camera]] with id \"{id}\", width and height for imported camera \"{id}\" ({why})"
+                        ),
+                    ));
+                }
+                Some(j) if cameras[j].width.is_none() || cameras[j].height.is_none() => {
+                    return Err(Invalid::new(
+                        format!("camera[{j}].width"),
+                        format!(
+                            "expected width and height of imported camera \"{id}\" (its analysis size on the box that runs it; {why})"
+                        ),
+                    ));
+                }
+                Some(_) => {}
+            }
+        }
+        Ok(())
+    }
+
     /// Checks the `link.*` keys against the configured cameras.
     pub(super) fn validate(&self, cameras: &[CameraConfig]) -> Result<(), Invalid> {
         if !self.box_id.is_empty()
@@ -139,6 +172,9 @@ impl LinkConfig {
                     format!("camera \"{id}\" is both exported and imported: expected one"),
                 ));
             }
+        }
+        if self.security_dir.is_none() {
+            self.check_unauthenticated_imports(cameras)?;
         }
         if let Some(q) = self.queue_messages {
             check_range("link.queue_messages", q as f64, 1.0, 10_000.0)?;

@@ -350,7 +350,7 @@ fn view_is_off_and_on_loopback_by_default_and_checked() {
 #[test]
 fn link_sections_are_checked_with_line_and_key() {
     let link = |body: &str| parse(&format!("{GOOD}\n[link]\n{body}\n"));
-    let c = link("box_id = \"box_a\"\nexport = [\"cam01\"]\nimport = [\"cam07\"]\nros_domain_id = 7\ndds_interfaces = [\"10.0.0.5\"]").unwrap();
+    let c = link("box_id = \"box_a\"\nexport = [\"cam01\"]\nimport = [\"cam07\"]\nros_domain_id = 7\ndds_interfaces = [\"10.0.0.5\"]\nsecurity_dir = \"enclave\"").unwrap();
     assert_eq!(c.link.export, ["cam01"]);
     assert_eq!(c.link.namespace(), DEFAULT_LINK_NAMESPACE);
     assert!(!parse(GOOD).unwrap().link.is_enabled());
@@ -380,4 +380,53 @@ fn link_sections_are_checked_with_line_and_key() {
     assert_eq!(parse(GOOD).unwrap().link.queue_messages(), 64);
     let err = link("queue_messages = 0").unwrap_err();
     assert_eq!(err.key.as_deref(), Some("link.queue_messages"));
+}
+
+#[test]
+fn an_unauthenticated_link_needs_the_grid_of_each_imported_camera() {
+    // Without DDS Security an imported camera's grid is configured, never pinned
+    // by the first (possibly forged) sample.
+    let err = parse(&format!("{GOOD}\n[link]\nimport = [\"cam07\"]\n")).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("link.import[0]"), "{err}");
+    assert!(
+        err.message.contains("\"cam07\"") && err.message.contains("width and height"),
+        "{err}"
+    );
+    let err = parse(&format!(
+        "{GOOD}\n[link]\nimport = [\"cam02\"]\ninsecure = true\n"
+    ))
+    .unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("camera[1].width"), "{err}");
+    assert!(
+        err.message.contains("imported camera \"cam02\"")
+            && err.message.contains("link.security_dir"),
+        "{err}"
+    );
+    let sized = GOOD.replace(
+        "source = \"rtsp://127.0.0.1/stream\"",
+        "source = \"rtsp://127.0.0.1/stream\"\nwidth = 640\nheight = 480",
+    );
+    let c = parse(&format!("{sized}\n[link]\nimport = [\"cam02\"]\n")).unwrap();
+    assert_eq!(c.link.import, ["cam02"]);
+    // With an enclave the first authenticated sample may pin it.
+    parse(&format!(
+        "{GOOD}\n[link]\nimport = [\"cam02\"]\nsecurity_dir = \"enclave\"\n"
+    ))
+    .unwrap();
+}
+
+#[test]
+fn the_bridge_enclave_is_a_directory_when_given() {
+    let c = parse(&format!(
+        "{GOOD}\n[costmap]\nsecurity_dir = \"keys/enclaves/costmap\"\n"
+    ))
+    .unwrap();
+    assert_eq!(
+        c.costmap.security_dir.as_deref(),
+        Some("keys/enclaves/costmap")
+    );
+    assert_eq!(parse(GOOD).unwrap().costmap.security_dir, None);
+    let err = parse(&format!("{GOOD}\n[costmap]\nsecurity_dir = \" \"\n")).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("costmap.security_dir"), "{err}");
+    assert!(err.message.contains("isochron keystore bridge"), "{err}");
 }

@@ -28,6 +28,11 @@
 //! RustDDS announces only their addresses and multicasts only on them, but binds
 //! its sockets to 0.0.0.0 regardless (hard-coded in 0.15) — a hard limit is the
 //! unit's `IPAddressAllow=`/`IPAddressDeny=` or a firewall (docs/security.md).
+//!
+//! With `costmap.security_dir` the participant runs DDS Security (SROS2) with the
+//! bridge's enclave, as the link does: only robots of the site's keystore whose
+//! permissions allow it read the topics and call the services, and no other
+//! participant can write on the bridge's topics or answer its services.
 
 use std::net::IpAddr;
 use std::time::Duration;
@@ -83,6 +88,9 @@ pub struct RosSettings {
     pub plan_offline_service: String,
     /// The real-time planning service, e.g. `/isochron/plan_now`.
     pub plan_now_service: String,
+    /// The bridge's SROS2 enclave (`costmap.security_dir`): DDS Security with
+    /// it, none without.
+    pub enclave: Option<std::path::PathBuf>,
 }
 
 /// Why ROS 2 output could not start.
@@ -156,7 +164,12 @@ impl RosOutput {
     /// Joins the DDS domain and creates the node `/isochron/costmap_bridge` with its
     /// publishers.
     pub fn start(settings: &RosSettings) -> Result<RosOutput, RosError> {
-        let mut ros = RosNode::start(settings.domain_id, &settings.interfaces, NODE, None)?;
+        let mut ros = RosNode::start(
+            settings.domain_id,
+            &settings.interfaces,
+            NODE,
+            settings.enclave.as_deref(),
+        )?;
 
         let [
             grid_topic,

@@ -2,6 +2,8 @@
 //! `OccupancyGrid` (+ updates) out, snapshots, and `<prefix>/plan` answered — run
 //! by the stage runtime ([`isochron_runtime::stage`]). Runs once per site.
 
+use std::net::IpAddr;
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use isochron_config::LoadedConfig;
@@ -393,6 +395,11 @@ fn ros_output(loaded: &LoadedConfig, grid: &MapGrid) -> Result<Ros, Fatal> {
         forecast_topic: c.forecast_topic.clone(),
         plan_offline_service: c.plan_offline_service.clone(),
         plan_now_service: c.plan_now_service.clone(),
+        enclave: None,
+    };
+    let settings = RosSettings {
+        enclave: enclave(loaded, &settings.interfaces)?,
+        ..settings
     };
     limit_dds_logging();
     let output = RosOutput::start(&settings)?;
@@ -435,6 +442,48 @@ fn ros_output(loaded: &LoadedConfig, grid: &MapGrid) -> Result<Ros, Fatal> {
         next_forecast: Instant::now(),
         forecast_footprints: Vec::new(),
     })
+}
+
+/// The bridge's SROS2 enclave (`costmap.security_dir`, relative to the config
+/// file), checked to hold its files. Says at start whether the robots' side is
+/// secured: without an enclave its topics and services are open to every
+/// participant the `interfaces` reach (a warning unless they are all loopback).
+fn enclave(loaded: &LoadedConfig, interfaces: &[IpAddr]) -> Result<Option<PathBuf>, Fatal> {
+    let Some(dir) = &loaded.config.costmap.security_dir else {
+        let local = !interfaces.is_empty() && interfaces.iter().all(IpAddr::is_loopback);
+        let line = format!(
+            "DDS Security off: the robots' topics and planning services are open (unauthenticated) \
+             on {}: any participant there can read the grids, publish on their topics and answer \
+             plan requests. Set costmap.security_dir to the bridge's enclave (`isochron keystore \
+             bridge`) to secure them",
+            if local { "loopback" } else { "the network" }
+        );
+        if local {
+            tracing::info!("{line}");
+        } else {
+            tracing::warn!("{line}");
+        }
+        return Ok(None);
+    };
+    let dir = loaded.base_dir().join(dir);
+    if let Some(missing) = isochron_dds::missing_enclave_file(&dir) {
+        return Err(Fatal::new(
+            exit::CONFIG,
+            format!(
+                "{}: costmap.security_dir: {} is missing (an enclave made by `isochron keystore bridge` holds {})",
+                loaded.path.display(),
+                missing.display(),
+                isochron_dds::ENCLAVE_FILES.join(", ")
+            ),
+        ));
+    }
+    tracing::info!(
+        enclave = %dir.display(),
+        "DDS Security on: the robots' topics and planning services are secured (SROS2): only \
+         participants of the site's keystore read the grids and call the services, as their \
+         permissions allow; no other can publish on the topics or answer the services"
+    );
+    Ok(Some(dir))
 }
 
 /// Why Nav2 may not take the grid as the robots' map, if it may not: a StaticLayer

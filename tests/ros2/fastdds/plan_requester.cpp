@@ -26,7 +26,19 @@
 // never appeared, or {"kind": "timeout"}. DDS stays on the loopback interface:
 // UDP on 127.0.0.1 only, discovery through unicast initial peers on 127.0.0.1.
 //
-// Usage: plan_requester --domain D --service /isochron/plan_now [--timeout S] now ROUTE [ROUTE...]
+// A secured robot: with --security DIR the participant runs DDS Security with the
+// SROS2 enclave in DIR (identity_ca.cert.pem, cert.pem, key.pem,
+// permissions_ca.cert.pem, governance.p7s, permissions.p7s), through Fast DDS's
+// built-in plugins (PKI-DH, Access-Permissions, AES-GCM-GMAC) and the properties
+// rmw_fastrtps sets for an enclave (ROS_SECURITY_ENCLAVE, ROS_SECURITY_STRATEGY=
+// Enforce). With --watch TOPIC it also reads the nav_msgs/OccupancyGrid on TOPIC
+// (reliable, transient-local, as Nav2's StaticLayer) and prints one line per grid
+// received, {"kind": "grid", "width", "height", "frame_id", "cells": non-zero
+// cells}, and one per reply that is not ours, {"kind": "other_reply", "status",
+// "message"}; after the reply it keeps reading for --linger seconds (default 0).
+//
+// Usage: plan_requester --domain D --service /isochron/plan_now [--timeout S]
+//               [--security DIR] [--watch TOPIC [--linger S]] now ROUTE [ROUTE...]
 //        plan_requester --domain D --service /isochron/plan_offline [--timeout S] offline ROUTE
 //               START_MINUTE END_MINUTE STEP_MIN [WEEKDAY]
 
@@ -35,6 +47,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <memory>
+#include <mutex>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -112,11 +125,21 @@ const char* json_bool(bool b)
     return b ? "true" : "false";
 }
 
+std::mutex emit_lock;
+
 void emit(const std::string& line)
 {
+    std::lock_guard<std::mutex> guard(emit_lock);
     std::printf("%s\n", line.c_str());
     std::fflush(stdout);
 }
+
+// --security, --watch and --linger.
+struct Options {
+    std::string security;
+    std::string watch;
+    double linger_s = 0.0;
+};
 
 std::string reply_json(const isochron_msgs::srv::dds_::PlanNow_Response_& r)
 {
@@ -161,10 +184,26 @@ std::string reply_json(const isochron_msgs::srv::dds_::PlanOffline_Response_& r)
 // The participant: UDP on the loopback interface only, discovery through unicast
 // initial peers on 127.0.0.1 (the well-known ports of the first participants of
 // the domain), so the test stays on this machine without multicast.
-DomainParticipant* loopback_participant(int domain)
+DomainParticipant* loopback_participant(int domain, const Options& options)
 {
     DomainParticipantQos pqos = PARTICIPANT_QOS_DEFAULT;
     pqos.name("isochron_fastdds_plan_requester");
+    if (!options.security.empty()) {
+        // What rmw_fastrtps sets for an SROS2 enclave (rmw_dds_common's security
+        // files, rmw_fastrtps_shared_cpp/src/participant.cpp).
+        const std::string dir = "file://" + options.security + "/";
+        auto& props = pqos.properties().properties();
+        props.emplace_back("dds.sec.auth.plugin", "builtin.PKI-DH");
+        props.emplace_back("dds.sec.auth.builtin.PKI-DH.identity_ca", dir + "identity_ca.cert.pem");
+        props.emplace_back("dds.sec.auth.builtin.PKI-DH.identity_certificate", dir + "cert.pem");
+        props.emplace_back("dds.sec.auth.builtin.PKI-DH.private_key", dir + "key.pem");
+        props.emplace_back("dds.sec.access.plugin", "builtin.Access-Permissions");
+        props.emplace_back(
+            "dds.sec.access.builtin.Access-Permissions.permissions_ca", dir + "permissions_ca.cert.pem");
+        props.emplace_back("dds.sec.access.builtin.Access-Permissions.governance", dir + "governance.p7s");
+        props.emplace_back("dds.sec.access.builtin.Access-Permissions.permissions", dir + "permissions.p7s");
+        props.emplace_back("dds.sec.crypto.plugin", "builtin.AES-GCM-GMAC");
+    }
     pqos.transport().use_builtin_transports = false;
     auto udp = std::make_shared<eprosima::fastdds::rtps::UDPv4TransportDescriptor>();
     udp->interfaceWhiteList.emplace_back("127.0.0.1");
@@ -189,11 +228,65 @@ void services_default(Qos& qos)
     qos.data_sharing().off();
 }
 
+// Prints each grid the watched topic delivers.
+class GridListener : public DataReaderListener {
+public:
+    void on_data_available(DataReader* reader) override
+    {
+        nav_msgs::msg::dds_::OccupancyGrid_ grid;
+        SampleInfo info;
+        while (reader->take_next_sample(&grid, &info) == ReturnCode_t::RETCODE_OK) {
+            if (!info.valid_data) {
+                continue;
+            }
+            size_t cells = 0;
+            for (auto c : grid.data()) {
+                cells += c != 0;
+            }
+            std::ostringstream out;
+            out << "{\"kind\": \"grid\", \"width\": " << grid.info().width()
+                << ", \"height\": " << grid.info().height()
+                << ", \"frame_id\": " << json_string(grid.header().frame_id())
+                << ", \"cells\": " << cells << "}";
+            emit(out.str());
+        }
+    }
+};
+
+// The reader of --watch's grids (reliable, transient-local, keep last 1).
+DataReader* watch_grid(DomainParticipant* participant, Subscriber* subscriber,
+    const std::string& topic, GridListener* listener)
+{
+    TypeSupport type(new nav_msgs::msg::dds_::OccupancyGrid_PubSubType());
+    type.register_type(participant);
+    std::string name = topic.front() == '/' ? topic : "/" + topic;
+    Topic* t = participant->create_topic("rt" + name, type.get_type_name(), TOPIC_QOS_DEFAULT);
+    if (t == nullptr) {
+        return nullptr;
+    }
+    DataReaderQos qos = DATAREADER_QOS_DEFAULT;
+    qos.reliability().kind = RELIABLE_RELIABILITY_QOS;
+    qos.durability().kind = TRANSIENT_LOCAL_DURABILITY_QOS;
+    qos.history().kind = KEEP_LAST_HISTORY_QOS;
+    qos.history().depth = 1;
+    qos.endpoint().history_memory_policy =
+        eprosima::fastrtps::rtps::PREALLOCATED_WITH_REALLOC_MEMORY_MODE;
+    qos.data_sharing().off();
+    return subscriber->create_datareader(t, qos, listener);
+}
+
+template<typename Resp>
+std::string other_reply_json(const Resp& r)
+{
+    return "{\"kind\": \"other_reply\", \"status\": " + std::to_string(static_cast<int>(r.status()))
+        + ", \"message\": " + json_string(r.message()) + "}";
+}
+
 template<typename Req, typename Resp>
 int call(int domain, const std::string& service, double timeout_s, Req& request,
-    TypeSupport request_type, TypeSupport reply_type)
+    TypeSupport request_type, TypeSupport reply_type, const Options& options)
 {
-    DomainParticipant* participant = loopback_participant(domain);
+    DomainParticipant* participant = loopback_participant(domain, options);
     if (participant == nullptr) {
         std::fprintf(stderr, "plan_requester: no participant on domain %d\n", domain);
         return 69;
@@ -217,6 +310,38 @@ int call(int domain, const std::string& service, double timeout_s, Req& request,
         std::fprintf(stderr, "plan_requester: creating the topics, writer or reader failed\n");
         return 69;
     }
+    GridListener grid_listener;
+    const bool watching = !options.watch.empty();
+    if (watching && watch_grid(participant, subscriber, options.watch, &grid_listener) == nullptr) {
+        std::fprintf(stderr, "plan_requester: creating the grid reader failed\n");
+        return 69;
+    }
+    // Reads the replies until `until`: ours ends the call (true), others are
+    // printed when watching.
+    Resp reply;
+    SampleInfo info;
+    SequenceNumber_t sent;
+    bool asked = false;
+    auto read_replies = [&](auto until, bool stop_at_ours) {
+        while (Clock::now() < until) {
+            reader->wait_for_unread_message(eprosima::fastrtps::Duration_t(0, 100000000));
+            while (reader->take_next_sample(&reply, &info) == ReturnCode_t::RETCODE_OK) {
+                const auto& related = info.related_sample_identity;
+                bool ours = asked
+                    && (related.writer_guid() == reader->guid() || related.writer_guid() == writer->guid())
+                    && related.sequence_number() == sent;
+                if (info.valid_data && ours && stop_at_ours) {
+                    return true;
+                }
+                if (info.valid_data && watching) {
+                    emit(other_reply_json(reply));
+                }
+                std::fprintf(stderr, "plan_requester: a reply that is not ours (sequence %d.%u)\n",
+                    related.sequence_number().high, related.sequence_number().low);
+            }
+        }
+        return false;
+    };
     const GUID_t reader_guid = reader->guid();
     const GUID_t writer_guid = writer->guid();
     const auto deadline = Clock::now() + std::chrono::duration<double>(timeout_s);
@@ -234,7 +359,11 @@ int call(int domain, const std::string& service, double timeout_s, Req& request,
             emit("{\"kind\": \"unavailable\"}");
             return 0;
         }
-        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+        if (watching) {
+            read_replies(Clock::now() + std::chrono::milliseconds(20), false);
+        } else {
+            std::this_thread::sleep_for(std::chrono::milliseconds(20));
+        }
     }
 
     WriteParams params;
@@ -243,30 +372,26 @@ int call(int domain, const std::string& service, double timeout_s, Req& request,
         std::fprintf(stderr, "plan_requester: writing the request failed\n");
         return 69;
     }
-    const SequenceNumber_t sent = params.sample_identity().sequence_number();
+    sent = params.sample_identity().sequence_number();
+    asked = true;
     const auto sent_at = Clock::now();
     std::fprintf(stderr, "plan_requester: request %d.%u sent\n", sent.high, sent.low);
 
-    Resp reply;
-    SampleInfo info;
-    while (Clock::now() < deadline) {
-        reader->wait_for_unread_message(eprosima::fastrtps::Duration_t(0, 100000000));
-        while (reader->take_next_sample(&reply, &info) == ReturnCode_t::RETCODE_OK) {
-            const auto& related = info.related_sample_identity;
-            bool ours = related.writer_guid() == reader_guid || related.writer_guid() == writer_guid;
-            if (info.valid_data && ours && related.sequence_number() == sent) {
-                std::string line = reply_json(reply);
-                const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(
-                    Clock::now() - sent_at).count();
-                line.insert(line.size() - 1, ", \"reply_ms\": " + std::to_string(ms));
-                emit(line);
-                return 0;
-            }
-            std::fprintf(stderr, "plan_requester: a reply that is not ours (sequence %d.%u)\n",
-                related.sequence_number().high, related.sequence_number().low);
-        }
+    if (read_replies(deadline, true)) {
+        std::string line = reply_json(reply);
+        const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(
+            Clock::now() - sent_at).count();
+        line.insert(line.size() - 1, ", \"reply_ms\": " + std::to_string(ms));
+        emit(line);
+    } else {
+        emit("{\"kind\": \"timeout\"}");
     }
-    emit("{\"kind\": \"timeout\"}");
+    if (watching && options.linger_s > 0) {
+        read_replies(Clock::now() + std::chrono::duration<double>(options.linger_s), false);
+    }
+    // The grid listener must not run once this frame is gone.
+    participant->delete_contained_entities();
+    DomainParticipantFactory::get_instance()->delete_participant(participant);
     return 0;
 }
 
@@ -277,15 +402,24 @@ int main(int argc, char** argv)
     int domain = -1;
     std::string service;
     double timeout_s = 20.0;
+    Options options;
     std::vector<std::string> rest;
     for (int k = 1; k < argc; ++k) {
         std::string a = argv[k];
-        if ((a == "--domain" || a == "--service" || a == "--timeout") && k + 1 < argc) {
+        if ((a == "--domain" || a == "--service" || a == "--timeout" || a == "--security"
+                || a == "--watch" || a == "--linger")
+            && k + 1 < argc) {
             std::string v = argv[++k];
             if (a == "--domain") {
                 domain = std::atoi(v.c_str());
             } else if (a == "--service") {
                 service = v;
+            } else if (a == "--security") {
+                options.security = v;
+            } else if (a == "--watch") {
+                options.watch = v;
+            } else if (a == "--linger") {
+                options.linger_s = std::atof(v.c_str());
             } else {
                 timeout_s = std::atof(v.c_str());
             }
@@ -302,7 +436,7 @@ int main(int argc, char** argv)
         return call<isochron_msgs::srv::dds_::PlanNow_Request_,
             isochron_msgs::srv::dds_::PlanNow_Response_>(domain, service, timeout_s, request,
             TypeSupport(new isochron_msgs::srv::dds_::PlanNow_Request_PubSubType()),
-            TypeSupport(new isochron_msgs::srv::dds_::PlanNow_Response_PubSubType()));
+            TypeSupport(new isochron_msgs::srv::dds_::PlanNow_Response_PubSubType()), options);
     }
     if (rest[0] == "offline" && (rest.size() == 5 || rest.size() == 6)) {
         isochron_msgs::srv::dds_::PlanOffline_Request_ request;
@@ -314,7 +448,7 @@ int main(int argc, char** argv)
         return call<isochron_msgs::srv::dds_::PlanOffline_Request_,
             isochron_msgs::srv::dds_::PlanOffline_Response_>(domain, service, timeout_s, request,
             TypeSupport(new isochron_msgs::srv::dds_::PlanOffline_Request_PubSubType()),
-            TypeSupport(new isochron_msgs::srv::dds_::PlanOffline_Response_PubSubType()));
+            TypeSupport(new isochron_msgs::srv::dds_::PlanOffline_Response_PubSubType()), options);
     }
     usage("the kind is `now ROUTE...` or `offline ROUTE START END STEP [WEEKDAY]`");
 }
