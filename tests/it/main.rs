@@ -107,3 +107,4 @@ mod reliability;
 mod scale;
 mod systemd;
 mod view;
+mod zenoh;
