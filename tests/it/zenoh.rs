@@ -47,6 +47,22 @@ fn message_dir() -> PathBuf {
         .to_path_buf()
 }
 
+/// The type description hash rosidl generated for `ty` (`nav_msgs/msg/OccupancyGrid`)
+/// in the rclpy venv of `release`: `share/<ty>.json`.
+fn rosidl_hash(release: &str, ty: &str) -> String {
+    let path = repo_root().join(format!("target/rclpy-{release}/share/{ty}.json"));
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let description: Value = serde_json::from_str(&text).unwrap();
+    description["type_hashes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|h| h["type_name"] == ty)
+        .and_then(|h| h["hash_string"].as_str())
+        .unwrap_or_else(|| panic!("no hash of {ty} in {}", path.display()))
+        .to_string()
+}
+
 /// The peer script with `args`.
 fn peer(args: &[&str]) -> Proc {
     let script = repo_root().join("tests/zenoh/rmw_zenoh_peer.py");
@@ -223,6 +239,29 @@ fn an_rmw_zenoh_robot_gets_every_topic_a_late_grid_and_plans() {
         .unwrap_or_else(|| panic!("the late joiner got no grid: {late:?}"));
     assert!(got["after_s"].as_f64().unwrap() < 3.0, "{got}");
     assert!(got["bytes"].as_u64().unwrap() > 3600, "{got}");
+    // Every type's hash on the wire is the one rosidl generates, in Jazzy and in
+    // Kilted (the services' are checked by the SDK's queries reaching them).
+    let mut on_wire: Vec<String> = raw
+        .iter()
+        .filter_map(|m| m["key"].as_str().map(String::from))
+        .collect();
+    on_wire.extend(
+        late.iter()
+            .filter_map(|m| m["key"].as_str().map(String::from)),
+    );
+    for key in &on_wire {
+        let parts: Vec<&str> = key.rsplitn(3, '/').collect();
+        let (hash, dds) = (parts[0], parts[1]);
+        let ty = dds.replace("::dds_::", "/").replace("::", "/");
+        let ty = ty.trim_end_matches('_');
+        for release in ["jazzy", "kilted"] {
+            assert_eq!(hash, rosidl_hash(release, ty), "{key} ({release})");
+        }
+    }
+    assert!(
+        on_wire.iter().any(|k| k.contains("CostmapFilterInfo_")),
+        "{on_wire:?}"
+    );
     // The speed filter's info, published once when the bridge started.
     let info = late
         .iter()
