@@ -113,3 +113,4 @@ mod scale;
 mod sros2;
 mod systemd;
 mod view;
+mod zenoh;

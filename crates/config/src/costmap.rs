@@ -5,7 +5,9 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
-use super::{CameraConfig, Invalid, check_dds, check_polygon, check_positive, check_range};
+use super::{
+    CameraConfig, Invalid, ZenohConfig, check_dds, check_polygon, check_positive, check_range,
+};
 
 /// `[costmap]`: block activity on the robots' map as a ROS 2 `OccupancyGrid`
 /// (docs/robots.md), snapshots, and path planning on segments and routes.
@@ -186,6 +188,8 @@ pub struct CostmapConfig {
     /// Routes (`[[costmap.route]]`).
     #[serde(rename = "route")]
     pub routes: Vec<RouteConfig>,
+    /// `[costmap.zenoh]`: the same topics and services for robots on rmw_zenoh.
+    pub zenoh: ZenohConfig,
 }
 
 impl Default for CostmapConfig {
@@ -239,6 +243,7 @@ impl Default for CostmapConfig {
             min_activity: 0.0,
             segments: Vec::new(),
             routes: Vec::new(),
+            zenoh: ZenohConfig::default(),
         }
     }
 }
@@ -356,7 +361,8 @@ impl CostmapConfig {
         self.validate_ros()?;
         self.validate_costs()?;
         self.validate_segments(cameras)?;
-        self.validate_routes()
+        self.validate_routes()?;
+        self.zenoh.validate()
     }
 
     /// The grid: from `map_yaml`, or all of its own keys, or none.

@@ -34,6 +34,7 @@ mod site;
 #[cfg(test)]
 mod tests;
 mod view;
+mod zenoh;
 
 isochron_exit::always_exits_with!(CONFIG: ConfigError, UnknownCamera;);
 
@@ -60,6 +61,7 @@ pub use mqtt::{Broker, DEFAULT_MQTT_PORT, DEFAULT_MQTTS_PORT, MqttConfig, is_top
 pub use presence::PresenceConfig;
 pub use site::{DEFAULT_PREFIX, SiteConfig, is_valid_prefix};
 pub use view::ViewConfig;
+pub use zenoh::{DEFAULT_ZENOH_LISTEN, DEFAULT_ZENOH_ROUTER, ZenohConfig};
 
 /// A configuration error located in its file.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -193,6 +195,7 @@ impl LoadedConfig {
             config.gate.detector.model.as_mut(),
             config.costmap.map_yaml.as_mut(),
             config.costmap.snapshot_dir.as_mut(),
+            config.costmap.zenoh.config_file.as_mut(),
         ]
         .into_iter()
         .flatten()

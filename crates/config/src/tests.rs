@@ -430,3 +430,30 @@ fn the_bridge_enclave_is_a_directory_when_given() {
     assert_eq!(err.key.as_deref(), Some("costmap.security_dir"), "{err}");
     assert!(err.message.contains("isochron keystore bridge"), "{err}");
 }
+
+#[test]
+fn zenoh_output_is_off_by_default_and_its_keys_are_checked() {
+    let c = parse(GOOD).unwrap();
+    assert!(!c.costmap.zenoh.enabled);
+    assert_eq!(
+        c.costmap.zenoh.connect,
+        vec![DEFAULT_ZENOH_ROUTER.to_string()]
+    );
+    assert_eq!(
+        c.costmap.zenoh.listen,
+        vec![DEFAULT_ZENOH_LISTEN.to_string()]
+    );
+    let zenoh = |body: &str| parse(&format!("{GOOD}\n[costmap.zenoh]\nenabled = true\n{body}"));
+    assert!(zenoh("mode = \"client\"\nconnect = [\"tls/10.0.0.5:7447\"]\n").is_ok());
+    let err = zenoh("mode = \"router\"\n").unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("costmap.zenoh.mode"));
+    assert!(err.message.contains("\"peer\" or \"client\""), "{err}");
+    let err = zenoh("listen = [\"tcp/127.0.0.1:0\", \"udp/10.0.0.5:7447\"]\n").unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("costmap.zenoh.listen[1]"));
+    let err = zenoh("connect = [\"localhost\"]\n").unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("costmap.zenoh.connect[0]"));
+    let err = zenoh("mode = \"client\"\nconnect = []\n").unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("costmap.zenoh.connect"));
+    let err = zenoh("routers = 1\n").unwrap_err();
+    assert!(err.message.contains("routers"), "{err}");
+}

@@ -32,3 +32,4 @@ mod planning;
 mod publish;
 pub mod ros;
 pub mod stage;
+pub mod zenoh_out;

@@ -428,10 +428,8 @@ mod request;
 
 use fair::{FairQueue, Pushed};
 
-use request::{
-    Pending, Raw, RawReply, RawSample, ReplyTo, now_response, offline_response, read_request,
-    reply_bytes,
-};
+use request::{Pending, Raw, RawReply, RawSample, ReplyTo, read_request, reply_bytes};
+pub(crate) use request::{now_response, offline_response, plan_request};
 
 #[cfg(test)]
 mod tests;

@@ -50,6 +50,7 @@ use isochron_runtime::stage::Context;
 
 use crate::msgs::{CostmapFilterInfo, MarkerArray, OccupancyGrid, OccupancyGridUpdate, PoseArray};
 use crate::plan_dds::{PlanCounts, PlanServices};
+use crate::zenoh_out::{ZenohOutput, put};
 
 /// The bridge's ROS 2 node: `/isochron/<NODE>`.
 const NODE: &str = "costmap_bridge";
@@ -91,6 +92,8 @@ pub struct RosSettings {
     /// The bridge's SROS2 enclave (`costmap.security_dir`): DDS Security with
     /// it, none without.
     pub enclave: Option<std::path::PathBuf>,
+    /// The same topics and services on Zenoh in rmw_zenoh's format, if configured.
+    pub zenoh: Option<isochron_zenoh::Settings>,
 }
 
 /// Why ROS 2 output could not start.
@@ -107,13 +110,19 @@ pub enum RosError {
     /// DDS could not be set up (ports, interfaces).
     #[error(transparent)]
     Dds(#[from] DdsError),
+    /// Zenoh output could not be set up (its configuration, its session).
+    #[error(transparent)]
+    Zenoh(#[from] isochron_zenoh::ZenohError),
 }
 
 impl isochron_exit::Classify for RosError {
     /// DDS did not start (ports, interfaces, a name it refused): the network side
-    /// is unavailable.
+    /// is unavailable; a Zenoh configuration Zenoh refuses is permanent.
     fn exit_code(&self) -> i32 {
-        isochron_exit::UNAVAILABLE
+        match self {
+            RosError::Zenoh(e) => isochron_exit::Classify::exit_code(e),
+            _ => isochron_exit::UNAVAILABLE,
+        }
     }
 }
 
@@ -157,6 +166,10 @@ pub struct RosOutput {
     /// The grid topic's DDS name (`rt/...`) and the QoS its writer offers: what
     /// RustDDS matches remote readers against.
     grid_match: (String, QosPolicies),
+    /// The same on Zenoh (`[costmap.zenoh]`).
+    zenoh: Option<ZenohOutput>,
+    /// What the planning services did on Zenoh.
+    zenoh_counts: PlanCounts,
     ros: RosNode,
 }
 
@@ -214,6 +227,28 @@ impl RosOutput {
             &topic_name(&settings.plan_now_service)?,
         )
         .map_err(|e| ros.error(e.to_string()))?;
+        let zenoh = match &settings.zenoh {
+            Some(z) => {
+                let output = ZenohOutput::start(z, settings, NODE)?;
+                tracing::info!(
+                    "ROS 2 on Zenoh (rmw_zenoh's format) too: domain {}, {} to {}, listening on {}",
+                    z.domain,
+                    if z.mode == isochron_zenoh::Mode::Client {
+                        "client"
+                    } else {
+                        "peer"
+                    },
+                    z.connect.join(", "),
+                    if z.listen.is_empty() {
+                        "nothing".to_string()
+                    } else {
+                        z.listen.join(", ")
+                    }
+                );
+                Some(output)
+            }
+            None => None,
+        };
 
         Ok(RosOutput {
             grid,
@@ -225,43 +260,59 @@ impl RosOutput {
             forecast,
             plans,
             grid_match,
+            zenoh,
+            zenoh_counts: PlanCounts::default(),
             ros,
         })
     }
 
     /// Publishes a full grid.
     pub fn publish_grid(&self, grid: OccupancyGrid) -> Result<(), PublishError> {
-        self.grid.publish(grid).map_err(PublishError::of)
+        let zenoh = self.zenoh.as_ref().map(|z| put(&z.grid, &grid));
+        self.grid.publish(grid).map_err(PublishError::of)?;
+        zenoh.unwrap_or(Ok(()))
     }
 
     /// Publishes a delta.
     pub fn publish_update(&self, update: OccupancyGridUpdate) -> Result<(), PublishError> {
-        self.updates.publish(update).map_err(PublishError::of)
+        let zenoh = self.zenoh.as_ref().map(|z| put(&z.updates, &update));
+        self.updates.publish(update).map_err(PublishError::of)?;
+        zenoh.unwrap_or(Ok(()))
     }
 
     /// Publishes the people of one detected frame.
     pub fn publish_people(&self, people: PoseArray) -> Result<(), PublishError> {
-        self.people.publish(people).map_err(PublishError::of)
+        let zenoh = self.zenoh.as_ref().map(|z| put(&z.people, &people));
+        self.people.publish(people).map_err(PublishError::of)?;
+        zenoh.unwrap_or(Ok(()))
     }
 
     /// Publishes (and latches) the markers.
     pub fn publish_markers(&self, markers: MarkerArray) -> Result<(), PublishError> {
-        self.markers.publish(markers).map_err(PublishError::of)
+        let zenoh = self.zenoh.as_ref().map(|z| put(&z.markers, &markers));
+        self.markers.publish(markers).map_err(PublishError::of)?;
+        zenoh.unwrap_or(Ok(()))
     }
 
     /// Publishes (and latches) the speed filter's info.
     pub fn publish_filter_info(&self, info: CostmapFilterInfo) -> Result<(), PublishError> {
-        self.filter_info.publish(info).map_err(PublishError::of)
+        let zenoh = self.zenoh.as_ref().map(|z| put(&z.filter_info, &info));
+        self.filter_info.publish(info).map_err(PublishError::of)?;
+        zenoh.unwrap_or(Ok(()))
     }
 
     /// Publishes (and latches) a speed mask.
     pub fn publish_mask(&self, mask: OccupancyGrid) -> Result<(), PublishError> {
-        self.mask.publish(mask).map_err(PublishError::of)
+        let zenoh = self.zenoh.as_ref().map(|z| put(&z.mask, &mask));
+        self.mask.publish(mask).map_err(PublishError::of)?;
+        zenoh.unwrap_or(Ok(()))
     }
 
     /// Publishes (and latches) a forecast grid.
     pub fn publish_forecast(&self, grid: OccupancyGrid) -> Result<(), PublishError> {
-        self.forecast.publish(grid).map_err(PublishError::of)
+        let zenoh = self.zenoh.as_ref().map(|z| put(&z.forecast, &grid));
+        self.forecast.publish(grid).map_err(PublishError::of)?;
+        zenoh.unwrap_or(Ok(()))
     }
 
     /// Answers the requests of both planning services that are due with
@@ -271,14 +322,23 @@ impl RosOutput {
     pub fn serve_plans(
         &mut self,
         cx: &mut Context,
-        answer: impl FnMut(PlanKind, &PlanRequest) -> PlanResponse,
+        mut answer: impl FnMut(PlanKind, &PlanRequest) -> PlanResponse,
     ) -> usize {
-        self.plans.serve(cx, answer)
+        let mut n = self.plans.serve(cx, &mut answer);
+        if let Some(z) = &mut self.zenoh {
+            n += z.serve(cx, &mut self.zenoh_counts, &mut answer);
+        }
+        n
     }
 
     /// What the planning services did so far.
     pub fn plan_counts(&self) -> PlanCounts {
-        self.plans.counts()
+        let (dds, z) = (self.plans.counts(), self.zenoh_counts);
+        PlanCounts {
+            answered: dds.answered + z.answered,
+            rejected: dds.rejected + z.rejected,
+            dropped: dds.dropped + z.dropped,
+        }
     }
 
     /// Subscribers matched with the grid publisher: the remote readers DDS discovery

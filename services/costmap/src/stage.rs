@@ -377,9 +377,10 @@ impl Stage for CostmapStage {
 /// services, the speed filter's info (sent once, latched).
 fn ros_output(loaded: &LoadedConfig, grid: &MapGrid) -> Result<Ros, Fatal> {
     let c = &loaded.config.costmap;
+    let domain =
+        domain_id(c.ros_domain_id).map_err(|e| Fatal::from(e).context(loaded.path.display()))?;
     let settings = RosSettings {
-        domain_id: domain_id(c.ros_domain_id)
-            .map_err(|e| Fatal::from(e).context(loaded.path.display()))?,
+        domain_id: domain,
         interfaces: interfaces(
             &c.dds_interfaces
                 .iter()
@@ -396,6 +397,21 @@ fn ros_output(loaded: &LoadedConfig, grid: &MapGrid) -> Result<Ros, Fatal> {
         plan_offline_service: c.plan_offline_service.clone(),
         plan_now_service: c.plan_now_service.clone(),
         enclave: None,
+        zenoh: c.zenoh.enabled.then(|| isochron_zenoh::Settings {
+            domain,
+            mode: if c.zenoh.mode == "client" {
+                isochron_zenoh::Mode::Client
+            } else {
+                isochron_zenoh::Mode::Peer
+            },
+            connect: c.zenoh.connect.clone(),
+            listen: c.zenoh.listen.clone(),
+            config_file: c
+                .zenoh
+                .config_file
+                .as_ref()
+                .map(|p| loaded.base_dir().join(p)),
+        }),
     };
     let settings = RosSettings {
         enclave: enclave(loaded, &settings.interfaces)?,

@@ -118,7 +118,7 @@ fn cdr<T: DeserializeOwned>(body: &[u8], big_endian: bool) -> Result<T, String> 
 }
 
 /// The iceoryx2 request of a request body of `kind`, validated like one.
-pub(super) fn plan_request(
+pub(crate) fn plan_request(
     kind: PlanKind,
     body: &[u8],
     big_endian: bool,
@@ -276,7 +276,7 @@ pub(super) fn reply_bytes<T: Serialize>(
 }
 
 /// A `PlanOffline` response from the planner's answer.
-pub(super) fn offline_response(r: &PlanResponse) -> PlanOfflineResponse {
+pub(crate) fn offline_response(r: &PlanResponse) -> PlanOfflineResponse {
     if r.status != PlanStatus::Ok as u32 {
         return PlanOfflineResponse {
             status: r.status as u8,
@@ -312,7 +312,7 @@ pub(super) fn offline_response(r: &PlanResponse) -> PlanOfflineResponse {
 }
 
 /// A `PlanNow` response from the planner's answer.
-pub(super) fn now_response(r: &PlanResponse) -> PlanNowResponse {
+pub(crate) fn now_response(r: &PlanResponse) -> PlanNowResponse {
     let ok = r.status == PlanStatus::Ok as u32;
     PlanNowResponse {
         status: r.status as u8,
