@@ -233,6 +233,37 @@ impl GateConfig {
 }
 
 impl DetectorConfig {
+    /// Checks the `gate.detector.movenet_*` keys.
+    fn validate_movenet(&self) -> Result<(), Invalid> {
+        if !self.movenet_input_px.is_multiple_of(32)
+            || !(64..=1024).contains(&self.movenet_input_px)
+        {
+            return Err(Invalid::new(
+                "gate.detector.movenet_input_px",
+                format!(
+                    "expected a multiple of 32 from 64 to 1024, found {}",
+                    self.movenet_input_px
+                ),
+            ));
+        }
+        check_range(
+            "gate.detector.movenet_score_threshold",
+            self.movenet_score_threshold as f64,
+            0.0,
+            1.0,
+        )?;
+        if self.movenet_tile_px != 0 && self.movenet_tile_px < 64 {
+            return Err(Invalid::new(
+                "gate.detector.movenet_tile_px",
+                format!(
+                    "expected 0 (no tiles) or at least 64, found {}",
+                    self.movenet_tile_px
+                ),
+            ));
+        }
+        Ok(())
+    }
+
     /// Checks the `gate.detector.*` keys.
     fn validate(&self) -> Result<(), Invalid> {
         check_range("gate.detector.input_px", self.input_px as f64, 32.0, 4096.0)?;
@@ -257,30 +288,7 @@ impl DetectorConfig {
                 ),
             ));
         }
-        if self.movenet_input_px % 32 != 0 || !(64..=1024).contains(&self.movenet_input_px) {
-            return Err(Invalid::new(
-                "gate.detector.movenet_input_px",
-                format!(
-                    "expected a multiple of 32 from 64 to 1024, found {}",
-                    self.movenet_input_px
-                ),
-            ));
-        }
-        check_range(
-            "gate.detector.movenet_score_threshold",
-            self.movenet_score_threshold as f64,
-            0.0,
-            1.0,
-        )?;
-        if self.movenet_tile_px != 0 && self.movenet_tile_px < 64 {
-            return Err(Invalid::new(
-                "gate.detector.movenet_tile_px",
-                format!(
-                    "expected 0 (no tiles) or at least 64, found {}",
-                    self.movenet_tile_px
-                ),
-            ));
-        }
+        self.validate_movenet()?;
         if !matches!(self.input_channels, 1 | 3) {
             return Err(Invalid::new(
                 "gate.detector.input_channels",

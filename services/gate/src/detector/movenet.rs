@@ -115,7 +115,7 @@ impl MoveNetDetector {
         tile_px: u32,
         nms_threshold: f32,
     ) -> Result<Self, MoveNetError> {
-        if input_px == 0 || input_px % 32 != 0 {
+        if input_px == 0 || !input_px.is_multiple_of(32) {
             return Err(MoveNetError::Shape(format!(
                 "input {input_px} px: MoveNet needs a multiple of 32"
             )));
