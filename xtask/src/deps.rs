@@ -38,9 +38,10 @@ const CRATES_IO: &str = "registry+https://github.com/rust-lang/crates.io-index";
 
 /// Crates linked in two versions today, each because upstream crates are on two
 /// majors (rand_core 0.6 for RustDDS's crypto, 0.10 for the rest; syn 1 for
-/// old derive crates; …). A new name here needs a reason; removing one that no
+/// old derive crates; libloading 0.8 for clang-sys, OpenCV's bindings' build,
+/// 0.9 for ort's `load-dynamic`; …). A new name here needs a reason; removing one that no
 /// longer doubles is welcome (the check says which).
-const KNOWN_DUPLICATES: [&str; 30] = [
+const KNOWN_DUPLICATES: [&str; 31] = [
     "base64",
     "bitflags",
     "block-buffer",
@@ -58,6 +59,7 @@ const KNOWN_DUPLICATES: [&str; 30] = [
     "hashbrown",
     "indexmap",
     "itertools",
+    "libloading",
     "miniz_oxide",
     "nom",
     "rand_core",
