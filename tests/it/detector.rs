@@ -69,6 +69,27 @@ fn the_gate_names_its_detector_hog_without_a_network_and_the_installed_one_with_
     assert!(err.contains(&network.display().to_string()), "{err}");
     drop(ssd);
 
+    // MoveNet and ONNX Runtime installed too: MoveNet, the default, its file and
+    // the library named.
+    for file in ["movenet-multipose.onnx", "libonnxruntime.so"] {
+        let installed = repo_root().join("target/detector").join(file);
+        std::fs::copy(&installed, detector_dir.join(file))
+            .unwrap_or_else(|e| panic!("{}: {e}: run `cargo xtask setup`", installed.display()));
+    }
+    let movenet = start(&site, &gate);
+    let err = said(&movenet, "people detector: MoveNet MultiPose");
+    assert!(
+        err.contains(
+            &detector_dir
+                .join("movenet-multipose.onnx")
+                .display()
+                .to_string()
+        ) && err.contains("libonnxruntime.so")
+            && err.contains("1 thread(s)"),
+        "{err}"
+    );
+    drop(movenet);
+
     // `installed = false`: HOG although a network is there.
     let hog_site = TestSite::with_source(
         "detector-hog",
@@ -98,6 +119,45 @@ fn a_broken_network_stops_the_gate_with_a_config_error_naming_the_file() {
         done.stderr
     );
     assert!(!done.stderr.contains("panicked"), "{}", done.stderr);
+
+    // MoveNet installed but broken (the SSD beside it is not run instead), with
+    // the real library, without any, and with a broken one.
+    let movenet = detector_dir.join("movenet-multipose.onnx");
+    let library = detector_dir.join("libonnxruntime.so");
+    std::fs::write(&movenet, b"not an ONNX model").unwrap();
+    let real_library = repo_root().join("target/detector/libonnxruntime.so");
+    for (case, lib) in [
+        (
+            "broken model",
+            Some(std::fs::read(&real_library).expect("run `cargo xtask setup`")),
+        ),
+        ("no library", None),
+        ("broken library", Some(b"not a library".to_vec())),
+    ] {
+        match lib {
+            Some(bytes) => std::fs::write(&library, bytes).unwrap(),
+            None => {
+                let _ = std::fs::remove_file(&library);
+            }
+        }
+        // The copy's installed dirs are `dir/detector` and
+        // `dir/share/isochron/detector` only: no other library is found.
+        let done = start(&site, &gate).finish(Duration::from_secs(60));
+        assert_eq!(
+            done.status.code(),
+            Some(EX_CONFIG),
+            "{case}: {}",
+            done.stderr
+        );
+        assert!(
+            done.stderr.contains(&movenet.display().to_string())
+                && done.stderr.contains("cargo xtask setup"),
+            "{case}: {}",
+            done.stderr
+        );
+        assert!(!done.stderr.contains("panicked"), "{case}: {}", done.stderr);
+    }
+    std::fs::remove_file(&movenet).unwrap();
 
     // Configured: a truncated copy of the real network, and a missing file.
     let installed = repo_root().join("target/detector/ssdlite-person.pb");

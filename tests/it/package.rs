@@ -154,6 +154,10 @@ fn the_package_holds_the_site_and_installs_enabling_nothing() {
             "./usr/share/zsh/vendor-completions/_isochron",
             "./usr/share/fish/vendor_completions.d/isochron.fish",
             // The people detector setup installed, where the gate finds it.
+            "./usr/share/isochron/detector/movenet-multipose.onnx",
+            "./usr/share/isochron/detector/libonnxruntime.so",
+            "./usr/share/isochron/detector/LICENSE.movenet-multipose",
+            "./usr/share/isochron/detector/LICENSE.onnxruntime",
             "./usr/share/isochron/detector/ssdlite-person.pb",
             "./usr/share/isochron/detector/LICENSE.ssdlite-person",
         ]
@@ -181,8 +185,11 @@ fn the_package_holds_the_site_and_installs_enabling_nothing() {
     let mut texts = 0;
     for path in &paths {
         let file = tree.join(path.trim_start_matches("./"));
-        // Binaries: the programs and the detector's network.
-        if path.starts_with("./usr/bin/") || path.ends_with(".pb") || !file.is_file() {
+        // Binaries: the programs, the detectors' networks and ONNX Runtime.
+        if path.starts_with("./usr/bin/")
+            || [".pb", ".onnx", ".so"].iter().any(|e| path.ends_with(e))
+            || !file.is_file()
+        {
             continue;
         }
         let bytes = std::fs::read(&file).unwrap();

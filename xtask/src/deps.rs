@@ -42,10 +42,11 @@ const CRATES_IO: &str = "registry+https://github.com/rust-lang/crates.io-index";
 /// Crates linked in two versions today, each because upstream crates are on two
 /// majors (rand_core 0.6 for RustDDS's crypto, 0.10 for the rest; syn 1 for
 /// old derive crates; zenoh 1.10 on rand 0.8, secrecy 0.8 and socket2 0.5, with
-/// foldhash through hashbrown 0.15 and spin through two flume; …). A new name
-/// here needs a reason; removing one that no longer doubles is welcome (the
-/// check says which).
-const KNOWN_DUPLICATES: [&str; 35] = [
+/// foldhash through hashbrown 0.15 and spin through two flume; libloading 0.8
+/// for clang-sys, OpenCV's bindings' build, 0.9 for ort's `load-dynamic`; …). A
+/// new name here needs a reason; removing one that no longer doubles is welcome
+/// (the check says which).
+const KNOWN_DUPLICATES: [&str; 36] = [
     "base64",
     "bitflags",
     "block-buffer",
@@ -64,6 +65,7 @@ const KNOWN_DUPLICATES: [&str; 35] = [
     "hashbrown",
     "indexmap",
     "itertools",
+    "libloading",
     "miniz_oxide",
     "nom",
     "rand",

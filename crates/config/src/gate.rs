@@ -78,17 +78,20 @@ pub struct DetectorConfig {
     /// Run the detector at all. Default true. `false`: events and presence come
     /// from activity and the presence band alone (no boxes, no confirmed people).
     pub enabled: bool,
-    /// Model file, relative to the config file: a TensorFlow Object Detection API
-    /// SSD frozen graph (`.pb`, e.g. SSDLite-MobileNetV2) or a YOLOv5/YOLOv8 ONNX
-    /// export (any other name; docs/pipeline.md). A file that is missing or cannot
+    /// Model file, relative to the config file: MoveNet MultiPose in ONNX (a
+    /// `.onnx` whose name starts with `movenet`, ONNX Runtime's library beside it
+    /// or installed), a TensorFlow Object Detection API SSD frozen graph (`.pb`,
+    /// e.g. SSDLite-MobileNetV2) or a YOLOv5/YOLOv8 ONNX export (any other name;
+    /// docs/pipeline.md). A file that is missing or cannot
     /// be loaded stops the gate (exit 78). Default: none (the installed network,
     /// see `installed`).
     pub model: Option<PathBuf>,
-    /// Without `model`: run the network `cargo xtask setup` installed
-    /// (`detector/ssdlite-person.pb` in the directory above the binaries',
-    /// `target/` in a checkout, or `share/isochron/detector/` beside it), with
-    /// the SSD settings below, if it is there, and OpenCV's HOG if not (the gate
-    /// logs which runs). `false`: HOG. Default true.
+    /// Without `model`: run the network `cargo xtask setup` installed, in
+    /// `detector/` in the directory above the binaries' (`target/` in a
+    /// checkout) or `share/isochron/detector/` beside it: MoveNet
+    /// (`movenet-multipose.onnx` with `libonnxruntime.so`) if it is there, else
+    /// the SSD (`ssdlite-person.pb`), else OpenCV's HOG (the gate logs which
+    /// runs). `false`: HOG. Default true.
     pub installed: bool,
     /// Square input size of the ONNX model, pixels. Frames are letterboxed into
     /// it (scaled to fit, aspect kept, padded with grey 114). Default 640.
@@ -107,6 +110,20 @@ pub struct DetectorConfig {
     /// input); 0: the region in one piece. Default 288 (measured on PETS09:
     /// people 50×100 px in a 768×576 frame are found at 288, not in one piece).
     pub ssd_tile_px: u32,
+    /// Square input side of MoveNet MultiPose (the installed
+    /// `movenet-multipose.onnx`, or a `model` whose file name starts with
+    /// `movenet`), pixels, a multiple of 32: the search region is letterboxed
+    /// into it. Default 256 (what it was trained at).
+    pub movenet_input_px: u32,
+    /// Lowest person score a MoveNet detection is kept at. Default 0.3: on PETS09
+    /// 0.2 had the best F1 of 0.15–0.3, but false alarms on 13 of the lab
+    /// scene's 30 empty regions; 0.3 had 1 (so the lab scene is not held out for
+    /// this threshold; docs/benchmarks.md).
+    pub movenet_score_threshold: f32,
+    /// MoveNet searches a region larger than this, pixels, whole and in
+    /// overlapping square tiles of this side (as the SSD does); 0: whole only.
+    /// Default 288 (chosen on PETS09).
+    pub movenet_tile_px: u32,
     /// Lowest score of a kept detection (ONNX: class score; HOG: SVM margin).
     /// Default 0.4 (ONNX) — HOG uses `hog_hit_threshold`.
     pub score_threshold: f32,
@@ -163,6 +180,9 @@ impl Default for DetectorConfig {
             ssd_input_px: 300,
             ssd_score_threshold: 0.5,
             ssd_tile_px: 288,
+            movenet_input_px: 256,
+            movenet_score_threshold: 0.3,
+            movenet_tile_px: 288,
             score_threshold: 0.4,
             nms_threshold: 0.45,
             hog_upscale: 1.5,
@@ -215,6 +235,37 @@ impl GateConfig {
 }
 
 impl DetectorConfig {
+    /// Checks the `gate.detector.movenet_*` keys.
+    fn validate_movenet(&self) -> Result<(), Invalid> {
+        if !self.movenet_input_px.is_multiple_of(32)
+            || !(64..=1024).contains(&self.movenet_input_px)
+        {
+            return Err(Invalid::new(
+                "gate.detector.movenet_input_px",
+                format!(
+                    "expected a multiple of 32 from 64 to 1024, found {}",
+                    self.movenet_input_px
+                ),
+            ));
+        }
+        check_range(
+            "gate.detector.movenet_score_threshold",
+            self.movenet_score_threshold as f64,
+            0.0,
+            1.0,
+        )?;
+        if self.movenet_tile_px != 0 && self.movenet_tile_px < 64 {
+            return Err(Invalid::new(
+                "gate.detector.movenet_tile_px",
+                format!(
+                    "expected 0 (no tiles) or at least 64, found {}",
+                    self.movenet_tile_px
+                ),
+            ));
+        }
+        Ok(())
+    }
+
     /// Checks the `gate.detector.*` keys.
     fn validate(&self) -> Result<(), Invalid> {
         check_range("gate.detector.input_px", self.input_px as f64, 32.0, 4096.0)?;
@@ -239,6 +290,7 @@ impl DetectorConfig {
                 ),
             ));
         }
+        self.validate_movenet()?;
         if !matches!(self.input_channels, 1 | 3) {
             return Err(Invalid::new(
                 "gate.detector.input_channels",

@@ -32,7 +32,9 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use isochron_config::{DetectorConfig, MotionConfig};
-use isochron_gate::detector::{Detector, INSTALLED_NETWORK, Region};
+use isochron_gate::detector::{
+    Detector, INSTALLED_MOVENET, INSTALLED_NETWORK, INSTALLED_NETWORKS, Region,
+};
 use isochron_gate::gate::crop_region;
 use isochron_motion::detector::MotionDetector;
 use isochron_motion::eval::GroundTruth;
@@ -347,24 +349,43 @@ fn score_scene(
     Ok(s)
 }
 
-/// `--trial SPEC`: the network alone on the second scene with the settings of
-/// `SPEC`.
-fn run_trial(spec: &str, network: &Path, root: &Path, quick: bool) -> Result<(), Error> {
+/// `--trial SPEC`: one network alone on the second scene (or on PETS09 with
+/// `pets`) with the settings of `SPEC`.
+fn run_trial(spec: &str, root: &Path, quick: bool, step: usize) -> Result<(), Error> {
+    let movenet = spec.split(',').any(|kv| kv == "net=movenet");
+    let file = if movenet {
+        INSTALLED_MOVENET
+    } else {
+        INSTALLED_NETWORK
+    };
     let mut config = DetectorConfig {
-        model: Some(network.to_path_buf()),
+        model: Some(root.join("target/detector").join(file)),
         ..Default::default()
     };
     for kv in spec.split(',').filter(|s| !s.is_empty()) {
         match kv.split_once('=') {
-            _ if kv == "crop" => {}
+            _ if kv == "crop" || kv == "pets" => {}
+            Some(("net", "movenet" | "ssd")) => {}
+            Some(("st", v)) if movenet => config.movenet_score_threshold = v.parse()?,
+            Some(("tp", v)) if movenet => config.movenet_tile_px = v.parse()?,
+            Some(("ip", v)) if movenet => config.movenet_input_px = v.parse()?,
             Some(("st", v)) => config.ssd_score_threshold = v.parse()?,
             Some(("tp", v)) => config.ssd_tile_px = v.parse()?,
+            Some(("threads", v)) => config.threads = v.parse()?,
             _ => return Err(format!("--trial: unknown setting {kv}").into()),
         }
     }
+    let mut detector = Detector::from_config(&config, root)?;
+    if spec.split(',').any(|kv| kv == "pets") {
+        let p = score_pets(&mut detector, root, step)?;
+        println!(
+            "{spec} PETS09 every {step}th frame: precision {:.3} recall {:.3} {:.0} ms/frame",
+            p.precision, p.recall, p.ms
+        );
+        return Ok(());
+    }
     let crop = spec.contains("crop");
     let spec = spec.replace("crop", "");
-    let mut detector = Detector::from_config(&config, root)?;
     let s = score_scene(&mut detector, root, quick, crop)?;
     println!(
         "{spec} crop={crop}: frame recall {}/{} (centre in a person {}) person recall {}/{} false {}/{} mean IoU {:.2} empty alarms {}/{} {:.0} ms/frame, searched {:.2}",
@@ -445,24 +466,36 @@ fn main() -> Result<(), Error> {
     // pairs (st, tp): for trying settings; the targets are not checked.
     let trial: Option<String> = std::env::args().skip_while(|a| a != "--trial").nth(1);
     let root = repo_root();
-    let network = root.join("target/detector").join(INSTALLED_NETWORK);
-    if !network.is_file() {
+    let dir = root.join("target/detector");
+    if let Some(missing) = INSTALLED_NETWORKS
+        .iter()
+        .map(|n| dir.join(n))
+        .find(|p| !p.is_file())
+    {
         return Err(format!(
             "no installed network ({}): run `cargo xtask setup`",
-            network.display()
+            missing.display()
         )
         .into());
     }
     let step = if quick { QUICK_PETS_STEP } else { PETS_STEP };
     let mut rows = Vec::new();
     if let Some(spec) = &trial {
-        return run_trial(spec, &network, &root, quick);
+        return run_trial(spec, &root, quick, step);
     }
+    // The gate's default first (the first installed network it finds).
     for (label, config) in [
         (
-            "ssdlite (installed)",
+            "movenet (default)",
             DetectorConfig {
-                model: Some(network.clone()),
+                model: Some(dir.join(INSTALLED_MOVENET)),
+                ..Default::default()
+            },
+        ),
+        (
+            "ssdlite",
+            DetectorConfig {
+                model: Some(dir.join(INSTALLED_NETWORK)),
                 ..Default::default()
             },
         ),
@@ -480,7 +513,7 @@ fn main() -> Result<(), Error> {
         rows.push((label, pets, scene));
     }
     print_table(&rows, step);
-    let (net, hog) = (&rows[0], &rows[1]);
+    let (net, ssd, hog) = (&rows[0], &rows[1], &rows[2]);
     let met_pets = net.1.recall >= hog.1.recall && net.1.precision >= 0.85;
     let frame_recall = ratio(net.2.frames_found, net.2.frames);
     let empty_alarms = ratio(net.2.empty_alarms, net.2.empty);
@@ -492,11 +525,15 @@ fn main() -> Result<(), Error> {
         if met_scene { "met" } else { "NOT met" }
     );
     println!(
-        "{{\"bench\":\"detector\",\"pets_precision\":{:.3},\"pets_recall\":{:.3},\"hog_pets_precision\":{:.3},\"hog_pets_recall\":{:.3},\"scene_frame_recall\":{frame_recall:.3},\"scene_empty_alarms\":{empty_alarms:.3},\"hog_scene_frame_recall\":{:.3}{}}}",
+        "{{\"bench\":\"detector\",\"pets_precision\":{:.3},\"pets_recall\":{:.3},\"hog_pets_precision\":{:.3},\"hog_pets_recall\":{:.3},\"scene_frame_recall\":{frame_recall:.3},\"scene_empty_alarms\":{empty_alarms:.3},\"ssd_pets_precision\":{:.3},\"ssd_pets_recall\":{:.3},\"ssd_scene_frame_recall\":{:.3},\"ssd_scene_empty_alarms\":{:.3},\"hog_scene_frame_recall\":{:.3}{}}}",
         net.1.precision,
         net.1.recall,
         hog.1.precision,
         hog.1.recall,
+        ssd.1.precision,
+        ssd.1.recall,
+        ratio(ssd.2.frames_found, ssd.2.frames),
+        ratio(ssd.2.empty_alarms, ssd.2.empty),
         ratio(hog.2.frames_found, hog.2.frames),
         if quick { ",\"quick\":true" } else { "" }
     );

@@ -28,7 +28,7 @@ use std::process::Command;
 use std::time::Instant;
 
 use isochron_config::Config;
-use isochron_gate::detector::{Detector, INSTALLED_NETWORK, Region};
+use isochron_gate::detector::{Detector, INSTALLED_NETWORKS, Region};
 use isochron_tests::{bin_dir, mjpg_writer, repo_root};
 use opencv::core::Size;
 use opencv::prelude::*;
@@ -248,9 +248,12 @@ fn main() -> Result<(), Error> {
     // The network the group's gate finds beside its binaries (this bench's own
     // binary lies deeper, in `deps/`).
     let mut detector_config = config.config.gate.detector.clone();
-    let installed = bin_dir()
-        .parent()
-        .map(|target| target.join("detector").join(INSTALLED_NETWORK));
+    let installed = bin_dir().parent().and_then(|target| {
+        INSTALLED_NETWORKS
+            .iter()
+            .map(|n| target.join("detector").join(n))
+            .find(|p| p.is_file())
+    });
     if detector_config.model.is_none()
         && detector_config.installed
         && let Some(network) = installed.filter(|p| p.is_file())

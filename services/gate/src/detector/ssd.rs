@@ -230,7 +230,7 @@ const CONTAINED: f32 = 0.6;
 /// strongest first, a detection that overlaps a kept one (IoU at least
 /// `nms_threshold`, or most of the smaller inside the larger) is the same
 /// person, and the kept box becomes the larger of the two.
-pub fn merge_passes(mut found: Vec<Detection>, nms_threshold: f32) -> Vec<Detection> {
+pub(crate) fn merge_passes(mut found: Vec<Detection>, nms_threshold: f32) -> Vec<Detection> {
     found.sort_by(|a, b| b.score.total_cmp(&a.score));
     let mut kept: Vec<Detection> = Vec::new();
     for d in found {
