@@ -228,11 +228,24 @@ pub const ENCLAVE_FILES: [&str; 6] = [
 ];
 
 /// The first of [`ENCLAVE_FILES`] missing from `dir`, if any.
-pub fn missing_enclave_file(dir: &Path) -> Option<std::path::PathBuf> {
+fn missing_enclave_file(dir: &Path) -> Option<std::path::PathBuf> {
     ENCLAVE_FILES
         .iter()
         .map(|f| dir.join(f))
         .find(|p| !p.is_file())
+}
+
+/// What is wrong with the enclave `dir` that the config key `key` names, if
+/// anything: the first of [`ENCLAVE_FILES`] it lacks, and the command (`made_by`)
+/// that makes one.
+pub fn enclave_problem(dir: &Path, key: &str, made_by: &str) -> Option<String> {
+    missing_enclave_file(dir).map(|missing| {
+        format!(
+            "{key}: {} is missing (an enclave made by `{made_by}` holds {})",
+            missing.display(),
+            ENCLAVE_FILES.join(", ")
+        )
+    })
 }
 
 /// The QoS of a bounded topic: `reliability`, `durability`, keep last `depth`, and

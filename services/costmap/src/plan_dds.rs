@@ -350,18 +350,8 @@ impl Service {
             due.push(pending);
         }
         for pending in &due {
-            let response = match &pending.request {
-                Ok(request) => answer(self.kind, request),
-                Err(why) => {
-                    counts.rejected += 1;
-                    cx.health.rejected();
-                    let name = &self.name;
-                    cx.warnings.warn("plan request malformed", || {
-                        format!("{name}: a malformed request, answered with status 1: {why}")
-                    });
-                    PlanResponse::new(self.kind as u32, PlanStatus::BadRequest, why)
-                }
-            };
+            let request = pending.request.as_ref().map_err(String::as_str);
+            let response = respond((self.kind, &self.name), request, (cx, counts), answer);
             self.reply(cx, pending, &response);
             counts.answered += 1;
         }
@@ -409,6 +399,28 @@ impl Service {
             cx.warnings.warn("plan reply failed", || {
                 format!("{name}: a reply could not be sent: {e}")
             });
+        }
+    }
+}
+
+/// The response of the service `name` of `kind` to `request`: `answer`'s, or for a
+/// malformed request (`Err(why)`) status 1 with the reason, counted as rejected
+/// in `counts` and `cx` with a rate-limited warning.
+pub(crate) fn respond(
+    (kind, name): (PlanKind, &str),
+    request: Result<&PlanRequest, &str>,
+    (cx, counts): (&mut Context, &mut PlanCounts),
+    answer: &mut impl FnMut(PlanKind, &PlanRequest) -> PlanResponse,
+) -> PlanResponse {
+    match request {
+        Ok(request) => answer(kind, request),
+        Err(why) => {
+            counts.rejected += 1;
+            cx.health.rejected();
+            cx.warnings.warn("plan request malformed", || {
+                format!("{name}: a malformed request, answered with status 1: {why}")
+            });
+            PlanResponse::new(kind as u32, PlanStatus::BadRequest, why)
         }
     }
 }

@@ -50,7 +50,7 @@ use isochron_runtime::stage::Context;
 
 use crate::msgs::{CostmapFilterInfo, MarkerArray, OccupancyGrid, OccupancyGridUpdate, PoseArray};
 use crate::plan_dds::{PlanCounts, PlanServices};
-use crate::zenoh_out::{ZenohOutput, put};
+use crate::zenoh_out::{Names, ZenohOutput, put};
 
 /// The bridge's ROS 2 node: `/isochron/<NODE>`.
 const NODE: &str = "costmap_bridge";
@@ -229,7 +229,18 @@ impl RosOutput {
         .map_err(|e| ros.error(e.to_string()))?;
         let zenoh = match &settings.zenoh {
             Some(z) => {
-                let output = ZenohOutput::start(z, settings, NODE)?;
+                let names = Names {
+                    grid: &settings.topic,
+                    updates: &settings.updates_topic,
+                    people: &settings.people_topic,
+                    markers: &settings.markers_topic,
+                    speed_filter_info: &settings.speed_filter_info_topic,
+                    speed_mask: &settings.speed_mask_topic,
+                    forecast: &settings.forecast_topic,
+                    plan_offline: &settings.plan_offline_service,
+                    plan_now: &settings.plan_now_service,
+                };
+                let output = ZenohOutput::start(z, &names, NODE)?;
                 tracing::info!(
                     "ROS 2 on Zenoh (rmw_zenoh's format) too: domain {}, {} to {}, listening on {}",
                     z.domain,
@@ -268,49 +279,70 @@ impl RosOutput {
 
     /// Publishes a full grid.
     pub fn publish_grid(&self, grid: OccupancyGrid) -> Result<(), PublishError> {
-        let zenoh = self.zenoh.as_ref().map(|z| put(&z.grid, &grid));
+        let zenoh = self
+            .zenoh
+            .as_ref()
+            .map(|z| put(&z.grid, &grid).map_err(|detail| PublishError { detail }));
         self.grid.publish(grid).map_err(PublishError::of)?;
         zenoh.unwrap_or(Ok(()))
     }
 
     /// Publishes a delta.
     pub fn publish_update(&self, update: OccupancyGridUpdate) -> Result<(), PublishError> {
-        let zenoh = self.zenoh.as_ref().map(|z| put(&z.updates, &update));
+        let zenoh = self
+            .zenoh
+            .as_ref()
+            .map(|z| put(&z.updates, &update).map_err(|detail| PublishError { detail }));
         self.updates.publish(update).map_err(PublishError::of)?;
         zenoh.unwrap_or(Ok(()))
     }
 
     /// Publishes the people of one detected frame.
     pub fn publish_people(&self, people: PoseArray) -> Result<(), PublishError> {
-        let zenoh = self.zenoh.as_ref().map(|z| put(&z.people, &people));
+        let zenoh = self
+            .zenoh
+            .as_ref()
+            .map(|z| put(&z.people, &people).map_err(|detail| PublishError { detail }));
         self.people.publish(people).map_err(PublishError::of)?;
         zenoh.unwrap_or(Ok(()))
     }
 
     /// Publishes (and latches) the markers.
     pub fn publish_markers(&self, markers: MarkerArray) -> Result<(), PublishError> {
-        let zenoh = self.zenoh.as_ref().map(|z| put(&z.markers, &markers));
+        let zenoh = self
+            .zenoh
+            .as_ref()
+            .map(|z| put(&z.markers, &markers).map_err(|detail| PublishError { detail }));
         self.markers.publish(markers).map_err(PublishError::of)?;
         zenoh.unwrap_or(Ok(()))
     }
 
     /// Publishes (and latches) the speed filter's info.
     pub fn publish_filter_info(&self, info: CostmapFilterInfo) -> Result<(), PublishError> {
-        let zenoh = self.zenoh.as_ref().map(|z| put(&z.filter_info, &info));
+        let zenoh = self
+            .zenoh
+            .as_ref()
+            .map(|z| put(&z.filter_info, &info).map_err(|detail| PublishError { detail }));
         self.filter_info.publish(info).map_err(PublishError::of)?;
         zenoh.unwrap_or(Ok(()))
     }
 
     /// Publishes (and latches) a speed mask.
     pub fn publish_mask(&self, mask: OccupancyGrid) -> Result<(), PublishError> {
-        let zenoh = self.zenoh.as_ref().map(|z| put(&z.mask, &mask));
+        let zenoh = self
+            .zenoh
+            .as_ref()
+            .map(|z| put(&z.mask, &mask).map_err(|detail| PublishError { detail }));
         self.mask.publish(mask).map_err(PublishError::of)?;
         zenoh.unwrap_or(Ok(()))
     }
 
     /// Publishes (and latches) a forecast grid.
     pub fn publish_forecast(&self, grid: OccupancyGrid) -> Result<(), PublishError> {
-        let zenoh = self.zenoh.as_ref().map(|z| put(&z.forecast, &grid));
+        let zenoh = self
+            .zenoh
+            .as_ref()
+            .map(|z| put(&z.forecast, &grid).map_err(|detail| PublishError { detail }));
         self.forecast.publish(grid).map_err(PublishError::of)?;
         zenoh.unwrap_or(Ok(()))
     }

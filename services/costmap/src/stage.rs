@@ -482,16 +482,11 @@ fn enclave(loaded: &LoadedConfig, interfaces: &[IpAddr]) -> Result<Option<PathBu
         return Ok(None);
     };
     let dir = loaded.base_dir().join(dir);
-    if let Some(missing) = isochron_dds::missing_enclave_file(&dir) {
-        return Err(Fatal::new(
-            exit::CONFIG,
-            format!(
-                "{}: costmap.security_dir: {} is missing (an enclave made by `isochron keystore bridge` holds {})",
-                loaded.path.display(),
-                missing.display(),
-                isochron_dds::ENCLAVE_FILES.join(", ")
-            ),
-        ));
+    if let Some(problem) =
+        isochron_dds::enclave_problem(&dir, "costmap.security_dir", "isochron keystore bridge")
+    {
+        let line = format!("{}: {problem}", loaded.path.display());
+        return Err(Fatal::new(exit::CONFIG, line));
     }
     tracing::info!(
         enclave = %dir.display(),

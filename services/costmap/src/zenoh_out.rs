@@ -16,7 +16,7 @@ use byteorder::LittleEndian;
 use rustdds::serialization::to_vec;
 use serde::Serialize;
 
-use isochron_planning::query::{PlanKind, PlanRequest, PlanResponse, PlanStatus};
+use isochron_planning::query::{PlanKind, PlanRequest, PlanResponse};
 use isochron_runtime::stage::Context;
 use isochron_zenoh::names::{GID_LEN, Qos, RosType};
 use isochron_zenoh::{Request, RosPublisher, RosService, RosZenoh, Settings, ZenohError};
@@ -24,9 +24,8 @@ use isochron_zenoh::{Request, RosPublisher, RosService, RosZenoh, Settings, Zeno
 use crate::plan_dds::fair::{FairQueue, Pushed};
 use crate::plan_dds::{
     ANSWERS_PER_PASS, CLIENT_ANSWERS_PER_PASS, PER_CLIENT, PlanCounts, QUEUE, now_response,
-    offline_response, plan_request,
+    offline_response, plan_request, respond,
 };
-use crate::ros::{PublishError, RosSettings};
 
 /// The types the bridge sends and serves, as rmw_zenoh names them.
 pub mod types {
@@ -86,6 +85,29 @@ const STREAM: Qos = Qos {
     depth: 10,
 };
 
+/// The names the bridge's node publishes and serves (those of its DDS output).
+#[derive(Debug, Clone, Copy)]
+pub struct Names<'a> {
+    /// The grid topic.
+    pub grid: &'a str,
+    /// The updates topic.
+    pub updates: &'a str,
+    /// The people topic.
+    pub people: &'a str,
+    /// The markers topic.
+    pub markers: &'a str,
+    /// The speed filter info topic.
+    pub speed_filter_info: &'a str,
+    /// The speed mask topic.
+    pub speed_mask: &'a str,
+    /// The forecast topic.
+    pub forecast: &'a str,
+    /// The off-line planning service.
+    pub plan_offline: &'a str,
+    /// The real-time planning service.
+    pub plan_now: &'a str,
+}
+
 /// One planning service on Zenoh and its queue.
 struct Service {
     kind: PlanKind,
@@ -111,8 +133,8 @@ pub struct ZenohOutput {
 
 impl ZenohOutput {
     /// Opens the session of `zenoh` and declares the node `/isochron/<node>` with
-    /// the publishers and services `ros` names.
-    pub fn start(zenoh: &Settings, ros: &RosSettings, node: &str) -> Result<Self, ZenohError> {
+    /// the publishers and services of `names`.
+    pub fn start(zenoh: &Settings, names: &Names, node: &str) -> Result<Self, ZenohError> {
         let z = RosZenoh::open(zenoh, "/isochron", node)?;
         use types::*;
         let service = |name: &str, ty: &RosType, kind| -> Result<Service, ZenohError> {
@@ -125,21 +147,17 @@ impl ZenohOutput {
             })
         };
         let services = [
-            service(&ros.plan_offline_service, &PLAN_OFFLINE, PlanKind::Offline)?,
-            service(&ros.plan_now_service, &PLAN_NOW, PlanKind::Now)?,
+            service(names.plan_offline, &PLAN_OFFLINE, PlanKind::Offline)?,
+            service(names.plan_now, &PLAN_NOW, PlanKind::Now)?,
         ];
         Ok(ZenohOutput {
-            grid: z.publisher(&ros.topic, &OCCUPANCY_GRID, LATCHED)?,
-            updates: z.publisher(&ros.updates_topic, &OCCUPANCY_GRID_UPDATE, STREAM)?,
-            people: z.publisher(&ros.people_topic, &POSE_ARRAY, STREAM)?,
-            markers: z.publisher(&ros.markers_topic, &MARKER_ARRAY, LATCHED)?,
-            filter_info: z.publisher(
-                &ros.speed_filter_info_topic,
-                &COSTMAP_FILTER_INFO,
-                LATCHED,
-            )?,
-            mask: z.publisher(&ros.speed_mask_topic, &OCCUPANCY_GRID, LATCHED)?,
-            forecast: z.publisher(&ros.forecast_topic, &OCCUPANCY_GRID, LATCHED)?,
+            grid: z.publisher(names.grid, &OCCUPANCY_GRID, LATCHED)?,
+            updates: z.publisher(names.updates, &OCCUPANCY_GRID_UPDATE, STREAM)?,
+            people: z.publisher(names.people, &POSE_ARRAY, STREAM)?,
+            markers: z.publisher(names.markers, &MARKER_ARRAY, LATCHED)?,
+            filter_info: z.publisher(names.speed_filter_info, &COSTMAP_FILTER_INFO, LATCHED)?,
+            mask: z.publisher(names.speed_mask, &OCCUPANCY_GRID, LATCHED)?,
+            forecast: z.publisher(names.forecast, &OCCUPANCY_GRID, LATCHED)?,
             services,
             _node: z,
         })
@@ -165,14 +183,10 @@ impl ZenohOutput {
     }
 }
 
-/// Publishes `message` on `publisher`, as a [`PublishError`] if it fails.
-pub(crate) fn put<T: Serialize>(publisher: &RosPublisher, message: &T) -> Result<(), PublishError> {
-    let cdr = to_vec::<T, LittleEndian>(message).map_err(|e| PublishError {
-        detail: format!("Zenoh: encoding: {e}"),
-    })?;
-    publisher.put(&cdr).map_err(|e| PublishError {
-        detail: e.to_string(),
-    })
+/// Publishes `message` on `publisher`; what went wrong if it failed.
+pub(crate) fn put<T: Serialize>(publisher: &RosPublisher, message: &T) -> Result<(), String> {
+    let cdr = to_vec::<T, LittleEndian>(message).map_err(|e| format!("Zenoh: encoding: {e}"))?;
+    publisher.put(&cdr).map_err(|e| e.to_string())
 }
 
 impl Service {
@@ -237,20 +251,14 @@ impl Service {
         while answered < ANSWERS_PER_PASS
             && let Some((_, request)) = self.queue.next(&mut ready)
         {
-            let response = match read(self.kind, &request.payload()) {
-                Ok(plan) => answer(self.kind, &plan),
-                Err(why) => {
-                    counts.rejected += 1;
-                    cx.health.rejected();
-                    let name = &self.name;
-                    cx.warnings.warn("zenoh plan request malformed", || {
-                        format!(
-                            "{name} (Zenoh): a malformed request, answered with status 1: {why}"
-                        )
-                    });
-                    PlanResponse::new(self.kind as u32, PlanStatus::BadRequest, &why)
-                }
-            };
+            let read = read(self.kind, &request.payload());
+            let name = format!("{} (Zenoh)", self.name);
+            let response = respond(
+                (self.kind, &name),
+                read.as_ref().map_err(String::as_str),
+                (cx, counts),
+                answer,
+            );
             let cdr = match self.kind {
                 PlanKind::Now => to_vec::<_, LittleEndian>(&now_response(&response)),
                 _ => to_vec::<_, LittleEndian>(&offline_response(&response)),

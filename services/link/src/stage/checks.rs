@@ -102,16 +102,11 @@ pub(super) fn enclave(loaded: &LoadedConfig) -> Result<Option<std::path::PathBuf
         return Ok(None);
     };
     let dir = loaded.base_dir().join(dir);
-    if let Some(missing) = isochron_dds::missing_enclave_file(&dir) {
-        return Err(Fatal::new(
-            exit::CONFIG,
-            format!(
-                "{}: link.security_dir: {} is missing (an enclave made by `isochron keystore enclave` holds {})",
-                loaded.path.display(),
-                missing.display(),
-                isochron_dds::ENCLAVE_FILES.join(", ")
-            ),
-        ));
+    if let Some(problem) =
+        isochron_dds::enclave_problem(&dir, "link.security_dir", "isochron keystore enclave")
+    {
+        let line = format!("{}: {problem}", loaded.path.display());
+        return Err(Fatal::new(exit::CONFIG, line));
     }
     tracing::info!(enclave = %dir.display(), "DDS Security on");
     Ok(Some(dir))
