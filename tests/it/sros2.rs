@@ -212,12 +212,9 @@ fn a_secured_bridge_reaches_only_robots_of_its_keystore() {
         open.dump()
     );
     assert!(!open.of("other_reply").is_empty(), "{}", open.dump());
-    assert_eq!(
-        open.lines.last().map(|l| l["kind"].clone()),
-        Some("unavailable".into()),
-        "{}",
-        open.dump()
-    );
+    // Never the secured bridge's answer (under load the robot may still be
+    // printing the spoofer's when its time is up, before its last line).
+    assert!(open.of("reply").is_empty(), "{}", open.dump());
     spoof.terminate(Duration::from_secs(10));
     assert!(bridge.wait(Duration::ZERO).is_none(), "{}", bridge.stderr());
 }
