@@ -122,11 +122,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             let (topics, requests, replies) = bridge_names(&loaded.config.costmap);
             let grant = Grant {
                 subject: &name,
-                domain: loaded
-                    .config
-                    .costmap
-                    .ros_domain_id
-                    .map_or_else(env_domain, Ok)?,
+                domain: robots_domain(&loaded)?,
                 publish: with_graph(topics.into_iter().chain(replies)),
                 subscribe: with_graph(requests),
             };
@@ -148,11 +144,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             let (topics, requests, replies) = bridge_names(&loaded.config.costmap);
             let grant = Grant {
                 subject: &name,
-                domain: loaded
-                    .config
-                    .costmap
-                    .ros_domain_id
-                    .map_or_else(env_domain, Ok)?,
+                domain: robots_domain(&loaded)?,
                 publish: with_graph(requests),
                 subscribe: with_graph(topics.into_iter().chain(replies)),
             };
@@ -175,6 +167,15 @@ pub fn bridge_name(box_id: &str) -> String {
 
 /// The bridge's DDS names: its topics (`rt/...`), its services' request topics
 /// (`rq/<service>Request`) and reply topics (`rr/<service>Reply`).
+/// The DDS domain of the robots' side: `costmap.ros_domain_id`, else `$ROS_DOMAIN_ID`.
+fn robots_domain(loaded: &isochron_config::LoadedConfig) -> anyhow::Result<u16> {
+    loaded
+        .config
+        .costmap
+        .ros_domain_id
+        .map_or_else(env_domain, Ok)
+}
+
 fn bridge_names(c: &isochron_config::CostmapConfig) -> (Vec<String>, Vec<String>, Vec<String>) {
     let absolute = |n: &str| {
         if n.starts_with('/') {
