@@ -115,7 +115,9 @@ fn subscribe(port: u16, filter: &str) -> Receiver<Option<Received>> {
     let mut options = MqttOptions::new("isochron-test-subscriber", "127.0.0.1", port);
     options
         .set_clean_session(false)
-        .set_keep_alive(Duration::from_secs(5));
+        .set_keep_alive(Duration::from_secs(5))
+        // Detections with keypoints outgrow rumqttc's default 10 KiB.
+        .set_max_packet_size(1 << 20, 10 * 1024);
     let (client, mut connection) = Client::new(options, 16);
     named_thread("mqtt-connection", move || {
         for event in connection.iter() {

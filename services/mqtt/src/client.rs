@@ -52,7 +52,7 @@ use rumqttc::{
 };
 
 use crate::login::Login;
-use crate::outbox::{Message, Outbox};
+use crate::outbox::{MAX_PACKET_BYTES, Message, Outbox};
 
 /// Messages handed to the connection and not yet acknowledged, at most.
 pub const WINDOW: usize = 32;
@@ -275,6 +275,8 @@ impl Client {
             .set_keep_alive(settings.keepalive)
             .set_clean_session(true)
             .set_inflight(WINDOW as u16 * 2)
+            // Incoming: acknowledgements only; outgoing: up to the outbox's bound.
+            .set_max_packet_size(10 * 1024, MAX_PACKET_BYTES)
             .set_last_will(LastWill::new(
                 &settings.status_topic,
                 "offline",

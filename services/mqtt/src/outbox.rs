@@ -19,6 +19,17 @@ pub struct Message {
     pub origin_wall_ns: i64,
 }
 
+/// The largest MQTT packet the sink sends, bytes (rumqttc refuses larger ones
+/// and closes the connection; its default is 10 KiB, less than the detections
+/// of a few people with keypoints).
+pub const MAX_PACKET_BYTES: usize = 1 << 20;
+
+/// Bytes of `m`'s QoS 1 PUBLISH packet: fixed header (at most 5), the topic's
+/// length and bytes, the packet id, the payload.
+pub fn packet_len(m: &Message) -> usize {
+    5 + 2 + m.topic.len() + 2 + m.payload.len()
+}
+
 /// The queue and what became of the messages that left it.
 #[derive(Debug)]
 pub struct Outbox {
@@ -39,10 +50,17 @@ impl Outbox {
         }
     }
 
-    /// Queues `m`; a full queue drops its oldest message first.
-    pub fn push(&mut self, m: Message) {
+    /// Queues `m`; a full queue drops its oldest message first. A message whose
+    /// packet would be larger than [`MAX_PACKET_BYTES`] is dropped and counted
+    /// instead (returns false): no connection could carry it.
+    pub fn push(&mut self, m: Message) -> bool {
+        if packet_len(&m) > MAX_PACKET_BYTES {
+            self.dropped += 1;
+            return false;
+        }
         self.queue.push_back(m);
         self.trim();
+        true
     }
 
     /// The oldest message, to hand to the client.
@@ -146,6 +164,17 @@ mod tests {
         o.requeue(vec![msg(1), msg(2)].into_iter());
         assert_eq!(o.dropped(), 1);
         assert_eq!(contents(&mut o), vec![2, 3, 4, 5]);
+    }
+
+    #[test]
+    fn a_message_no_packet_can_carry_is_dropped_and_counted() {
+        let mut o = Outbox::new(2);
+        let mut big = msg(9);
+        big.payload = vec![b'x'; MAX_PACKET_BYTES];
+        assert!(!o.push(big));
+        assert!(o.push(msg(1)));
+        assert_eq!(o.dropped(), 1);
+        assert_eq!(contents(&mut o), vec![1]);
     }
 
     #[test]

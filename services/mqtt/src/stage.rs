@@ -22,7 +22,7 @@ use isochron_runtime::topology::StageKind;
 
 use crate::client::{self, Settings, Shared};
 use crate::message::{Topics, detections_json, event_json, implausible_event};
-use crate::outbox::Message;
+use crate::outbox::{MAX_PACKET_BYTES, Message, packet_len};
 use crate::{login, tls};
 
 /// Runs the sink on `ctx`'s site until it is asked to stop. Without `[mqtt]` it
@@ -119,12 +119,19 @@ impl MqttStage {
 
     fn queue(&mut self, topic: String, json: serde_json::Value, arrived: Instant, origin: i64) {
         self.messages += 1;
-        self.shared.outbox().push(Message {
+        let message = Message {
             topic,
             payload: json.to_string().into_bytes(),
             arrived,
             origin_wall_ns: origin,
-        });
+        };
+        let bytes = packet_len(&message);
+        let topic = message.topic.clone();
+        if !self.shared.outbox().push(message) {
+            tracing::warn!(
+                "a message of {bytes} bytes on {topic} is larger than the {MAX_PACKET_BYTES} bytes an MQTT packet of the sink may be: dropped"
+            );
+        }
     }
 
     /// Counts what the broker acknowledged and the queue dropped since the last
