@@ -18,7 +18,7 @@
 //! * `bridge DIR --config site.toml`: the enclave of that box's costmap bridge
 //!   (`DIR/enclaves/<box_id>_costmap`, or `costmap` without a `link.box_id`; the
 //!   directory `costmap.security_dir` names): publish its grid, updates, people,
-//!   markers, speed filter, mask and forecast topics (`rt/<topic>`), read its
+//!   markers, people markers, speed filter, mask and forecast topics (`rt/<topic>`), read its
 //!   planning services' requests (`rq/<service>Request`) and write their replies
 //!   (`rr/<service>Reply`), on `costmap.ros_domain_id`.
 //! * `robot DIR NAME --config site.toml`: the enclave of robot NAME
@@ -189,6 +189,7 @@ fn bridge_names(c: &isochron_config::CostmapConfig) -> (Vec<String>, Vec<String>
         c.updates_topic(),
         c.people_topic.clone(),
         c.markers_topic.clone(),
+        c.people_markers_topic.clone(),
         c.speed_filter_info_topic.clone(),
         c.speed_mask_topic.clone(),
         c.forecast_topic.clone(),

@@ -317,6 +317,22 @@ fn describe_event(
     }
 }
 
+/// One detection as `tap --json` and `replay`'s `detections.jsonl` write it: its
+/// box (frame pixels), score, class, model and, where the model gave them,
+/// `keypoints` (COCO's 17 as `[x, y, score]`; absent otherwise).
+pub(crate) fn detection_json(d: &isochron_wire::Detection) -> Value {
+    let mut out = json!({"x": d.x, "y": d.y, "w": d.w, "h": d.h, "score": d.score,
+        "class": d.class, "model": d.model().name()});
+    if d.has_pose() {
+        out["keypoints"] = d
+            .keypoints
+            .iter()
+            .map(|k| json!([k.x, k.y, k.score]))
+            .collect();
+    }
+    out
+}
+
 fn describe_detections(
     h: &isochron_wire::DetectionHeader,
     dets: &[isochron_wire::Detection],
@@ -329,10 +345,11 @@ fn describe_detections(
     };
     Line {
         text: format!(
-            "{text} event={} index={} people={} detector_ms={:.1} seen={} detected={} dropped_jobs={} saved={:.1}%",
+            "{text} event={} index={} people={} model={} detector_ms={:.1} seen={} detected={} dropped_jobs={} saved={:.1}%",
             h.event_id,
             h.source_index,
             dets.len(),
+            dets.first().map_or("-", |d| d.model().name()),
             h.detector_us as f64 / 1e3,
             h.frames_seen,
             h.frames_detected,
@@ -342,7 +359,7 @@ fn describe_detections(
         json: merge(
             json,
             json!({"event_id": h.event_id, "source_index": h.source_index,
-                   "detections": dets.iter().map(|d| json!({"x": d.x, "y": d.y, "w": d.w, "h": d.h, "score": d.score, "class": d.class})).collect::<Vec<_>>(),
+                   "detections": dets.iter().map(detection_json).collect::<Vec<_>>(),
                    "detector_ms": h.detector_us as f64 / 1e3, "frames_seen": h.frames_seen,
                    "frames_detected": h.frames_detected, "jobs_dropped": h.jobs_dropped,
                    "detector_total_ms": h.detector_total_us as f64 / 1e3}),

@@ -18,7 +18,8 @@ use isochron_store::{Store, StoreMeta, store_path};
 use isochron_tests::{NetnsPair, Proc, TestSite, bin, json_list, repo_root, venv_python};
 use isochron_wire::geometry::BlockGrid;
 use isochron_wire::{
-    ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader, Preamble, Stream,
+    ActivityHeader, BlockActivity, CameraId, Detection, DetectionHeader, DetectorModel, Keypoint,
+    Preamble, Stream,
 };
 use serde_json::Value;
 
@@ -951,14 +952,38 @@ pub(crate) fn send_person(
     capture_ns: i64,
 ) {
     let [u, v] = floor_to_image(feet);
-    let d = Detection {
-        x: (u - 10.0) as f32,
-        y: (v - 40.0) as f32,
+    let (x, y) = ((u - 10.0) as f32, (v - 40.0) as f32);
+    let mut d = Detection {
+        x,
+        y,
         w: 20.0,
         h: 40.0,
         score: 1.0,
         class: 0,
+        model: DetectorModel::MoveNet as u32,
+        ..Default::default()
     };
+    // A standing pose: shoulders, elbows, wrists, hips, knees and ankles (no face).
+    for (k, (dx, dy)) in [
+        (5, (6.0, 8.0)),
+        (6, (14.0, 8.0)),
+        (7, (5.0, 15.0)),
+        (8, (15.0, 15.0)),
+        (9, (5.0, 21.0)),
+        (10, (15.0, 21.0)),
+        (11, (7.0, 21.0)),
+        (12, (13.0, 21.0)),
+        (13, (7.0, 30.0)),
+        (14, (13.0, 30.0)),
+        (15, (7.0, 39.0)),
+        (16, (13.0, 39.0)),
+    ] {
+        d.keypoints[k] = Keypoint {
+            x: x + dx,
+            y: y + dy,
+            score: 0.9,
+        };
+    }
     let mut preamble = Preamble::new::<Detection>(
         Stream::Detections,
         CameraId::new("cam01").unwrap(),

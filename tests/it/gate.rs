@@ -331,6 +331,8 @@ fn an_onnx_model_runs_through_opencv_dnn_on_the_letterboxed_frame() {
         assert_eq!(found.len(), 1, "{found:?}");
         let d = found[0];
         assert_eq!((d.x, d.y, d.w, d.h, d.class), (48.0, 8.0, 32.0, 48.0, 0));
+        assert_eq!(d.model(), isochron_wire::DetectorModel::Onnx);
+        assert!(!d.has_pose(), "a YOLO box has no keypoints");
         // Its score is the input's mean: half frame (≈ its mean), half grey 114.
         let pixels = &fed.feeder.pixels;
         let frame_mean = pixels.iter().map(|&p| p as f64).sum::<f64>() / pixels.len() as f64;

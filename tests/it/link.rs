@@ -408,6 +408,7 @@ fn records_cross_and_a_burst_is_counted(ipc_a: &Ipc, ipc_b: &Ipc, scene: &mut Sc
         h: 60.0,
         score: 0.9,
         class: 0,
+        ..Default::default()
     };
     detections_a.send_copy(det, &[person]).unwrap();
     let (mut got, mut got_det) = (Vec::new(), None);

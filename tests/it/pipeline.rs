@@ -107,6 +107,50 @@ fn vtest_through_all_stages_gates_the_detector_onto_people() {
     );
     assert!(recall >= 0.6, "hit rate {recall:.2}");
     assert!(precision >= 0.5, "precision {precision:.2}");
+
+    // Every detection names its model: the installed default, MoveNet, with 17
+    // keypoints. On the people MOT15 boxed, the keypoints MoveNet is sure of lie
+    // where bodies are: ankles in the lowest quarter of the labelled box, the
+    // nose or eyes in its top quarter.
+    let mut feet_ok = (0, 0);
+    let mut head_ok = (0, 0);
+    for d in &detections {
+        let frame = d["frame"].as_u64().unwrap() as usize;
+        for b in d["detections"].as_array().unwrap() {
+            assert_eq!(b["model"], "movenet", "{b}");
+            let f = |k: &str| b[k].as_f64().unwrap() as f32;
+            let p = [f("x"), f("y"), f("w"), f("h")];
+            let Some(t) = truth[frame].iter().find(|t| iou(**t, p) >= 0.5) else {
+                continue;
+            };
+            let kps = b["keypoints"].as_array().expect("MoveNet keypoints");
+            assert_eq!(kps.len(), 17, "{b}");
+            let sure = |k: usize| {
+                let v = kps[k].as_array().unwrap();
+                let (y, score) = (v[1].as_f64().unwrap() as f32, v[2].as_f64().unwrap());
+                (score >= 0.3).then_some((y - t[1]) / t[3])
+            };
+            let tally = |k: usize, range: std::ops::Range<f32>, into: &mut (usize, usize)| {
+                if let Some(at) = sure(k) {
+                    into.1 += 1;
+                    into.0 += usize::from(range.contains(&at));
+                }
+            };
+            tally(15, 0.75..1.1, &mut feet_ok);
+            tally(16, 0.75..1.1, &mut feet_ok);
+            tally(0, -0.1..0.25, &mut head_ok);
+        }
+    }
+    let share = |(ok, n): (usize, usize)| ok as f64 / n.max(1) as f64;
+    println!(
+        "MoveNet keypoints on matched PETS09 people: ankles in the box's lowest quarter {}/{}, nose in its top quarter {}/{}",
+        feet_ok.0, feet_ok.1, head_ok.0, head_ok.1
+    );
+    assert!(
+        feet_ok.1 >= 10 && share(feet_ok) >= 0.8,
+        "ankles {feet_ok:?}"
+    );
+    assert!(head_ok.1 >= 5 && share(head_ok) >= 0.8, "noses {head_ok:?}");
 }
 
 /// Frames per second of the synthetic video.

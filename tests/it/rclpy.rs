@@ -98,12 +98,14 @@ impl Peer<'_> {
 }
 
 /// Every topic beyond the grid, as the node asks for them (the defaults).
-const EVERY_TOPIC: [&str; 11] = [
+const EVERY_TOPIC: [&str; 13] = [
     "--updates",
     "--people",
     "/isochron/people",
     "--markers",
     "/isochron/markers",
+    "--people-markers",
+    "/isochron/people_markers",
     "--speed-info",
     "/isochron/speed_filter_info",
     "--speed-mask",
@@ -114,7 +116,7 @@ const EVERY_TOPIC: [&str; 11] = [
 
 /// The QoS each topic's publisher offers, as docs/robots.md lists it: (topic,
 /// type, durability); all reliable.
-const OFFERED: [(&str, &str, &str); 7] = [
+const OFFERED: [(&str, &str, &str); 8] = [
     (TOPIC, "nav_msgs/msg/OccupancyGrid", "transient_local"),
     (
         "/isochron_test/activity_costmap_updates",
@@ -130,6 +132,11 @@ const OFFERED: [(&str, &str, &str); 7] = [
         "/isochron/markers",
         "visualization_msgs/msg/MarkerArray",
         "transient_local",
+    ),
+    (
+        "/isochron/people_markers",
+        "visualization_msgs/msg/MarkerArray",
+        "volatile",
     ),
     (
         "/isochron/speed_filter_info",
@@ -246,6 +253,7 @@ fn exchange(release: &str, netns: Option<&NetnsPair>) {
                 && last(msgs, "speed_mask").is_some_and(|m| data(m).contains(&25))
                 && last(msgs, "filter_info").is_some()
                 && last(msgs, "people").is_some()
+                && last(msgs, "people_markers").is_some()
                 && last(msgs, "markers").is_some_and(|m| m["markers"].as_array().unwrap().len() > 1)
                 && msgs.iter().any(|m| in_site_time(m) && data(m) == forecast)
                 && msgs.iter().filter(|m| m["kind"] == "endpoints").count() == OFFERED.len()
@@ -345,6 +353,35 @@ fn exchange(release: &str, netns: Option<&NetnsPair>) {
         (poses[0].0 - feet[0]).abs() < 0.01 && (poses[0].1 - feet[1]).abs() < 0.01,
         "{person}"
     );
+    // The person drawn: a skeleton standing at the feet, labelled with the model
+    // and score, shown for `confirm_hold_s`.
+    let drawn = last(&msgs, "people_markers").unwrap()["markers"]
+        .as_array()
+        .unwrap()
+        .clone();
+    let skeleton = drawn.iter().find(|m| m["type"] == 5).expect("a LINE_LIST");
+    assert_eq!(skeleton["ns"], "people/cam01", "{drawn:?}");
+    assert_eq!(skeleton["lifetime_s"], 3600);
+    let bones = skeleton["points"].as_array().unwrap();
+    assert_eq!(
+        bones.len(),
+        2 * 12,
+        "the bones of the 12 body keypoints sent: {skeleton}"
+    );
+    let top = bones
+        .iter()
+        .filter_map(|p| p[2].as_f64())
+        .fold(0.0, f64::max);
+    for p in bones {
+        let (x, y) = (p[0].as_f64().unwrap(), p[1].as_f64().unwrap());
+        assert!(
+            (x - feet[0]).hypot(y - feet[1]) < 0.5,
+            "a bone far from the feet: {p}"
+        );
+    }
+    assert!(top > 0.3, "standing: shoulders {top} m up");
+    let label = drawn.iter().find(|m| m["type"] == 9).expect("a label");
+    assert_eq!(label["text"], "movenet 1.00");
     // The markers: cleared first, the camera, both segments and their labels.
     let markers = last(&msgs, "markers").unwrap()["markers"]
         .as_array()

@@ -330,7 +330,7 @@ fn an_rmw_zenoh_robot_gets_every_topic_a_late_grid_and_plans() {
         assert!(r["s"].as_f64().unwrap() < 2.0, "{r}");
     }
 
-    // The graph: the node, seven publishers and two services, each with the
+    // The graph: the node, eight publishers and two services, each with the
     // type hash and QoS rmw_zenoh's tokens carry.
     let done = node.finish(Duration::from_secs(60));
     let tokens: Vec<String> = lines(&done.stdout)
@@ -347,7 +347,7 @@ fn an_rmw_zenoh_robot_gets_every_topic_a_late_grid_and_plans() {
             .filter(|t| t.contains(&format!("/{k}/")))
             .count()
     };
-    assert_eq!((kind("NN"), kind("MP"), kind("SS")), (1, 7, 2), "{ours:?}");
+    assert_eq!((kind("NN"), kind("MP"), kind("SS")), (1, 8, 2), "{ours:?}");
     assert!(
         ours.iter().any(|t| t.ends_with(&format!(
             "/%isochron_test%activity_costmap/nav_msgs::msg::dds_::OccupancyGrid_/{GRID_HASH}/:1:,1:,:,:,,"

@@ -41,7 +41,7 @@ from ros2_dds import configure, emit, reliable_qos
 MSG_DIR = Path(__file__).resolve().parents[2] / "ros/isochron_msgs/msg"
 MAGIC = int.from_bytes(b"ISOC", "little")
 # Bytes of one payload element in shared memory (wire.rs): BlockActivity, u32, Detection.
-ELEMENT_SIZE = {"activity": 36, "events": 4, "detections": 24}
+ELEMENT_SIZE = {"activity": 36, "events": 4, "detections": 232}
 STREAM = {"activity": 3, "events": 4, "detections": 5}
 
 

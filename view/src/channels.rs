@@ -9,7 +9,7 @@
 //! | `/scene` | `foxglove.SceneUpdate` in `costmap.frame_id` | route segments and camera footprints on the floor (config), re-sent every 5 s |
 //! | `/<camera>/activity` | `foxglove.Grid` (`s1`, `s2`, `lt_mean`, `present`, float32) in frame `<camera>`, cell = one block in pixels | `activity` |
 //! | `/<camera>/events` | `foxglove.Log` | `events` |
-//! | `/<camera>/detections` | `foxglove.ImageAnnotations` (boxes and scores, in the published image's pixels) | `detections` |
+//! | `/<camera>/detections` | `foxglove.ImageAnnotations` (boxes, skeletons, model and score, in the published image's pixels) | `detections` |
 //! | `/<camera>/image` | `foxglove.CompressedImage` (JPEG) | `frames`, only with `view.frames = true`, at most `view.frame_rate_hz` |
 //! | `/<camera>/motion` | `foxglove.Grid` (`density`, `dx`, `dy`, float32) in frame `<camera>`, cell = one block in pixels | `motion`, the newest sample at most every 0.5 s of capture time ([`MOTION_EVERY_NS`]) |
 //! | `/<camera>/status/<stage>`, `/status/costmap` | `foxglove.Log` (warning when the service dropped or rejected samples since its last report) | each service's status report (every 5 s) |
@@ -22,9 +22,8 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use foxglove::messages::{
-    Color, CompressedImage, Grid, ImageAnnotations, LinePrimitive, Log, PackedElementField, Point2,
-    Point3, PointsAnnotation, Pose, Quaternion, SceneEntity, SceneUpdate, TextAnnotation,
-    TextPrimitive, Timestamp, Vector2, Vector3,
+    Color, CompressedImage, Grid, ImageAnnotations, LinePrimitive, Log, PackedElementField, Point3,
+    Pose, Quaternion, SceneEntity, SceneUpdate, TextPrimitive, Timestamp, Vector2, Vector3,
 };
 use foxglove::{Channel, Context};
 use isochron_config::{LoadedConfig, ViewConfig};
@@ -40,7 +39,7 @@ use isochron_wire::{
     EventHeader, EventPhase, FrameHeader, MotionHeader, PixelFormat, StageStatus,
 };
 
-use crate::jpeg;
+use crate::{annotations, jpeg};
 
 /// Topic of the site's cost map.
 pub const COSTMAP_TOPIC: &str = "/costmap";
@@ -460,7 +459,8 @@ impl SiteChannels {
         self.count(&topic);
     }
 
-    /// A `detections` sample of camera `k`: boxes and scores on the image.
+    /// A `detections` sample of camera `k`: boxes, skeletons (where the model
+    /// gave keypoints), model names and scores on the image.
     pub fn on_detections(&mut self, k: usize, h: &DetectionHeader, dets: &[Detection]) {
         let Some(cam) = self.cameras.get(k) else {
             return;
@@ -469,45 +469,8 @@ impl SiteChannels {
         let f = cam.frame_px.map_or(1, |(w, hgt)| {
             jpeg::scale_factor(w, hgt, self.view.frame_max_px)
         }) as f64;
-        let color = Color {
-            r: 1.0,
-            g: 0.2,
-            b: 0.2,
-            a: 1.0,
-        };
-        let mut points = Vec::new();
-        let mut texts = Vec::new();
-        for d in dets {
-            let (x0, y0) = (d.x as f64 / f, d.y as f64 / f);
-            let (x1, y1) = (x0 + d.w as f64 / f, y0 + d.h as f64 / f);
-            points.push(PointsAnnotation {
-                timestamp: Some(timestamp(t)),
-                r#type: foxglove::messages::points_annotation::Type::LineLoop as i32,
-                points: [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
-                    .map(|(x, y)| Point2 { x, y })
-                    .to_vec(),
-                outline_color: Some(color),
-                thickness: 2.0,
-                ..Default::default()
-            });
-            texts.push(TextAnnotation {
-                timestamp: Some(timestamp(t)),
-                position: Some(Point2 { x: x0, y: y0 }),
-                text: format!("{:.2}", d.score),
-                font_size: 12.0,
-                text_color: Some(color),
-                ..Default::default()
-            });
-        }
-        cam.detections.log_with_time(
-            &ImageAnnotations {
-                timestamp: Some(timestamp(t)),
-                points,
-                texts,
-                ..Default::default()
-            },
-            nanos(t),
-        );
+        cam.detections
+            .log_with_time(&annotations::detections(dets, f, t), nanos(t));
         let topic = camera_topic(&cam.id, "detections");
         self.count(&topic);
     }
@@ -593,7 +556,7 @@ fn block_grid<const N: usize>(
     }
 }
 
-fn timestamp(ns: i64) -> Timestamp {
+pub(crate) fn timestamp(ns: i64) -> Timestamp {
     let ns = ns.max(0);
     Timestamp::new(
         (ns / 1_000_000_000).min(u32::MAX as i64) as u32,

@@ -3,7 +3,8 @@
 //! `isochron replay --record`) that open in Foxglove the same way.
 //!
 //! * [`channels`]: the topics, their Foxglove well-known schemas, and how samples
-//!   become messages — one module for both sinks;
+//!   become messages — one module for both sinks; [`annotations`]: the
+//!   detections drawn on a camera's image (boxes, skeletons, model and score);
 //! * [`follow`]: one more subscriber of the cameras' streams that never slows a
 //!   producer, and the services' status readers;
 //! * [`stage`]: the view and the recorder as a stage on the stage runtime
@@ -21,6 +22,7 @@
 
 #![warn(missing_docs)]
 
+pub mod annotations;
 pub mod channels;
 pub mod follow;
 pub mod jpeg;

@@ -17,6 +17,8 @@ use isochron_runtime::topology::StageKind;
 use isochron_wire::{ActivityKind, DetectionHeader, EventPhase, Stream};
 use serde_json::json;
 
+use crate::tap::detection_json;
+
 /// The replay's inputs: every stream an installed stage produces (frames always).
 pub type ReplayInputs = (
     Input<Frames>,
@@ -216,9 +218,7 @@ impl Tally {
                 "capture_time": format_rfc3339(h.preamble.capture_time_ns),
                 "detector_ms": h.detector_us as f64 / 1e3,
                 "searched": [h.roi_x, h.roi_y, h.roi_w, h.roi_h],
-                "detections": sample.payload().iter().map(|d| json!({
-                    "x": d.x, "y": d.y, "w": d.w, "h": d.h, "score": d.score, "class": d.class
-                })).collect::<Vec<_>>(),
+                "detections": sample.payload().iter().map(detection_json).collect::<Vec<_>>(),
             });
             writeln!(self.detections_out, "{line}")?;
         }

@@ -152,6 +152,19 @@ fn segments_meet(p: [f64; 2], q: [f64; 2], r: [f64; 2], s: [f64; 2]) -> bool {
         || (o4 == 0 && on(r, s, q))
 }
 
+/// True if `topic` is a ROS 2 topic name this bridge can publish on: `/`-separated
+/// tokens of letters, digits and `_`, each starting with a letter or `_`.
+pub fn is_valid_ros_topic(topic: &str) -> bool {
+    let rest = topic.strip_prefix('/').unwrap_or(topic);
+    !rest.is_empty()
+        && rest.split('/').all(|tok| {
+            !tok.is_empty()
+                && !tok.contains("__")
+                && tok.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_')
+                && tok.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+        })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{
     CameraConfig, Invalid, ZenohConfig, check_dds, check_polygon, check_positive, check_range,
+    is_valid_ros_topic,
 };
 
 /// `[costmap]`: block activity on the robots' map as a ROS 2 `OccupancyGrid`
@@ -57,6 +58,10 @@ pub struct CostmapConfig {
     /// (`visualization_msgs/msg/MarkerArray`, transient-local). Default
     /// `"/isochron/markers"`.
     pub markers_topic: String,
+    /// ROS 2 topic of the confirmed people drawn (`visualization_msgs/msg/MarkerArray`,
+    /// volatile): a skeleton where the model gives keypoints, else a cylinder,
+    /// labelled with model and score. Default `"/isochron/people_markers"`.
+    pub people_markers_topic: String,
     /// ROS 2 topic of the speed filter's `nav2_msgs/msg/CostmapFilterInfo` (type 1:
     /// speed limit in percent, base 0, multiplier 1; transient-local), for Nav2's
     /// SpeedFilter (`config/nav2-speed-filter.yaml`). Default
@@ -207,6 +212,7 @@ impl Default for CostmapConfig {
             updates_topic: None,
             people_topic: "/isochron/people".into(),
             markers_topic: "/isochron/markers".into(),
+            people_markers_topic: "/isochron/people_markers".into(),
             speed_filter_info_topic: "/isochron/speed_filter_info".into(),
             speed_mask_topic: "/isochron/speed_mask".into(),
             forecast_topic: "/isochron/activity_forecast".into(),
@@ -341,19 +347,6 @@ pub const PLAN_NAME_LEN: usize = isochron_wire::PLAN_NAME_LEN;
 /// Most cells of a grid: 1 MB per `OccupancyGrid` message.
 pub const MAX_GRID_CELLS: u64 = 1 << 20;
 
-/// True if `topic` is a ROS 2 topic name this bridge can publish on: `/`-separated
-/// tokens of letters, digits and `_`, each starting with a letter or `_`.
-pub fn is_valid_ros_topic(topic: &str) -> bool {
-    let rest = topic.strip_prefix('/').unwrap_or(topic);
-    !rest.is_empty()
-        && rest.split('/').all(|tok| {
-            !tok.is_empty()
-                && !tok.contains("__")
-                && tok.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_')
-                && tok.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
-        })
-}
-
 impl CostmapConfig {
     /// Checks the `costmap.*` keys, and its segments and routes against `cameras`.
     pub(super) fn validate(&self, cameras: &[CameraConfig]) -> Result<(), Invalid> {
@@ -447,6 +440,10 @@ impl CostmapConfig {
             ("costmap.updates_topic", self.updates_topic.as_ref()),
             ("costmap.people_topic", Some(&self.people_topic)),
             ("costmap.markers_topic", Some(&self.markers_topic)),
+            (
+                "costmap.people_markers_topic",
+                Some(&self.people_markers_topic),
+            ),
             (
                 "costmap.speed_filter_info_topic",
                 Some(&self.speed_filter_info_topic),

@@ -48,10 +48,8 @@ pub use camera::{
 };
 pub use cascade::{CascadeConfig, DAY_NAMES};
 use check::{check_at_least, check_dds, check_polygon};
-pub use check::{check_positive, check_range};
-pub use costmap::{
-    CostmapConfig, MAX_GRID_CELLS, PLAN_NAME_LEN, RouteConfig, SegmentConfig, is_valid_ros_topic,
-};
+pub use check::{check_positive, check_range, is_valid_ros_topic};
+pub use costmap::{CostmapConfig, MAX_GRID_CELLS, PLAN_NAME_LEN, RouteConfig, SegmentConfig};
 pub use exporter::ExporterConfig;
 pub use gate::{DetectorConfig, GateConfig};
 pub use ipc::IpcConfig;

@@ -318,6 +318,9 @@ schema! {
             "People messages published.";
         MARKERS = "markers", Counter, Count, "isochron_costmap_marker_messages",
             "Marker messages published.";
+        PEOPLE_MARKERS = "people_markers", Counter, Count,
+            "isochron_costmap_people_marker_messages",
+            "People marker messages published.";
         SPEED_MASKS = "speed_masks", Counter, Count, "isochron_costmap_speed_masks",
             "Speed filter masks published.";
         FORECASTS = "forecasts", Counter, Count, "isochron_costmap_forecasts",

@@ -478,10 +478,10 @@ mod tests {
         let back = status_counters(h.status()).unwrap();
         assert_eq!(
             back.get(costmap::FORECASTS),
-            1_000_000_014.0,
+            1_000_000_015.0,
             "the last one, whole"
         );
-        assert!(words.ends_with("forecasts=1000000014"), "{words}");
+        assert!(words.ends_with("forecasts=1000000015"), "{words}");
     }
 
     #[test]

@@ -5,6 +5,108 @@ use serde::{Deserialize, Serialize};
 
 use crate::{CameraId, MAX_DETECTIONS, MAX_FRAME_SIDE, Preamble, Stream, WireError};
 
+/// Keypoints per person in [`Detection::keypoints`]: COCO's 17, in
+/// [`KEYPOINT_NAMES`] order.
+pub const KEYPOINTS: usize = 17;
+
+/// The names of COCO's 17 keypoints, in [`Detection::keypoints`] order.
+pub const KEYPOINT_NAMES: [&str; KEYPOINTS] = [
+    "nose",
+    "left_eye",
+    "right_eye",
+    "left_ear",
+    "right_ear",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_hip",
+    "right_hip",
+    "left_knee",
+    "right_knee",
+    "left_ankle",
+    "right_ankle",
+];
+
+/// COCO's skeleton: the pairs of [`Detection::keypoints`] drawn as bones (face,
+/// arms, torso, legs).
+pub const SKELETON: [(usize, usize); 16] = [
+    (0, 1),
+    (0, 2),
+    (1, 3),
+    (2, 4),
+    (5, 6),
+    (5, 7),
+    (7, 9),
+    (6, 8),
+    (8, 10),
+    (5, 11),
+    (6, 12),
+    (11, 12),
+    (11, 13),
+    (13, 15),
+    (12, 14),
+    (14, 16),
+];
+
+/// Lowest keypoint score drawn as seen (the threshold MoveNet's own demos use).
+pub const KEYPOINT_MIN_SCORE: f32 = 0.3;
+
+/// One body keypoint in frame pixels; score 0: not given.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize)]
+#[type_name("isochron::Keypoint")]
+#[repr(C)]
+pub struct Keypoint {
+    /// Column, frame pixels.
+    pub x: f32,
+    /// Row, frame pixels.
+    pub y: f32,
+    /// The model's confidence, 0..1 (0: the model gives no such point).
+    pub score: f32,
+}
+
+/// Which detector found a [`Detection`] (its `model` field).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum DetectorModel {
+    /// A value this build does not know.
+    Unknown = 0,
+    /// OpenCV's HOG people detector.
+    Hog = 1,
+    /// A TensorFlow SSD (SSDLite-MobileNetV2 for people, as installed).
+    Ssd = 2,
+    /// MoveNet MultiPose (boxes and keypoints).
+    MoveNet = 3,
+    /// A YOLO ONNX model through OpenCV's dnn.
+    Onnx = 4,
+}
+
+impl DetectorModel {
+    /// The model a wire value names ([`DetectorModel::Unknown`] for others).
+    pub fn from_wire(value: u32) -> Self {
+        match value {
+            1 => DetectorModel::Hog,
+            2 => DetectorModel::Ssd,
+            3 => DetectorModel::MoveNet,
+            4 => DetectorModel::Onnx,
+            _ => DetectorModel::Unknown,
+        }
+    }
+
+    /// Its short name, as logs, status, MQTT and markers print it.
+    pub fn name(self) -> &'static str {
+        match self {
+            DetectorModel::Unknown => "unknown",
+            DetectorModel::Hog => "hog",
+            DetectorModel::Ssd => "ssd",
+            DetectorModel::MoveNet => "movenet",
+            DetectorModel::Onnx => "onnx",
+        }
+    }
+}
+
 /// One detected object (a person) in frame pixel coordinates.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize)]
 #[type_name("isochron::Detection")]
@@ -22,6 +124,35 @@ pub struct Detection {
     pub score: f32,
     /// Class id (0 = person).
     pub class: u32,
+    /// The detector that found it: a [`DetectorModel`] as `u32` (read it with
+    /// [`Detection::model`]).
+    pub model: u32,
+    /// The person's body keypoints where the model gives them (MoveNet), all
+    /// scores 0 otherwise.
+    pub keypoints: [Keypoint; KEYPOINTS],
+}
+
+impl Detection {
+    /// The detector that found it.
+    pub fn model(&self) -> DetectorModel {
+        DetectorModel::from_wire(self.model)
+    }
+
+    /// True if the model gave keypoints (any score above 0).
+    pub fn has_pose(&self) -> bool {
+        self.keypoints.iter().any(|k| k.score > 0.0)
+    }
+
+    /// The bones of [`SKELETON`] whose two keypoints both score at least
+    /// [`KEYPOINT_MIN_SCORE`] (and lie at finite coordinates).
+    pub fn bones(&self) -> impl Iterator<Item = (Keypoint, Keypoint)> + '_ {
+        let seen =
+            |k: &Keypoint| k.score >= KEYPOINT_MIN_SCORE && k.x.is_finite() && k.y.is_finite();
+        SKELETON
+            .iter()
+            .map(|&(a, b)| (self.keypoints[a], self.keypoints[b]))
+            .filter(move |(a, b)| seen(a) && seen(b))
+    }
 }
 
 /// Header of a `detections` sample; payload is the [`Detection`]s of one frame.

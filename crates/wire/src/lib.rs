@@ -37,7 +37,10 @@ mod tests;
 
 pub use activity::{ActivityHeader, BlockActivity};
 pub use blocks::{KnownGrid, check_block_grid};
-pub use detection::{Detection, DetectionHeader};
+pub use detection::{
+    Detection, DetectionHeader, DetectorModel, KEYPOINT_MIN_SCORE, KEYPOINT_NAMES, KEYPOINTS,
+    Keypoint, SKELETON,
+};
 pub use error::WireError;
 pub use event::{ActivityKind, EventHeader, EventPhase, ZONE_NAME_LEN};
 pub use fixed::{fixed_str, to_fixed};
@@ -54,7 +57,7 @@ pub const MAGIC: u32 = u32::from_le_bytes(*b"ISOC");
 
 /// Version of the layout of all headers and payload elements in this crate. Bump it on
 /// any change to one of its `#[repr(C)]` types.
-pub const LAYOUT_VERSION: u16 = 4;
+pub const LAYOUT_VERSION: u16 = 5;
 
 /// Longest camera id, in bytes.
 pub const CAMERA_ID_LEN: usize = 24;

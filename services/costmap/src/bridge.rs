@@ -22,6 +22,19 @@ use isochron_wire::{
 /// Class id of a person in [`Detection::class`].
 pub const PERSON: u32 = 0;
 
+/// A person the detector confirmed.
+#[derive(Debug, Clone, Copy)]
+pub struct Confirmed {
+    /// Capture time of the detected frame, UTC ns.
+    pub seen_ns: i64,
+    /// The feet (the box's bottom centre), frame pixels.
+    pub feet_px: [f32; 2],
+    /// The feet on the floor, map metres.
+    pub floor_m: [f64; 2],
+    /// The detection as the gate sent it (model, score, keypoints).
+    pub detection: Detection,
+}
+
 /// A camera's latest activity sample.
 #[derive(Debug, Clone)]
 pub struct Latest {
@@ -53,9 +66,8 @@ pub struct CameraState {
     pub footprint: Option<Footprint>,
     /// The latest activity.
     pub latest: Option<Latest>,
-    /// Confirmed people: (capture time of the detected frame, feet in the frame,
-    /// feet on the floor).
-    pub confirmed: VecDeque<(i64, [f32; 2], [f64; 2])>,
+    /// Confirmed people, oldest first.
+    pub confirmed: VecDeque<Confirmed>,
 }
 
 /// The cost map bridge's state.
@@ -214,7 +226,7 @@ impl Bridge {
             .count();
         latest.arrived = now;
         let horizon = header.preamble.capture_time_ns - self.confirm_hold_ns;
-        while cam.confirmed.front().is_some_and(|(t, _, _)| *t < horizon) {
+        while cam.confirmed.front().is_some_and(|c| c.seen_ns < horizon) {
             cam.confirmed.pop_front();
         }
         non_finite
@@ -244,7 +256,7 @@ impl Bridge {
         };
         let t = header.preamble.capture_time_ns;
         cam.confirmed
-            .retain(|(seen, feet, _)| *seen > t || !header.searched(feet[0], feet[1]));
+            .retain(|c| c.seen_ns > t || !header.searched(c.feet_px[0], c.feet_px[1]));
         let mut placed = 0;
         for d in detections
             .iter()
@@ -253,7 +265,12 @@ impl Bridge {
         {
             let feet = [d.x + d.w / 2.0, d.y + d.h];
             if let Some(p) = h.apply([feet[0] as f64, feet[1] as f64]) {
-                cam.confirmed.push_back((t, feet, p));
+                cam.confirmed.push_back(Confirmed {
+                    seen_ns: t,
+                    feet_px: feet,
+                    floor_m: p,
+                    detection: *d,
+                });
                 placed += 1;
             }
         }
@@ -294,8 +311,8 @@ impl Bridge {
             confirmed.extend(
                 cam.confirmed
                     .iter()
-                    .filter(|(t, _, _)| *t >= since)
-                    .map(|(_, _, p)| *p),
+                    .filter(|c| c.seen_ns >= since)
+                    .map(|c| c.floor_m),
             );
         }
         Some(compose(grid, &self.params, &layers, &confirmed))
@@ -488,6 +505,7 @@ stale_s = 5
             h: 64.0,
             score: 1.0,
             class: PERSON,
+            ..Default::default()
         }
     }
 

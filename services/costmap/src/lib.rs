@@ -11,6 +11,8 @@
 //! * [`msgs`], [`ros`]: `nav_msgs/OccupancyGrid`, `map_msgs/OccupancyGridUpdate`,
 //!   people as `geometry_msgs/PoseArray` and site markers over DDS in pure Rust;
 //! * [`markers`]: camera footprints, zones, segments and routes for rviz2;
+//! * [`people`]: the confirmed people as poses at their feet and as markers
+//!   (skeletons from keypoints, else cylinders, labelled with model and score);
 //! * [`plan_dds`]: the planning services over ROS 2, in the request/reply layouts
 //!   of rmw_cyclonedds and rmw_fastrtps;
 //! * snapshots (`map_server` PGM + YAML and a PNG picture) are written with
@@ -27,6 +29,7 @@ pub mod bridge;
 pub mod delta;
 pub mod markers;
 pub mod msgs;
+pub mod people;
 pub mod plan_dds;
 mod planning;
 mod publish;

@@ -196,6 +196,17 @@ pub struct RosDuration {
     pub nanosec: u32,
 }
 
+impl RosDuration {
+    /// `seconds` (at least 0, at most `i32::MAX`) as a duration.
+    pub fn from_secs_f64(seconds: f64) -> RosDuration {
+        let s = seconds.clamp(0.0, i32::MAX as f64);
+        RosDuration {
+            sec: s.trunc() as i32,
+            nanosec: ((s.fract() * 1e9) as u32).min(999_999_999),
+        }
+    }
+}
+
 /// `sensor_msgs/msg/CompressedImage` (a marker's texture; the bridge sends none).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct CompressedImage {
@@ -271,12 +282,18 @@ pub struct Marker {
 }
 
 impl Marker {
+    /// `type` of a cylinder (`scale` its diameters and height) at `pose`.
+    pub const CYLINDER: i32 = 3;
     /// `type` of a line through `points`.
     pub const LINE_STRIP: i32 = 4;
+    /// `type` of separate lines, one per pair of `points`.
+    pub const LINE_LIST: i32 = 5;
     /// `type` of a text label facing the viewer.
     pub const TEXT_VIEW_FACING: i32 = 9;
     /// `action`: add or replace.
     pub const ADD: i32 = 0;
+    /// `action`: delete the marker of this `ns` and `id`.
+    pub const DELETE: i32 = 2;
     /// `action`: delete every marker of this publisher's namespace set.
     pub const DELETEALL: i32 = 3;
 }

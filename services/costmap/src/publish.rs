@@ -1,6 +1,6 @@
 //! What the cost-map stage sends over ROS 2 and what it counts: the grid (full or
-//! as an update, as the [`DeltaTracker`] decides), the confirmed people, and the
-//! counters of the status line.
+//! as an update, as the [`DeltaTracker`] decides), the confirmed people (made by
+//! [`crate::people`]), and the counters of the status line.
 
 use std::hash::{Hash, Hasher};
 use std::time::Instant;
@@ -9,12 +9,13 @@ use isochron_planning::grid::MapGrid;
 use isochron_planning::raster::Footprint;
 use isochron_runtime::stage::Warnings;
 
-use crate::bridge::Bridge;
+use crate::bridge::{Bridge, Confirmed};
 use crate::delta::{DeltaTracker, Output};
 use crate::msgs::{
-    Header, MapMetaData, OccupancyGrid, OccupancyGridUpdate, Point, Pose, PoseArray, Quaternion,
-    Time,
+    Header, MapMetaData, Marker, MarkerArray, OccupancyGrid, OccupancyGridUpdate, Point, Pose,
+    Quaternion, RosDuration, Time,
 };
+use crate::people;
 use crate::ros::{PublishError, RosOutput};
 
 /// Counters for the status line.
@@ -30,6 +31,7 @@ pub(crate) struct Counters {
     pub(crate) confirmed: u64,
     pub(crate) people: u64,
     pub(crate) markers: u64,
+    pub(crate) people_markers: u64,
     pub(crate) masks: u64,
     pub(crate) forecasts: u64,
 }
@@ -74,6 +76,11 @@ pub(crate) struct Ros {
     pub(crate) mask_sent: Option<Vec<i8>>,
     /// The camera frame sizes the last markers were drawn with (`None`: none sent).
     pub(crate) markers_sent: Option<Vec<Option<(u32, u32)>>>,
+    /// Markers drawn in each camera's last people markers (to delete what the
+    /// next draws no more).
+    pub(crate) people_markers_sent: Vec<usize>,
+    /// How long a person's marker stays without news: `costmap.confirm_hold_s`.
+    pub(crate) people_lifetime: RosDuration,
 }
 
 /// A hash of what makes two grids incompatible (size, resolution, origin).
@@ -87,9 +94,10 @@ pub(crate) fn geometry_key(grid: &MapGrid) -> u64 {
 }
 
 /// Publishes the `placed` people camera `k`'s detected frame (capture time
-/// `capture_ns`) just added to the bridge, as a `PoseArray` in the map frame.
+/// `capture_ns`) just added to the bridge, as a `PoseArray` in the map frame, and
+/// the camera's confirmed people as markers ([`crate::people`]).
 pub(crate) fn publish_people(
-    ros: &Ros,
+    ros: &mut Ros,
     bridge: &Bridge,
     k: usize,
     placed: usize,
@@ -99,31 +107,35 @@ pub(crate) fn publish_people(
     let Some(cam) = bridge.cameras.get(k) else {
         return;
     };
-    let mut poses: Vec<Pose> = cam
-        .confirmed
-        .iter()
-        .rev()
-        .take(placed)
-        .map(|(_, _, p)| Pose {
-            position: Point {
-                x: p[0],
-                y: p[1],
-                z: 0.0,
-            },
-            orientation: Quaternion::from_yaw(0.0),
-        })
-        .collect();
-    poses.reverse();
-    let people = PoseArray {
-        header: Header {
-            stamp: Time::from_utc_ns(capture_ns),
-            frame_id: ros.frame_id.clone(),
-        },
-        poses,
+    let header = Header {
+        stamp: Time::from_utc_ns(capture_ns),
+        frame_id: ros.frame_id.clone(),
     };
-    counters.published("people", ros.output.publish_people(people), |c| {
-        &mut c.people
-    });
+    let confirmed: Vec<Confirmed> = cam.confirmed.iter().copied().collect();
+    let newest = &confirmed[confirmed.len().saturating_sub(placed)..];
+    let result = ros
+        .output
+        .publish_people(people::poses(newest, header.clone()));
+    counters.published("people", result, |c| &mut c.people);
+    let Some(homography) = &cam.homography else {
+        return;
+    };
+    if ros.people_markers_sent.len() <= k {
+        ros.people_markers_sent.resize(k + 1, 0);
+    }
+    let markers = people::markers(
+        &cam.id,
+        homography,
+        &confirmed,
+        ros.people_markers_sent[k],
+        &header,
+        ros.people_lifetime,
+    );
+    let drawn = markers.iter().filter(|m| m.action == Marker::ADD).count();
+    let result = ros.output.publish_people_markers(MarkerArray { markers });
+    if counters.published("the people markers", result, |c| &mut c.people_markers) {
+        ros.people_markers_sent[k] = drawn;
+    }
 }
 
 /// A full grid message of `grid`'s geometry.

@@ -12,6 +12,9 @@
 //! * `costmap.markers_topic`: `visualization_msgs/msg/MarkerArray`, reliable,
 //!   transient-local, keep last 1 — camera footprints, zones, path segments and
 //!   routes for rviz2 / Foxglove, latched;
+//! * `costmap.people_markers_topic`: `visualization_msgs/msg/MarkerArray`,
+//!   reliable, volatile, keep last 10 — the confirmed people of a camera drawn
+//!   ([`crate::people`]), one message per detected frame;
 //! * `costmap.speed_filter_info_topic`: `nav2_msgs/msg/CostmapFilterInfo` and
 //!   `costmap.speed_mask_topic`: its mask `nav_msgs/msg/OccupancyGrid`, both
 //!   reliable, transient-local, keep last 1 — what Nav2's SpeedFilter reads;
@@ -79,6 +82,8 @@ pub struct RosSettings {
     pub people_topic: String,
     /// The markers topic, e.g. `/isochron/markers`.
     pub markers_topic: String,
+    /// The people markers topic, e.g. `/isochron/people_markers`.
+    pub people_markers_topic: String,
     /// The speed filter info topic, e.g. `/isochron/speed_filter_info`.
     pub speed_filter_info_topic: String,
     /// The speed mask topic, e.g. `/isochron/speed_mask`.
@@ -158,6 +163,7 @@ pub struct RosOutput {
     updates: Publisher<OccupancyGridUpdate>,
     people: Publisher<PoseArray>,
     markers: Publisher<MarkerArray>,
+    people_markers: Publisher<MarkerArray>,
     filter_info: Publisher<CostmapFilterInfo>,
     mask: Publisher<OccupancyGrid>,
     forecast: Publisher<OccupancyGrid>,
@@ -189,6 +195,7 @@ impl RosOutput {
             updates_topic,
             people_topic,
             markers_topic,
+            people_markers_topic,
             filter_info_topic,
             mask_topic,
             forecast_topic,
@@ -215,6 +222,7 @@ impl RosOutput {
         let updates = publisher!(updates_topic, "updates");
         let people = publisher!(people_topic, "people");
         let markers = publisher!(markers_topic, "markers");
+        let people_markers = publisher!(people_markers_topic, "people markers");
         let filter_info = publisher!(filter_info_topic, "speed filter info");
         let mask = publisher!(mask_topic, "speed mask");
         let forecast = publisher!(forecast_topic, "forecast");
@@ -234,6 +242,7 @@ impl RosOutput {
                     updates: &settings.updates_topic,
                     people: &settings.people_topic,
                     markers: &settings.markers_topic,
+                    people_markers: &settings.people_markers_topic,
                     speed_filter_info: &settings.speed_filter_info_topic,
                     speed_mask: &settings.speed_mask_topic,
                     forecast: &settings.forecast_topic,
@@ -266,6 +275,7 @@ impl RosOutput {
             updates,
             people,
             markers,
+            people_markers,
             filter_info,
             mask,
             forecast,
@@ -304,6 +314,18 @@ impl RosOutput {
             .as_ref()
             .map(|z| put(&z.people, &people).map_err(|detail| PublishError { detail }));
         self.people.publish(people).map_err(PublishError::of)?;
+        zenoh.unwrap_or(Ok(()))
+    }
+
+    /// Publishes the people markers of one detected frame.
+    pub fn publish_people_markers(&self, markers: MarkerArray) -> Result<(), PublishError> {
+        let zenoh = self
+            .zenoh
+            .as_ref()
+            .map(|z| put(&z.people_markers, &markers).map_err(|detail| PublishError { detail }));
+        self.people_markers
+            .publish(markers)
+            .map_err(PublishError::of)?;
         zenoh.unwrap_or(Ok(()))
     }
 
@@ -400,8 +422,9 @@ impl RosOutput {
 /// The QoS of the bridge's topics: reliable (waiting at most [`MAX_BLOCKING`] for
 /// room), `durability`, keep last `depth`, and at most `depth` samples in the
 /// The output's topics, in this order: the grid, its updates, the people, the
-/// markers, the speed filter's info, the speed mask, the forecast.
-fn topics(ros: &RosNode, s: &RosSettings) -> Result<[Topic; 7], RosError> {
+/// markers, the people markers, the speed filter's info, the speed mask, the
+/// forecast.
+fn topics(ros: &RosNode, s: &RosSettings) -> Result<[Topic; 8], RosError> {
     let latched = Durability::TransientLocal;
     let volatile = Durability::Volatile;
     let specs = [
@@ -423,6 +446,12 @@ fn topics(ros: &RosNode, s: &RosSettings) -> Result<[Topic; 7], RosError> {
             ("visualization_msgs", "MarkerArray"),
             latched,
             GRID_DEPTH,
+        ),
+        (
+            &s.people_markers_topic,
+            ("visualization_msgs", "MarkerArray"),
+            volatile,
+            PEOPLE_DEPTH,
         ),
         (
             &s.speed_filter_info_topic,
@@ -453,7 +482,7 @@ fn topics(ros: &RosNode, s: &RosSettings) -> Result<[Topic; 7], RosError> {
     }
     Ok(made
         .try_into()
-        .unwrap_or_else(|_| unreachable!("seven specs make seven topics")))
+        .unwrap_or_else(|_| unreachable!("eight specs make eight topics")))
 }
 
 /// writer's cache ([`keep_last`]).

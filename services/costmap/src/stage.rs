@@ -22,7 +22,7 @@ use isochron_runtime::topology::StageKind;
 use crate::bridge::{Bridge, count_non_finite};
 use crate::delta::DeltaTracker;
 use crate::markers::{marker_key, site_markers};
-use crate::msgs::{CostmapFilterInfo, Header, Time};
+use crate::msgs::{CostmapFilterInfo, Header, RosDuration, Time};
 use crate::planning::Planning;
 use crate::publish::{
     Counters, Ros, geometry_key, occupancy_grid, publish, publish_people, unknown_as_free,
@@ -275,7 +275,7 @@ impl Stage for CostmapStage {
                 if !h.preamble.is_end_of_stream() {
                     let (placed, bad) = self.bridge.on_detections(k, &h, sample.payload());
                     self.counters.confirmed += placed as u64;
-                    if let Some(ros) = &self.ros {
+                    if let Some(ros) = &mut self.ros {
                         publish_people(
                             ros,
                             &self.bridge,
@@ -368,6 +368,7 @@ impl Stage for CostmapStage {
         c.set(costmap::CONFIRMED, n.confirmed);
         c.set(costmap::PEOPLE_MSGS, n.people);
         c.set(costmap::MARKERS, n.markers);
+        c.set(costmap::PEOPLE_MARKERS, n.people_markers);
         c.set(costmap::SPEED_MASKS, n.masks);
         c.set(costmap::FORECASTS, n.forecasts);
     }
@@ -391,6 +392,7 @@ fn ros_output(loaded: &LoadedConfig, grid: &MapGrid) -> Result<Ros, Fatal> {
         updates_topic: c.updates_topic(),
         people_topic: c.people_topic.clone(),
         markers_topic: c.markers_topic.clone(),
+        people_markers_topic: c.people_markers_topic.clone(),
         speed_filter_info_topic: c.speed_filter_info_topic.clone(),
         speed_mask_topic: c.speed_mask_topic.clone(),
         forecast_topic: c.forecast_topic.clone(),
@@ -454,6 +456,8 @@ fn ros_output(loaded: &LoadedConfig, grid: &MapGrid) -> Result<Ros, Fatal> {
         frame_id: c.frame_id.clone(),
         publish_unknown: c.publish_unknown,
         markers_sent: None,
+        people_markers_sent: Vec::new(),
+        people_lifetime: RosDuration::from_secs_f64(c.confirm_hold_s),
         mask_sent: None,
         next_forecast: Instant::now(),
         forecast_footprints: Vec::new(),

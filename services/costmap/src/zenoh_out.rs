@@ -78,7 +78,8 @@ const LATCHED: Qos = Qos {
     transient_local: true,
     depth: 1,
 };
-/// A stream: reliable, volatile, keep last 10 (updates and people, as on DDS).
+/// A stream: reliable, volatile, keep last 10 (updates, people and their
+/// markers, as on DDS).
 const STREAM: Qos = Qos {
     reliable: true,
     transient_local: false,
@@ -96,6 +97,8 @@ pub struct Names<'a> {
     pub people: &'a str,
     /// The markers topic.
     pub markers: &'a str,
+    /// The people markers topic.
+    pub people_markers: &'a str,
     /// The speed filter info topic.
     pub speed_filter_info: &'a str,
     /// The speed mask topic.
@@ -124,6 +127,7 @@ pub struct ZenohOutput {
     pub(crate) updates: RosPublisher,
     pub(crate) people: RosPublisher,
     pub(crate) markers: RosPublisher,
+    pub(crate) people_markers: RosPublisher,
     pub(crate) filter_info: RosPublisher,
     pub(crate) mask: RosPublisher,
     pub(crate) forecast: RosPublisher,
@@ -155,6 +159,7 @@ impl ZenohOutput {
             updates: z.publisher(names.updates, &OCCUPANCY_GRID_UPDATE, STREAM)?,
             people: z.publisher(names.people, &POSE_ARRAY, STREAM)?,
             markers: z.publisher(names.markers, &MARKER_ARRAY, LATCHED)?,
+            people_markers: z.publisher(names.people_markers, &MARKER_ARRAY, STREAM)?,
             filter_info: z.publisher(names.speed_filter_info, &COSTMAP_FILTER_INFO, LATCHED)?,
             mask: z.publisher(names.speed_mask, &OCCUPANCY_GRID, LATCHED)?,
             forecast: z.publisher(names.forecast, &OCCUPANCY_GRID, LATCHED)?,

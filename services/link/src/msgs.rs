@@ -194,8 +194,8 @@ pub fn cdr_len<M: Serialize>(msg: &M) -> usize {
 mod tests {
     use super::*;
     use isochron_wire::{
-        ActivityHeader, BlockActivity, Detection, DetectionHeader, EventHeader, Preamble, Stream,
-        to_fixed,
+        ActivityHeader, BlockActivity, Detection, DetectionHeader, DetectorModel, EventHeader,
+        Preamble, Stream, to_fixed,
     };
 
     fn cam() -> CameraId {
@@ -300,8 +300,12 @@ mod tests {
         };
         let mut person = Detection::default();
         (person.x, person.w, person.score) = (1.0, 4.0, 0.9);
+        person.model = DetectorModel::MoveNet as u32;
+        person.keypoints[16].score = 0.5;
         let back = crossed::<Detections>(&det, &[person]);
         assert_eq!((back.header.roi_w, back.payload), (20, vec![person]));
+        // Detection.msg: 5 float32, 2 uint32, then Keypoint[17] of 3 float32 each.
+        assert_eq!(cdr_len(&person), 7 * 4 + 17 * 12);
 
         let mut status = StageStatus {
             pid: 12,

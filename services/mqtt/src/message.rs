@@ -2,7 +2,9 @@
 //! detections sample (the schema docs/operating.md documents). Pure: no I/O.
 
 use isochron_config::clock::format_rfc3339;
-use isochron_wire::{ActivityKind, Detection, DetectionHeader, EventHeader, EventPhase};
+use isochron_wire::{
+    ActivityKind, Detection, DetectionHeader, EventHeader, EventPhase, KEYPOINT_NAMES,
+};
 use serde_json::{Value, json};
 
 /// The topics of one site: `<prefix>/<site>/status` and, per camera,
@@ -104,10 +106,25 @@ pub fn detections_json(camera: &str, h: &DetectionHeader, found: &[Detection]) -
         "time": format_rfc3339(h.preamble.capture_time_ns),
         "detector_ms": h.detector_us as f64 / 1e3,
         "searched": {"x_px": h.roi_x, "y_px": h.roi_y, "w_px": h.roi_w, "h_px": h.roi_h},
-        "detections": found.iter().map(|d| json!({
-            "x_px": d.x, "y_px": d.y, "w_px": d.w, "h_px": d.h, "score": d.score, "class": d.class,
-        })).collect::<Vec<_>>(),
+        "detections": found.iter().map(detection_json).collect::<Vec<_>>(),
     })
+}
+
+/// One detection: its box, score, class and model, and its keypoints where the
+/// model gave them (MoveNet), each named as COCO names it.
+fn detection_json(d: &Detection) -> Value {
+    let mut out = json!({
+        "x_px": d.x, "y_px": d.y, "w_px": d.w, "h_px": d.h, "score": d.score, "class": d.class,
+        "model": d.model().name(),
+    });
+    if d.has_pose() {
+        out["keypoints"] = KEYPOINT_NAMES
+            .iter()
+            .zip(&d.keypoints)
+            .map(|(name, k)| json!({"name": name, "x_px": k.x, "y_px": k.y, "score": k.score}))
+            .collect();
+    }
+    out
 }
 
 #[cfg(test)]
@@ -210,10 +227,27 @@ mod tests {
             h: 60.0,
             score: 0.9,
             class: 0,
+            ..Default::default()
         };
-        let v = detections_json("cam01", &h, &[d]);
+        let mut posed = Detection {
+            model: isochron_wire::DetectorModel::MoveNet as u32,
+            ..d
+        };
+        posed.keypoints[15] = isochron_wire::Keypoint {
+            x: 5.0,
+            y: 60.0,
+            score: 0.75,
+        };
+        let v = detections_json("cam01", &h, &[d, posed]);
         assert_eq!(v["frame"], 99);
         assert_eq!(v["detector_ms"], 12.5);
         assert_eq!(v["detections"][0]["w_px"], 30.0);
+        assert_eq!(v["detections"][0]["model"], "unknown");
+        assert!(v["detections"][0].get("keypoints").is_none());
+        let posed = &v["detections"][1];
+        assert_eq!(posed["model"], "movenet");
+        assert_eq!(posed["keypoints"].as_array().unwrap().len(), 17);
+        assert_eq!(posed["keypoints"][15]["name"], "left_ankle");
+        assert_eq!(posed["keypoints"][15]["score"], 0.75);
     }
 }

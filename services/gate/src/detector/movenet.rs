@@ -11,7 +11,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use isochron_wire::Detection;
+use isochron_wire::{Detection, DetectorModel, KEYPOINTS, Keypoint};
 use opencv::core::{Mat, Rect};
 use opencv::prelude::*;
 use ort::environment::Environment;
@@ -27,9 +27,6 @@ pub const RUNTIME_LIBRARY: &str = "libonnxruntime.so";
 /// Values per person in the output: 17 keypoints × (y, x, score), then the box
 /// (ymin, xmin, ymax, xmax) and its score.
 const PERSON_VALUES: usize = 56;
-/// Keypoints per person (COCO order: nose, eyes, ears, shoulders, elbows,
-/// wrists, hips, knees, ankles).
-pub const KEYPOINTS: usize = 17;
 
 /// Why the network could not be loaded.
 #[derive(Debug, thiserror::Error)]
@@ -94,15 +91,6 @@ pub struct MoveNetDetector {
     input: Vec<i32>,
 }
 
-/// A person MoveNet found: the box and its keypoints in frame pixels.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Pose {
-    /// The box and score.
-    pub detection: Detection,
-    /// Keypoints: x, y (frame pixels), score.
-    pub keypoints: [(f32, f32, f32); KEYPOINTS],
-}
-
 impl MoveNetDetector {
     /// Loads `model` with the ONNX Runtime `library`; `threads` bounds its
     /// intra-op threads.
@@ -151,19 +139,11 @@ impl MoveNetDetector {
         })
     }
 
-    /// People in `crop`, the part `r` of the frame; boxes in frame pixels. A crop
-    /// larger than a tile is searched whole and in overlapping square tiles, as
-    /// the SSD's are ([`tiles`]), the passes merged.
+    /// People in `crop`, the part `r` of the frame: boxes and keypoints in frame
+    /// pixels. A crop larger than a tile is searched whole and in overlapping
+    /// square tiles, as the SSD's are ([`tiles`]), the passes merged on their
+    /// boxes (each kept box keeps its own keypoints).
     pub fn detect(&mut self, crop: &Mat, r: Rect) -> opencv::Result<Vec<Detection>> {
-        Ok(self
-            .poses(crop, r)?
-            .into_iter()
-            .map(|p| p.detection)
-            .collect())
-    }
-
-    /// As [`MoveNetDetector::detect`], with each person's keypoints.
-    pub fn poses(&mut self, crop: &Mat, r: Rect) -> opencv::Result<Vec<Pose>> {
         let tiles = tiles(r.width, r.height, self.tile_px as i32);
         let mut found = self.detect_one(crop, r)?;
         if tiles.len() > 1 {
@@ -173,24 +153,7 @@ impl MoveNetDetector {
                 found.extend(self.detect_one(&part, at)?);
             }
         }
-        // Merge on the boxes, keep each kept box's pose (its strongest pass's).
-        let merged = merge_passes(
-            found.iter().map(|p| p.detection).collect(),
-            self.nms_threshold,
-        );
-        Ok(merged
-            .into_iter()
-            .map(|d| {
-                let keypoints = found
-                    .iter()
-                    .find(|p| p.detection.score == d.score)
-                    .map_or([(0.0, 0.0, 0.0); KEYPOINTS], |p| p.keypoints);
-                Pose {
-                    detection: d,
-                    keypoints,
-                }
-            })
-            .collect())
+        Ok(merge_passes(found, self.nms_threshold))
     }
 
     /// People in `crop` (one pass), the part `r` of the frame.
@@ -198,7 +161,7 @@ impl MoveNetDetector {
         &mut self,
         crop: &impl opencv::core::ToInputArray,
         r: Rect,
-    ) -> opencv::Result<Vec<Pose>> {
+    ) -> opencv::Result<Vec<Detection>> {
         let [scaled, boxed] = &mut self.buffers;
         let fit = Letterbox::fill(crop, r, self.input_px, scaled, boxed)?;
         let grey = boxed.data_bytes()?;
@@ -255,9 +218,9 @@ pub fn parse_people(data: &[f32], score_threshold: f32) -> Vec<RawPerson> {
         .collect()
 }
 
-/// A person of the input as a pose in frame pixels (the box clamped to `r`);
-/// None for an empty box.
-fn to_frame(p: &RawPerson, fit: &Letterbox, r: Rect, side: f32) -> Option<Pose> {
+/// A person of the input in frame pixels (the box and keypoints clamped to
+/// `r`); None for an empty box.
+fn to_frame(p: &RawPerson, fit: &Letterbox, r: Rect, side: f32) -> Option<Detection> {
     let x = |v: f32| ((v * side - fit.pad_x) / fit.scale).clamp(0.0, r.width as f32);
     let y = |v: f32| ((v * side - fit.pad_y) / fit.scale).clamp(0.0, r.height as f32);
     let (x1, y1, x2, y2) = (x(p.bbox[1]), y(p.bbox[0]), x(p.bbox[3]), y(p.bbox[2]));
@@ -265,19 +228,27 @@ fn to_frame(p: &RawPerson, fit: &Letterbox, r: Rect, side: f32) -> Option<Pose> 
         return None;
     }
     let (ox, oy) = (r.x as f32, r.y as f32);
-    let mut keypoints = [(0.0, 0.0, 0.0); KEYPOINTS];
+    let mut keypoints = [Keypoint::default(); KEYPOINTS];
     for (out, k) in keypoints.iter_mut().zip(&p.keypoints) {
-        *out = (ox + x(k[1]), oy + y(k[0]), k[2]);
+        let score = if k[2].is_finite() {
+            k[2].clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        *out = Keypoint {
+            x: ox + x(k[1]),
+            y: oy + y(k[0]),
+            score,
+        };
     }
-    Some(Pose {
-        detection: Detection {
-            x: ox + x1,
-            y: oy + y1,
-            w: x2 - x1,
-            h: y2 - y1,
-            score: p.score,
-            class: 0,
-        },
+    Some(Detection {
+        x: ox + x1,
+        y: oy + y1,
+        w: x2 - x1,
+        h: y2 - y1,
+        score: p.score,
+        class: 0,
+        model: DetectorModel::MoveNet as u32,
         keypoints,
     })
 }
@@ -299,16 +270,20 @@ mod tests {
         // A 512x256 crop at (100, 50) in a 256 input: scale 0.5, 64 px above.
         let r = Rect::new(100, 50, 512, 256);
         let fit = Letterbox::new(512, 256, 256);
-        let pose = to_frame(&people[0], &fit, r, 256.0).unwrap();
-        let d = pose.detection;
+        let d = to_frame(&people[0], &fit, r, 256.0).unwrap();
         assert_eq!((d.x, d.w, d.score), (100.0 + 256.0, 128.0, 0.6));
         assert_eq!((d.y, d.h), (50.0, 256.0));
-        let (kx, ky, ks) = pose.keypoints[0];
+        let Keypoint {
+            x: kx,
+            y: ky,
+            score: ks,
+        } = d.keypoints[0];
         assert!(
             (kx - 407.2).abs() < 1e-3 && (ky - 75.6).abs() < 1e-3,
             "{kx} {ky}"
         );
         assert_eq!(ks, 0.9);
+        assert_eq!(d.model(), DetectorModel::MoveNet);
     }
 
     #[test]

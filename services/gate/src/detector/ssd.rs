@@ -123,6 +123,7 @@ impl SsdDetector {
                     h: y2 - y1,
                     score: d.score,
                     class: 0,
+                    ..Default::default()
                 }
             })
             .filter(|d| d.w > 0.0 && d.h > 0.0)
@@ -280,6 +281,7 @@ mod tests {
             h,
             score,
             class: 0,
+            ..Default::default()
         };
         let whole = d(100.0, 100.0, 50.0, 120.0, 0.7);
         let upper_half = d(102.0, 100.0, 48.0, 60.0, 0.9);

@@ -73,6 +73,7 @@ fn person() -> Detection {
         h: 28.0,
         score: 1.0,
         class: 0,
+        ..Default::default()
     }
 }
 
