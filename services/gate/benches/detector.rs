@@ -34,7 +34,7 @@
 //!
 //! `--sweep`: MoveNet alone at each score threshold of [`sweep::THRESHOLDS`] on
 //! the tuning scene and PETS09, and the threshold the rule picks
-//! (`cargo xtask bench detector --sweep`, about 20 minutes).
+//! (`cargo xtask bench detector --sweep`, about 3 minutes of one core).
 //!
 //! `--trial st=S,tp=T[,net=movenet][,crop][,pets]`: one network alone on the
 //! tuning scene (or PETS09 with `pets`) with those settings (score threshold,

@@ -103,6 +103,11 @@ pub(crate) fn run_sweep(
     }
     let chosen = pick(&rows);
     let default = DetectorConfig::default().movenet_score_threshold;
+    if quick {
+        println!(
+            "quick: frame 0 of each camera and every {step}th PETS09 frame, not the measurement"
+        );
+    }
     match chosen {
         Some(t) => println!(
             "rule (lowest threshold with tuning-scene empty alarms <= {MAX_EMPTY_ALARMS} and \
