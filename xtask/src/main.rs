@@ -65,7 +65,7 @@ fn main() -> anyhow::Result<()> {
     let root = repo_root();
     std::env::set_current_dir(&root)?;
     match args.first().map(String::as_str) {
-        // The people detectors and the detector bench's scene alone.
+        // The people detectors and the detector bench's lab scenes alone.
         Some("setup") if args.get(1).is_some_and(|a| a == "detector") => {
             detector_model::setup(&root)
         }
