@@ -2,14 +2,14 @@
 //! `foxglove.ImageAnnotations` — each box, its skeleton where the model gave
 //! keypoints (MoveNet), and its model and score.
 
-use foxglove::messages::{Color, ImageAnnotations, Point2, PointsAnnotation, TextAnnotation};
+use foxglove::messages::{
+    Color, ImageAnnotations, Point2, PointsAnnotation, TextAnnotation, Timestamp,
+};
 use isochron_wire::Detection;
 
-use crate::channels::timestamp;
-
-/// The annotations of `dets`, found in a frame captured at `t` (UTC ns), in the
+/// The annotations of `dets`, found in the frame captured at `stamp`, in the
 /// pixels of the published image (`f` frame pixels each).
-pub fn detections(dets: &[Detection], f: f64, t: i64) -> ImageAnnotations {
+pub fn detections(dets: &[Detection], f: f64, stamp: Timestamp) -> ImageAnnotations {
     let color = Color {
         r: 1.0,
         g: 0.2,
@@ -28,7 +28,7 @@ pub fn detections(dets: &[Detection], f: f64, t: i64) -> ImageAnnotations {
         let (x0, y0) = (d.x as f64 / f, d.y as f64 / f);
         let (x1, y1) = (x0 + d.w as f64 / f, y0 + d.h as f64 / f);
         points.push(PointsAnnotation {
-            timestamp: Some(timestamp(t)),
+            timestamp: Some(stamp),
             r#type: foxglove::messages::points_annotation::Type::LineLoop as i32,
             points: [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
                 .map(|(x, y)| Point2 { x, y })
@@ -47,7 +47,7 @@ pub fn detections(dets: &[Detection], f: f64, t: i64) -> ImageAnnotations {
             .collect();
         if !bones.is_empty() {
             points.push(PointsAnnotation {
-                timestamp: Some(timestamp(t)),
+                timestamp: Some(stamp),
                 r#type: foxglove::messages::points_annotation::Type::LineList as i32,
                 points: bones,
                 outline_color: Some(bone_color),
@@ -56,7 +56,7 @@ pub fn detections(dets: &[Detection], f: f64, t: i64) -> ImageAnnotations {
             });
         }
         texts.push(TextAnnotation {
-            timestamp: Some(timestamp(t)),
+            timestamp: Some(stamp),
             position: Some(Point2 { x: x0, y: y0 }),
             text: format!("{} {:.2}", d.model().name(), d.score),
             font_size: 12.0,
@@ -65,7 +65,7 @@ pub fn detections(dets: &[Detection], f: f64, t: i64) -> ImageAnnotations {
         });
     }
     ImageAnnotations {
-        timestamp: Some(timestamp(t)),
+        timestamp: Some(stamp),
         points,
         texts,
         ..Default::default()

@@ -470,7 +470,7 @@ impl SiteChannels {
             jpeg::scale_factor(w, hgt, self.view.frame_max_px)
         }) as f64;
         cam.detections
-            .log_with_time(&annotations::detections(dets, f, t), nanos(t));
+            .log_with_time(&annotations::detections(dets, f, timestamp(t)), nanos(t));
         let topic = camera_topic(&cam.id, "detections");
         self.count(&topic);
     }
@@ -556,7 +556,7 @@ fn block_grid<const N: usize>(
     }
 }
 
-pub(crate) fn timestamp(ns: i64) -> Timestamp {
+fn timestamp(ns: i64) -> Timestamp {
     let ns = ns.max(0);
     Timestamp::new(
         (ns / 1_000_000_000).min(u32::MAX as i64) as u32,
