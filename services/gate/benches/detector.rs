@@ -52,7 +52,7 @@ mod score;
 #[path = "detector/sweep.rs"]
 mod sweep;
 
-use score::{LabScene, Pets, Scene, load_scene, ratio, score_pets, score_scene};
+use score::{LabScene, Pets, Scene, load_scene, ratio, score_pets, score_scene, share};
 
 /// What went wrong, for the bench's exit message.
 type Error = Box<dyn std::error::Error>;
@@ -139,26 +139,11 @@ fn run_trial(spec: &str, root: &Path, quick: bool, step: usize) -> Result<(), Er
 fn scene_columns(s: &Scene) -> String {
     format!(
         "{:>12} {:>13} {:>9.3} {:>8.2} {:>12} {:>8.0}",
-        format!(
-            "{:.2} {}/{}",
-            ratio(s.frames_found, s.frames),
-            s.frames_found,
-            s.frames
-        ),
-        format!(
-            "{:.2} {}/{}",
-            ratio(s.people_found, s.people),
-            s.people_found,
-            s.people
-        ),
+        share(s.frames_found, s.frames),
+        share(s.people_found, s.people),
         1.0 - ratio(s.false_detections, s.detections),
         s.iou_sum / s.people_found.max(1) as f64,
-        format!(
-            "{:.2} {}/{}",
-            ratio(s.empty_alarms, s.empty),
-            s.empty_alarms,
-            s.empty
-        ),
+        share(s.empty_alarms, s.empty),
         s.time.as_secs_f64() * 1e3 / s.frames.max(1) as f64
     )
 }

@@ -368,3 +368,8 @@ pub(crate) fn score_scene(detector: &mut Detector, scene: &LabScene) -> Result<S
 pub(crate) fn ratio(a: usize, b: usize) -> f64 {
     a as f64 / b.max(1) as f64
 }
+
+/// `n` of `of` as a table cell: "0.97 29/30".
+pub(crate) fn share(n: usize, of: usize) -> String {
+    format!("{:.2} {n}/{of}", ratio(n, of))
+}

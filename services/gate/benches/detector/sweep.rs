@@ -15,7 +15,7 @@ use isochron_config::DetectorConfig;
 use isochron_gate::detector::{Detector, INSTALLED_MOVENET};
 
 use crate::Error;
-use crate::score::{LabScene, Pets, Scene, ratio, score_pets, score_scene};
+use crate::score::{LabScene, Pets, Scene, ratio, score_pets, score_scene, share};
 
 /// The thresholds tried.
 pub(crate) const THRESHOLDS: [f32; 7] = [0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5];
@@ -76,25 +76,10 @@ pub(crate) fn run_sweep(
         println!(
             "{:>9.2} | {:>12} {:>13} {:>9.3} {:>12} {:>8.0} | {:>9.3} {:>6.3} {:>8.0}",
             t,
-            format!(
-                "{:.2} {}/{}",
-                ratio(s.frames_found, s.frames),
-                s.frames_found,
-                s.frames
-            ),
-            format!(
-                "{:.2} {}/{}",
-                ratio(s.people_found, s.people),
-                s.people_found,
-                s.people
-            ),
+            share(s.frames_found, s.frames),
+            share(s.people_found, s.people),
             1.0 - ratio(s.false_detections, s.detections),
-            format!(
-                "{:.2} {}/{}",
-                ratio(s.empty_alarms, s.empty),
-                s.empty_alarms,
-                s.empty
-            ),
+            share(s.empty_alarms, s.empty),
             s.time.as_secs_f64() * 1e3 / s.frames.max(1) as f64,
             p.precision,
             p.recall,
