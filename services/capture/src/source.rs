@@ -141,6 +141,19 @@ pub trait FrameSource {
     }
 }
 
+/// Makes OpenCV run its functions (the colour conversion, the resize) on the
+/// calling thread, once per process. A capture process already runs one thread
+/// per camera; OpenCV's own worker pool beside them only spun waiting for work
+/// (measured: one camera's pool took a tenth of a core in a 32-camera process).
+fn single_threaded_opencv() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        if let Err(e) = opencv::core::set_num_threads(0) {
+            tracing::warn!("OpenCV threads: {e}");
+        }
+    });
+}
+
 /// An opened video source.
 pub struct VideoSource {
     capture: videoio::VideoCapture,
@@ -155,6 +168,7 @@ pub struct VideoSource {
 impl VideoSource {
     /// Opens `kind`.
     pub fn open(kind: &SourceKind) -> Result<Self, SourceError> {
+        single_threaded_opencv();
         let capture = match kind {
             SourceKind::File(path) => {
                 if !path.exists() {
