@@ -159,9 +159,15 @@ pub struct DetectorConfig {
     /// together. Default 1.
     pub concurrent: usize,
     /// Threads OpenCV may use for one detection (it sets them process-wide, for
-    /// the gate's OpenCV work). With `concurrent` this bounds the detector's share
-    /// of the box: at most `concurrent × threads` cores. Default 1.
+    /// the gate's OpenCV work). With `concurrent` and `cpu_share` this bounds the
+    /// detector's share of the box: at most `concurrent × threads × cpu_share`
+    /// cores. Default 1.
     pub threads: u32,
+    /// Share of its time each of the `concurrent` slots may spend detecting, 0.01–1:
+    /// after a detection that took *d* seconds the slot stays taken *d* × (1 /
+    /// `cpu_share` − 1) more, and jobs that cannot get a slot meanwhile are dropped
+    /// and counted as busy. Default 1 (a slot detects back to back).
+    pub cpu_share: f64,
     /// How long a job waits for one of the `concurrent` slots before it is dropped
     /// and counted, seconds (a lossless replay waits as long as it takes). The
     /// waiting is on the detector's thread: activity and events never wait.
@@ -197,6 +203,7 @@ impl Default for DetectorConfig {
             queue: 2,
             concurrent: 1,
             threads: 1,
+            cpu_share: 1.0,
             slot_wait_s: 1.0,
         }
     }
@@ -347,6 +354,7 @@ impl DetectorConfig {
             64.0,
         )?;
         check_range("gate.detector.threads", self.threads as f64, 1.0, 256.0)?;
+        check_range("gate.detector.cpu_share", self.cpu_share, 0.01, 1.0)?;
         check_range("gate.detector.slot_wait_s", self.slot_wait_s, 0.0, 60.0)
     }
 }

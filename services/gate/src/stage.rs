@@ -133,10 +133,13 @@ impl<'ipc> GateStage<'ipc> {
         };
         let (wakeup, waker) = Wakeup::new()
             .map_err(|e| Fatal::with_source(exit::UNAVAILABLE, "the detector's wake-up", e))?;
-        let slots =
-            DetectorSlots::of_site(&config.site.service_prefix, config.gate.detector.concurrent)
-                .map(Arc::new)
-                .map_err(|e| Fatal::with_source(exit::UNAVAILABLE, "the detector's slots", e))?;
+        let slots = DetectorSlots::of_site(
+            &config.site.service_prefix,
+            config.gate.detector.concurrent,
+            config.gate.detector.cpu_share,
+        )
+        .map(Arc::new)
+        .map_err(|e| Fatal::with_source(exit::UNAVAILABLE, "the detector's slots", e))?;
         let (worker, detector_name) = Worker::start(
             move || Detector::from_config(&detector_config, &base_dir),
             ring.clone(),
@@ -159,7 +162,16 @@ impl<'ipc> GateStage<'ipc> {
         );
         let mut detections = Output::new(ipc, &camera.id);
         detections.reserve(MAX_DETECTIONS)?;
-        tracing::info!(camera = %camera.id, detector = detector_name, "gating the {detector_name} detector on events");
+        let d = &config.gate.detector;
+        tracing::info!(
+            camera = %camera.id,
+            detector = detector_name,
+            "gating the {detector_name} detector on events; the site's detections use at most {:.2} cores ({} slots × {} threads × cpu_share {})",
+            d.concurrent as f64 * f64::from(d.threads) * d.cpu_share,
+            d.concurrent,
+            d.threads,
+            d.cpu_share
+        );
         let stage = GateStage {
             gate,
             worker,

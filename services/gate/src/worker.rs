@@ -2,8 +2,9 @@
 //! is full a new job is dropped and counted, so a slow detector never delays the
 //! activity path (events are published as activity arrives, whatever the detector
 //! is doing). The detectors of all cameras of a site share a few slots
-//! ([`DetectorSlots`]), so that the costly detector's CPU stays bounded however many
-//! cameras and gate processes the site runs.
+//! ([`DetectorSlots`]), each busy at most a configured share of the time, so that
+//! the costly detector's CPU stays bounded however many cameras and gate
+//! processes the site runs.
 
 use std::fs::{File, TryLockError};
 use std::path::{Path, PathBuf};
@@ -60,9 +61,12 @@ pub struct Outcome {
 /// The detections that may run at once on a site, shared by the detector threads
 /// of all its gate processes: `limit` lock files, one held (`flock`) per running
 /// detection. The kernel drops the lock of a process that dies, so a crash never
-/// leaks a slot.
+/// leaks a slot. After each detection its slot stays taken for a rest in
+/// proportion ([`DetectorSlots::rest_after`]), so that a slot detects at most
+/// `cpu_share` of the time whoever holds it.
 pub struct DetectorSlots {
     files: Vec<PathBuf>,
+    cpu_share: f64,
 }
 
 /// A running detection's slot, given back when dropped (closing the file unlocks).
@@ -75,7 +79,7 @@ impl DetectorSlots {
     /// The slots of the site whose services run under `service_prefix`: lock files
     /// in `/dev/shm` (shared memory the services may write anyway), or the
     /// temporary directory where there is none.
-    pub fn of_site(service_prefix: &str, limit: usize) -> std::io::Result<Self> {
+    pub fn of_site(service_prefix: &str, limit: usize, cpu_share: f64) -> std::io::Result<Self> {
         let shm = Path::new("/dev/shm");
         let dir = if shm.is_dir() {
             shm.to_path_buf()
@@ -92,11 +96,12 @@ impl DetectorSlots {
                 }
             })
             .collect();
-        Self::in_dir(&dir, &format!("{name}.detector-slot"), limit)
+        Self::in_dir(&dir, &format!("{name}.detector-slot"), limit, cpu_share)
     }
 
-    /// `limit` slots as files `<dir>/<stem>.<n>`, created if missing.
-    pub fn in_dir(dir: &Path, stem: &str, limit: usize) -> std::io::Result<Self> {
+    /// `limit` slots as files `<dir>/<stem>.<n>`, created if missing, each
+    /// detecting at most `cpu_share` (0–1] of the time.
+    pub fn in_dir(dir: &Path, stem: &str, limit: usize, cpu_share: f64) -> std::io::Result<Self> {
         let files: Vec<PathBuf> = (0..limit.max(1))
             .map(|n| dir.join(format!("{stem}.{n}")))
             .collect();
@@ -110,7 +115,20 @@ impl DetectorSlots {
                     std::io::Error::new(e.kind(), format!("detector slot {}: {e}", file.display()))
                 })?;
         }
-        Ok(DetectorSlots { files })
+        Ok(DetectorSlots {
+            files,
+            cpu_share: cpu_share.clamp(0.01, 1.0),
+        })
+    }
+
+    /// How long a slot stays taken after a detection that kept it `busy`: long
+    /// enough that its detections fill `cpu_share` of its time (nothing at 1).
+    pub fn rest_after(&self, busy: Duration) -> Duration {
+        if self.cpu_share >= 1.0 {
+            Duration::ZERO
+        } else {
+            busy.mul_f64(1.0 / self.cpu_share - 1.0)
+        }
     }
 
     /// A free slot, waiting for one up to `patience` (`None`: as long as it takes);
@@ -219,10 +237,10 @@ impl Worker {
                         continue;
                     };
                     let found = ring.lock().copy_latest_at(job.time_ns, &mut frame);
+                    let t0 = Instant::now();
                     let report = if !found {
                         Report::FrameGone(job)
                     } else {
-                        let t0 = Instant::now();
                         match detector.detect(&frame.pixels, frame.width, frame.height, job.region)
                         {
                             Ok(detections) => Report::Done(Outcome {
@@ -238,10 +256,13 @@ impl Worker {
                             Err(e) => Report::Failed(job, e.to_string()),
                         }
                     };
+                    let busy = t0.elapsed();
                     if reports_tx.send(report).is_err() {
                         break;
                     }
                     waker.wake();
+                    // The slot rests before it is given back (`_slot` drops here).
+                    rest(slots.rest_after(busy), &closing);
                 }
             })
             .map_err(DetectorError::Thread)?;
@@ -296,6 +317,19 @@ impl Worker {
     }
 }
 
+/// Sleeps `length`, or less if the worker is closed meanwhile.
+fn rest(length: Duration, closed: &AtomicBool) {
+    const STEP: Duration = Duration::from_millis(20);
+    let end = Instant::now() + length;
+    loop {
+        let now = Instant::now();
+        if now >= end || closed.load(Ordering::Relaxed) {
+            return;
+        }
+        std::thread::sleep((end - now).min(STEP));
+    }
+}
+
 impl Drop for Worker {
     fn drop(&mut self) {
         // The thread ends after its current job; queued jobs are abandoned (a
@@ -315,7 +349,7 @@ mod tests {
     /// Slots in the temporary directory, private to one test.
     fn test_slots(test: &str, limit: usize) -> DetectorSlots {
         let stem = format!("isochron-{}-{test}", std::process::id());
-        DetectorSlots::in_dir(&std::env::temp_dir(), &stem, limit).expect("slot files")
+        DetectorSlots::in_dir(&std::env::temp_dir(), &stem, limit, 1.0).expect("slot files")
     }
 
     #[test]
@@ -422,6 +456,70 @@ mod tests {
         assert!(
             one_run < Duration::from_millis(100) + per_run * 4,
             "stopping took {one_run:?}; one detection takes {per_run:?}"
+        );
+    }
+
+    #[test]
+    fn a_slot_rests_in_proportion_to_its_detections() {
+        let stem = format!("isochron-{}-rest", std::process::id());
+        let dir = std::env::temp_dir();
+        let quarter = DetectorSlots::in_dir(&dir, &stem, 1, 0.25).expect("slot files");
+        assert_eq!(
+            quarter.rest_after(Duration::from_millis(100)),
+            Duration::from_millis(300)
+        );
+        assert_eq!(
+            test_slots("whole", 1).rest_after(Duration::from_secs(1)),
+            Duration::ZERO
+        );
+
+        // A worker detects once, then keeps the site's only slot for its rest.
+        let (w, h) = (640u32, 480u32);
+        let pixels: Vec<u8> = (0..w * h).map(|i| ((i % w) ^ (i / w)) as u8).collect();
+        let ring = Arc::new(Mutex::new(FrameRing::new(1)));
+        ring.lock().push(0, 0, w, h, &pixels);
+        let config = isochron_config::DetectorConfig {
+            installed: false,
+            ..Default::default()
+        };
+        let (_wakeup, waker) = isochron_runtime::stage::Wakeup::new().expect("a wake-up");
+        let (mut worker, _) = Worker::start(
+            move || Detector::from_config(&config, std::path::Path::new(".")),
+            ring,
+            1,
+            Arc::new(quarter),
+            None,
+            waker,
+        )
+        .expect("HOG detector");
+        let job = Job {
+            id: 0,
+            event_id: 1,
+            time_ns: 0,
+            region: Region::WHOLE,
+            origin_wall_ns: 0,
+        };
+        assert!(worker.submit(job));
+        let deadline = Instant::now() + Duration::from_secs(30);
+        let busy = loop {
+            if let Some(Report::Done(outcome)) = worker.reports().pop() {
+                break Duration::from_micros(outcome.detector_us);
+            }
+            assert!(Instant::now() < deadline, "no detection");
+            std::thread::sleep(Duration::from_millis(1));
+        };
+        let done = Instant::now();
+        let other = DetectorSlots::in_dir(&dir, &stem, 1, 1.0).expect("slot files");
+        assert!(
+            other.acquire(Some(Duration::ZERO)).is_none(),
+            "the slot rests after a detection of {busy:?}"
+        );
+        assert!(other.acquire(Some(Duration::from_secs(30))).is_some());
+        let rested = done.elapsed();
+        assert!(
+            rested + Duration::from_millis(20) >= busy * 3
+                && rested < busy * 3 + Duration::from_secs(1),
+            "rested {rested:?} after a detection of {busy:?}"
         );
     }
 

@@ -58,7 +58,8 @@
 //! `cargo bench -p isochron-tests --bench group -- [OPTIONS]`. Options:
 //! `--mode decode-only|predecoded|decode|all` (all), `--per-process P` (cameras per
 //! service process, 32), `--start N` (8), `--max N` (256), `--warmup S` (20),
-//! `--seconds S` (60), `--quick` (two cameras per mode, warm-up 3 s, window 10 s, 5 s
+//! `--seconds S` (60), `--cpu-share S` (the gates' `gate.detector.cpu_share`, else
+//! the default), `--quick` (two cameras per mode, warm-up 3 s, window 10 s, 5 s
 //! for decode-only: a check that the bench runs, in any profile, that fails unless
 //! an event ended and the detector ran in the window; options after it override it;
 //! the JSON line gets `"quick":true`). The last line printed is one JSON object.
@@ -213,6 +214,8 @@ struct Options {
     decode_only_seconds: Duration,
     /// `--quick`: a short run that only checks the bench works.
     quick: bool,
+    /// `--cpu-share`: the site's `gate.detector.cpu_share` (else the default).
+    cpu_share: Option<f64>,
 }
 
 impl Default for Options {
@@ -229,6 +232,7 @@ impl Default for Options {
             seconds: Duration::from_secs(60),
             decode_only_seconds: Duration::from_secs(60),
             quick: false,
+            cpu_share: None,
         }
     }
 }
@@ -262,7 +266,7 @@ impl Options {
 }
 
 const USAGE: &str = "usage: group [--quick] [--mode decode-only|predecoded|decode|all] [--per-process P] \
-[--start N] [--max N] [--warmup SECONDS] [--seconds SECONDS]";
+[--start N] [--max N] [--warmup SECONDS] [--seconds SECONDS] [--cpu-share S]";
 
 /// Parses the options; unknown flags (cargo passes `--bench`) are ignored.
 fn parse_args(args: impl IntoIterator<Item = String>) -> Result<Options, String> {
@@ -274,6 +278,7 @@ fn parse_args(args: impl IntoIterator<Item = String>) -> Result<Options, String>
         "--max",
         "--warmup",
         "--seconds",
+        "--cpu-share",
     ];
     for (flag, value) in bench_args("group", USAGE, (&["--quick"], &valued), args)? {
         let value = value.unwrap_or_default();
@@ -296,6 +301,15 @@ fn parse_args(args: impl IntoIterator<Item = String>) -> Result<Options, String>
             "--start" => o.start = bench_count(&flag, &value)?,
             "--max" => o.max = bench_count(&flag, &value)?,
             "--warmup" => o.warmup = bench_secs(&flag, &value, 0.0)?,
+            "--cpu-share" => {
+                let share = value
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|s| (0.01..=1.0).contains(s));
+                o.cpu_share = Some(share.ok_or_else(|| {
+                    format!("--cpu-share: expected a number from 0.01 to 1, found '{value}'")
+                })?);
+            }
             _ => {
                 o.seconds = bench_secs(&flag, &value, 0.0)?.max(Duration::from_secs(1));
                 o.decode_only_seconds = o.seconds;

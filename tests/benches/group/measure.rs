@@ -21,7 +21,7 @@ pub(crate) fn run_group(opts: &Options, mode: Mode, n: usize, video: &Path) -> R
     let run = Run::new(mode, n, process_count(mode, n, opts.per_process));
     let site = TestSite::new(
         &format!("group-{}-{n}", mode.name()),
-        &site_body(mode, &cameras, video),
+        &site_body(mode, &cameras, video, opts.cpu_share),
     );
     remove_stale_nodes();
     let ipc = site.ipc("bench");

@@ -211,7 +211,8 @@ pub(crate) fn json_line(opts: &Options, runs: &[Run], codec: &str) -> String {
          \"detections_in_window\":{},\"detection_jobs_accepted\":{},\
          \"detection_jobs_dropped\":{},\"event_end_lag_p99_ms\":{},\
          \"detection_latency_p99_ms\":{},\"rss_mb_per_camera\":{},\"shm_mb_per_camera\":{},\
-         \"p99_latency_ms\":{},\"window_s\":{},\"codec\":{},\"load_1m_max\":{}{}}}",
+         \"p99_latency_ms\":{},\"window_s\":{},\"codec\":{},\"load_1m_max\":{},\
+         \"detector_cpu_share\":{}{}}}",
         count(capacity(opts, runs, Mode::Predecoded)),
         count(decode),
         count(only),
@@ -234,6 +235,8 @@ pub(crate) fn json_line(opts: &Options, runs: &[Run], codec: &str) -> String {
         opts.seconds.as_secs_f64(),
         serde_json::to_string(codec).unwrap_or_default(),
         number(load_max),
+        opts.cpu_share
+            .unwrap_or(isochron_config::DetectorConfig::default().cpu_share),
         if opts.quick { ",\"quick\":true" } else { "" },
     )
 }

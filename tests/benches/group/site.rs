@@ -22,7 +22,8 @@ pub(crate) fn ros_domain() -> u16 {
 }
 
 /// The site config (after `[site]`) for `cameras` in `mode`, replaying the churn
-/// `video`: camera *i* of N starts *i*/N of a cycle in.
+/// `video`: camera *i* of N starts *i*/N of a cycle in; the detector's settings
+/// are the defaults but for `cpu_share`, when given.
 ///
 /// The quiet part is a cut to the busy part's median, so a camera that started
 /// in the busy part sees blocks differ from everything it learned, arriving with
@@ -30,11 +31,17 @@ pub(crate) fn ros_domain() -> u16 {
 /// absorbed. A short `absorb_s` lets the events end inside the window (what is
 /// measured is the end record's latency, not how long presence held the event);
 /// the band still runs on every camera, so its cost is in the figures.
-pub(crate) fn site_body(mode: Mode, cameras: &[String], video: &Path) -> String {
+pub(crate) fn site_body(
+    mode: Mode,
+    cameras: &[String],
+    video: &Path,
+    cpu_share: Option<f64>,
+) -> String {
     let source = serde_json::to_string(&video.display().to_string()).unwrap_or_default();
+    let share = cpu_share.map_or(String::new(), |s| format!("cpu_share = {s}\n"));
     let mut body = format!(
         "[presence]\nabsorb_s = 5.0\n\n\
-         [gate.detector]\nhog_upscale = 1.5\n\n\
+         [gate.detector]\n{share}\n\
          [costmap]\norigin_x_m = -22.0\norigin_y_m = -18.0\nresolution_m = 0.1\n\
          width_cells = 320\nheight_cells = 300\nframe_id = \"map\"\n\
          topic = \"/isochron/bench_costmap\"\nros_domain_id = {}\n\
