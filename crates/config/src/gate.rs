@@ -163,10 +163,11 @@ pub struct DetectorConfig {
     /// detector's share of the box: at most `concurrent × threads × cpu_share`
     /// cores. Default 1.
     pub threads: u32,
-    /// Share of its time each of the `concurrent` slots may spend detecting, 0.01–1:
-    /// after a detection that took *d* seconds the slot stays taken *d* × (1 /
-    /// `cpu_share` − 1) more, and jobs that cannot get a slot meanwhile are dropped
-    /// and counted as busy. Default 1 (a slot detects back to back).
+    /// Share of its `threads` cores each of the `concurrent` slots may spend
+    /// detecting, 0.01–1: after a detection that cost *d* seconds (the detecting
+    /// thread's CPU time with one thread, else the wall-clock time) the slot stays
+    /// taken *d* × (1 / `cpu_share` − 1) more, and jobs that cannot get a slot
+    /// meanwhile are dropped and counted as busy. Default 1 (back to back).
     pub cpu_share: f64,
     /// How long a job waits for one of the `concurrent` slots before it is dropped
     /// and counted, seconds (a lossless replay waits as long as it takes). The

@@ -136,7 +136,7 @@ impl<'ipc> GateStage<'ipc> {
         let slots = DetectorSlots::of_site(
             &config.site.service_prefix,
             config.gate.detector.concurrent,
-            config.gate.detector.cpu_share,
+            (config.gate.detector.threads, config.gate.detector.cpu_share),
         )
         .map(Arc::new)
         .map_err(|e| Fatal::with_source(exit::UNAVAILABLE, "the detector's slots", e))?;

@@ -62,11 +62,21 @@ pub struct Outcome {
 /// of all its gate processes: `limit` lock files, one held (`flock`) per running
 /// detection. The kernel drops the lock of a process that dies, so a crash never
 /// leaks a slot. After each detection its slot stays taken for a rest in
-/// proportion ([`DetectorSlots::rest_after`]), so that a slot detects at most
-/// `cpu_share` of the time whoever holds it.
+/// proportion ([`DetectorSlots::rest_after`]), so that a slot's detections use
+/// at most `cpu_share` of `threads` cores whoever holds it.
 pub struct DetectorSlots {
     files: Vec<PathBuf>,
     cpu_share: f64,
+    threads: u32,
+}
+
+/// What a detection cost its slot.
+#[derive(Debug, Clone, Copy)]
+pub struct Busy {
+    /// Wall-clock time.
+    pub wall: Duration,
+    /// CPU time of the detecting thread.
+    pub thread_cpu: Duration,
 }
 
 /// A running detection's slot, given back when dropped (closing the file unlocks).
@@ -78,8 +88,13 @@ impl DetectorSlots {
 
     /// The slots of the site whose services run under `service_prefix`: lock files
     /// in `/dev/shm` (shared memory the services may write anyway), or the
-    /// temporary directory where there is none.
-    pub fn of_site(service_prefix: &str, limit: usize, cpu_share: f64) -> std::io::Result<Self> {
+    /// temporary directory where there is none. Each runs one detection at a time
+    /// on `threads` threads, busy at most `cpu_share` of the time.
+    pub fn of_site(
+        service_prefix: &str,
+        limit: usize,
+        (threads, cpu_share): (u32, f64),
+    ) -> std::io::Result<Self> {
         let shm = Path::new("/dev/shm");
         let dir = if shm.is_dir() {
             shm.to_path_buf()
@@ -96,12 +111,21 @@ impl DetectorSlots {
                 }
             })
             .collect();
-        Self::in_dir(&dir, &format!("{name}.detector-slot"), limit, cpu_share)
+        Self::in_dir(
+            &dir,
+            &format!("{name}.detector-slot"),
+            limit,
+            (threads, cpu_share),
+        )
     }
 
-    /// `limit` slots as files `<dir>/<stem>.<n>`, created if missing, each
-    /// detecting at most `cpu_share` (0–1] of the time.
-    pub fn in_dir(dir: &Path, stem: &str, limit: usize, cpu_share: f64) -> std::io::Result<Self> {
+    /// `limit` slots as files `<dir>/<stem>.<n>`, created if missing.
+    pub fn in_dir(
+        dir: &Path,
+        stem: &str,
+        limit: usize,
+        (threads, cpu_share): (u32, f64),
+    ) -> std::io::Result<Self> {
         let files: Vec<PathBuf> = (0..limit.max(1))
             .map(|n| dir.join(format!("{stem}.{n}")))
             .collect();
@@ -118,17 +142,25 @@ impl DetectorSlots {
         Ok(DetectorSlots {
             files,
             cpu_share: cpu_share.clamp(0.01, 1.0),
+            threads: threads.max(1),
         })
     }
 
-    /// How long a slot stays taken after a detection that kept it `busy`: long
-    /// enough that its detections fill `cpu_share` of its time (nothing at 1).
-    pub fn rest_after(&self, busy: Duration) -> Duration {
+    /// How long a slot stays taken after a detection that cost it `busy`, so that
+    /// its detections use at most `cpu_share` of its `threads` cores (nothing at
+    /// 1). One thread detects on the worker's own: its CPU time is the cost, and
+    /// a detection slowed by a busy box does not lengthen the rest. More threads
+    /// work beside it, so the cost is the wall-clock time.
+    pub fn rest_after(&self, busy: Busy) -> Duration {
         if self.cpu_share >= 1.0 {
-            Duration::ZERO
-        } else {
-            busy.mul_f64(1.0 / self.cpu_share - 1.0)
+            return Duration::ZERO;
         }
+        let cost = if self.threads == 1 {
+            busy.thread_cpu
+        } else {
+            busy.wall
+        };
+        cost.mul_f64(1.0 / self.cpu_share - 1.0)
     }
 
     /// A free slot, waiting for one up to `patience` (`None`: as long as it takes);
@@ -237,7 +269,7 @@ impl Worker {
                         continue;
                     };
                     let found = ring.lock().copy_latest_at(job.time_ns, &mut frame);
-                    let t0 = Instant::now();
+                    let (t0, cpu0) = (Instant::now(), thread_cpu_time());
                     let report = if !found {
                         Report::FrameGone(job)
                     } else {
@@ -256,7 +288,10 @@ impl Worker {
                             Err(e) => Report::Failed(job, e.to_string()),
                         }
                     };
-                    let busy = t0.elapsed();
+                    let busy = Busy {
+                        wall: t0.elapsed(),
+                        thread_cpu: thread_cpu_time().saturating_sub(cpu0),
+                    };
                     if reports_tx.send(report).is_err() {
                         break;
                     }
@@ -317,6 +352,22 @@ impl Worker {
     }
 }
 
+/// CPU time the calling thread has used (zero if the clock cannot be read).
+fn thread_cpu_time() -> Duration {
+    let mut t = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `t` is a valid timespec for the call to write.
+    if unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut t) } != 0 {
+        return Duration::ZERO;
+    }
+    Duration::new(
+        t.tv_sec.max(0) as u64,
+        t.tv_nsec.clamp(0, 999_999_999) as u32,
+    )
+}
+
 /// Sleeps `length`, or less if the worker is closed meanwhile.
 fn rest(length: Duration, closed: &AtomicBool) {
     const STEP: Duration = Duration::from_millis(20);
@@ -349,7 +400,7 @@ mod tests {
     /// Slots in the temporary directory, private to one test.
     fn test_slots(test: &str, limit: usize) -> DetectorSlots {
         let stem = format!("isochron-{}-{test}", std::process::id());
-        DetectorSlots::in_dir(&std::env::temp_dir(), &stem, limit, 1.0).expect("slot files")
+        DetectorSlots::in_dir(&std::env::temp_dir(), &stem, limit, (1, 1.0)).expect("slot files")
     }
 
     #[test]
@@ -463,15 +514,23 @@ mod tests {
     fn a_slot_rests_in_proportion_to_its_detections() {
         let stem = format!("isochron-{}-rest", std::process::id());
         let dir = std::env::temp_dir();
-        let quarter = DetectorSlots::in_dir(&dir, &stem, 1, 0.25).expect("slot files");
+        let quarter = DetectorSlots::in_dir(&dir, &stem, 1, (1, 0.25)).expect("slot files");
+        let busy = Busy {
+            wall: Duration::from_millis(500),
+            thread_cpu: Duration::from_millis(100),
+        };
         assert_eq!(
-            quarter.rest_after(Duration::from_millis(100)),
-            Duration::from_millis(300)
+            quarter.rest_after(busy),
+            Duration::from_millis(300),
+            "one thread: its CPU time"
         );
+        let two_threads = DetectorSlots::in_dir(&dir, &stem, 1, (2, 0.25)).expect("slot files");
         assert_eq!(
-            test_slots("whole", 1).rest_after(Duration::from_secs(1)),
-            Duration::ZERO
+            two_threads.rest_after(busy),
+            Duration::from_millis(1500),
+            "more: wall time"
         );
+        assert_eq!(test_slots("whole", 1).rest_after(busy), Duration::ZERO);
 
         // A worker detects once, then keeps the site's only slot for its rest.
         let (w, h) = (640u32, 480u32);
@@ -509,16 +568,16 @@ mod tests {
             std::thread::sleep(Duration::from_millis(1));
         };
         let done = Instant::now();
-        let other = DetectorSlots::in_dir(&dir, &stem, 1, 1.0).expect("slot files");
+        let other = DetectorSlots::in_dir(&dir, &stem, 1, (1, 1.0)).expect("slot files");
         assert!(
             other.acquire(Some(Duration::ZERO)).is_none(),
             "the slot rests after a detection of {busy:?}"
         );
         assert!(other.acquire(Some(Duration::from_secs(30))).is_some());
         let rested = done.elapsed();
+        // Three times the detection's CPU time, which is at most its wall time.
         assert!(
-            rested + Duration::from_millis(20) >= busy * 3
-                && rested < busy * 3 + Duration::from_secs(1),
+            rested < busy * 3 + Duration::from_secs(1),
             "rested {rested:?} after a detection of {busy:?}"
         );
     }
