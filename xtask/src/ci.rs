@@ -12,7 +12,7 @@ use anyhow::{Context, bail};
 use crate::{cargo, run};
 
 /// The benchmarks, by bench target name (each unique in the workspace): ipc,
-/// motion, cascade, gate, detector (the people detectors scored on two labelled
+/// motion, cascade, gate, detector (the people detectors scored on labelled
 /// real scenes), group, site, and forecast (the long-term model's backtest on
 /// real pedestrian counts).
 pub(crate) const BENCHES: [&str; 8] = [

