@@ -59,7 +59,8 @@
 //! `--mode decode-only|predecoded|decode|all` (all), `--per-process P` (cameras per
 //! service process, 32), `--start N` (8), `--max N` (256), `--warmup S` (20),
 //! `--seconds S` (60), `--cpu-share S` (the gates' `gate.detector.cpu_share`, else
-//! the default), `--quick` (two cameras per mode, warm-up 3 s, window 10 s, 5 s
+//! the default), `--no-detector` (the gates run none: what the detector costs
+//! in cameras; a run then need not detect), `--quick` (two cameras per mode, warm-up 3 s, window 10 s, 5 s
 //! for decode-only: a check that the bench runs, in any profile, that fails unless
 //! an event ended and the detector ran in the window; options after it override it;
 //! the JSON line gets `"quick":true`). The last line printed is one JSON object.
@@ -216,6 +217,9 @@ struct Options {
     quick: bool,
     /// `--cpu-share`: the site's `gate.detector.cpu_share` (else the default).
     cpu_share: Option<f64>,
+    /// `--no-detector`: `gate.detector.enabled = false`, to see what the
+    /// detector costs in cameras.
+    no_detector: bool,
 }
 
 impl Default for Options {
@@ -233,6 +237,7 @@ impl Default for Options {
             decode_only_seconds: Duration::from_secs(60),
             quick: false,
             cpu_share: None,
+            no_detector: false,
         }
     }
 }
@@ -266,7 +271,7 @@ impl Options {
 }
 
 const USAGE: &str = "usage: group [--quick] [--mode decode-only|predecoded|decode|all] [--per-process P] \
-[--start N] [--max N] [--warmup SECONDS] [--seconds SECONDS] [--cpu-share S]";
+[--start N] [--max N] [--warmup SECONDS] [--seconds SECONDS] [--cpu-share S] [--no-detector]";
 
 /// Parses the options; unknown flags (cargo passes `--bench`) are ignored.
 fn parse_args(args: impl IntoIterator<Item = String>) -> Result<Options, String> {
@@ -280,10 +285,16 @@ fn parse_args(args: impl IntoIterator<Item = String>) -> Result<Options, String>
         "--seconds",
         "--cpu-share",
     ];
-    for (flag, value) in bench_args("group", USAGE, (&["--quick"], &valued), args)? {
+    for (flag, value) in bench_args(
+        "group",
+        USAGE,
+        (&["--quick", "--no-detector"], &valued),
+        args,
+    )? {
         let value = value.unwrap_or_default();
         match flag.as_str() {
             "--quick" => o = o.quick(),
+            "--no-detector" => o.no_detector = true,
             "--mode" => {
                 o.modes = match value.as_str() {
                     "all" => Mode::ALL.to_vec(),
@@ -436,7 +447,7 @@ fn main() {
     print_summary(&opts, &runs);
     println!("{}", json_line(&opts, &runs, &codec));
     if opts.quick {
-        let problems = quick_problems(&runs);
+        let problems = quick_problems(&runs, !opts.no_detector);
         if !problems.is_empty() {
             eprintln!("group (quick): {}", problems.join("; "));
             std::process::exit(1);

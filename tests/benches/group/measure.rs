@@ -21,7 +21,7 @@ pub(crate) fn run_group(opts: &Options, mode: Mode, n: usize, video: &Path) -> R
     let run = Run::new(mode, n, process_count(mode, n, opts.per_process));
     let site = TestSite::new(
         &format!("group-{}-{n}", mode.name()),
-        &site_body(mode, &cameras, video, opts.cpu_share),
+        &site_body(mode, &cameras, video, (opts.cpu_share, opts.no_detector)),
     );
     remove_stale_nodes();
     let ipc = site.ipc("bench");
@@ -184,5 +184,5 @@ pub(crate) fn measure(
     }
     let window_s = window.1.saturating_sub(window.0) as f64 / 1e9;
     let run = evaluate_latency(run, watch.probe, window);
-    evaluate_gate(run, watch.probe, window_s)
+    evaluate_gate(run, watch.probe, window_s, !opts.no_detector)
 }

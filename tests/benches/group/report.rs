@@ -212,7 +212,7 @@ pub(crate) fn json_line(opts: &Options, runs: &[Run], codec: &str) -> String {
          \"detection_jobs_dropped\":{},\"event_end_lag_p99_ms\":{},\
          \"detection_latency_p99_ms\":{},\"rss_mb_per_camera\":{},\"shm_mb_per_camera\":{},\
          \"p99_latency_ms\":{},\"window_s\":{},\"codec\":{},\"load_1m_max\":{},\
-         \"detector_cpu_share\":{}{}}}",
+         \"detector_cpu_share\":{}{}{}}}",
         count(capacity(opts, runs, Mode::Predecoded)),
         count(decode),
         count(only),
@@ -237,13 +237,18 @@ pub(crate) fn json_line(opts: &Options, runs: &[Run], codec: &str) -> String {
         number(load_max),
         opts.cpu_share
             .unwrap_or(isochron_config::DetectorConfig::default().cpu_share),
+        if opts.no_detector {
+            ",\"detector\":false"
+        } else {
+            ""
+        },
         if opts.quick { ",\"quick\":true" } else { "" },
     )
 }
 
 /// A quick run checks the workload, not capacity: every group run ended an event
-/// and ran the detector in its window. The reasons it did not.
-pub(crate) fn quick_problems(runs: &[Run]) -> Vec<String> {
+/// and (when `detecting`) ran the detector in its window. The reasons it did not.
+pub(crate) fn quick_problems(runs: &[Run], detecting: bool) -> Vec<String> {
     runs.iter()
         .filter(|r| r.mode != Mode::DecodeOnly)
         .filter_map(|r| {
@@ -251,7 +256,7 @@ pub(crate) fn quick_problems(runs: &[Run]) -> Vec<String> {
             if r.events_ended == 0 {
                 missing.push("no event ended");
             }
-            if r.detections == 0 {
+            if detecting && r.detections == 0 {
                 missing.push("the detector never ran");
             }
             (!missing.is_empty()).then(|| {

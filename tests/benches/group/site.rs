@@ -23,7 +23,8 @@ pub(crate) fn ros_domain() -> u16 {
 
 /// The site config (after `[site]`) for `cameras` in `mode`, replaying the churn
 /// `video`: camera *i* of N starts *i*/N of a cycle in; the detector's settings
-/// are the defaults but for `cpu_share`, when given.
+/// are the defaults but for `cpu_share`, when given, and `enabled` with
+/// `no_detector`.
 ///
 /// The quiet part is a cut to the busy part's median, so a camera that started
 /// in the busy part sees blocks differ from everything it learned, arriving with
@@ -35,10 +36,13 @@ pub(crate) fn site_body(
     mode: Mode,
     cameras: &[String],
     video: &Path,
-    cpu_share: Option<f64>,
+    (cpu_share, no_detector): (Option<f64>, bool),
 ) -> String {
     let source = serde_json::to_string(&video.display().to_string()).unwrap_or_default();
-    let share = cpu_share.map_or(String::new(), |s| format!("cpu_share = {s}\n"));
+    let mut share = cpu_share.map_or(String::new(), |s| format!("cpu_share = {s}\n"));
+    if no_detector {
+        share.push_str("enabled = false\n");
+    }
     let mut body = format!(
         "[presence]\nabsorb_s = 5.0\n\n\
          [gate.detector]\n{share}\n\
