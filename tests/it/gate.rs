@@ -7,7 +7,7 @@ use isochron_config::clock::NS_PER_S;
 use isochron_runtime::ipc::{
     Activity, Detections, Events, Frames, Ipc, StreamPublisher, StreamSubscriber,
 };
-use isochron_tests::{Proc, TestSite, eventually};
+use isochron_tests::{Proc, TestSite, clock_ticks_per_s, cpu_ticks, eventually};
 use isochron_wire::{
     ActivityHeader, BlockActivity, CameraId, EventPhase, FLAG_END_OF_STREAM, FrameHeader,
     PixelFormat, Preamble, Stream,
@@ -139,7 +139,7 @@ fn site(name: &str, lossless: bool, gate: &str) -> TestSite {
 /// through its events and detections (subscribed to before it starts).
 struct Fed {
     // Dropped in this order: the gate stops first, the node goes last.
-    _gate: Proc,
+    gate: Proc,
     feeder: Feeder,
     detections: StreamSubscriber<Detections>,
     events: StreamSubscriber<Events>,
@@ -155,7 +155,7 @@ fn start_gate(site: &TestSite, width: u32, height: u32) -> Fed {
     let gate = site.spawn("isochron-gate", &["--camera", "cam01"]);
     feeder.wait_for_gate();
     Fed {
-        _gate: gate,
+        gate,
         feeder,
         detections,
         events,
@@ -284,6 +284,74 @@ fn a_slow_detector_does_not_delay_events() {
     assert!(eos.frames_detected >= 1 && eos.frames_detected < 8);
 }
 
+/// What the gate did in `seconds` of live feeding with `share` of a core for its
+/// detector: its process's CPU seconds and the wall-clock seconds of the
+/// feeding, and the end of stream's counters.
+fn fed_with_share(name: &str, share: f64) -> (f64, f64, isochron_wire::DetectionHeader) {
+    // HOG on whole 1080p frames: a good part of a second of one core each; a
+    // detection job every other second of activity (events start and end by
+    // turns), eight seconds of activity fed per second.
+    let site = site(
+        name,
+        false,
+        &format!(
+            "hold_s = 0.0\n\n[gate.detector]\ninstalled = false\ncrop = false\n\
+             cpu_share = {share}"
+        ),
+    );
+    let mut fed = start_gate(&site, 1920, 1080);
+    let pid = fed.gate.pid();
+    let (t0, c0) = (Instant::now(), cpu_ticks(pid).expect("the gate's CPU time"));
+    let seconds = 64;
+    for s in 0..seconds {
+        fed.feeder.second(s, if s % 2 == 0 { 1.0 } else { 0.0 });
+        std::thread::sleep(Duration::from_millis(125));
+    }
+    let ticks = cpu_ticks(pid).expect("the gate's CPU time") - c0;
+    let wall = t0.elapsed().as_secs_f64();
+    fed.feeder.end_of_stream(seconds * NS_PER_S);
+    let eos = eventually(Duration::from_secs(60), || {
+        while let Some(s) = fed.detections.receive().unwrap() {
+            if s.user_header().preamble.is_end_of_stream() {
+                return Some(*s.user_header());
+            }
+        }
+        None
+    })
+    .expect("detections end of stream");
+    (ticks as f64 / clock_ticks_per_s(), wall, eos)
+}
+
+#[test]
+fn cpu_share_holds_the_detector_to_its_share_of_a_core() {
+    // Back to back (the default), the detector is busy all along.
+    let (_, wall, full) = fed_with_share("gate-share-full", 1.0);
+    let busy = full.detector_total_us as f64 / 1e6 / wall;
+    println!(
+        "cpu_share 1: detecting {busy:.2} of the time, {} detections",
+        full.frames_detected
+    );
+    assert!(busy > 0.7, "the load keeps a whole slot busy: {busy:.2}");
+
+    // A quarter: the gate's whole process stays within a quarter of a core, but
+    // for the detection under way and its own work on the frames.
+    let (cpu, wall, quarter) = fed_with_share("gate-share-quarter", 0.25);
+    let mean = quarter.detector_total_us as f64 / 1e6 / quarter.frames_detected.max(1) as f64;
+    println!(
+        "cpu_share 0.25: {cpu:.2} s of CPU in {wall:.2} s, {} detections of {mean:.2} s, {} jobs dropped",
+        quarter.frames_detected, quarter.jobs_dropped
+    );
+    assert!(quarter.frames_detected >= 2, "{quarter:?}");
+    assert!(
+        quarter.jobs_dropped > 0,
+        "jobs over the share are dropped: {quarter:?}"
+    );
+    assert!(
+        cpu <= 0.25 * wall + mean + 0.1 * wall,
+        "{cpu:.2} s of CPU in {wall:.2} s with a quarter of a core"
+    );
+}
+
 /// The Python of the test venv with the `onnx` package (`cargo xtask setup`).
 fn onnx_python() -> std::path::PathBuf {
     isochron_tests::venv_python("onnx")
@@ -324,7 +392,7 @@ fn an_onnx_model_runs_through_opencv_dnn_on_the_letterboxed_frame() {
             }
             None
         })
-        .unwrap_or_else(|| panic!("no detection; the gate said:\n{}", fed._gate.stderr()));
+        .unwrap_or_else(|| panic!("no detection; the gate said:\n{}", fed.gate.stderr()));
         // The person at (32, 32) 16x24 of the input, in frame pixels: x = (32 - 8)
         // / 0.5, y = (32 - 12 - 16) / 0.5. Stretched instead of letterboxed, y
         // would be 20 and h 24. The weak person and the other class are dropped.

@@ -397,6 +397,38 @@ impl Drop for Worker {
 mod tests {
     use super::*;
 
+    /// A ring holding one textured `w × h` frame, at time 0, and its pixels.
+    fn ring_with_frame(w: u32, h: u32) -> (Arc<Mutex<FrameRing>>, Vec<u8>) {
+        let pixels: Vec<u8> = (0..w * h).map(|i| ((i % w) ^ (i / w)) as u8).collect();
+        let ring = Arc::new(Mutex::new(FrameRing::new(1)));
+        ring.lock().push(0, 0, w, h, &pixels);
+        (ring, pixels)
+    }
+
+    /// A worker running HOG with `config` (no network is installed under `.`),
+    /// waiting for a slot as long as it takes.
+    fn hog_worker(
+        config: isochron_config::DetectorConfig,
+        ring: Arc<Mutex<FrameRing>>,
+        queue: usize,
+        slots: Arc<DetectorSlots>,
+    ) -> Worker {
+        let (_wakeup, waker) = isochron_runtime::stage::Wakeup::new().expect("a wake-up");
+        let make = move || Detector::from_config(&config, std::path::Path::new("."));
+        Worker::start(make, ring, queue, slots, None, waker)
+            .expect("HOG detector")
+            .0
+    }
+
+    /// A detection job on the whole of the frame at time 0.
+    const WHOLE_FRAME_JOB: Job = Job {
+        id: 0,
+        event_id: 1,
+        time_ns: 0,
+        region: Region::WHOLE,
+        origin_wall_ns: 0,
+    };
+
     /// Slots in the temporary directory, private to one test.
     fn test_slots(test: &str, limit: usize) -> DetectorSlots {
         let stem = format!("isochron-{}-{test}", std::process::id());
@@ -454,9 +486,7 @@ mod tests {
     fn a_dropped_worker_abandons_its_queued_jobs() {
         // A full-HD frame: each HOG run takes a good fraction of a second.
         let (w, h) = (1920u32, 1080u32);
-        let pixels: Vec<u8> = (0..w * h).map(|i| ((i % w) ^ (i / w)) as u8).collect();
-        let ring = Arc::new(Mutex::new(FrameRing::new(1)));
-        ring.lock().push(0, 0, w, h, &pixels);
+        let (ring, pixels) = ring_with_frame(w, h);
         let slots = Arc::new(test_slots("abandon", 1));
         let held = slots.acquire(Some(Duration::ZERO)).expect("the only slot");
         // At upscale 1: a shorter test, and the point is the same.
@@ -465,28 +495,12 @@ mod tests {
             ..Default::default()
         };
         let again = config.clone();
-        let (_wakeup, waker) = isochron_runtime::stage::Wakeup::new().expect("a wake-up");
-        let (mut worker, _) = Worker::start(
-            move || Detector::from_config(&config, std::path::Path::new(".")),
-            ring,
-            8,
-            slots.clone(),
-            None,
-            waker,
-        )
-        .expect("HOG detector");
+        let mut worker = hog_worker(config, ring, 8, slots.clone());
         // The first job waits for the slot; eight more wait in the queue.
-        let job = Job {
-            id: 0,
-            event_id: 1,
-            time_ns: 0,
-            region: Region::WHOLE,
-            origin_wall_ns: 0,
-        };
-        assert!(worker.submit(job));
+        assert!(worker.submit(WHOLE_FRAME_JOB));
         std::thread::sleep(Duration::from_millis(50));
         for _ in 0..8 {
-            assert!(worker.submit(job));
+            assert!(worker.submit(WHOLE_FRAME_JOB));
         }
         let t0 = Instant::now();
         let one_run = std::thread::scope(|scope| {
@@ -533,32 +547,9 @@ mod tests {
         assert_eq!(test_slots("whole", 1).rest_after(busy), Duration::ZERO);
 
         // A worker detects once, then keeps the site's only slot for its rest.
-        let (w, h) = (640u32, 480u32);
-        let pixels: Vec<u8> = (0..w * h).map(|i| ((i % w) ^ (i / w)) as u8).collect();
-        let ring = Arc::new(Mutex::new(FrameRing::new(1)));
-        ring.lock().push(0, 0, w, h, &pixels);
-        let config = isochron_config::DetectorConfig {
-            installed: false,
-            ..Default::default()
-        };
-        let (_wakeup, waker) = isochron_runtime::stage::Wakeup::new().expect("a wake-up");
-        let (mut worker, _) = Worker::start(
-            move || Detector::from_config(&config, std::path::Path::new(".")),
-            ring,
-            1,
-            Arc::new(quarter),
-            None,
-            waker,
-        )
-        .expect("HOG detector");
-        let job = Job {
-            id: 0,
-            event_id: 1,
-            time_ns: 0,
-            region: Region::WHOLE,
-            origin_wall_ns: 0,
-        };
-        assert!(worker.submit(job));
+        let (ring, _) = ring_with_frame(640, 480);
+        let mut worker = hog_worker(Default::default(), ring, 1, Arc::new(quarter));
+        assert!(worker.submit(WHOLE_FRAME_JOB));
         let deadline = Instant::now() + Duration::from_secs(30);
         let busy = loop {
             if let Some(Report::Done(outcome)) = worker.reports().pop() {
