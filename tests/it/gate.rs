@@ -146,6 +146,22 @@ struct Fed {
     _ipc: Ipc,
 }
 
+impl Fed {
+    /// The end-of-stream header of `detections`, with the gate's counters,
+    /// skipping the detections before it.
+    fn detections_end(&mut self, timeout: Duration) -> isochron_wire::DetectionHeader {
+        eventually(timeout, || {
+            while let Some(s) = self.detections.receive().unwrap() {
+                if s.user_header().preamble.is_end_of_stream() {
+                    return Some(*s.user_header());
+                }
+            }
+            None
+        })
+        .expect("detections end of stream")
+    }
+}
+
 /// Starts the gate of `site` and waits until it subscribed to the feeder.
 fn start_gate(site: &TestSite, width: u32, height: u32) -> Fed {
     let ipc = site.ipc("feeder");
@@ -262,15 +278,7 @@ fn a_slow_detector_does_not_delay_events() {
     );
 
     fed.feeder.end_of_stream(16 * NS_PER_S);
-    let eos = eventually(Duration::from_secs(120), || {
-        while let Some(s) = fed.detections.receive().unwrap() {
-            if s.user_header().preamble.is_end_of_stream() {
-                return Some(*s.user_header());
-            }
-        }
-        None
-    })
-    .expect("detections end of stream");
+    let eos = fed.detections_end(Duration::from_secs(120));
     println!(
         "detected {} frames, dropped {} jobs, detector {} ms",
         eos.frames_detected,
@@ -310,15 +318,7 @@ fn fed_with_share(name: &str, share: f64) -> (f64, f64, isochron_wire::Detection
     let ticks = cpu_ticks(pid).expect("the gate's CPU time") - c0;
     let wall = t0.elapsed().as_secs_f64();
     fed.feeder.end_of_stream(seconds * NS_PER_S);
-    let eos = eventually(Duration::from_secs(60), || {
-        while let Some(s) = fed.detections.receive().unwrap() {
-            if s.user_header().preamble.is_end_of_stream() {
-                return Some(*s.user_header());
-            }
-        }
-        None
-    })
-    .expect("detections end of stream");
+    let eos = fed.detections_end(Duration::from_secs(60));
     (ticks as f64 / clock_ticks_per_s(), wall, eos)
 }
 
