@@ -1,5 +1,5 @@
 //! The conventions every command shares: one exit-code table for the `isochron`
-//! command and the services (`crates/exit/src/lib.rs`, docs/operating.md "Exit codes").
+//! command and the services (`shared/exit/src/lib.rs`, docs/operating.md "Exit codes").
 
 use std::time::Duration;
 

@@ -1187,13 +1187,13 @@ fn a_snapshot_at_a_time_of_day_draws_what_the_long_term_model_expects() {
     assert!(rows.iter().flatten().all(|&c| c <= 0));
     assert_eq!(quiet["cells_seen"], busy["cells_seen"]);
 
-    // Bad --at: one line, the usage exit code (crates/exit/src/lib.rs).
+    // Bad --at: one line, the usage exit code (shared/exit/src/lib.rs).
     let out = site.path("bad.png");
     let done = snapshot_at("25:00", out.to_str().unwrap());
     assert_usage_error(&done, "--at: expected a time of day HH:MM");
 }
 
-/// A usage error: exit 64 (crates/exit/src/lib.rs) and one line that says `expect`.
+/// A usage error: exit 64 (shared/exit/src/lib.rs) and one line that says `expect`.
 fn assert_usage_error(done: &isochron_tests::Finished, expect: &str) {
     assert_eq!(done.status.code(), Some(64), "{}", done.stderr);
     assert_eq!(done.stderr.lines().count(), 1, "{}", done.stderr);

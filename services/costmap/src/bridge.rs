@@ -400,7 +400,7 @@ mod tests {
     /// The camera of the planning tests, over a 5 m × 4 m grid.
     const SITE: &str = concat!(
         "\n",
-        include_str!("../../../planning/tests/fixtures/floor_camera.toml"),
+        include_str!("../../../shared/planning/tests/fixtures/floor_camera.toml"),
         r#"
 [costmap]
 resolution_m = 0.1

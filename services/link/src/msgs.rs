@@ -1,6 +1,6 @@
 //! The messages between base stations: `isochron_msgs/msg/Activity`, `Event`,
 //! `Detections` and `Status` (ros/isochron_msgs/msg). Each is the box that sent
-//! it, the iceoryx2 header exactly as `crates/wire/src/lib.rs` lays it out, and the
+//! it, the iceoryx2 header exactly as `shared/wire/src/lib.rs` lays it out, and the
 //! payload: the wire types themselves derive serde, so this file adds no layout
 //! of its own and the crossing loses nothing (sequence, capture and origin times
 //! included). Serialised in field order they are the CDR every ROS 2 middleware

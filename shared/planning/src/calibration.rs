@@ -209,7 +209,7 @@ mod tests {
 
     #[test]
     fn the_demo_calibration_has_its_known_error_and_no_outlier() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/demo.toml");
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/demo.toml");
         let loaded = isochron_config::Config::load(&path).unwrap();
         let cam = &loaded.config.cameras[0];
         let image: Vec<Point> = cam.floor_points.iter().map(|p| p.image_px).collect();

@@ -437,7 +437,7 @@ mod tests {
     /// ground truth, projected into the image by the calibration.
     #[test]
     fn the_demo_floor_mapping_matches_the_calibration() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/demo.toml");
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/demo.toml");
         let loaded = isochron_config::Config::load(&path).unwrap();
         let cam = &loaded.config.cameras[0];
         let (h, rms) = Homography::of_camera(cam).unwrap().unwrap();
