@@ -30,6 +30,7 @@ mod link;
 mod motion;
 mod mqtt;
 mod presence;
+mod segments;
 mod site;
 #[cfg(test)]
 mod tests;
@@ -49,7 +50,7 @@ pub use camera::{
 pub use cascade::{CascadeConfig, DAY_NAMES};
 use check::{check_at_least, check_dds, check_polygon};
 pub use check::{check_positive, check_range, is_valid_ros_topic};
-pub use costmap::{CostmapConfig, MAX_GRID_CELLS, PLAN_NAME_LEN, RouteConfig, SegmentConfig};
+pub use costmap::{CostmapConfig, MAX_GRID_CELLS};
 pub use exporter::ExporterConfig;
 pub use gate::{DetectorConfig, GateConfig};
 pub use ipc::IpcConfig;
@@ -57,6 +58,7 @@ pub use link::{DEFAULT_LINK_NAMESPACE, LinkConfig, MAX_BOX_ID_LEN, is_ros_token}
 pub use motion::{MotionBackend, MotionConfig};
 pub use mqtt::{Broker, DEFAULT_MQTT_PORT, DEFAULT_MQTTS_PORT, MqttConfig, is_topic_level};
 pub use presence::PresenceConfig;
+pub use segments::{PLAN_NAME_LEN, RouteConfig, SegmentConfig};
 pub use site::{DEFAULT_PREFIX, SiteConfig, is_valid_prefix};
 pub use view::ViewConfig;
 pub use zenoh::{DEFAULT_ZENOH_LISTEN, DEFAULT_ZENOH_ROUTER, ZenohConfig};
