@@ -188,6 +188,38 @@ pub struct CostmapConfig {
     /// has M'_p = 0 (people never go there) and makes every route through it
     /// infinitely expensive. Default 0 (the paper: any activity at all).
     pub min_activity: f64,
+    /// The robots' route graph: a nav2_route GeoJSON file (relative to this file)
+    /// whose nodes are in `frame_id`. isochron scores each edge from the cost map
+    /// and the long-term model, closes and reopens edges people block, and plans
+    /// over the graph across departure times. Default: none.
+    pub route_graph: Option<PathBuf>,
+    /// Width of an edge's corridor on the grid, metres: the cells whose centre is
+    /// within half of it of the edge's line are the edge's (an edge's
+    /// `metadata.width_m` wins). Default 1.2.
+    pub route_edge_width_m: f64,
+    /// The edges are scored and their changes sent to the route server this often,
+    /// seconds. Default 1.
+    pub route_update_s: f64,
+    /// An edge whose corridor the presence band (cells at or above
+    /// `presence_cost`) spans from side to side somewhere is closed once it has
+    /// been so for this long, and reopened once it has been clear as long,
+    /// seconds. Default 5.
+    pub route_close_after_s: f64,
+    /// An edge's cost is sent again once it moved by at least this much since it
+    /// was last sent, on the edge cost scale (Cost2 of the edge: 0 to
+    /// `(w1 + w2) · cap`, 0 to 196 with the defaults). Default 1.
+    pub route_cost_epsilon: f64,
+    /// The nav2_route route server's node name (with its namespace, if any): its
+    /// edges are adjusted through `<route_server>/<route_scorer>/adjust_edges`
+    /// (`nav2_msgs/srv/DynamicEdges`). Default `"route_server"`.
+    pub route_server: String,
+    /// The name of the route server's `nav2_route::DynamicEdgesScorer` plugin (an
+    /// entry of its `edge_cost_functions`). Default `"DynamicEdgesScorer"`.
+    pub route_scorer: String,
+    /// The robots' speed along the graph, metres per second: planning across
+    /// departure times takes an edge's cost at the time the robot reaches it, the
+    /// length of the way there over this speed. Default 0.5.
+    pub route_speed_mps: f64,
     /// Path segments (`[[costmap.segment]]`).
     #[serde(rename = "segment")]
     pub segments: Vec<SegmentConfig>,
@@ -248,6 +280,14 @@ impl Default for CostmapConfig {
             w1: 1.0,
             w2: 1.0,
             min_activity: 0.0,
+            route_graph: None,
+            route_edge_width_m: 1.2,
+            route_update_s: 1.0,
+            route_close_after_s: 5.0,
+            route_cost_epsilon: 1.0,
+            route_server: "route_server".into(),
+            route_scorer: "DynamicEdgesScorer".into(),
+            route_speed_mps: 0.5,
             segments: Vec::new(),
             routes: Vec::new(),
             zenoh: ZenohConfig::default(),
@@ -323,6 +363,7 @@ impl CostmapConfig {
         self.validate_grid()?;
         self.validate_ros()?;
         self.validate_costs()?;
+        self.validate_route_graph()?;
         validate_segments(&self.segments, cameras)?;
         validate_routes(&self.routes, &self.segments)?;
         self.zenoh.validate()
@@ -521,6 +562,65 @@ impl CostmapConfig {
         Ok(())
     }
 
+    /// The route graph: its file, corridor width, timings, the route server's
+    /// names and the robots' speed.
+    fn validate_route_graph(&self) -> Result<(), Invalid> {
+        if self
+            .route_graph
+            .as_ref()
+            .is_some_and(|p| p.as_os_str().is_empty())
+        {
+            return Err(Invalid::new(
+                "costmap.route_graph",
+                "expected the path of a nav2_route GeoJSON graph",
+            ));
+        }
+        check_range(
+            "costmap.route_edge_width_m",
+            self.route_edge_width_m,
+            0.05,
+            50.0,
+        )?;
+        check_range("costmap.route_update_s", self.route_update_s, 0.1, 3600.0)?;
+        check_range(
+            "costmap.route_close_after_s",
+            self.route_close_after_s,
+            0.0,
+            3600.0,
+        )?;
+        check_range(
+            "costmap.route_cost_epsilon",
+            self.route_cost_epsilon,
+            0.0,
+            1000.0,
+        )?;
+        if !is_valid_ros_topic(&self.route_server) {
+            return Err(Invalid::found(
+                "costmap.route_server",
+                "a ROS 2 node name such as \"route_server\" or \"/robot1/route_server\" (letters, digits, '_', '/')",
+                &self.route_server,
+            ));
+        }
+        if self.route_scorer.contains('/') || !is_valid_ros_topic(&self.route_scorer) {
+            return Err(Invalid::found(
+                "costmap.route_scorer",
+                "the name of a DynamicEdgesScorer plugin such as \"DynamicEdgesScorer\" (letters, digits, '_')",
+                &self.route_scorer,
+            ));
+        }
+        check_range("costmap.route_speed_mps", self.route_speed_mps, 0.01, 10.0)?;
+        Ok(())
+    }
+
+    /// The route server's service that adjusts, closes and reopens edges:
+    /// `<route_server>/<route_scorer>/adjust_edges`.
+    pub fn route_adjust_edges_service(&self) -> String {
+        format!(
+            "{}/{}/adjust_edges",
+            self.route_server.trim_end_matches('/'),
+            self.route_scorer
+        )
+    }
 }
 
 impl CostmapConfig {

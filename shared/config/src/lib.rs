@@ -179,8 +179,8 @@ impl LoadedConfig {
             })
     }
 
-    /// The config with every relative file path (detector model, map YAML,
-    /// snapshot and state directories, camera files) made absolute, so that it
+    /// The config with every relative file path (detector model, map YAML, route
+    /// graph, snapshot and state directories, camera files) made absolute, so that it
     /// means the same when written elsewhere (as `isochron replay` does).
     pub fn with_absolute_paths(&self) -> Config {
         let base = self.base_dir();
@@ -195,6 +195,7 @@ impl LoadedConfig {
             config.gate.detector.model.as_mut(),
             config.costmap.map_yaml.as_mut(),
             config.costmap.snapshot_dir.as_mut(),
+            config.costmap.route_graph.as_mut(),
             config.costmap.zenoh.config_file.as_mut(),
         ]
         .into_iter()

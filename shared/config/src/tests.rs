@@ -457,3 +457,68 @@ fn zenoh_output_is_off_by_default_and_its_keys_are_checked() {
     let err = zenoh("routers = 1\n").unwrap_err();
     assert!(err.message.contains("routers"), "{err}");
 }
+
+#[test]
+fn route_graph_keys_default_and_are_checked_with_line_and_key() {
+    let c = parse(GOOD).unwrap().costmap;
+    assert_eq!(c.route_graph, None);
+    assert_eq!(c.route_edge_width_m, 1.2);
+    assert_eq!(c.route_update_s, 1.0);
+    assert_eq!(c.route_close_after_s, 5.0);
+    assert_eq!(c.route_cost_epsilon, 1.0);
+    assert_eq!(c.route_speed_mps, 0.5);
+    assert_eq!(
+        c.route_adjust_edges_service(),
+        "route_server/DynamicEdgesScorer/adjust_edges"
+    );
+    let c = parse(&format!(
+        "{GOOD}\n[costmap]\nroute_graph = \"graphs/site.geojson\"\nroute_server = \"/robot1/route_server\"\nroute_scorer = \"People\"\n"
+    ))
+    .unwrap()
+    .costmap;
+    assert_eq!(c.route_graph, Some(PathBuf::from("graphs/site.geojson")));
+    assert_eq!(
+        c.route_adjust_edges_service(),
+        "/robot1/route_server/People/adjust_edges"
+    );
+    // Bad values name their key and line (each is on line 16, below [costmap]).
+    for (body, key, wrong) in [
+        ("route_edge_width_m = 0", "costmap.route_edge_width_m", "0"),
+        ("route_update_s = 0.01", "costmap.route_update_s", "0.01"),
+        (
+            "route_close_after_s = -1",
+            "costmap.route_close_after_s",
+            "-1",
+        ),
+        (
+            "route_cost_epsilon = -0.5",
+            "costmap.route_cost_epsilon",
+            "-0.5",
+        ),
+        ("route_speed_mps = 0", "costmap.route_speed_mps", "0"),
+        (
+            "route_server = \"route server\"",
+            "costmap.route_server",
+            "route server",
+        ),
+        ("route_scorer = \"a/b\"", "costmap.route_scorer", "a/b"),
+        ("route_graph = \"\"", "costmap.route_graph", ""),
+    ] {
+        let err = parse(&format!("{GOOD}\n[costmap]\n{body}\n")).unwrap_err();
+        assert_eq!(err.key.as_deref(), Some(key), "{body}: {err}");
+        assert_eq!(err.line, Some(16), "{body}: {err}");
+        assert!(err.to_string().contains(wrong), "{body}: {err}");
+    }
+    // The graph's path is relative to the config file.
+    let loaded = LoadedConfig {
+        config: parse(&format!(
+            "{GOOD}\n[costmap]\nroute_graph = \"site.geojson\"\n"
+        ))
+        .unwrap(),
+        path: PathBuf::from("/etc/isochron/site.toml"),
+    };
+    assert_eq!(
+        loaded.with_absolute_paths().costmap.route_graph,
+        Some(PathBuf::from("/etc/isochron/site.geojson"))
+    );
+}
