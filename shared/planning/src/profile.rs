@@ -6,7 +6,9 @@
 //! `M_p(t*)` ([`crate::plan::SegmentProfile`]), `isochron store export` and
 //! `isochron plot daily` (all blocks of a camera, one block, or a segment).
 
-use isochron_store::Model;
+use std::ops::Deref;
+
+use isochron_store::{Bin, Model};
 
 /// One bin of a profile.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -31,38 +33,51 @@ pub struct ProfilePoint {
 /// Long-term means are activity densities, never below zero: a negative mean
 /// (rounding in the running variance update) counts as 0.
 pub fn daily_profile(blocks: &[(&Model, &[u32])], bins: usize) -> Vec<ProfilePoint> {
-    (0..bins)
-        .map(|t| {
-            let (mut sum, mut n) = (0.0f64, 0usize);
-            let (mut sum_var, mut n_var) = (0.0f64, 0usize);
-            let mut count = 0;
-            for (model, indices) in blocks {
-                let Some(bin) = model
-                    .bin(t as u32 % model.meta.bins().max(1))
-                    .filter(|b| b.count > 0)
-                else {
-                    continue;
-                };
-                count = count.max(bin.count);
-                for &b in *indices {
-                    if let Some(&m) = bin.mean.get(b as usize)
-                        && m.is_finite()
-                    {
-                        sum += (m as f64).max(0.0);
-                        n += 1;
-                    }
-                    sum_var += bin.var.get(b as usize).map_or(0.0, |v| v.max(0.0) as f64);
-                    n_var += 1;
-                }
+    (0..bins).map(|t| profile_at(blocks, t as u32)).collect()
+}
+
+/// One bin of [`daily_profile`]: the profile of `blocks` at minute `t_star` of the
+/// cycle.
+pub fn profile_at(blocks: &[(&Model, &[u32])], t_star: u32) -> ProfilePoint {
+    point_of(
+        t_star,
+        blocks.iter().filter_map(|(model, indices)| {
+            let bin = model
+                .bin(t_star % model.meta.bins().max(1))
+                .filter(|b| b.count > 0)?;
+            Some((bin, *indices))
+        }),
+    )
+}
+
+/// The profile point at `t_star` of the blocks `indices` of each bin of `bins`
+/// (one per camera: its bin at `t_star`, taught at least once).
+pub fn point_of<'a, B: Deref<Target = Bin>>(
+    t_star: u32,
+    bins: impl IntoIterator<Item = (B, &'a [u32])>,
+) -> ProfilePoint {
+    let (mut sum, mut n) = (0.0f64, 0usize);
+    let (mut sum_var, mut n_var) = (0.0f64, 0usize);
+    let mut count = 0;
+    for (bin, indices) in bins {
+        count = count.max(bin.count);
+        for &b in indices {
+            if let Some(&m) = bin.mean.get(b as usize)
+                && m.is_finite()
+            {
+                sum += (m as f64).max(0.0);
+                n += 1;
             }
-            ProfilePoint {
-                t_star: t as u32,
-                mean: (n > 0).then(|| sum / n as f64),
-                sigma: (n_var > 0).then(|| (sum_var / n_var as f64).sqrt()),
-                count,
-            }
-        })
-        .collect()
+            sum_var += bin.var.get(b as usize).map_or(0.0, |v| v.max(0.0) as f64);
+            n_var += 1;
+        }
+    }
+    ProfilePoint {
+        t_star,
+        mean: (n > 0).then(|| sum / n as f64),
+        sigma: (n_var > 0).then(|| (sum_var / n_var as f64).sqrt()),
+        count,
+    }
 }
 
 #[cfg(test)]
