@@ -17,6 +17,9 @@
 //! * [`profile`]: the long-term activity of a set of blocks over the cycle;
 //! * [`plan`], [`planner`]: `cost1`, `cost2`, segments, routes and the long-term
 //!   store;
+//! * [`route_graph`]: the robots' nav2_route graph, each edge a corridor on the
+//!   grid, scored from the cost map, closed while people block it, and the
+//!   `DynamicEdges` requests that tell the route server;
 //! * [`query`]: the fixed-size plan request and response types;
 //! * [`plan_service`]: both ends of the plan query over iceoryx2 request-response;
 //! * [`snapshot`]: a cost map as `map_server` PGM + YAML and a PNG picture for
@@ -35,4 +38,5 @@ pub mod planner;
 pub mod profile;
 pub mod query;
 pub mod raster;
+pub mod route_graph;
 pub mod snapshot;
