@@ -63,9 +63,14 @@ use serde_json::{Map, Value};
 
 use crate::grid::Point;
 
+pub mod corridor;
+pub mod forecast;
 mod geojson;
 #[cfg(test)]
 pub(crate) mod tests;
+
+pub use corridor::{Corridors, EdgeScore, EdgeScorer, GridCell, seen_cells};
+pub use forecast::{EdgeForecast, FnForecast, ModelForecast, NoForecast};
 
 /// Node and edge ids travel as ROS `uint16`.
 pub type GraphId = u16;

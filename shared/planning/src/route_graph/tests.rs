@@ -1,10 +1,13 @@
 //! Loading graphs, corridors, scoring, closing and reopening, change tracking.
 
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use serde_json::json;
 
 use super::*;
+use crate::cost::CostParams;
+use crate::grid::MapGrid;
 
 /// A graph of `features` as nav2_route's files hold them.
 fn collection(features: Vec<Value>) -> String {
@@ -339,4 +342,398 @@ fn nav2_route_sample_graphs_load_with_their_ids() {
             .contains("(id 10006): edge id 10006 is used twice"),
         "{err}"
     );
+}
+
+/// A grid of `res` cells, `w × h`, corner at the origin.
+fn grid(res: f64, w: u32, h: u32) -> MapGrid {
+    MapGrid {
+        origin_x: 0.0,
+        origin_y: 0.0,
+        yaw: 0.0,
+        resolution: res,
+        width: w,
+        height: h,
+    }
+}
+
+/// A one-edge graph along `line`.
+fn line_graph(line: &[[f64; 2]], width: Option<f64>) -> RouteGraph {
+    let (a, b) = (line[0], line[line.len() - 1]);
+    let mut e = edge(json!(10), json!(1), json!(2));
+    e["geometry"]["coordinates"] = json!([line]);
+    if let Some(w) = width {
+        e["properties"]["metadata"] = json!({ "width_m": w });
+    }
+    parse(&collection(vec![
+        node(json!(1), a[0], a[1]),
+        node(json!(2), b[0], b[1]),
+        e,
+    ]))
+    .unwrap()
+}
+
+/// The cells within `half` of `line`, by brute force.
+fn brute(g: &MapGrid, line: &[[f64; 2]], half: f64) -> Vec<u32> {
+    let mut out = Vec::new();
+    for j in 0..g.height {
+        for i in 0..g.width {
+            let c = g.cell_center(i, j);
+            let d = line
+                .windows(2)
+                .map(|w| {
+                    let (dx, dy) = (w[1][0] - w[0][0], w[1][1] - w[0][1]);
+                    let t = (((c[0] - w[0][0]) * dx + (c[1] - w[0][1]) * dy) / (dx * dx + dy * dy))
+                        .clamp(0.0, 1.0);
+                    (c[0] - w[0][0] - t * dx).hypot(c[1] - w[0][1] - t * dy)
+                })
+                .fold(f64::INFINITY, f64::min);
+            if d <= half {
+                out.push(g.index(i, j) as u32);
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn corridors_are_the_cells_within_half_the_width() {
+    let g = grid(0.1, 60, 50);
+    let all = vec![true; g.len()];
+    for (line, width) in [
+        (vec![[1.02, 1.03], [3.01, 1.03]], None),
+        (vec![[0.51, 0.52], [4.53, 3.54]], Some(0.6)),
+        (vec![[0.5, 0.5], [3.0, 0.5], [3.0, 4.0]], Some(0.8)),
+    ] {
+        let graph = line_graph(&line, width);
+        let corridors = Corridors::build(&graph, &g, 0.4, &all);
+        let mut cells = corridors.cells(0).to_vec();
+        cells.sort_unstable();
+        assert_eq!(
+            cells,
+            brute(&g, &line, width.unwrap_or(0.4) / 2.0),
+            "{line:?}"
+        );
+        // Sections partition part of the corridor, one cell long each along it.
+        let length: f64 = graph.edges()[0].length_m;
+        let sections: Vec<&[u32]> = corridors.sections(0).collect();
+        assert!(
+            sections.len() as f64 >= (length / 0.1).floor() - 1.0,
+            "{}",
+            sections.len()
+        );
+        assert!(sections.iter().all(|s| !s.is_empty()));
+    }
+    // Straight along x, 0.4 wide: every section is the 4 cells across.
+    let graph = line_graph(&[[1.0, 1.0], [3.0, 1.0]], None);
+    let corridors = Corridors::build(&graph, &g, 0.4, &all);
+    let sections: Vec<&[u32]> = corridors.sections(0).collect();
+    assert_eq!(sections.len(), 20);
+    for (k, s) in sections.iter().enumerate() {
+        let mut want: Vec<u32> = (8..12).map(|j| g.index(10 + k as u32, j) as u32).collect();
+        want.sort_unstable();
+        let mut got = s.to_vec();
+        got.sort_unstable();
+        assert_eq!(got, want, "section {k}");
+    }
+    // Along the grid's border: half of each cross-section is off the grid, so no
+    // section can be blocked by the half that is on it.
+    let graph = line_graph(&[[1.0, 0.0], [3.0, 0.0]], None);
+    let corridors = Corridors::build(&graph, &g, 0.4, &all);
+    assert!(!corridors.cells(0).is_empty());
+    assert_eq!(corridors.sections(0).count(), 0);
+    // Off the grid entirely: no cells.
+    let graph = line_graph(&[[-9.0, -9.0], [-8.0, -9.0]], None);
+    assert!(Corridors::build(&graph, &g, 0.4, &all).cells(0).is_empty());
+}
+
+/// Two parallel edges 2 m apart on a 6 m × 5 m grid of 10 cm cells.
+fn parallel() -> (RouteGraph, MapGrid) {
+    let text = collection(vec![
+        node(json!(1), 1.0, 1.0),
+        node(json!(2), 5.0, 1.0),
+        node(json!(3), 1.0, 3.0),
+        node(json!(4), 5.0, 3.0),
+        edge(json!(10), json!(1), json!(2)),
+        edge(json!(11), json!(3), json!(4)),
+    ]);
+    (parse(&text).unwrap(), grid(0.1, 60, 50))
+}
+
+fn scorer() -> EdgeScorer {
+    EdgeScorer {
+        params: CostParams {
+            weight_in_place: 1.0,
+            weight_moving: 1.0,
+            weight_long_term: 0.5,
+            cost_scale: 0.2,
+            cap: 98,
+            confirm_cost: 98,
+            confirm_radius_m: 0.5,
+            presence_cost: 98,
+        },
+        w1: 1.0,
+        w2: 1.0,
+    }
+}
+
+#[test]
+fn a_busy_corridor_costs_more_than_a_quiet_one() {
+    let (graph, g) = parallel();
+    let corridors = Corridors::build(&graph, &g, 1.2, &vec![true; g.len()]);
+    // Busy (50) around the first edge, quiet (0) elsewhere.
+    let mut live = vec![0i8; g.len()];
+    for &c in corridors.cells(0) {
+        live[c as usize] = 50;
+    }
+    let none = NoForecast {
+        cycle_minutes: 1440,
+    };
+    let mut out = Vec::new();
+    scorer().score(&corridors, &live, &none, 600, &mut out);
+    assert_eq!(out.len(), 2);
+    // No long-term data: Cost2 = 1·0 + 1·Cost(M_e(now)) = the mean cell cost.
+    assert!((out[0].cost.unwrap() - 50.0).abs() < 1e-9, "{:?}", out[0]);
+    assert_eq!(out[1].cost, Some(0.0));
+    assert!(out[0].no_long_term && !out[0].estimated && !out[0].blocked);
+    // The long-term model expects 0.02 (Cost 10) on the quiet edge: w1 · 10.
+    let forecast = FnForecast {
+        cycle_minutes: 1440,
+        activity: |e: usize, _| Some(if e == 1 { 0.02 } else { 0.0 }),
+    };
+    scorer().score(&corridors, &live, &forecast, 600, &mut out);
+    assert!((out[1].cost.unwrap() - 10.0).abs() < 1e-9, "{:?}", out[1]);
+    assert!(out[0].cost > out[1].cost);
+    // As the bytes of an OccupancyGrid (u8, 255 unknown): the same.
+    let bytes: Vec<u8> = live.iter().map(|&v| v as u8).collect();
+    let mut again = Vec::new();
+    scorer().score(&corridors, &bytes, &forecast, 600, &mut again);
+    assert_eq!(again, out);
+    // Unknown live cells: the long-term mean stands in for now (10 + 10).
+    let unknown = vec![-1i8; g.len()];
+    scorer().score(&corridors, &unknown, &forecast, 600, &mut out);
+    assert!(
+        out[1].estimated && (out[1].cost.unwrap() - 20.0).abs() < 1e-9,
+        "{:?}",
+        out[1]
+    );
+    // A map of another size counts as unknown.
+    scorer().score(&corridors, &live[1..], &forecast, 600, &mut out);
+    assert!(out[0].estimated);
+}
+
+#[test]
+fn a_corridor_is_blocked_when_the_presence_band_spans_its_width() {
+    let (graph, g) = parallel();
+    let corridors = Corridors::build(&graph, &g, 1.2, &vec![true; g.len()]);
+    let none = NoForecast {
+        cycle_minutes: 1440,
+    };
+    let mut out = Vec::new();
+    let score =
+        |live: &[i8], out: &mut Vec<EdgeScore>| scorer().score(&corridors, live, &none, 0, out);
+    // A band 0.3 m long across the first corridor at x = 3 m: blocked.
+    let mut live = vec![0i8; g.len()];
+    let across = |live: &mut Vec<i8>, x0: f64, x1: f64, y0: f64, y1: f64, v: i8| {
+        for j in 0..g.height {
+            for i in 0..g.width {
+                let c = g.cell_center(i, j);
+                if c[0] >= x0 && c[0] <= x1 && c[1] >= y0 && c[1] <= y1 {
+                    live[g.index(i, j)] = v;
+                }
+            }
+        }
+    };
+    across(&mut live, 2.9, 3.2, 0.0, 2.0, 98);
+    score(&live, &mut out);
+    assert!(out[0].blocked && !out[1].blocked);
+    // Half the width only: not blocked.
+    let mut live = vec![0i8; g.len()];
+    across(&mut live, 2.9, 3.2, 0.0, 1.0, 98);
+    score(&live, &mut out);
+    assert!(!out[0].blocked);
+    // Across, but one cell below the presence cost, or unknown: not blocked.
+    let mut live = vec![0i8; g.len()];
+    across(&mut live, 2.99, 3.06, 0.0, 2.0, 98);
+    let gap = g.index(30, 10);
+    live[gap] = 97;
+    score(&live, &mut out);
+    assert!(!out[0].blocked);
+    live[gap] = -1;
+    score(&live, &mut out);
+    assert!(!out[0].blocked);
+    live[gap] = 100;
+    score(&live, &mut out);
+    assert!(out[0].blocked);
+    // People standing on the node beyond the line's end (the cap) do not block.
+    let mut live = vec![0i8; g.len()];
+    across(&mut live, 0.0, 0.95, 0.0, 2.0, 98);
+    score(&live, &mut out);
+    assert!(!out[0].blocked);
+}
+
+#[test]
+fn an_edge_no_camera_sees_is_reported_and_never_scored() {
+    let (graph, g) = parallel();
+    // Cameras see the lower half of the floor (y < 2 m): the first corridor only.
+    let seen: Vec<bool> = (0..g.len()).map(|k| (k as u32 / g.width) < 20).collect();
+    let corridors = Corridors::build(&graph, &g, 1.2, &seen);
+    assert_eq!(corridors.unseen(), [1]);
+    assert!(corridors.is_seen(0) && !corridors.is_seen(1));
+    let mut out = Vec::new();
+    scorer().score(
+        &corridors,
+        &vec![50i8; g.len()],
+        &NoForecast {
+            cycle_minutes: 1440,
+        },
+        0,
+        &mut out,
+    );
+    assert_eq!(out[1], EdgeScore::default());
+    assert!(out[0].cost.is_some());
+    // The seen cells of footprints, and the blocks a corridor covers.
+    use crate::raster::{Footprint, NOT_SEEN};
+    use isochron_wire::geometry::BlockGrid;
+    let fp = Footprint {
+        blocks: BlockGrid::new(64, 64, 16),
+        cell_block: (0..g.len())
+            .map(|k| if seen[k] { (k % 7) as u32 } else { NOT_SEEN })
+            .collect(),
+        seen: seen.iter().filter(|s| **s).count(),
+    };
+    assert_eq!(seen_cells(g.len(), &[None, Some(&fp)]), seen);
+    let blocks = corridors.segment_blocks(&graph, 0, &[None, Some(&fp)]);
+    assert_eq!(blocks.name, "edge 10");
+    assert_eq!(blocks.blocks, vec![(1, (0..7).collect::<Vec<u32>>())]);
+    assert!(
+        corridors
+            .segment_blocks(&graph, 1, &[None, Some(&fp)])
+            .is_empty()
+    );
+}
+
+/// A lattice of `cols × rows` nodes (ids from 0) over the demo floor, and edges
+/// (ids from `cols · rows`) to the right and up, and back for the first `extra`
+/// of those, as nav2_route GeoJSON.
+pub(crate) fn lattice(cols: u32, rows: u32, extra: usize) -> String {
+    let (x0, y0, dx, dy) = (-21.6, -17.4, 0.8, 1.2);
+    let mut features = Vec::new();
+    for r in 0..rows {
+        for c in 0..cols {
+            features.push(node(
+                json!(r * cols + c),
+                x0 + c as f64 * dx,
+                y0 + r as f64 * dy,
+            ));
+        }
+    }
+    let mut pairs = Vec::new();
+    for r in 0..rows {
+        for c in 0..cols {
+            let n = r * cols + c;
+            if c + 1 < cols {
+                pairs.push((n, n + 1));
+            }
+            if r + 1 < rows {
+                pairs.push((n, n + cols));
+            }
+        }
+    }
+    let back: Vec<(u32, u32)> = pairs.iter().take(extra).map(|&(a, b)| (b, a)).collect();
+    pairs.extend(back);
+    let first = cols * rows;
+    for (k, (a, b)) in pairs.into_iter().enumerate() {
+        features.push(edge(json!(first + k as u32), json!(a), json!(b)));
+    }
+    collection(features)
+}
+
+/// The demo's grid: 320 × 300 cells of 10 cm from (-22, -18).
+pub(crate) fn demo_grid() -> MapGrid {
+    MapGrid {
+        origin_x: -22.0,
+        origin_y: -18.0,
+        yaw: 0.0,
+        resolution: 0.1,
+        width: 320,
+        height: 300,
+    }
+}
+
+#[test]
+fn scoring_a_thousand_node_graph_is_quick() {
+    let graph = parse(&lattice(40, 25, 1065)).unwrap();
+    assert_eq!((graph.nodes().len(), graph.edges().len()), (1000, 3000));
+    let g = demo_grid();
+    let started = Instant::now();
+    let corridors = Corridors::build(&graph, &g, 1.2, &vec![true; g.len()]);
+    let build = started.elapsed();
+    let live: Vec<i8> = (0..g.len()).map(|k| ((k * 7919) % 101) as i8).collect();
+    let forecast = FnForecast {
+        cycle_minutes: 1440,
+        activity: |e: usize, t: u32| Some(((e as u32 + t) % 10) as f64 * 0.01),
+    };
+    let mut out = Vec::new();
+    let mut times = Vec::new();
+    for _ in 0..50 {
+        let t = Instant::now();
+        scorer().score(&corridors, &live, &forecast, 600, &mut out);
+        times.push(t.elapsed());
+    }
+    times.sort_unstable();
+    let cells: usize = (0..corridors.len()).map(|e| corridors.cells(e).len()).sum();
+    eprintln!(
+        "route graph scoring: 1000 nodes, 3000 edges, {cells} corridor cells on 320x300: build {build:?}, score p50 {:?}, p99 {:?}",
+        times[25], times[49]
+    );
+    assert!(out.iter().all(|s| s.cost.is_some()));
+    // The goal is 5 ms in release; the dev profile here is optimised too, less so.
+    assert!(times[25].as_millis() <= 50, "{:?}", times[25]);
+}
+
+#[test]
+fn a_model_forecast_averages_the_blocks_of_each_edge() {
+    use isochron_config::clock::Cycle;
+    use isochron_store::{Bin, Model, StoreMeta};
+    use isochron_wire::geometry::BlockGrid;
+    let meta = StoreMeta::new("cam01", BlockGrid::new(32, 16, 16), Cycle::Daily, 0);
+    let bin = |t: u32, mean: Vec<f32>| Bin {
+        t_star: t,
+        count: 3,
+        last_minute: 0,
+        mean,
+        var: vec![0.0, 0.0],
+    };
+    let model = Model::with_bins(meta, [bin(100, vec![0.2, 0.4]), bin(101, vec![-0.1, 0.1])]);
+    let edges = vec![
+        crate::plan::SegmentBlocks {
+            name: "edge 1".into(),
+            blocks: vec![(0, vec![0, 1])],
+        },
+        crate::plan::SegmentBlocks {
+            name: "edge 2".into(),
+            blocks: vec![(0, vec![1])],
+        },
+    ];
+    let mut forecast = ModelForecast::new(&edges, &[Some(&model)], 1440);
+    let read = |f: &ModelForecast<'_>| {
+        (
+            f.activity(0, 100),
+            f.activity(1, 100),
+            f.activity(0, 101),
+            f.activity(0, 102),
+        )
+    };
+    let direct = read(&forecast);
+    assert!((direct.0.unwrap() - 0.3).abs() < 1e-6);
+    assert!((direct.1.unwrap() - 0.4).abs() < 1e-6);
+    assert!(
+        (direct.2.unwrap() - 0.05).abs() < 1e-6,
+        "negatives count as 0"
+    );
+    assert_eq!(direct.3, None);
+    forecast.read(100..103);
+    assert_eq!(read(&forecast), direct);
+    assert_eq!(forecast.activity(5, 100), None);
+    assert_eq!(forecast.activity(0, 1440 + 100), direct.0);
 }
