@@ -64,12 +64,16 @@ use serde_json::{Map, Value};
 use crate::grid::Point;
 
 pub mod corridor;
+pub mod dynamic;
 pub mod forecast;
 mod geojson;
 #[cfg(test)]
 pub(crate) mod tests;
 
 pub use corridor::{Corridors, EdgeScore, EdgeScorer, GridCell, seen_cells};
+pub use dynamic::{
+    ClosureGate, DynamicEdgesRequest, DynamicEdgesTracker, EdgeCost, TrackerSettings,
+};
 pub use forecast::{EdgeForecast, FnForecast, ModelForecast, NoForecast};
 
 /// Node and edge ids travel as ROS `uint16`.

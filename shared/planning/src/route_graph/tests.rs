@@ -692,6 +692,150 @@ fn scoring_a_thousand_node_graph_is_quick() {
 }
 
 #[test]
+fn an_edge_closes_and_reopens_after_the_time_given() {
+    let mut gate = ClosureGate::default();
+    assert!(!gate.update(true, 100.0, 5.0));
+    assert!(!gate.update(true, 104.9, 5.0));
+    assert!(gate.update(true, 105.0, 5.0));
+    // A short clear spell does not reopen it, and restarts the count.
+    assert!(gate.update(false, 106.0, 5.0));
+    assert!(gate.update(true, 107.0, 5.0));
+    assert!(gate.update(false, 108.0, 5.0));
+    assert!(gate.update(false, 112.9, 5.0));
+    assert!(!gate.update(false, 113.0, 5.0));
+    // A short block does not close it.
+    assert!(!gate.update(true, 120.0, 5.0));
+    assert!(!gate.update(false, 121.0, 5.0));
+    assert!(!gate.update(true, 124.0, 5.0));
+    assert!(!gate.update(true, 128.9, 5.0));
+    assert!(gate.update(true, 129.0, 5.0));
+    // A time that is not a number changes nothing; 0 s closes at once.
+    assert!(gate.update(false, f64::NAN, 5.0));
+    assert!(!gate.update(false, 130.0, 0.0));
+}
+
+/// Edges 10 and 11 (managed), 12 (not overridable) and 13 (no camera sees it),
+/// and a tracker of them (5 s to close, epsilon 1).
+fn tracked() -> (RouteGraph, Corridors, DynamicEdgesTracker) {
+    let mut features = three();
+    features.push(json!({ "type": "Feature",
+        "properties": { "id": 12, "startid": 3, "endid": 1, "cost": 5.0, "overridable": false },
+        "geometry": { "type": "MultiLineString", "coordinates": [] } }));
+    features.push(node(json!(4), 5.5, 4.5));
+    features.push(edge(json!(13), json!(3), json!(4)));
+    let graph = parse(&collection(features)).unwrap();
+    let g = grid(0.1, 60, 50);
+    // Cameras see everything but the corridor of edge 13.
+    let everywhere = Corridors::build(&graph, &g, 1.2, &vec![true; g.len()]);
+    let mut seen = vec![true; g.len()];
+    for &c in everywhere.cells(3) {
+        seen[c as usize] = false;
+    }
+    let corridors = Corridors::build(&graph, &g, 1.2, &seen);
+    assert_eq!(corridors.unseen(), [3]);
+    let settings = TrackerSettings {
+        close_after_s: 5.0,
+        epsilon: 1.0,
+    };
+    let tracker = DynamicEdgesTracker::new(&graph, &corridors, settings);
+    (graph, corridors, tracker)
+}
+
+fn score(cost: f64, blocked: bool) -> EdgeScore {
+    EdgeScore {
+        cost: Some(cost),
+        blocked,
+        ..Default::default()
+    }
+}
+
+fn costs(pairs: &[(u16, f32)]) -> Vec<EdgeCost> {
+    pairs
+        .iter()
+        .map(|&(edgeid, cost)| EdgeCost { edgeid, cost })
+        .collect()
+}
+
+#[test]
+fn only_changes_are_sent_and_fixed_or_unseen_edges_never() {
+    let (graph, corridors, mut tracker) = tracked();
+    let mut scores = vec![
+        score(10.0, false),
+        score(20.0, false),
+        score(30.0, true),
+        score(40.0, false),
+    ];
+    // First: every managed edge's state and cost (edges 12 and 13 never).
+    let r = tracker.update(&scores, 0.0);
+    assert_eq!(r.closed_edges, Vec::<u16>::new());
+    assert_eq!(r.opened_edges, [10, 11]);
+    assert_eq!(r.adjust_edges, costs(&[(10, 10.0), (11, 20.0)]));
+    // Nothing changed: nothing to send. Moves below the epsilon are not sent...
+    assert!(tracker.update(&scores, 1.0).is_empty());
+    scores[0] = score(10.9, false);
+    assert!(tracker.update(&scores, 2.0).is_empty());
+    // ... until they add up to it (from what was sent).
+    scores[0] = score(11.0, false);
+    assert_eq!(
+        tracker.update(&scores, 3.0).adjust_edges,
+        costs(&[(10, 11.0)])
+    );
+    // A cost that is not a number is not sent.
+    scores[0] = EdgeScore {
+        cost: Some(f64::NAN),
+        ..Default::default()
+    };
+    assert!(tracker.update(&scores, 4.0).is_empty());
+    // Epsilon 0: every cost, every time.
+    let settings = TrackerSettings {
+        close_after_s: 5.0,
+        epsilon: 0.0,
+    };
+    let mut every = DynamicEdgesTracker::new(&graph, &corridors, settings);
+    every.update(&scores, 0.0);
+    assert_eq!(
+        every.update(&scores, 1.0).adjust_edges,
+        costs(&[(11, 20.0)])
+    );
+}
+
+#[test]
+fn closing_and_reopening_are_sent_once_and_all_again_on_request() {
+    let (_, _, mut tracker) = tracked();
+    let mut scores = vec![
+        score(11.0, false),
+        score(20.0, false),
+        score(30.0, true),
+        score(40.0, true),
+    ];
+    tracker.update(&scores, 0.0);
+    // Edge 11 blocked from t = 4: closed at t = 9, once.
+    scores[1] = score(20.0, true);
+    assert!(tracker.update(&scores, 4.0).is_empty());
+    assert!(tracker.update(&scores, 8.0).is_empty());
+    let r = tracker.update(&scores, 9.0);
+    assert_eq!((r.closed_edges, r.opened_edges), (vec![11], vec![]));
+    assert!(tracker.is_closed(1) && tracker.closed().eq([11]));
+    assert!(tracker.update(&scores, 10.0).is_empty());
+    // Clear from t = 11: reopened at t = 16.
+    scores[1] = score(20.0, false);
+    assert!(tracker.update(&scores, 11.0).is_empty());
+    assert!(tracker.update(&scores, 15.9).is_empty());
+    let r = tracker.update(&scores, 16.0);
+    assert_eq!((r.closed_edges, r.opened_edges), (vec![], vec![11]));
+    // Blocked for long, the fixed and the unseen edges never close.
+    assert!(!tracker.is_closed(2) && !tracker.is_closed(3));
+    // The route server restarted: everything again.
+    scores[1] = score(20.0, true);
+    tracker.update(&scores, 20.0);
+    tracker.update(&scores, 25.0);
+    let r = tracker.resend_all();
+    assert_eq!((r.closed_edges, r.opened_edges), (vec![11], vec![10]));
+    assert_eq!(r.adjust_edges, costs(&[(10, 11.0), (11, 20.0)]));
+    assert!(tracker.update(&scores, 26.0).is_empty());
+}
+
+#[test]
 fn a_model_forecast_averages_the_blocks_of_each_edge() {
     use isochron_config::clock::Cycle;
     use isochron_store::{Bin, Model, StoreMeta};
