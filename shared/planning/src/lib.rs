@@ -20,6 +20,8 @@
 //! * [`route_graph`]: the robots' nav2_route graph, each edge a corridor on the
 //!   grid, scored from the cost map, closed while people block it, and the
 //!   `DynamicEdges` requests that tell the route server;
+//! * [`graph_plan`]: planning over that graph across departure times
+//!   (time-dependent Dijkstra on the long-term forecast);
 //! * [`query`]: the fixed-size plan request and response types;
 //! * [`plan_service`]: both ends of the plan query over iceoryx2 request-response;
 //! * [`snapshot`]: a cost map as `map_server` PGM + YAML and a PNG picture for
@@ -30,6 +32,7 @@
 pub mod calibration;
 pub mod cost;
 mod font;
+pub mod graph_plan;
 pub mod grid;
 pub mod homography;
 pub mod plan;
