@@ -881,3 +881,46 @@ fn a_model_forecast_averages_the_blocks_of_each_edge() {
     assert_eq!(forecast.activity(5, 100), None);
     assert_eq!(forecast.activity(0, 1440 + 100), direct.0);
 }
+
+#[test]
+fn the_demo_graph_lies_on_the_demo_floor_where_the_camera_sees() {
+    use crate::homography::Homography;
+    use crate::raster::Footprint;
+    use isochron_wire::geometry::BlockGrid;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+    let loaded = isochron_config::Config::load(&root.join("demo.toml")).unwrap();
+    let g = MapGrid::from_config(&loaded).unwrap().unwrap();
+    assert_eq!(g, demo_grid());
+    let frame = &loaded.config.costmap.frame_id;
+    let graph = RouteGraph::load(&root.join("demo-graph.geojson"), frame).unwrap();
+    assert_eq!((graph.nodes().len(), graph.edges().len()), (11, 26));
+    // PETS 2009 View_001 is 768 × 576, in blocks of 16 px.
+    let camera = &loaded.config.cameras[0];
+    let (h, _) = Homography::of_camera(camera).unwrap().unwrap();
+    let footprint = Footprint::build(&g, &h, BlockGrid::new(768, 576, 16), &camera.mask);
+    let seen = seen_cells(g.len(), &[Some(&footprint)]);
+    let corridors = Corridors::build(&graph, &g, loaded.config.costmap.route_edge_width_m, &seen);
+    // Only the service road between nodes 9 and 10, in the floor's south-east
+    // corner, is out of the camera's view.
+    let unseen: Vec<u16> = corridors
+        .unseen()
+        .iter()
+        .map(|&e| graph.edges()[e].id)
+        .collect();
+    assert_eq!(unseen, [122, 123]);
+    for (e, edge) in graph.edges().iter().enumerate() {
+        assert!(
+            !corridors.cells(e).is_empty(),
+            "edge {} is off the grid",
+            edge.id
+        );
+    }
+    // The crossing's edges are 3 m wide: about 30 cells across.
+    let crossing = graph.edge_index(104).unwrap();
+    let widest = corridors
+        .sections(crossing)
+        .map(<[u32]>::len)
+        .max()
+        .unwrap();
+    assert!((28..=34).contains(&widest), "{widest}");
+}
