@@ -89,8 +89,11 @@ impl<'a> ModelForecast<'a> {
         }
     }
 
-    /// Reads the models' bins of the minutes `t_stars` once, for the calls to come.
+    /// Reads the models' bins of the minutes `t_stars` once, for the calls to come,
+    /// forgetting those read before (so that a long-running caller holds only the
+    /// minutes it needs: the current one to score, a window's to plan).
     pub fn read(&mut self, t_stars: impl IntoIterator<Item = u32>) {
+        self.bins.clear();
         for t in t_stars {
             let t = t % self.cycle_minutes;
             if self.bins.contains_key(&t) {

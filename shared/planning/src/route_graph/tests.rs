@@ -878,6 +878,8 @@ fn a_model_forecast_averages_the_blocks_of_each_edge() {
     assert_eq!(direct.3, None);
     forecast.read(100..103);
     assert_eq!(read(&forecast), direct);
+    forecast.read([7]);
+    assert_eq!(read(&forecast), direct);
     assert_eq!(forecast.activity(5, 100), None);
     assert_eq!(forecast.activity(0, 1440 + 100), direct.0);
 }
@@ -923,4 +925,27 @@ fn the_demo_graph_lies_on_the_demo_floor_where_the_camera_sees() {
         .max()
         .unwrap();
     assert!((28..=34).contains(&widest), "{widest}");
+}
+
+#[test]
+fn the_configured_graph_is_read_relative_to_the_config_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let site = dir.path().join("site.toml");
+    let camera = include_str!("../../tests/fixtures/floor_camera.toml");
+    std::fs::write(&site, camera).unwrap();
+    let loaded = isochron_config::Config::load(&site).unwrap();
+    assert!(RouteGraph::from_config(&loaded).unwrap().is_none());
+    std::fs::write(
+        &site,
+        format!("{camera}\n[costmap]\nroute_graph = \"graphs/site.geojson\"\n"),
+    )
+    .unwrap();
+    let loaded = isochron_config::Config::load(&site).unwrap();
+    let err = RouteGraph::from_config(&loaded).unwrap_err();
+    assert_eq!(err.file, dir.path().join("graphs/site.geojson"));
+    std::fs::create_dir(dir.path().join("graphs")).unwrap();
+    std::fs::write(dir.path().join("graphs/site.geojson"), collection(three())).unwrap();
+    let graph = RouteGraph::from_config(&loaded).unwrap().unwrap();
+    assert_eq!(graph.edges().len(), 2);
+    assert_eq!(graph.file(), dir.path().join("graphs/site.geojson"));
 }
