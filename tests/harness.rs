@@ -63,7 +63,7 @@ pub fn repo_root() -> PathBuf {
         .to_path_buf()
 }
 
-/// A file `cargo xtask setup` provides: `$var` if set, else `default` under the
+/// A file `cargo xtask setup --all` provides: `$var` if set, else `default` under the
 /// repository root. Fails, saying to run the setup (`why` tells what for), when
 /// it is missing.
 pub fn setup_file(var: &str, default: &str, why: &str) -> PathBuf {
@@ -72,7 +72,7 @@ pub fn setup_file(var: &str, default: &str, why: &str) -> PathBuf {
         .unwrap_or_else(|| repo_root().join(default));
     assert!(
         path.is_file(),
-        "{} is missing: run `cargo xtask setup` {why}",
+        "{} is missing: run `cargo xtask setup --all` {why}",
         path.display()
     );
     path

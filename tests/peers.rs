@@ -1,12 +1,12 @@
 //! The reference implementations the tests meet: the Python venv and the npm
-//! packages `cargo xtask setup` installs.
+//! packages `cargo xtask setup --all` installs.
 
 use std::path::PathBuf;
 use std::process::Command;
 
 use crate::setup_file;
 
-/// The Python of the test venv (`target/ros2-venv`, made by `cargo xtask setup`),
+/// The Python of the test venv (`target/ros2-venv`, made by `cargo xtask setup --all`),
 /// checked to import `modules` (a Python import list); fails saying what to do.
 pub fn venv_python(modules: &str) -> PathBuf {
     let path = setup_file(
@@ -20,7 +20,7 @@ pub fn venv_python(modules: &str) -> PathBuf {
         .is_ok_and(|s| s.success());
     assert!(
         ok,
-        "{} cannot import {modules}: run `cargo xtask setup` again",
+        "{} cannot import {modules}: run `cargo xtask setup --all` again",
         path.display()
     );
     path

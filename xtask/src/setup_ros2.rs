@@ -1,4 +1,4 @@
-//! `cargo xtask setup`'s real ROS 2 test peers: rclpy Jazzy and rclpy Kilted, each
+//! `cargo xtask setup --all`'s real ROS 2 test peers: rclpy Jazzy and rclpy Kilted, each
 //! with rmw_fastrtps_cpp, from third-party manylinux wheels on PyPI, one venv per
 //! release (`target/rclpy-jazzy`, `target/rclpy-kilted`; the wheels of both
 //! releases share distribution names such as `ros-rclpy`), and the message

@@ -101,67 +101,11 @@ const HOG_MARGIN_BOTTOM: f32 = 0.13;
 /// (in frame pixels, after the upscale).
 const HOG_WINDOW: (i32, i32) = (64, 128);
 
-/// The file name of the SSD `cargo xtask setup` installs.
-pub const INSTALLED_NETWORK: &str = "ssdlite-person.pb";
-
-/// The file name of the MoveNet `cargo xtask setup` installs (ONNX Runtime's
-/// [`RUNTIME_LIBRARY`] beside it).
-pub const INSTALLED_MOVENET: &str = "movenet-multipose.onnx";
-
-/// The installed networks the gate runs, first found first (chosen by `cargo
-/// xtask bench detector`).
-pub const INSTALLED_NETWORKS: [&str; 2] = [INSTALLED_MOVENET, INSTALLED_NETWORK];
-
-/// Where the gate looks for the installed network, in order: `detector/` in the
-/// directory above the binaries' (`target/detector/` for a checkout's
-/// `target/release/`), and `share/isochron/detector/` there (`/usr/share/...`
-/// for binaries in `/usr/bin`).
-pub fn installed_dirs() -> Vec<PathBuf> {
-    let Some(prefix) = std::env::current_exe()
-        .ok()
-        .and_then(|exe| exe.parent()?.parent().map(Path::to_path_buf))
-    else {
-        return Vec::new();
-    };
-    vec![
-        prefix.join("detector"),
-        prefix.join("share/isochron/detector"),
-    ]
-}
-
-/// The installed network, if there is one: the first of [`INSTALLED_NETWORKS`]
-/// in the first of [`installed_dirs`] that has one.
-pub fn installed_network() -> Option<PathBuf> {
-    installed_dirs().into_iter().find_map(|d| {
-        INSTALLED_NETWORKS
-            .iter()
-            .map(|n| d.join(n))
-            .find(|p| p.is_file())
-    })
-}
-
-/// True if `path` names a MoveNet model (an `.onnx` whose name starts with
-/// `movenet`).
-pub fn is_movenet(path: &Path) -> bool {
-    path.extension().is_some_and(|e| e == "onnx")
-        && path.file_name().is_some_and(|n| {
-            n.to_string_lossy()
-                .to_ascii_lowercase()
-                .starts_with("movenet")
-        })
-}
-
-/// ONNX Runtime's library for `model`: beside it, else in the installed
-/// directories.
-fn runtime_library(model: &Path) -> Option<PathBuf> {
-    model
-        .parent()
-        .map(Path::to_path_buf)
-        .into_iter()
-        .chain(installed_dirs())
-        .map(|d| d.join(RUNTIME_LIBRARY))
-        .find(|p| p.is_file())
-}
+pub use isochron_config::detector::{
+    INSTALLED_MOVENET, INSTALLED_NETWORKS, INSTALLED_SSD as INSTALLED_NETWORK, installed_dirs,
+    installed_network, is_movenet,
+};
+use isochron_config::detector::{DetectorChoice, ModelKind, runtime_library};
 
 /// The SSD never searches a crop smaller than this, pixels each way: a person
 /// must stay small in its input to look like the people it learnt.
@@ -270,36 +214,20 @@ impl Detector {
         if let Err(e) = opencv::core::set_num_threads(config.threads as i32) {
             tracing::warn!("setting OpenCV's threads to {}: {e}", config.threads);
         }
-        let path = match &config.model {
-            Some(model) if model.is_absolute() => Some(model.clone()),
-            Some(model) => Some(base_dir.join(model)),
-            None if config.installed => installed_network(),
-            None => None,
-        };
-        let Some(path) = path else {
-            let why = if config.installed {
-                format!(
-                    "no network installed (`cargo xtask setup` installs {INSTALLED_MOVENET} and \
-                     {INSTALLED_NETWORK}; looked in {})",
-                    installed_dirs()
-                        .iter()
-                        .map(|d| d.display().to_string())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                )
-            } else {
-                "gate.detector.installed = false".to_string()
-            };
-            tracing::info!("people detector: HOG (OpenCV's people SVM): {why}");
-            return Self::hog(config);
+        let path = match config.choice(base_dir) {
+            DetectorChoice::Model { path, .. } => path,
+            DetectorChoice::Hog { why } => {
+                tracing::info!("people detector: HOG (OpenCV's people SVM): {why}");
+                return Self::hog(config);
+            }
         };
         if !path.is_file() {
             return Err(DetectorError::MissingModel(path));
         }
-        if is_movenet(&path) {
+        if ModelKind::of(&path) == ModelKind::MoveNet {
             return Self::movenet(config, path);
         }
-        if path.extension().is_some_and(|e| e == "pb") {
+        if ModelKind::of(&path) == ModelKind::Ssd {
             let ssd = SsdDetector::load(
                 &path,
                 config.ssd_input_px,

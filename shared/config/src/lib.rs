@@ -23,6 +23,7 @@ mod cascade;
 mod check;
 pub mod clock;
 mod costmap;
+pub mod detector;
 mod exporter;
 mod gate;
 mod ipc;

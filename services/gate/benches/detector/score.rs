@@ -65,7 +65,7 @@ fn grey_frames(video: &Path, wanted: &[usize]) -> Result<Grey, Error> {
     let mut cap = videoio::VideoCapture::from_file(name, videoio::CAP_ANY)?;
     if !cap.is_opened()? {
         return Err(format!(
-            "{} cannot be opened: run `cargo xtask setup` (it fetches the bench's scenes)",
+            "{} cannot be opened: run `cargo xtask setup --all` (it fetches the bench's scenes)",
             video.display()
         )
         .into());

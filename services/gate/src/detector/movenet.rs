@@ -22,7 +22,7 @@ use super::Letterbox;
 use super::ssd::{merge_passes, tiles};
 
 /// The ONNX Runtime library file `cargo xtask setup` installs beside the model.
-pub const RUNTIME_LIBRARY: &str = "libonnxruntime.so";
+pub use isochron_config::detector::RUNTIME_LIBRARY;
 
 /// Values per person in the output: 17 keypoints × (y, x, score), then the box
 /// (ymin, xmin, ymax, xmax) and its score.
