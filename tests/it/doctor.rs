@@ -276,7 +276,9 @@ fn doctor_names_the_detector_the_gate_loads() {
         .unwrap_or_else(|| panic!("no detector line:\n{}", out.stdout));
     if installed.is_file() {
         assert!(
-            line.starts_with("ok   ") && line.contains("MoveNet MultiPose") && line.contains("installed"),
+            line.starts_with("ok   ")
+                && line.contains("MoveNet MultiPose")
+                && line.contains("installed"),
             "{line}"
         );
     } else {
@@ -285,7 +287,9 @@ fn doctor_names_the_detector_the_gate_loads() {
     site.write_config("[gate.detector]\ninstalled = false\n\n[[camera]]\nid = \"cam01\"\nsource = \"unused.avi\"\n");
     let out = doctor(&site, &[]);
     assert!(
-        out.stdout.lines().any(|l| l.starts_with("ok   detector model: HOG") && l.contains("installed = false")),
+        out.stdout
+            .lines()
+            .any(|l| l.starts_with("ok   detector model: HOG") && l.contains("installed = false")),
         "{}",
         out.stdout
     );

@@ -101,11 +101,11 @@ const HOG_MARGIN_BOTTOM: f32 = 0.13;
 /// (in frame pixels, after the upscale).
 const HOG_WINDOW: (i32, i32) = (64, 128);
 
+use isochron_config::detector::{DetectorChoice, ModelKind, runtime_library};
 pub use isochron_config::detector::{
     INSTALLED_MOVENET, INSTALLED_NETWORKS, INSTALLED_SSD as INSTALLED_NETWORK, installed_dirs,
     installed_network, is_movenet,
 };
-use isochron_config::detector::{DetectorChoice, ModelKind, runtime_library};
 
 /// The SSD never searches a crop smaller than this, pixels each way: a person
 /// must stay small in its input to look like the people it learnt.

@@ -161,8 +161,14 @@ mod tests {
 
     #[test]
     fn kinds_by_name() {
-        assert_eq!(ModelKind::of(Path::new("a/MoveNet-x.onnx")), ModelKind::MoveNet);
-        assert_eq!(ModelKind::of(Path::new("ssdlite-person.pb")), ModelKind::Ssd);
+        assert_eq!(
+            ModelKind::of(Path::new("a/MoveNet-x.onnx")),
+            ModelKind::MoveNet
+        );
+        assert_eq!(
+            ModelKind::of(Path::new("ssdlite-person.pb")),
+            ModelKind::Ssd
+        );
         assert_eq!(ModelKind::of(Path::new("yolov8n.onnx")), ModelKind::Yolo);
     }
 
@@ -184,6 +190,8 @@ mod tests {
             installed: false,
             ..DetectorConfig::default()
         };
-        assert!(matches!(config.choice(Path::new("/")), DetectorChoice::Hog { why } if why.contains("installed = false")));
+        assert!(
+            matches!(config.choice(Path::new("/")), DetectorChoice::Hog { why } if why.contains("installed = false"))
+        );
     }
 }

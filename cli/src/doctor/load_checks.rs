@@ -1,0 +1,112 @@
+//! The checks `isochron doctor` makes with the services' own load-time code: the
+//! settings they warn about, the MQTT broker the sink would refuse, and the people
+//! detector the gate would load.
+
+use isochron_config::LoadedConfig;
+use isochron_exit as exit;
+
+use super::{Level, Report};
+
+/// The settings the services accept but warn about at load (e.g. a lethal
+/// `costmap.cap`): the same list the services log ([`LoadedConfig::warnings`]).
+pub(super) fn check_warnings(loaded: &LoadedConfig, report: &mut Report) {
+    for warning in loaded.warnings() {
+        report.say(Level::Warn, "config", warning.to_string());
+    }
+}
+
+/// `[mqtt]`, if configured: its section and broker address as the MQTT sink
+/// reads them at start ([`LoadedConfig::mqtt`], `MqttConfig::broker_addr`); a
+/// refusal there stops the sink with exit 78.
+pub(super) fn check_mqtt(loaded: &LoadedConfig, report: &mut Report) {
+    const WHAT: &str = "mqtt";
+    let config = match loaded.mqtt() {
+        Ok(None) => return,
+        Ok(Some(config)) => config,
+        Err(e) => {
+            report.say(
+                Level::Fail,
+                WHAT,
+                format!("{e} (isochron-mqtt exits with code {})", exit::CONFIG),
+            );
+            return;
+        }
+    };
+    match config.broker_addr() {
+        Ok(broker) => report.say(
+            Level::Ok,
+            WHAT,
+            format!("broker {}:{} ({})", broker.host, broker.port, config.broker),
+        ),
+        Err(e) => report.say(
+            Level::Fail,
+            WHAT,
+            format!(
+                "{} (isochron-mqtt exits with code {})",
+                loaded.locate(e),
+                exit::CONFIG
+            ),
+        ),
+    }
+}
+
+/// The people detector the gate will load, by the gate's own rule
+/// ([`isochron_config::detector`]): its name and file, and that the file (and
+/// MoveNet's ONNX Runtime library) is there and readable.
+pub(super) fn check_model(loaded: &LoadedConfig, report: &mut Report) {
+    use isochron_config::detector::{DetectorChoice, ModelKind, RUNTIME_LIBRARY, runtime_library};
+    const WHAT: &str = "detector model";
+    let (path, kind, installed) = match loaded.config.gate.detector.choice(&loaded.base_dir()) {
+        DetectorChoice::Hog { why } => {
+            report.say(Level::Ok, WHAT, format!("HOG (OpenCV's people SVM): {why}"));
+            return;
+        }
+        DetectorChoice::Model {
+            path,
+            kind,
+            installed,
+        } => (path, kind, installed),
+    };
+    let name = match kind {
+        ModelKind::MoveNet => "MoveNet MultiPose (ONNX Runtime)",
+        ModelKind::Ssd => "TensorFlow SSD (OpenCV dnn)",
+        ModelKind::Yolo => "YOLO ONNX (OpenCV dnn)",
+    };
+    let whence = if installed {
+        "the installed network"
+    } else {
+        "gate.detector.model"
+    };
+    let config = loaded.path.display();
+    let problem = match std::fs::metadata(&path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => "does not exist".to_string(),
+        Err(e) => format!("cannot be read: {e}"),
+        Ok(m) if !m.is_file() => "is not a file".to_string(),
+        Ok(m) => match std::fs::File::open(&path) {
+            Err(e) => format!("is not readable by this user: {e}"),
+            Ok(_) if kind == ModelKind::MoveNet && runtime_library(&path).is_none() => {
+                format!("has no ONNX Runtime library ({RUNTIME_LIBRARY}) beside it or installed")
+            }
+            Ok(_) => {
+                report.say(
+                    Level::Ok,
+                    WHAT,
+                    format!(
+                        "{name}, {whence}: {} ({:.1} MiB)",
+                        path.display(),
+                        m.len() as f64 / (1 << 20) as f64
+                    ),
+                );
+                return;
+            }
+        },
+    };
+    report.say(
+        Level::Fail,
+        WHAT,
+        format!(
+            "{name}, {whence}: {} {problem}: the gate would stop (exit 78); put the model there (readable by the services' user), fix gate.detector.model in {config}, or set gate.detector.installed = false for HOG",
+            path.display()
+        ),
+    );
+}
