@@ -8,7 +8,7 @@
 //! * [`bridge`]: the service's state between samples (latest activity, confirmed
 //!   people, staleness);
 //! * [`delta`]: full grid or changed rectangle, each tick;
-//! * [`msgs`], [`ros`]: `nav_msgs/OccupancyGrid`, `map_msgs/OccupancyGridUpdate`,
+//! * [`ros`] (the types in `isochron_ros2::msgs`): `nav_msgs/OccupancyGrid`, `map_msgs/OccupancyGridUpdate`,
 //!   people as `geometry_msgs/PoseArray` and site markers over DDS in pure Rust;
 //! * [`markers`]: camera footprints, zones, segments and routes for rviz2;
 //! * [`people`]: the confirmed people as poses at their feet and as markers
@@ -28,7 +28,6 @@
 pub mod bridge;
 pub mod delta;
 pub mod markers;
-pub mod msgs;
 pub mod people;
 pub mod plan_dds;
 mod planning;

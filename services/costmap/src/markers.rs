@@ -10,7 +10,7 @@
 use isochron_config::{LoadedConfig, SegmentConfig};
 
 use crate::bridge::Bridge;
-use crate::msgs::{ColorRGBA, Header, Marker, MarkerArray, Point, Pose, Vector3};
+use isochron_ros2::msgs::{ColorRGBA, Header, Marker, MarkerArray, Point, Pose, Vector3};
 
 /// Points per image edge when a camera's frame border is mapped to the floor.
 const EDGE_SAMPLES: usize = 16;

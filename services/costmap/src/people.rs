@@ -16,7 +16,7 @@ use isochron_planning::homography::Homography;
 use isochron_wire::{Detection, Keypoint};
 
 use crate::bridge::Confirmed;
-use crate::msgs::{
+use isochron_ros2::msgs::{
     ColorRGBA, Header, Marker, Point, Pose, PoseArray, Quaternion, RosDuration, Vector3,
 };
 

@@ -18,14 +18,14 @@
 //! reader is matched with the reply writer, as rmw_fastrtps's server does: a
 //! client that sends at once after discovery would otherwise miss it.
 //!
-//! Requests are decoded by the CDR rules ([`crate::msgs::CdrString`]): a string's
+//! Requests are decoded by the CDR rules ([`isochron_ros2::msgs::CdrString`]): a string's
 //! length counts its NUL, and a string without one is malformed (not cut short).
 //! A malformed
 //! request gets `STATUS_BAD_REQUEST` (1) with the reason and is counted as
 //! rejected; one that cannot be answered (no identity) is counted only.
 //!
 //! Requests are queued per client, the DDS writer that sent them, and answered
-//! round robin across clients ([`fair`]): each client may have [`PER_CLIENT`]
+//! round robin across clients ([`isochron_ros2::fair`]): each client may have [`PER_CLIENT`]
 //! requests queued, all together [`QUEUE`], and each service answers at most
 //! [`ANSWERS_PER_PASS`] per pass of the bridge's loop, [`CLIENT_ANSWERS_PER_PASS`]
 //! of one client. A flood beyond its
@@ -57,7 +57,7 @@ use isochron_runtime::stage::Context;
 const REQUEST_HISTORY: i32 = 256;
 /// Requests a service holds for an answer, of all clients together; past it a
 /// newcomer displaces the newest request of the longest lane, if that is longer
-/// than the newcomer's ([`fair`]).
+/// than the newcomer's ([`isochron_ros2::fair`]).
 pub const QUEUE: usize = 64;
 /// Requests one client (DDS writer) may have queued; more are dropped and
 /// counted. A ROS 2 client waits for each answer: it has one or two queued.
@@ -435,10 +435,9 @@ fn client_matched(matched: &HashSet<GUID>, pending: &Pending) -> bool {
     }
 }
 
-pub mod fair;
 mod request;
 
-use fair::{FairQueue, Pushed};
+use isochron_ros2::fair::{FairQueue, Pushed};
 
 use request::{Pending, Raw, RawReply, RawSample, ReplyTo, read_request, reply_bytes};
 pub(crate) use request::{now_response, offline_response, plan_request};

@@ -11,7 +11,7 @@ use isochron_runtime::stage::Warnings;
 
 use crate::bridge::{Bridge, Confirmed};
 use crate::delta::{DeltaTracker, Output};
-use crate::msgs::{
+use isochron_ros2::msgs::{
     Header, MapMetaData, Marker, MarkerArray, OccupancyGrid, OccupancyGridUpdate, Point, Pose,
     Quaternion, RosDuration, Time,
 };

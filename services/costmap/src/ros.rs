@@ -51,7 +51,7 @@ use isochron_dds::{DdsError, RosNode, keep_last};
 use isochron_planning::query::{PlanKind, PlanRequest, PlanResponse};
 use isochron_runtime::stage::Context;
 
-use crate::msgs::{CostmapFilterInfo, MarkerArray, OccupancyGrid, OccupancyGridUpdate, PoseArray};
+use isochron_ros2::msgs::{CostmapFilterInfo, MarkerArray, OccupancyGrid, OccupancyGridUpdate, PoseArray};
 use crate::plan_dds::{PlanCounts, PlanServices};
 use crate::zenoh_out::{Names, ZenohOutput, put};
 
@@ -522,7 +522,7 @@ mod tests {
     use rustdds::no_key::SerializerAdapter;
 
     use super::*;
-    use crate::msgs::{Header, MapMetaData, Point, Pose, Quaternion, Time};
+    use isochron_ros2::msgs::{Header, MapMetaData, Point, Pose, Quaternion, Time};
 
     /// The CDR bytes of a tiny grid, laid out by hand from the `.msg` definitions:
     /// this is what any ROS 2 subscriber decodes.

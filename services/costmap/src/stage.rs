@@ -22,7 +22,7 @@ use isochron_runtime::topology::StageKind;
 use crate::bridge::{Bridge, count_non_finite};
 use crate::delta::DeltaTracker;
 use crate::markers::{marker_key, site_markers};
-use crate::msgs::{CostmapFilterInfo, Header, RosDuration, Time};
+use isochron_ros2::msgs::{CostmapFilterInfo, Header, RosDuration, Time};
 use crate::planning::Planning;
 use crate::publish::{
     Counters, Ros, geometry_key, occupancy_grid, publish, publish_people, unknown_as_free,

@@ -3,12 +3,12 @@
 //! middleware is rmw_zenoh sees the same seven topics, with the same QoS, and
 //! calls the same two services.
 //!
-//! Samples are the DDS samples' CDR ([`crate::msgs`]); each type is named by its
+//! Samples are the DDS samples' CDR ([`isochron_ros2::msgs`]); each type is named by its
 //! DDS name and its type description hash (RIHS01, from the type's `.msg`
 //! definitions: the same in Jazzy and Kilted, checked against the rclpy wheels'
 //! type descriptions by `tests/it/zenoh.rs`). Requests are queued per client
 //! (the GID in the request's attachment) and answered round robin, as the DDS
-//! services are ([`crate::plan_dds::fair`]).
+//! services are ([`isochron_ros2::fair`]).
 
 use std::collections::HashMap;
 
@@ -21,7 +21,7 @@ use isochron_runtime::stage::Context;
 use isochron_zenoh::names::{GID_LEN, Qos, RosType};
 use isochron_zenoh::{Request, RosPublisher, RosService, RosZenoh, Settings, ZenohError};
 
-use crate::plan_dds::fair::{FairQueue, Pushed};
+use isochron_ros2::fair::{FairQueue, Pushed};
 use crate::plan_dds::{
     ANSWERS_PER_PASS, CLIENT_ANSWERS_PER_PASS, PER_CLIENT, PlanCounts, QUEUE, now_response,
     offline_response, plan_request, respond,

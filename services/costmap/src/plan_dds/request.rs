@@ -19,7 +19,7 @@ use isochron_planning::query::{
     PlanStatus,
 };
 
-use crate::msgs::{
+use isochron_ros2::msgs::{
     CostPoint, PlanNowRequest, PlanNowResponse, PlanOfflineRequest, PlanOfflineResponse, RouteCost,
     Window as WindowMsg,
 };

@@ -4,7 +4,7 @@ use rustdds::{RepresentationIdentifier, SampleIdentity};
 
 use super::request::{MAX_REQUEST_BYTES, plan_request};
 use super::*;
-use crate::msgs::{CdrString, PlanNowResponse};
+use isochron_ros2::msgs::{CdrString, PlanNowResponse};
 
 /// A GUID whose last byte (the entity kind) is `kind`: 0x03 a writer, 0x04 a
 /// reader (no key), under the participant `prefix`.
