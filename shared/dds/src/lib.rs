@@ -1,5 +1,5 @@
 //! The ROS 2 side that isochron's DDS services share — the costmap bridge
-//! (`services/costmap/src/ros.rs`) and the link (`services/link/src/dds.rs`) —
+//! (`shared/ros2`) and the link (`services/link/src/dds.rs`) —
 //! on `ros2-client` over RustDDS (pure Rust, no ROS install):
 //!
 //! * [`domain_id`]: the DDS domain, from the config, else `$ROS_DOMAIN_ID`, else 0;
@@ -7,7 +7,8 @@
 //! * [`RosNode`]: one participant on a domain, announcing and multicasting only on
 //!   the given interfaces, one node `/isochron/<name>`, and the spinner thread that
 //!   keeps the node in the ROS graph;
-//! * [`RosNode::topic`]: the DDS topic (`rt/…`) of a ROS 2 topic and message type;
+//! * [`RosNode::topic`], [`RosNode::typed_topic`]: the DDS topic (`rt/…`) of a
+//!   ROS 2 topic and message type;
 //! * [`keep_last`]: the QoS of a bounded topic, whose depth also bounds the
 //!   writer's cache; [`bounded`]: the largest sample a reader reassembles.
 
@@ -175,6 +176,12 @@ impl RosNode {
         }
     }
 
+    /// The node's name, `/isochron/<name>`: what names relative to it resolve
+    /// against.
+    pub fn name(&self) -> &NodeName {
+        &self.name
+    }
+
     /// The DDS topic (`rt/…`) of ROS 2 topic `name` for `package/msg/type_name`
     /// with `qos`.
     pub fn topic(
@@ -183,11 +190,23 @@ impl RosNode {
         (package, type_name): (&str, &str),
         qos: &QosPolicies,
     ) -> Result<Topic, DdsError> {
+        let dds_type = MessageTypeName::new(package, type_name).dds_msg_type();
+        self.typed_topic(name, &dds_type, qos)
+    }
+
+    /// The DDS topic (`rt/…`) of ROS 2 topic `name` whose DDS type name is
+    /// `dds_type` (`<package>::msg::dds_::<Type>_`) with `qos`.
+    pub fn typed_topic(
+        &self,
+        name: &Name,
+        dds_type: &str,
+        qos: &QosPolicies,
+    ) -> Result<Topic, DdsError> {
         self.context
             .domain_participant()
             .create_topic(
                 name.to_dds_name("rt", &self.name, ""),
-                MessageTypeName::new(package, type_name).dds_msg_type(),
+                dds_type.to_string(),
                 qos,
                 TopicKind::NoKey,
             )
