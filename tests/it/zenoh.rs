@@ -22,7 +22,7 @@ use crate::costmap::{
 };
 use crate::rclpy::{T_STAR, TOPIC, site, start_bridge};
 
-/// The grid type's hash as the bridge names it (`zenoh_out::types`).
+/// The grid type's hash as the bridge names it (`isochron_ros2::spec::types`).
 const GRID_HASH: &str = "RIHS01_8d348150c12913a31ee0ec170fbf25089e4745d17035792a1ba94d6f0bc0cfc7";
 
 /// The Python of `target/zenoh-peer`.

@@ -1,6 +1,6 @@
 //! What rviz2 / Foxglove draw of the site: each camera's footprint on the floor,
 //! its zones, the path segments and the routes through them, as one
-//! `visualization_msgs/MarkerArray` in the map frame (latched by [`crate::ros`]).
+//! `visualization_msgs/MarkerArray` in the map frame (latched on the output's markers topic, `isochron_ros2::spec::MARKERS`).
 //!
 //! Namespaces: `cameras` (footprint outlines, with the camera id as a label),
 //! `zones`, `segments` (outlines with names) and `routes` (a line through the
@@ -8,9 +8,9 @@
 //! earlier array drew, so a republished array replaces the last one.
 
 use isochron_config::{LoadedConfig, SegmentConfig};
+use isochron_ros2::msgs::{ColorRGBA, Header, Marker, MarkerArray, Point, Pose, Vector3};
 
 use crate::bridge::Bridge;
-use isochron_ros2::msgs::{ColorRGBA, Header, Marker, MarkerArray, Point, Pose, Vector3};
 
 /// Points per image edge when a camera's frame border is mapped to the floor.
 const EDGE_SAMPLES: usize = 16;

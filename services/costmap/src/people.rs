@@ -13,12 +13,12 @@
 //! pose the camera saw, not a measured 3-D pose.
 
 use isochron_planning::homography::Homography;
-use isochron_wire::{Detection, Keypoint};
-
-use crate::bridge::Confirmed;
 use isochron_ros2::msgs::{
     ColorRGBA, Header, Marker, Point, Pose, PoseArray, Quaternion, RosDuration, Vector3,
 };
+use isochron_wire::{Detection, Keypoint};
+
+use crate::bridge::Confirmed;
 
 /// Bone width, metres.
 const BONE_M: f64 = 0.04;

@@ -7,16 +7,16 @@ use std::time::Instant;
 
 use isochron_planning::grid::MapGrid;
 use isochron_planning::raster::Footprint;
-use isochron_runtime::stage::Warnings;
-
-use crate::bridge::{Bridge, Confirmed};
-use crate::delta::{DeltaTracker, Output};
 use isochron_ros2::msgs::{
     Header, MapMetaData, Marker, MarkerArray, OccupancyGrid, OccupancyGridUpdate, Point, Pose,
     Quaternion, RosDuration, Time,
 };
+use isochron_ros2::{PublishError, RosOutput};
+use isochron_runtime::stage::Warnings;
+
+use crate::bridge::{Bridge, Confirmed};
+use crate::delta::{DeltaTracker, Output};
 use crate::people;
-use crate::ros::{PublishError, RosOutput};
 
 /// Counters for the status line.
 #[derive(Default)]
@@ -115,7 +115,8 @@ pub(crate) fn publish_people(
     let newest = &confirmed[confirmed.len().saturating_sub(placed)..];
     let result = ros
         .output
-        .publish_people(people::poses(newest, header.clone()));
+        .people
+        .publish(people::poses(newest, header.clone()));
     counters.published("people", result, |c| &mut c.people);
     let Some(homography) = &cam.homography else {
         return;
@@ -132,7 +133,7 @@ pub(crate) fn publish_people(
         ros.people_lifetime,
     );
     let drawn = markers.iter().filter(|m| m.action == Marker::ADD).count();
-    let result = ros.output.publish_people_markers(MarkerArray { markers });
+    let result = ros.output.people_markers.publish(MarkerArray { markers });
     if counters.published("the people markers", result, |c| &mut c.people_markers) {
         ros.people_markers_sent[k] = drawn;
     }
@@ -193,7 +194,7 @@ pub(crate) fn publish(
         Output::Nothing => return false,
         Output::Full => {
             counters.grids += 1;
-            ros.output.publish_grid(OccupancyGrid {
+            ros.output.grid.publish(OccupancyGrid {
                 header: header.clone(),
                 ..occupancy_grid(grid, &ros.frame_id, stamp_ns, cells.to_vec())
             })
@@ -206,7 +207,7 @@ pub(crate) fn publish(
             data,
         } => {
             counters.updates += 1;
-            ros.output.publish_update(OccupancyGridUpdate {
+            ros.output.updates.publish(OccupancyGridUpdate {
                 header,
                 x: x as i32,
                 y: y as i32,

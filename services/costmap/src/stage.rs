@@ -14,6 +14,9 @@ use isochron_planning::grid::MapGrid;
 use isochron_planning::plan_service::PlanServer;
 use isochron_planning::planner::Planner;
 use isochron_planning::snapshot;
+use isochron_ros2::msgs::{CostmapFilterInfo, Header, RosDuration, Time};
+use isochron_ros2::spec::{GRID, Names, SPEED_MASK, UPDATES};
+use isochron_ros2::{RosOutput, RosSettings, interfaces};
 use isochron_runtime::counters::{Counters as StatusCounters, costmap};
 use isochron_runtime::ipc::{Activity, Detections, Ipc};
 use isochron_runtime::stage::{Context, Input, Notified, Stage};
@@ -22,12 +25,10 @@ use isochron_runtime::topology::StageKind;
 use crate::bridge::{Bridge, count_non_finite};
 use crate::delta::DeltaTracker;
 use crate::markers::{marker_key, site_markers};
-use isochron_ros2::msgs::{CostmapFilterInfo, Header, RosDuration, Time};
 use crate::planning::Planning;
 use crate::publish::{
     Counters, Ros, geometry_key, occupancy_grid, publish, publish_people, unknown_as_free,
 };
-use crate::ros::{RosOutput, RosSettings, interfaces};
 
 /// How long a read long-term model is trusted before the store is checked again.
 const STORE_REFRESH: Duration = Duration::from_secs(60);
@@ -155,7 +156,7 @@ impl CostmapStage {
             let mask: Vec<i8> = cells.iter().map(|&v| c.speed_mask_value(v)).collect();
             if ros.mask_sent.as_ref() != Some(&mask) {
                 let message = occupancy_grid(grid, &ros.frame_id, stamp_ns, mask.clone());
-                let result = ros.output.publish_mask(message);
+                let result = ros.output.speed_mask.publish(message);
                 if self
                     .counters
                     .published("the speed mask", result, |c| &mut c.masks)
@@ -196,7 +197,7 @@ impl CostmapStage {
                 Ok(cells) => {
                     let at_ns = now_ns + c.forecast_ahead_min as i64 * 60 * NS_PER_S;
                     let message = occupancy_grid(grid, &ros.frame_id, at_ns, cells);
-                    let result = ros.output.publish_forecast(message);
+                    let result = ros.output.forecast.publish(message);
                     self.counters
                         .published("the forecast", result, |c| &mut c.forecasts);
                 }
@@ -217,7 +218,7 @@ impl CostmapStage {
                     frame_id: ros.frame_id.clone(),
                 };
                 let markers = site_markers(&self.planning.loaded, &self.bridge, &header);
-                let result = ros.output.publish_markers(markers);
+                let result = ros.output.markers.publish(markers);
                 if self
                     .counters
                     .published("the markers", result, |c| &mut c.markers)
@@ -388,16 +389,7 @@ fn ros_output(loaded: &LoadedConfig, grid: &MapGrid) -> Result<Ros, Fatal> {
                 .filter_map(|a| a.parse().ok())
                 .collect::<Vec<_>>(),
         ),
-        topic: c.topic.clone(),
-        updates_topic: c.updates_topic(),
-        people_topic: c.people_topic.clone(),
-        markers_topic: c.markers_topic.clone(),
-        people_markers_topic: c.people_markers_topic.clone(),
-        speed_filter_info_topic: c.speed_filter_info_topic.clone(),
-        speed_mask_topic: c.speed_mask_topic.clone(),
-        forecast_topic: c.forecast_topic.clone(),
-        plan_offline_service: c.plan_offline_service.clone(),
-        plan_now_service: c.plan_now_service.clone(),
+        names: Names::from_config(c),
         enclave: None,
         zenoh: c.zenoh.enabled.then(|| isochron_zenoh::Settings {
             domain,
@@ -422,13 +414,13 @@ fn ros_output(loaded: &LoadedConfig, grid: &MapGrid) -> Result<Ros, Fatal> {
     limit_dds_logging();
     let output = RosOutput::start(&settings)?;
     // The speed filter's info never changes: sent once, latched.
-    if let Err(e) = output.publish_filter_info(CostmapFilterInfo {
+    if let Err(e) = output.speed_filter_info.publish(CostmapFilterInfo {
         header: Header {
             stamp: Time::from_utc_ns(wall_now_ns()),
             frame_id: c.frame_id.clone(),
         },
         kind: CostmapFilterInfo::SPEED_LIMIT_PERCENT,
-        filter_mask_topic: c.speed_mask_topic.clone(),
+        filter_mask_topic: settings.names.of(&SPEED_MASK.config).to_string(),
         base: 0.0,
         multiplier: 1.0,
     }) {
@@ -439,8 +431,8 @@ fn ros_output(loaded: &LoadedConfig, grid: &MapGrid) -> Result<Ros, Fatal> {
         grid.width,
         grid.height,
         grid.resolution,
-        settings.topic,
-        settings.updates_topic,
+        settings.names.of(&GRID.config),
+        settings.names.of(&UPDATES.config),
         c.frame_id,
         settings.domain_id,
         if settings.interfaces.is_empty() {

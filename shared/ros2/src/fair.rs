@@ -1,7 +1,8 @@
 //! Per-client fair queueing of planning requests: no I/O, decisions out.
 //!
-//! Each client (a request's DDS writer, the one identity a client cannot choose
-//! per request) has a lane of its own, bounded by `per_client`; all lanes
+//! Each client (what its transport says sent a request: on DDS its writer, the
+//! one identity a client cannot choose per request; on Zenoh the GID of its
+//! attachment) has a lane of its own, bounded by `per_client`; all lanes
 //! together hold at most `capacity`. Requests are taken round robin across the
 //! clients that have one ready, so a client flooding the service fills only its
 //! own lane and waits its turn like any other: a client with one request

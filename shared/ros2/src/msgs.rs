@@ -1,13 +1,15 @@
 //! The ROS 2 messages the bridge publishes, as plain serde structs in CDR field
-//! order (the order of the `.msg` definitions), so that any DDS implementation reads
+//! order (the order of the `.msg` definitions), so that any ROS 2 middleware reads
 //! them as `nav_msgs/msg/OccupancyGrid`, `map_msgs/msg/OccupancyGridUpdate`,
-//! `geometry_msgs/msg/PoseArray` and `visualization_msgs/msg/MarkerArray` (Jazzy's
-//! definition, the release `ros2-client` is built for).
+//! `geometry_msgs/msg/PoseArray`, `visualization_msgs/msg/MarkerArray` and
+//! `nav2_msgs/msg/CostmapFilterInfo` (Jazzy's definition, the release
+//! `ros2-client` is built for), and the planning services' requests and
+//! responses (ros/isochron_msgs).
 //!
 //! No ROS install is needed: the DDS type names are
-//! `<package>::msg::dds_::<Type>_` and the serialised form is plain (XCDR1)
-//! little-endian CDR, which is what every ROS 2 DDS middleware exchanges. All the
-//! bridge's ROS 2 types live here.
+//! `<package>::msg::dds_::<Type>_` ([`crate::spec::types`]) and the serialised
+//! form is plain (XCDR1) little-endian CDR, which is what every ROS 2 middleware
+//! exchanges, on DDS and on Zenoh. All the bridge's ROS 2 types live here.
 
 use serde::{Deserialize, Serialize};
 
@@ -457,7 +459,55 @@ pub struct PlanNowResponse {
 
 #[cfg(test)]
 mod tests {
+    use rustdds::CDRSerializerAdapter;
+    use rustdds::no_key::SerializerAdapter;
+
     use super::*;
+
+    /// The CDR bytes of a tiny grid, laid out by hand from the `.msg` definitions:
+    /// this is what any ROS 2 subscriber decodes.
+    #[test]
+    fn occupancy_grid_cdr_layout() {
+        let grid = OccupancyGrid {
+            header: Header {
+                stamp: Time { sec: 7, nanosec: 9 },
+                frame_id: "map".into(),
+            },
+            info: MapMetaData {
+                map_load_time: Time { sec: 7, nanosec: 9 },
+                resolution: 0.5,
+                width: 2,
+                height: 1,
+                origin: Pose {
+                    position: Point {
+                        x: 1.0,
+                        y: 2.0,
+                        z: 0.0,
+                    },
+                    orientation: Quaternion::from_yaw(0.0),
+                },
+            },
+            data: vec![-1, 100],
+        };
+        let bytes = CDRSerializerAdapter::<OccupancyGrid>::to_bytes(&grid).unwrap();
+        let mut expected: Vec<u8> = Vec::new();
+        expected.extend(7i32.to_le_bytes()); // header.stamp.sec @0
+        expected.extend(9u32.to_le_bytes()); // nanosec @4
+        expected.extend(4u32.to_le_bytes()); // frame_id length incl. NUL @8
+        expected.extend(b"map\0"); // @12
+        expected.extend(7i32.to_le_bytes()); // info.map_load_time @16
+        expected.extend(9u32.to_le_bytes());
+        expected.extend(0.5f32.to_le_bytes()); // resolution @24
+        expected.extend(2u32.to_le_bytes()); // width @28
+        expected.extend(1u32.to_le_bytes()); // height @32
+        expected.extend([0u8; 4]); // pad to 8 for the f64s @36
+        for v in [1.0f64, 2.0, 0.0, 0.0, 0.0, 0.0, 1.0] {
+            expected.extend(v.to_le_bytes()); // origin @40..96
+        }
+        expected.extend(2u32.to_le_bytes()); // data length @96
+        expected.extend([0xff, 100]); // data
+        assert_eq!(bytes.as_ref(), expected.as_slice());
+    }
 
     #[test]
     fn time_splits_nanoseconds() {

@@ -1,10 +1,14 @@
+use std::time::Instant;
+
 use byteorder::LittleEndian;
 use rustdds::serialization::{from_bytes, to_vec};
 use rustdds::{RepresentationIdentifier, SampleIdentity};
 
-use super::request::{MAX_REQUEST_BYTES, plan_request};
+use super::wire::{RawSample, ReplyTo, read_request, reply_bytes};
 use super::*;
-use isochron_ros2::msgs::{CdrString, PlanNowResponse};
+use crate::msgs::PlanNowResponse;
+use crate::plan::{Body, plan_request};
+use isochron_planning::query::PlanKind;
 
 /// A GUID whose last byte (the entity kind) is `kind`: 0x03 a writer, 0x04 a
 /// reader (no key), under the participant `prefix`.
@@ -14,23 +18,15 @@ fn guid(prefix: u8, kind: u8) -> GUID {
     GUID::from_bytes(b)
 }
 
-/// A little-endian CDR string: length with the NUL, bytes, NUL.
-fn cdr_str(out: &mut Vec<u8>, s: &[u8], nul: bool) {
-    while !out.len().is_multiple_of(4) {
-        out.push(0);
-    }
-    let len = s.len() + nul as usize;
-    out.extend((len as u32).to_le_bytes());
-    out.extend(s);
-    if nul {
-        out.push(0);
-    }
-}
-
-/// `PlanOffline` request fields laid out by hand (little-endian).
+/// `PlanOffline` request fields laid out by hand (little-endian): the route
+/// with its NUL, 600, 720, 30, 7.
 fn offline_body(route: &[u8], nul: bool) -> Vec<u8> {
     let mut b = Vec::new();
-    cdr_str(&mut b, route, nul);
+    b.extend((route.len() as u32 + u32::from(nul)).to_le_bytes());
+    b.extend(route);
+    if nul {
+        b.push(0);
+    }
     while !b.len().is_multiple_of(2) {
         b.push(0);
     }
@@ -48,57 +44,10 @@ fn raw(bytes: Vec<u8>) -> RawSample {
     }
 }
 
-#[test]
-fn strings_follow_the_cdr_rules() {
-    assert_eq!(
-        CdrString::from_wire(b"dock\0"),
-        Ok(CdrString("dock".into()))
-    );
-    assert_eq!(CdrString::from_wire(b"\0"), Ok(CdrString(String::new())));
-    let no_nul = CdrString::from_wire(b"dock").unwrap_err();
-    assert!(no_nul.contains("without its terminating NUL"), "{no_nul}");
-    assert!(CdrString::from_wire(b"").is_err());
-    assert!(CdrString::from_wire(b"do\0ck\0").is_err());
-    assert!(CdrString::from_wire(b"\xff\xfe\0").is_err());
-
-    let ok = plan_request(PlanKind::Offline, &offline_body(b"dock", true), false).unwrap();
-    assert_eq!(ok.route_names(), vec!["dock".to_string()]);
-    assert_eq!(
-        (ok.start_minute, ok.end_minute, ok.step_min, ok.weekday),
-        (600, 720, 30, 7)
-    );
-    // Without its NUL the name is not "doc": the request is malformed.
-    let err = plan_request(PlanKind::Offline, &offline_body(b"dock", false), false).unwrap_err();
-    assert!(err.contains("without its terminating NUL"), "{err}");
-}
-
-#[test]
-fn plan_now_requests_are_read_in_either_byte_order() {
-    let mut le = Vec::new();
-    le.extend(2u32.to_le_bytes());
-    cdr_str(&mut le, b"a", true);
-    cdr_str(&mut le, b"bc", true);
-    let r = plan_request(PlanKind::Now, &le, false).unwrap();
-    assert_eq!(r.route_names(), vec!["a".to_string(), "bc".to_string()]);
-    let mut be = Vec::new();
-    be.extend(1u32.to_be_bytes());
-    be.extend(3u32.to_be_bytes());
-    be.extend(b"xy\0");
-    let r = plan_request(PlanKind::Now, &be, true).unwrap();
-    assert_eq!(r.route_names(), vec!["xy".to_string()]);
-    // A count far beyond the bytes ends at the bytes, as an error.
-    let mut huge = Vec::new();
-    huge.extend(u32::MAX.to_le_bytes());
-    cdr_str(&mut huge, b"a", true);
-    assert!(plan_request(PlanKind::Now, &huge, false).is_err());
-    let none = 0u32.to_le_bytes().to_vec();
-    let err = plan_request(PlanKind::Now, &none, false).unwrap_err();
-    assert!(err.contains("expected 1 to 16 routes"), "{err}");
-    let long = vec![b'x'; 33];
-    let mut b = 1u32.to_le_bytes().to_vec();
-    cdr_str(&mut b, &long, true);
-    assert!(plan_request(PlanKind::Now, &b, false).is_err());
-    assert!(plan_request(PlanKind::Now, &vec![0; MAX_REQUEST_BYTES + 1], false).is_err());
+/// The planner's request of a body read from DDS.
+fn decoded(body: &Result<Body, String>) -> Result<(), String> {
+    let body = body.as_ref().map_err(Clone::clone)?;
+    plan_request(PlanKind::Offline, &body.cdr, body.big_endian).map(drop)
 }
 
 #[test]
@@ -109,24 +58,18 @@ fn the_layout_comes_from_the_related_sample_identity() {
     let mut bytes = 0x1122_3344_5566_7788u64.to_le_bytes().to_vec();
     bytes.extend(42i64.to_le_bytes());
     bytes.extend(offline_body(b"dock", true));
-    let p = read_request(
-        PlanKind::Offline,
-        writer,
-        SequenceNumber::from(5),
-        None,
-        &raw(bytes),
-        at,
-    )
-    .unwrap();
+    let (reply, body) =
+        read_request(writer, SequenceNumber::from(5), None, &raw(bytes), at).unwrap();
     assert_eq!(
-        p.reply_to,
+        reply.reply_to,
         ReplyTo::Cyclone {
             client: 0x1122_3344_5566_7788,
             sequence: 42
         }
     );
-    assert_eq!(p.client, writer);
-    assert!(p.request.is_ok(), "{:?}", p.request);
+    assert_eq!(reply.client, writer);
+    assert_eq!(body.as_ref().unwrap().cdr, offline_body(b"dock", true));
+    assert!(decoded(&body).is_ok(), "{body:?}");
 
     // rmw_fastrtps: the bare fields; the reply names the client's reader and
     // the request's sequence number.
@@ -135,8 +78,7 @@ fn the_layout_comes_from_the_related_sample_identity() {
         writer_guid: reader,
         sequence_number: SequenceNumber::UNKNOWN,
     };
-    let p = read_request(
-        PlanKind::Offline,
+    let (reply, body) = read_request(
         writer,
         SequenceNumber::from(5),
         Some(related),
@@ -145,18 +87,17 @@ fn the_layout_comes_from_the_related_sample_identity() {
     )
     .unwrap();
     assert_eq!(
-        p.reply_to,
+        reply.reply_to,
         ReplyTo::FastDds(SampleIdentity {
             writer_guid: reader,
             sequence_number: SequenceNumber::from(5)
         })
     );
-    assert_eq!(p.client, reader);
-    assert!(p.request.is_ok());
+    assert_eq!(reply.client, reader);
+    assert!(decoded(&body).is_ok());
 
     // A malformed body with an identity is answered; without one it cannot be.
-    let p = read_request(
-        PlanKind::Offline,
+    let (_, body) = read_request(
         writer,
         SequenceNumber::from(6),
         Some(related),
@@ -164,9 +105,8 @@ fn the_layout_comes_from_the_related_sample_identity() {
         at,
     )
     .unwrap();
-    assert!(p.request.is_err());
+    assert!(decoded(&body).is_err());
     let short = read_request(
-        PlanKind::Offline,
         writer,
         SequenceNumber::from(7),
         None,
@@ -178,16 +118,9 @@ fn the_layout_comes_from_the_related_sample_identity() {
         bytes: offline_body(b"dock", true),
         encoding: RepresentationIdentifier::CDR2_LE,
     };
-    let p = read_request(
-        PlanKind::Offline,
-        writer,
-        SequenceNumber::from(8),
-        Some(related),
-        &xcdr2,
-        at,
-    )
-    .unwrap();
-    assert!(p.request.unwrap_err().contains("XCDR1"));
+    let (_, body) =
+        read_request(writer, SequenceNumber::from(8), Some(related), &xcdr2, at).unwrap();
+    assert!(body.unwrap_err().contains("XCDR1"));
 }
 
 #[test]
@@ -204,9 +137,8 @@ fn replies_carry_the_header_of_their_layout() {
             client: 9,
             sequence: -2,
         },
-        &response,
-    )
-    .unwrap();
+        &body,
+    );
     assert_eq!(&cyclone[..8], &9u64.to_le_bytes());
     assert_eq!(&cyclone[8..16], &(-2i64).to_le_bytes());
     assert_eq!(&cyclone[16..], &body[..]);
@@ -215,9 +147,8 @@ fn replies_carry_the_header_of_their_layout() {
             writer_guid: guid(1, 4),
             sequence_number: SequenceNumber::from(3),
         }),
-        &response,
-    )
-    .unwrap();
+        &body,
+    );
     assert_eq!(fast, body);
     let (back, _) = from_bytes::<PlanNowResponse, LittleEndian>(&fast).unwrap();
     assert_eq!(back, response);
@@ -238,4 +169,20 @@ fn gaps_in_a_clients_sequence_numbers_are_counted() {
         gaps.seen(GUID::from_bytes(bytes), SequenceNumber::from(1));
     }
     assert!(gaps.last.len() <= MAX_CLIENTS);
+}
+
+#[test]
+fn topics_keep_their_qos() {
+    use rustdds::policy::{Durability, History, Reliability};
+    let latched = dds_qos(crate::spec::LATCHED);
+    assert!(matches!(
+        latched.reliability(),
+        Some(Reliability::Reliable { .. })
+    ));
+    assert_eq!(latched.durability(), Some(Durability::TransientLocal));
+    assert_eq!(latched.history(), Some(History::KeepLast { depth: 1 }));
+    let stream = dds_qos(crate::spec::STREAM);
+    assert_eq!(stream.durability(), Some(Durability::Volatile));
+    assert_eq!(stream.history(), Some(History::KeepLast { depth: 10 }));
+    assert_eq!(stream.resource_limits().map(|r| r.max_samples), Some(10));
 }
