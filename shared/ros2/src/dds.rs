@@ -7,7 +7,7 @@
 //! ([`keep_last`]).
 //!
 //! ROS 2 middlewares carry a request's identity in two ways on the same topics, and
-//! both are served ([`wire`]):
+//! both are served (`dds/wire.rs`):
 //!
 //! * **rmw_cyclonedds**: a 16-byte header before the request's fields, the client's
 //!   id (8 bytes) and sequence number (8 bytes), echoed before the reply's fields;
@@ -230,7 +230,7 @@ impl Endpoint for DdsService {
         reply_failed: "plan reply failed",
     };
 
-    /// What the reader holds, at most [`REQUEST_HISTORY`] samples.
+    /// What the reader holds, at most `REQUEST_HISTORY` samples.
     fn take(&mut self) -> Vec<Taken<Writer, Reply>> {
         self.reader.drain_read_notifications();
         let arrived = Instant::now();
