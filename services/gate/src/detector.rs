@@ -46,10 +46,12 @@ use opencv::{dnn, imgproc, objdetect};
 mod movenet;
 mod ssd;
 pub mod text_graph;
+mod tiling;
 mod yolo;
 
 pub use movenet::{MoveNetDetector, MoveNetError, RUNTIME_LIBRARY};
-pub use ssd::{OutputRow, SsdDetector, parse_detection_output, tiles};
+pub use ssd::{OutputRow, SsdDetector, parse_detection_output};
+pub use tiling::tiles;
 #[cfg(test)]
 use yolo::non_max_suppression;
 pub use yolo::{Candidate, OnnxDetector, parse_yolo};

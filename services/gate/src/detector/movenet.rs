@@ -19,7 +19,7 @@ use ort::session::Session;
 use ort::value::TensorRef;
 
 use super::Letterbox;
-use super::ssd::{merge_passes, tiles};
+use super::tiling::TiledSearch;
 
 /// The ONNX Runtime library file `cargo xtask setup` installs beside the model.
 pub use isochron_config::detector::RUNTIME_LIBRARY;
@@ -140,20 +140,16 @@ impl MoveNetDetector {
     }
 
     /// People in `crop`, the part `r` of the frame: boxes and keypoints in frame
-    /// pixels. A crop larger than a tile is searched whole and in overlapping
-    /// square tiles, as the SSD's are ([`tiles`]), the passes merged on their
-    /// boxes (each kept box keeps its own keypoints).
+    /// pixels, by the tiled search ([`TiledSearch`]); one pass is merged too (the
+    /// multipose output can give a person twice), each kept box keeps its own
+    /// keypoints.
     pub fn detect(&mut self, crop: &Mat, r: Rect) -> opencv::Result<Vec<Detection>> {
-        let tiles = tiles(r.width, r.height, self.tile_px as i32);
-        let mut found = self.detect_one(crop, r)?;
-        if tiles.len() > 1 {
-            for t in tiles {
-                let part = Mat::roi(crop, t)?;
-                let at = Rect::new(r.x + t.x, r.y + t.y, t.width, t.height);
-                found.extend(self.detect_one(&part, at)?);
-            }
-        }
-        Ok(merge_passes(found, self.nms_threshold))
+        let search = TiledSearch {
+            tile_px: self.tile_px,
+            nms_threshold: self.nms_threshold,
+            merge_single_pass: true,
+        };
+        search.run(crop, r, |part, at| self.detect_one(part, at))
     }
 
     /// People in `crop` (one pass), the part `r` of the frame.
