@@ -23,6 +23,11 @@ pub struct SiteConfig {
     /// the group (each camera on its own thread; see docs/benchmarks.md, "Scale"). Default
     /// 1: one process per camera and stage.
     pub cameras_per_process: usize,
+    /// How far capture yields the CPU to the analysis stages: capture runs
+    /// `SCHED_BATCH` at this nice value (0..=19), so a frame's motion, cascade
+    /// and gate work is not queued behind decoders. 0 runs capture as the other
+    /// stages run. Default 5.
+    pub capture_nice: i32,
 }
 
 impl Default for SiteConfig {
@@ -33,6 +38,7 @@ impl Default for SiteConfig {
             service_prefix: DEFAULT_PREFIX.into(),
             state_dir: PathBuf::from("/var/lib/isochron"),
             cameras_per_process: 1,
+            capture_nice: 5,
         }
     }
 }
@@ -59,7 +65,8 @@ impl SiteConfig {
             self.cameras_per_process as f64,
             1.0,
             1024.0,
-        )
+        )?;
+        check_range("site.capture_nice", self.capture_nice as f64, 0.0, 19.0)
     }
 }
 

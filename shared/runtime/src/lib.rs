@@ -13,6 +13,7 @@ pub mod health;
 pub mod ipc;
 pub mod logging;
 pub mod names;
+pub mod scheduling;
 pub mod service;
 pub mod stage;
 pub mod topology;

@@ -87,6 +87,7 @@ pub fn run_cameras(stage: StageKind, args: &CameraArgs, run: Serve) -> ExitCode 
     owner_only_files();
     raise_open_file_limit();
     let result = load(&args.config).and_then(|loaded| {
+        crate::scheduling::apply(stage, &loaded.config.site);
         let mut chosen: Vec<CameraConfig> = Vec::new();
         for id in &args.camera {
             let cam = loaded.camera(id)?;

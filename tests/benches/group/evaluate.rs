@@ -48,6 +48,16 @@ impl Offenders {
     }
 }
 
+/// A stage may drop at most one sample in this many it handled in the window: a
+/// run fails on drops that say the stage falls behind, not on one late wake-up.
+pub(crate) const DROP_BUDGET: u64 = 10_000;
+
+/// Whether `(dropped, handled)` is over [`DROP_BUDGET`] (any drop in a window
+/// shorter than the budget is over it).
+fn over_budget((dropped, handled): (u64, u64)) -> bool {
+    dropped > handled / DROP_BUDGET
+}
+
 /// Applies the rate and drop criteria to the status reports of the window.
 pub(crate) fn evaluate_status(mut run: Run, board: &StatusBoard) -> Run {
     let cameras = camera_ids(run.cameras);
@@ -58,6 +68,8 @@ pub(crate) fn evaluate_status(mut run: Run, board: &StatusBoard) -> Run {
     let mut silent: Vec<Offenders> = stages.iter().map(|_| Offenders::default()).collect();
     let mut slow: Vec<Offenders> = stages.iter().map(|_| Offenders::default()).collect();
     let mut dropping: Vec<Offenders> = stages.iter().map(|_| Offenders::default()).collect();
+    // Per stage: samples dropped and samples handled (dropped ones included).
+    let mut budget: Vec<(u64, u64)> = vec![(0, 0); stages.len()];
     // The stage whose rate is `min_fps`: motion, or capture when it runs alone.
     let paced = if run.mode == Mode::DecodeOnly {
         StageKind::Capture
@@ -83,9 +95,13 @@ pub(crate) fn evaluate_status(mut run: Run, board: &StatusBoard) -> Run {
                 gate_min_fps = gate_min_fps.min(w.rate);
                 jobs = jobs.zip(w.jobs).map(|((a, d), (wa, wd))| (a + wa, d + wd));
             }
-            if track.stage != StageKind::Capture && w.dropped > 0 {
-                drops += w.dropped;
-                dropping[s].add(i, w.dropped as f64, higher);
+            if track.stage != StageKind::Capture {
+                budget[s].0 += w.dropped;
+                budget[s].1 += w.done + w.dropped;
+                if w.dropped > 0 {
+                    drops += w.dropped;
+                    dropping[s].add(i, w.dropped as f64, higher);
+                }
             }
         }
     }
@@ -124,7 +140,15 @@ pub(crate) fn evaluate_status(mut run: Run, board: &StatusBoard) -> Run {
                 " fps",
                 &cameras,
             ),
-            dropping[s].reason(&format!("{stage} dropped samples"), "", &cameras),
+            over_budget(budget[s])
+                .then(|| dropping[s].reason(&format!("{stage} dropped samples"), "", &cameras))
+                .flatten()
+                .map(|r| {
+                    format!(
+                        "{r}: {} of {} (budget 1 in {DROP_BUDGET})",
+                        budget[s].0, budget[s].1
+                    )
+                }),
         ];
         run.failures.extend(reasons.into_iter().flatten());
     }

@@ -111,6 +111,8 @@ pub(crate) fn drain<S: StreamType>(
 pub(crate) struct Window {
     /// Samples published per second (for the gate: frames taken per second).
     pub(crate) rate: f64,
+    /// Samples published (for the gate: frames taken) in the window.
+    pub(crate) done: u64,
     /// Samples dropped (here or upstream).
     pub(crate) dropped: u64,
     /// The gate's detection jobs accepted and dropped.

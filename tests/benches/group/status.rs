@@ -106,6 +106,7 @@ impl Track {
         let from = self.before.as_ref().unwrap_or(a);
         Some(Window {
             rate: done as f64 / seconds,
+            done,
             dropped: b.dropped.saturating_sub(a.dropped),
             jobs: between(from, gate::JOBS).zip(between(from, gate::JOBS_DROPPED)),
         })
