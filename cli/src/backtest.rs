@@ -28,14 +28,17 @@ mod score;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::{Context, bail};
+use anyhow::bail;
 use isochron_config::CascadeConfig;
 use isochron_config::clock::Cycle;
+use isochron_exit::{DATA, USAGE, UsageError};
 use isochron_store::{Bin, Model, Rules, StoreMeta};
 use isochron_wire::geometry::BlockGrid;
 use jiff::civil::Date;
 use serde_json::json;
 
+use crate::common::with_code;
+use crate::values;
 pub use counts::Counts;
 use score::{Score, Window};
 
@@ -55,21 +58,21 @@ pub struct BacktestArgs {
     #[arg(long)]
     config: Option<PathBuf>,
     /// Another cycle than the config's: day_types, daily or weekly.
-    #[arg(long)]
-    cycle: Option<String>,
+    #[arg(long, value_parser = values::cycle)]
+    cycle: Option<Cycle>,
     /// Only these series (comma-separated names).
     #[arg(long)]
     series: Option<String>,
     /// Learning begins on this day (YYYY-MM-DD; default the first day of the file):
     /// a cold start.
-    #[arg(long)]
-    learn_from: Option<String>,
+    #[arg(long, value_name = "YYYY-MM-DD", value_parser = values::date)]
+    learn_from: Option<Date>,
     /// The first scored day (default: the first day learning begins on).
-    #[arg(long)]
-    score_from: Option<String>,
+    #[arg(long, value_name = "YYYY-MM-DD", value_parser = values::date)]
+    score_from: Option<Date>,
     /// The last scored day (default: the file's last day).
-    #[arg(long)]
-    score_to: Option<String>,
+    #[arg(long, value_name = "YYYY-MM-DD", value_parser = values::date)]
+    score_to: Option<Date>,
     /// Scored hours of the day, `FROM-TO` inclusive.
     #[arg(long, default_value = "6-21")]
     hours: String,
@@ -88,40 +91,46 @@ pub fn run(args: BacktestArgs) -> anyhow::Result<ExitCode> {
         None => (CascadeConfig::default(), jiff::tz::TimeZone::UTC),
     };
     let mut cascade = cascade;
-    if let Some(name) = &args.cycle {
-        cascade.cycle = Cycle::from_name(name).with_context(|| {
-            format!("--cycle: expected day_types, daily or weekly, found '{name}'")
-        })?;
+    if let Some(cycle) = args.cycle {
+        cascade.cycle = cycle;
     }
-    let mut counts = counts::read(&args.counts, &tz)?;
+    let window = Window::parse(&args.hours, &args.pick_hours).map_err(|e| with_code(USAGE, e))?;
+    crate::common::input_file("--counts", &args.counts, "a CSV file of counts")?;
+    let mut counts = counts::read(&args.counts, &tz).map_err(|e| with_code(DATA, e))?;
+    counts::long_enough(&counts, &args.counts).map_err(|e| with_code(DATA, e))?;
     if let Some(list) = &args.series {
         let keep: Vec<String> = list.split(',').map(|s| s.trim().to_string()).collect();
-        counts = counts.only(&keep)?;
+        counts = counts.only(&keep).map_err(|e| with_code(USAGE, e))?;
     }
-    let date = |flag: &str, v: &Option<String>| -> anyhow::Result<Option<Date>> {
-        v.as_deref()
-            .map(|s| {
-                s.parse::<Date>()
-                    .with_context(|| format!("{flag}: expected YYYY-MM-DD, found '{s}'"))
-            })
-            .transpose()
-    };
-    let learn_from = date("--learn-from", &args.learn_from)?.unwrap_or(counts.first);
-    let score_from = date("--score-from", &args.score_from)?.unwrap_or(learn_from);
+    let learn_from = args.learn_from.unwrap_or(counts.first);
+    let score_from = args.score_from.unwrap_or(learn_from);
     let plan = Plan {
         learn_from: counts.day_of(learn_from).max(0) as usize,
         score_from: counts.day_of(score_from).max(0) as usize,
-        score_to: date("--score-to", &args.score_to)?
+        score_to: args
+            .score_to
             .map_or(counts.days() as i64 - 1, |d| counts.day_of(d))
             .min(counts.days() as i64 - 1),
-        window: Window::parse(&args.hours, &args.pick_hours)?,
+        window,
     };
     if plan.score_to < plan.score_from as i64 {
-        bail!("no day to score: the scored range is empty or outside the file");
+        bail!(UsageError(
+            "--learn-from, --score-from, --score-to: no day to score: the scored range is empty or outside the file".into()
+        ));
     }
     let rules = Rules::of(&cascade);
     let name = model_name(&cascade);
     let report = backtest(&counts, &rules, &plan);
+    if report.iter().flatten().all(|s| s.intervals == 0) {
+        return Err(with_code(
+            DATA,
+            anyhow::anyhow!(
+                "--counts {}: no interval could be scored: none of the scored hours (--hours {}) has a count on a day that has one a week earlier (the baselines forecast from it)",
+                args.counts.display(),
+                args.hours
+            ),
+        ));
+    }
     print_report(&name, &counts, &report);
     Ok(ExitCode::SUCCESS)
 }

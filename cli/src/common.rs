@@ -1,10 +1,12 @@
 //! What several commands share: finding the config, the shape of a group of
-//! subcommands.
+//! subcommands, input files that must exist, output files that appear whole or
+//! not at all, and errors that end the command with a given exit code.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use isochron_config::{Config, LoadedConfig};
+use isochron_exit::Fatal;
 
 /// The config file: `--config`, else `$ISOCHRON_CONFIG`, else
 /// `/etc/isochron/isochron.toml`.
@@ -25,4 +27,150 @@ pub fn load_config(arg: Option<PathBuf>) -> anyhow::Result<LoadedConfig> {
 pub struct Subcommands<C: clap::Subcommand> {
     #[command(subcommand)]
     pub command: C,
+}
+
+/// The input file `path` that `what` (a flag, `--counts`, or an argument, `the
+/// video`) names: it must exist and be a regular file, else the command ends
+/// with 66 (`NO_INPUT`) and a message saying which and what was expected.
+pub fn input_file(what: &str, path: &Path, expected: &str) -> Result<(), Fatal> {
+    let found = match std::fs::metadata(path) {
+        Ok(m) if m.is_file() => return Ok(()),
+        Ok(m) if m.is_dir() => "a directory".to_string(),
+        Ok(_) => "not a regular file".to_string(),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => "no such file".to_string(),
+        Err(e) => format!("cannot be read ({e})"),
+    };
+    Err(Fatal::new(
+        isochron_exit::NO_INPUT,
+        format!("{what} {}: {found}; expected {expected}", path.display()),
+    ))
+}
+
+/// `error`, which ends the command with `code` (its message and causes are
+/// `error`'s): for a failure the libraries do not classify, such as a file of
+/// bad data read by the command itself (65).
+pub fn with_code(code: i32, error: anyhow::Error) -> anyhow::Error {
+    anyhow::Error::new(Coded {
+        code,
+        error: error.into(),
+    })
+}
+
+/// An error of the command with the exit code it ends with ([`with_code`]).
+#[derive(Debug)]
+pub struct Coded {
+    /// The exit code.
+    pub code: i32,
+    error: Box<dyn std::error::Error + Send + Sync + 'static>,
+}
+
+impl std::fmt::Display for Coded {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.error.fmt(f)
+    }
+}
+
+/// Displayed as the error it wraps, so its causes are that error's causes.
+impl std::error::Error for Coded {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        self.error.source()
+    }
+}
+
+/// An output file that appears whole or not at all: it is written to a
+/// temporary file beside it (same directory, same extension, so writers that
+/// choose the format by the extension choose the same), which
+/// [`OutFile::commit`] renames into place. Dropped without a commit (the
+/// command failed), the temporary file is removed and `out` is untouched.
+pub struct OutFile {
+    out: PathBuf,
+    temp: tempfile::TempPath,
+}
+
+impl OutFile {
+    /// Makes the temporary file for `out` (named by `flag`): fails at once,
+    /// before any work, when its directory cannot be written.
+    pub fn create(flag: &str, out: &Path) -> anyhow::Result<OutFile> {
+        let dir = match out.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => Path::new("."),
+        };
+        let name = out
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let suffix = out
+            .extension()
+            .map(|e| format!(".{}", e.to_string_lossy()))
+            .unwrap_or_default();
+        let temp = tempfile::Builder::new()
+            .prefix(&format!(".{name}."))
+            .suffix(&suffix)
+            .tempfile_in(dir)
+            .with_context(|| format!("{flag} {}: cannot write", out.display()))?
+            .into_temp_path();
+        Ok(OutFile {
+            out: out.to_path_buf(),
+            temp,
+        })
+    }
+
+    /// Where to write: the temporary file.
+    pub fn path(&self) -> &Path {
+        &self.temp
+    }
+
+    /// Renames the temporary file to the output file.
+    pub fn commit(self) -> anyhow::Result<()> {
+        let out = self.out;
+        self.temp
+            .persist(&out)
+            .with_context(|| format!("writing {}", out.display()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_output_file_appears_only_when_committed() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("x.png");
+        let file = OutFile::create("--out", &out).unwrap();
+        assert_eq!(file.path().extension().unwrap(), "png");
+        std::fs::write(file.path(), b"half").unwrap();
+        drop(file);
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+        let file = OutFile::create("--out", &out).unwrap();
+        std::fs::write(file.path(), b"whole").unwrap();
+        file.commit().unwrap();
+        assert_eq!(std::fs::read(&out).unwrap(), b"whole");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+        let err = OutFile::create("--out", Path::new("/nonexistent/dir/x.png")).err();
+        assert!(
+            format!("{:#}", err.unwrap()).contains("--out /nonexistent/dir/x.png: cannot write")
+        );
+    }
+
+    #[test]
+    fn a_missing_input_or_a_directory_is_66() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = input_file("--counts", &dir.path().join("no.csv"), "a CSV file").unwrap_err();
+        assert_eq!(e.code, isochron_exit::NO_INPUT);
+        assert!(e.to_string().contains("no.csv: no such file"), "{e}");
+        let e = input_file("the video", dir.path(), "a video file").unwrap_err();
+        assert!(e.to_string().contains("a directory"), "{e}");
+    }
+
+    #[test]
+    fn a_coded_error_keeps_its_message_and_causes() {
+        let e = anyhow::anyhow!("cause").context("what failed");
+        let coded = with_code(isochron_exit::DATA, e);
+        assert_eq!(format!("{coded:#}"), "what failed: cause");
+        assert_eq!(
+            coded.downcast_ref::<Coded>().map(|c| c.code),
+            Some(isochron_exit::DATA)
+        );
+    }
 }

@@ -24,9 +24,7 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use isochron_config::clock::{
-    Cycle, MINUTES_PER_DAY, SiteClock, format_t_star, parse_hhmm, wall_now_ns,
-};
+use isochron_config::clock::{Cycle, MINUTES_PER_DAY, SiteClock, format_t_star, wall_now_ns};
 use isochron_config::{CameraConfig, DAY_NAMES as DAYS, LoadedConfig, SourceKind};
 use isochron_exit::UsageError;
 use isochron_planning::calibration::Calibration;
@@ -40,9 +38,8 @@ use isochron_runtime::ipc::Ipc;
 use isochron_store::{Store, store_path};
 use isochron_wire::geometry::BlockGrid;
 
-use crate::common::{Subcommands, load_config};
+use crate::common::{OutFile, Subcommands, load_config, with_code};
 use crate::overlay::{self, FloorPolygon, Frame, Scene};
-use crate::plan::parse_day;
 
 /// Snapshots and checks of the site's cost map.
 pub type Args = Subcommands<Command>;
@@ -67,13 +64,13 @@ pub(crate) struct SnapshotArgs {
     out: Option<PathBuf>,
     /// Draw the cost map the long-term model expects at this time of day, HH:MM in
     /// the site's time zone, from the long-term stores (no running service needed).
-    #[arg(long, value_name = "HH:MM")]
-    at: Option<String>,
+    #[arg(long, value_name = "HH:MM", value_parser = crate::values::time_of_day)]
+    at: Option<u32>,
     /// With --at, for a weekly store (cascade.cycle = "weekly"): the day, mon .. sun
     /// (default today). A daily store has one model for every day: the day is
     /// noted on stderr and that model drawn.
-    #[arg(long, requires = "at")]
-    day: Option<String>,
+    #[arg(long, requires = "at", value_parser = crate::values::weekday)]
+    day: Option<u32>,
     /// With --at: print the grid and its cells as one JSON object.
     #[arg(long, requires = "at")]
     json: bool,
@@ -90,10 +87,11 @@ pub(crate) struct CheckArgs {
     /// Only this camera.
     #[arg(long)]
     camera: Option<String>,
-    /// Draw the calibration overlay of `--camera` into this PNG: block grid, masks,
-    /// zones, the floor grid (1 m) and route segments through the homography, and
-    /// every calibration point with its residual.
-    #[arg(long, requires = "camera")]
+    /// Draw the calibration overlay of `--camera` into this PNG (a `.png` file
+    /// name; written whole or not at all): block grid, masks, zones, the floor grid
+    /// (1 m) and route segments through the homography, and every calibration
+    /// point with its residual.
+    #[arg(long, requires = "camera", value_name = "OUT.png")]
     overlay: Option<PathBuf>,
     /// The picture for the overlay: a video (its first frame) or an image. Default:
     /// the camera's source, if it is a file.
@@ -112,8 +110,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 }
 
 fn snapshot(args: SnapshotArgs) -> anyhow::Result<ExitCode> {
-    if let Some(at) = args.at.clone() {
-        return expected_snapshot(args, &at);
+    if let Some(at) = args.at {
+        return expected_snapshot(args, at);
     }
     let loaded = load_config(args.config)?;
     let ipc = Ipc::of_site(
@@ -156,20 +154,9 @@ fn snapshot(args: SnapshotArgs) -> anyhow::Result<ExitCode> {
 }
 
 /// `costmap snapshot --at`: the cost map the long-term model expects.
-fn expected_snapshot(args: SnapshotArgs, at: &str) -> anyhow::Result<ExitCode> {
-    let minute = parse_hhmm(at.trim()).ok_or_else(|| {
-        UsageError(format!(
-            "--at: expected a time of day HH:MM from 00:00 to 23:59, found '{at}'"
-        ))
-    })?;
+fn expected_snapshot(args: SnapshotArgs, minute: u32) -> anyhow::Result<ExitCode> {
     let (out, stem) = png_out(args.out.as_deref())?;
-    let day = match &args.day {
-        Some(d) => Some(
-            parse_day(d)
-                .ok_or_else(|| UsageError(format!("--day: expected mon .. sun, found '{d}'")))?,
-        ),
-        None => None,
-    };
+    let day = args.day;
     let loaded = load_config(args.config)?;
     let started = Instant::now();
     let (day, note) = cycle_day(&loaded, day)?;
@@ -394,25 +381,11 @@ fn check(args: CheckArgs) -> anyhow::Result<ExitCode> {
         None => config.cameras.iter().collect(),
     };
     // The overlay's paths first: a bad one fails before anything is printed.
-    let frame = match (&args.overlay, cameras.first()) {
-        (Some(out), Some(cam)) => {
-            std::fs::File::create(out)
-                .with_context(|| format!("--overlay {}: cannot write", out.display()))?;
-            let path = match &args.frame {
-                Some(p) => p.clone(),
-                None => match cam.source_kind(&loaded.base_dir()) {
-                    SourceKind::File(p) => p,
-                    _ => bail!(
-                        "camera {}'s source is not a file: give --frame VIDEO_OR_IMAGE",
-                        cam.id
-                    ),
-                },
-            };
-            let size = cam.width.zip(cam.height);
-            Some(Frame::read(&path, size)?)
-        }
+    let overlay = match (&args.overlay, cameras.first()) {
+        (Some(out), Some(cam)) => Some(overlay_input(&loaded, cam, out, args.frame.as_deref())?),
         _ => None,
     };
+    let frame = overlay.as_ref().map(|(_, frame)| frame);
     let reports: Vec<CameraCheck> = cameras
         .iter()
         .map(|cam| {
@@ -421,11 +394,11 @@ fn check(args: CheckArgs) -> anyhow::Result<ExitCode> {
                 .iter()
                 .position(|c| c.id == cam.id)
                 .unwrap_or_default();
-            check_camera(&loaded, grid.as_ref(), index, cam, frame.as_ref())
+            check_camera(&loaded, grid.as_ref(), index, cam, frame)
         })
         .collect();
-    if let (Some(out), Some(frame), Some(cam), Some(report)) =
-        (&args.overlay, &frame, cameras.first(), reports.first())
+    if let (Some((out, frame)), Some(cam), Some(report)) =
+        (overlay, cameras.first(), reports.first())
     {
         let segments: Vec<FloorPolygon> = config
             .costmap
@@ -451,7 +424,8 @@ fn check(args: CheckArgs) -> anyhow::Result<ExitCode> {
                 .map(|c| overlay::floor_extent(grid.as_ref(), c)),
             segments: &segments,
         };
-        overlay::draw(out, frame, &scene)?;
+        overlay::draw(out.path(), &frame, &scene)?;
+        out.commit()?;
     }
     let failed = reports.iter().any(|r| {
         r.error.is_some()
@@ -484,6 +458,40 @@ fn check(args: CheckArgs) -> anyhow::Result<ExitCode> {
     } else {
         ExitCode::SUCCESS
     })
+}
+
+/// The overlay's output (a `.png`, written beside it and renamed into place when
+/// drawn) and the frame to draw on: `--frame`, else the camera's file source.
+fn overlay_input(
+    loaded: &LoadedConfig,
+    cam: &CameraConfig,
+    out: &Path,
+    frame: Option<&Path>,
+) -> anyhow::Result<(OutFile, Frame)> {
+    if !out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+    {
+        bail!(UsageError(format!(
+            "--overlay {}: expected a .png file name (the overlay is a PNG)",
+            out.display()
+        )));
+    }
+    let file = OutFile::create("--overlay", out)?;
+    let (flag, path) = match frame {
+        Some(p) => ("--frame", p.to_path_buf()),
+        None => match cam.source_kind(&loaded.base_dir()) {
+            SourceKind::File(p) => ("camera source", p),
+            _ => bail!(UsageError(format!(
+                "camera {}'s source is not a file: give --frame VIDEO_OR_IMAGE",
+                cam.id
+            ))),
+        },
+    };
+    crate::common::input_file(flag, &path, "a video or an image")?;
+    let size = cam.width.zip(cam.height);
+    let frame = Frame::read(&path, size).map_err(|e| with_code(isochron_exit::DATA, e))?;
+    Ok((file, frame))
 }
 
 /// What `costmap check` found about one camera.

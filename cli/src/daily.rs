@@ -2,7 +2,6 @@
 //! day, its running means and its quiet times — what `isochron plot daily` and
 //! `isochron plot heatmap` draw.
 
-use anyhow::bail;
 use isochron_config::clock::Cycle;
 use isochron_config::clock::MINUTES_PER_DAY;
 use isochron_planning::profile::ProfilePoint;
@@ -22,19 +21,16 @@ pub enum DayFilter {
 }
 
 impl DayFilter {
-    /// Parses `--day`: `mon` .. `sun`, `workday` or `rest`; absent: all days.
-    pub fn parse(day: Option<&str>) -> anyhow::Result<DayFilter> {
-        let Some(text) = day else {
-            return Ok(DayFilter::All);
-        };
-        if let Some(d) = crate::plan::parse_day(text) {
+    /// Parses `--day`: `mon` .. `sun`, `workday` or `rest` (clap's value parser
+    /// of the flag).
+    pub fn arg(text: &str) -> Result<DayFilter, String> {
+        if let Ok(d) = crate::values::weekday(text) {
             return Ok(DayFilter::Weekday(d));
         }
-        let lower = text.to_ascii_lowercase();
-        match lower.as_str() {
+        match text.trim().to_ascii_lowercase().as_str() {
             "workday" | "workdays" => Ok(DayFilter::Type(DayType::Workday)),
             "rest" | "rest-day" | "rest_day" | "weekend" => Ok(DayFilter::Type(DayType::RestDay)),
-            _ => bail!("--day: expected mon .. sun, workday or rest, found '{text}'"),
+            _ => Err("expected mon .. sun, workday or rest".into()),
         }
     }
 
@@ -228,11 +224,11 @@ pub(crate) mod tests {
                 count: 1,
             })
             .collect();
-        let tuesday = DayFilter::parse(Some("Tue")).unwrap();
+        let tuesday = DayFilter::arg("Tue").unwrap();
         let picked = tuesday.select(&points, Cycle::DayTypes, &rules);
         assert_eq!(picked.len(), 1440);
         assert_eq!(Daily::from_profile(&picked).mean[0], Some(1.0));
-        let rest = DayFilter::parse(Some("rest")).unwrap();
+        let rest = DayFilter::arg("rest").unwrap();
         // Saturday (5) and Sunday (6), folded.
         let daily = Daily::from_profile(&rest.select(&points, Cycle::DayTypes, &rules));
         assert_eq!(daily.mean[0], Some(5.5));
@@ -242,7 +238,7 @@ pub(crate) mod tests {
             tuesday.select(&points[..1440], Cycle::Daily, &rules).len(),
             1440
         );
-        assert!(DayFilter::parse(Some("someday")).is_err());
+        assert!(DayFilter::arg("someday").is_err());
     }
 
     /// An office day: busy 08:00–12:00 and 13:30–17:00, a lull at 12:45.

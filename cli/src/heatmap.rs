@@ -10,10 +10,12 @@ use std::process::ExitCode;
 
 use anyhow::{Context as _, bail};
 use isochron_config::clock::MINUTES_PER_DAY;
+use isochron_exit::UsageError;
 use isochron_planning::profile::daily_profile;
 use isochron_store::Model;
 use plotters::prelude::*;
 
+use crate::common::OutFile;
 use crate::daily::{Daily, DayFilter};
 use crate::store::{StoreArgs, open};
 
@@ -32,8 +34,8 @@ pub(crate) struct HeatmapArgs {
     title: Option<String>,
     /// With a model of the week: one weekday (`mon` .. `sun`) or the days of one
     /// type (`workday`, `rest`) instead of the whole week folded onto a day.
-    #[arg(long)]
-    day: Option<String>,
+    #[arg(long, value_parser = DayFilter::arg)]
+    day: Option<DayFilter>,
 }
 
 /// Blocks × minutes of the day: `rows` rows of `MINUTES_PER_DAY` values.
@@ -113,11 +115,14 @@ pub(crate) fn heatmap(args: HeatmapArgs) -> anyhow::Result<ExitCode> {
         .as_deref()
     {
         Some("png") => {}
-        _ => bail!("--out {}: expected a .png file name", args.out.display()),
+        _ => bail!(UsageError(format!(
+            "--out {}: expected a .png file name",
+            args.out.display()
+        ))),
     }
     let store = open(&args.store.store, &args.store.camera)?;
     let model = store.read_model()?;
-    let filter = DayFilter::parse(args.day.as_deref())?;
+    let filter = args.day.unwrap_or(DayFilter::All);
     let heat = Heat::of(&model, filter);
     if heat.days == 0 {
         bail!(
@@ -141,9 +146,10 @@ pub(crate) fn heatmap(args: HeatmapArgs) -> anyhow::Result<ExitCode> {
         )
     });
     crate::font::load()?;
-    std::fs::File::create(&args.out)
-        .with_context(|| format!("--out {}: cannot write", args.out.display()))?;
-    draw(&args.out, &heat, &title)?;
+    // Drawn beside `--out` and renamed into place: a failure leaves no file.
+    let file = OutFile::create("--out", &args.out)?;
+    draw(file.path(), &heat, &title)?;
+    file.commit()?;
     println!(
         "plot: {} written ({} rows × {} minutes, colour scale 0..{:.4})",
         args.out.display(),

@@ -38,6 +38,10 @@ use anyhow::{Context, bail};
 
 use crate::common::{Subcommands, load_config};
 
+/// The longest validity `--days` gives a certificate: the CA's own (100 years).
+/// Zero days would make a certificate that has expired when it is made.
+const MAX_DAYS: i64 = 36500;
+
 /// Make the DDS Security keystore of the site: its links, costmap bridge and robots (an SROS2-style layout).
 pub type Args = Subcommands<KeystoreCommand>;
 
@@ -59,7 +63,7 @@ pub enum KeystoreCommand {
         #[arg(long)]
         config: Option<PathBuf>,
         /// Days the box's certificate and permissions are valid.
-        #[arg(long, default_value_t = 3650)]
+        #[arg(long, default_value_t = 3650, value_parser = clap::value_parser!(u32).range(1..=MAX_DAYS))]
         days: u32,
     },
     /// Make the enclave of the costmap bridge a config describes (for
@@ -72,7 +76,7 @@ pub enum KeystoreCommand {
         #[arg(long)]
         config: Option<PathBuf>,
         /// Days the certificate and permissions are valid.
-        #[arg(long, default_value_t = 3650)]
+        #[arg(long, default_value_t = 3650, value_parser = clap::value_parser!(u32).range(1..=MAX_DAYS))]
         days: u32,
     },
     /// Make the enclave of a robot: read the bridge's topics (of the config's
@@ -88,7 +92,7 @@ pub enum KeystoreCommand {
         #[arg(long)]
         config: Option<PathBuf>,
         /// Days the certificate and permissions are valid.
-        #[arg(long, default_value_t = 3650)]
+        #[arg(long, default_value_t = 3650, value_parser = clap::value_parser!(u32).range(1..=MAX_DAYS))]
         days: u32,
     },
 }
@@ -136,9 +140,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             days,
         } => {
             if !isochron_config::is_ros_token(&name) || name.len() > 64 {
-                bail!(
+                bail!(isochron_exit::UsageError(format!(
                     "robot name \"{name}\": expected up to 64 letters, digits and '_', not starting with a digit"
-                );
+                )));
             }
             let loaded = load_config(config)?;
             let (topics, requests, replies) = bridge_names(&loaded.config.costmap);
@@ -426,11 +430,14 @@ pub fn enclave(dir: &Path, name: &Path, grant: &Grant, days: u32) -> anyhow::Res
     let governance = dir.join("enclaves/governance.p7s");
     for f in [&ca_key, &ca_cert, &governance] {
         if !f.is_file() {
-            bail!(
-                "{} is missing: make the keystore with `isochron keystore init {}`",
-                f.display(),
-                dir.display()
-            );
+            bail!(isochron_exit::Fatal::new(
+                isochron_exit::NO_INPUT,
+                format!(
+                    "{} is missing: make the keystore with `isochron keystore init {}`",
+                    f.display(),
+                    dir.display()
+                )
+            ));
         }
     }
     let out = dir.join("enclaves").join(name);

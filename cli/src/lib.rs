@@ -23,6 +23,7 @@ mod store;
 mod synth;
 mod tap;
 mod up;
+mod values;
 mod view;
 
 use std::process::ExitCode;
@@ -74,7 +75,10 @@ pub fn main() -> ExitCode {
     // quietly, as for any Unix tool, instead of a panic in println!.
     // SAFETY: called before any other thread exists.
     unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => return parse_error(&e),
+    };
     isochron_runtime::logging::init("isochron");
     isochron_runtime::service::owner_only_files();
     let result = match cli.command {
@@ -103,13 +107,46 @@ pub fn main() -> ExitCode {
     }
 }
 
+/// Ends a command line clap refused. A value that is not what its flag expects
+/// (`--day funday`, `--days 0`) is a usage error, 64, on one line that names the
+/// flag, the value and what is expected; `--help` and `--version` print and exit
+/// 0; any other (an unknown flag, a missing argument) is clap's own, 2.
+fn parse_error(e: &clap::Error) -> ExitCode {
+    use clap::error::ErrorKind;
+    if !matches!(
+        e.kind(),
+        ErrorKind::ValueValidation | ErrorKind::InvalidValue
+    ) {
+        e.exit();
+    }
+    eprintln!("isochron: {}", one_line(&e.render().to_string()));
+    ExitCode::from(exit::USAGE as u8)
+}
+
+/// clap's message as one line: its lines joined, without `error: ` and the
+/// pointer to `--help`.
+fn one_line(message: &str) -> String {
+    message
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with("For more information"))
+        .map(|l| l.strip_prefix("error: ").unwrap_or(l))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
 /// The exit code of a library error of the chain, if it is one.
 fn library_code(e: &(dyn std::error::Error + 'static)) -> Option<i32> {
     use isochron_exit::Classify;
-    if let Some(e) = e.downcast_ref::<isochron_config::ConfigError>() {
+    if let Some(e) = e.downcast_ref::<common::Coded>() {
+        Some(e.code)
+    } else if let Some(e) = e.downcast_ref::<isochron_config::ConfigError>() {
         Some(e.exit_code())
-    } else if let Some(e) = e.downcast_ref::<isochron_config::UnknownCamera>() {
-        Some(e.exit_code())
+    } else if e.is::<isochron_config::UnknownCamera>() {
+        // The command names the camera on its command line (`tap cam09`,
+        // `--camera cam09`): the argument is wrong, 64, where a service, whose
+        // unit names it, says 78.
+        Some(isochron_exit::USAGE)
     } else if let Some(e) = e.downcast_ref::<isochron_store::StoreError>() {
         Some(e.exit_code())
     } else if let Some(e) = e.downcast_ref::<isochron_wire::WireError>() {

@@ -12,11 +12,10 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use anyhow::{Context, bail};
+use anyhow::bail;
 use isochron_config::LoadedConfig;
-use isochron_config::clock::{
-    Cycle, MINUTES_PER_DAY, SiteClock, format_t_star, parse_hhmm, wall_now_ns,
-};
+use isochron_config::clock::{Cycle, MINUTES_PER_DAY, SiteClock, format_t_star, wall_now_ns};
+use isochron_exit::UsageError;
 use isochron_planning::plan::{DayRange, OfflinePlan, RouteNow};
 use isochron_planning::plan_service::{PlanClient, ranking_of};
 use isochron_planning::planner::Planner;
@@ -25,6 +24,7 @@ use isochron_runtime::ipc::Ipc;
 use serde_json::json;
 
 use crate::common::{Subcommands, load_config};
+use crate::values;
 
 /// Plan routes and departure times around people.
 pub type Args = Subcommands<Command>;
@@ -47,15 +47,15 @@ pub(crate) struct OfflineArgs {
     route: String,
     /// Only departures between these times of day, `HH:MM HH:MM` (end exclusive;
     /// `24:00` is midnight; an end before the start wraps past midnight).
-    #[arg(long, num_args = 2, value_names = ["FROM", "TO"])]
-    between: Option<Vec<String>>,
+    #[arg(long, num_args = 2, value_names = ["FROM", "TO"], value_parser = values::time_of_day_or_24)]
+    between: Option<Vec<u32>>,
     /// Minutes between curve points: `5m`, `15`, `1h`. Each point is the mean Cost1
     /// over its step.
-    #[arg(long, default_value = "5m")]
-    step: String,
+    #[arg(long, default_value = "5m", value_parser = values::step)]
+    step: u32,
     /// Weekly stores: the day (`mon` .. `sun`); default today.
-    #[arg(long)]
-    day: Option<String>,
+    #[arg(long, value_parser = values::weekday)]
+    day: Option<u32>,
     /// One JSON object instead of text.
     #[arg(long)]
     json: bool,
@@ -84,72 +84,32 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
 }
 
-/// Parses a step: `5m`, `5`, `1h`, `90min`.
-pub fn parse_step(s: &str) -> Option<u32> {
-    let s = s.trim();
-    let (number, unit) = s.split_at(s.find(|c: char| !c.is_ascii_digit()).unwrap_or(s.len()));
-    let n: u32 = number.parse().ok()?;
-    let minutes = match unit.trim() {
-        "" | "m" | "min" | "mins" | "minutes" => n,
-        "h" | "hour" | "hours" => n.checked_mul(60)?,
-        _ => return None,
-    };
-    (1..=MINUTES_PER_DAY).contains(&minutes).then_some(minutes)
-}
-
-/// Parses a time of day, `HH:MM`, allowing `24:00` for the end of the day.
-fn parse_time(s: &str) -> Option<u32> {
-    if s.trim() == "24:00" {
-        return Some(MINUTES_PER_DAY);
-    }
-    parse_hhmm(s.trim())
-}
-
-/// Parses a weekday, `mon` .. `sun` (or longer: `monday`), Monday = 0.
-pub(crate) fn parse_day(s: &str) -> Option<u32> {
-    let s = s.trim().to_ascii_lowercase();
-    isochron_config::DAY_NAMES
-        .iter()
-        .position(|d| s.starts_with(d))
-        .map(|d| d as u32)
-}
-
 /// The range of an off-line plan from the arguments.
 fn day_range(args: &OfflineArgs, loaded: &LoadedConfig) -> anyhow::Result<DayRange> {
-    let step = parse_step(&args.step).with_context(|| {
-        format!(
-            "--step: expected minutes such as 5m, 15 or 1h (1 to 1440), found '{}'",
-            args.step
-        )
-    })?;
-    let (start, end) = match &args.between {
-        None => (0, MINUTES_PER_DAY),
-        Some(v) => {
-            let start = parse_time(&v[0])
-                .filter(|&m| m < MINUTES_PER_DAY)
-                .with_context(|| format!("--between: expected HH:MM, found '{}'", v[0]))?;
-            let end = parse_time(&v[1])
-                .with_context(|| format!("--between: expected HH:MM, found '{}'", v[1]))?;
-            if end == 0 {
-                (start, MINUTES_PER_DAY)
-            } else {
-                (start, end)
+    let step = args.step;
+    let (start, end) = match args.between.as_deref() {
+        None | Some([]) | Some([_]) => (0, MINUTES_PER_DAY),
+        Some([start, end, ..]) => {
+            if *start == MINUTES_PER_DAY {
+                bail!(UsageError(
+                    "--between: FROM is a time of day from 00:00 to 23:59, found '24:00'".into()
+                ));
             }
+            (*start, if *end == 0 { MINUTES_PER_DAY } else { *end })
         }
     };
     let cycle_offset = match loaded.config.cascade.cycle {
         Cycle::Daily => {
             if args.day.is_some() {
-                bail!(
-                    "--day is for a model of the week (cascade.cycle = \"day_types\" or \"weekly\"); this site has cascade.cycle = \"daily\""
-                );
+                bail!(UsageError(
+                    "--day is for a model of the week (cascade.cycle = \"day_types\" or \"weekly\"); this site has cascade.cycle = \"daily\"".into()
+                ));
             }
             0
         }
         Cycle::Weekly | Cycle::DayTypes => {
-            let day = match &args.day {
-                Some(d) => parse_day(d)
-                    .with_context(|| format!("--day: expected mon .. sun, found '{d}'"))?,
+            let day = match args.day {
+                Some(d) => d,
                 None => {
                     let clock = SiteClock::new(&loaded.config.site.time_zone, Cycle::Weekly)?;
                     clock.t_star(wall_now_ns()) / MINUTES_PER_DAY
@@ -297,14 +257,16 @@ fn now(args: NowArgs) -> anyhow::Result<ExitCode> {
                 .iter()
                 .map(|r| r.name.as_str())
                 .collect();
-            bail!(
+            bail!(UsageError(format!(
                 "--routes: no route '{r}' in [[costmap.route]] (configured: {})",
                 known.join(", ")
-            );
+            )));
         }
     }
     if args.routes.len() > PLAN_MAX_ROUTES {
-        bail!("--routes: at most {PLAN_MAX_ROUTES} routes at once");
+        bail!(UsageError(format!(
+            "--routes: at most {PLAN_MAX_ROUTES} routes at once"
+        )));
     }
     let ipc = Ipc::of_site(
         &format!("isochron-plan-{}", std::process::id()),
@@ -399,17 +361,8 @@ mod tests {
     use super::*;
 
     #[test]
-    fn steps_and_times_parse() {
-        assert_eq!(parse_step("5m"), Some(5));
-        assert_eq!(parse_step("15"), Some(15));
-        assert_eq!(parse_step("1h"), Some(60));
-        assert_eq!(parse_step("90min"), Some(90));
-        assert_eq!(parse_step("0m"), None);
-        assert_eq!(parse_step("25h"), None);
-        assert_eq!(parse_step("5s"), None);
-        assert_eq!(parse_time("24:00"), Some(1440));
-        assert_eq!(parse_time("12:30"), Some(750));
-        assert_eq!(parse_day("Wednesday"), Some(2));
-        assert_eq!(parse_day("x"), None);
+    fn hours_print_with_the_end_of_the_day() {
+        assert_eq!(hhmm(1440), "24:00");
+        assert_eq!(hhmm(750), "12:30");
     }
 }

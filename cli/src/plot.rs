@@ -15,15 +15,16 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use anyhow::{Context, bail};
+use anyhow::bail;
 use isochron_config::clock::format_t_star;
+use isochron_exit::UsageError;
 use isochron_planning::planner::Planner;
 use isochron_store::Model;
 use plotters::coord::Shift;
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
-use crate::common::{Subcommands, load_config};
+use crate::common::{OutFile, Subcommands, load_config};
 use crate::daily::{Daily, DayFilter, running_mean, runs};
 use crate::store::{Selection, StoreArgs, open, profile};
 
@@ -54,12 +55,12 @@ pub(crate) struct DailyArgs {
     #[arg(long)]
     out: PathBuf,
     /// One block, `X,Y`, instead of all blocks.
-    #[arg(long)]
-    block: Option<String>,
+    #[arg(long, value_name = "X,Y", value_parser = Selection::arg)]
+    block: Option<Selection>,
     /// With a model of the week: one weekday (`mon` .. `sun`) or the days of one
     /// type (`workday`, `rest`) instead of the whole week folded onto a day.
-    #[arg(long)]
-    day: Option<String>,
+    #[arg(long, value_parser = DayFilter::arg)]
+    day: Option<DayFilter>,
     /// Title; default names the camera, the blocks and the days of data.
     #[arg(long)]
     title: Option<String>,
@@ -70,11 +71,11 @@ pub(crate) struct DailyArgs {
     #[arg(long, default_value_t = 520)]
     height: u32,
     /// Start of the working day (quiet times are looked for between start and end).
-    #[arg(long, default_value = "06:00")]
-    day_start: String,
+    #[arg(long, default_value = "06:00", value_name = "HH:MM", value_parser = crate::values::time_of_day)]
+    day_start: u32,
     /// End of the working day.
-    #[arg(long, default_value = "21:00")]
-    day_end: String,
+    #[arg(long, default_value = "21:00", value_name = "HH:MM", value_parser = crate::values::time_of_day)]
+    day_end: u32,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -100,33 +101,31 @@ fn format_of(path: &Path) -> anyhow::Result<Format> {
     {
         Some("png") => Ok(Format::Png),
         Some("svg") => Ok(Format::Svg),
-        _ => bail!(
+        _ => bail!(UsageError(format!(
             "--out {}: expected a .png or .svg file name",
             path.display()
-        ),
+        ))),
     }
 }
 
 fn daily(args: DailyArgs) -> anyhow::Result<ExitCode> {
     let format = format_of(&args.out)?;
-    let day_start = isochron_config::clock::parse_hhmm(&args.day_start)
-        .with_context(|| format!("--day-start: expected HH:MM, found '{}'", args.day_start))?;
-    let day_end = isochron_config::clock::parse_hhmm(&args.day_end)
-        .with_context(|| format!("--day-end: expected HH:MM, found '{}'", args.day_end))?;
-    let filter = DayFilter::parse(args.day.as_deref())?;
+    let (day_start, day_end) = (args.day_start, args.day_end);
+    let filter = args.day.unwrap_or(DayFilter::All);
     if let Some(segment) = &args.segment {
         let (daily, title) = segment_daily(args.config.clone(), segment, filter)?;
         let title = args.title.clone().unwrap_or(title);
         return render(&args, format, day_start, day_end, &daily, &title);
     }
     let Some(store_args) = &args.store else {
-        bail!(
+        bail!(UsageError(
             "give --store PATH --camera ID (a camera's activity), or --segment NAME (a path segment's)"
-        );
+                .into()
+        ));
     };
     let store = open(&store_args.store, &store_args.camera)?;
     let model: Model = store.read_model()?;
-    let selection = Selection::parse(args.block.as_deref())?;
+    let selection = args.block.clone().unwrap_or(Selection::All);
     let cycle = model.meta.cycle;
     let points = filter.select(&profile(&model, &selection)?, cycle, &model.rules);
     let daily = Daily::from_profile(&points);
@@ -194,20 +193,23 @@ fn render(
     let quiet = daily.quiet_times(day_start, day_end, 3);
     crate::font::load()?;
     let size = (args.width.clamp(300, 8000), args.height.clamp(200, 8000));
+    // Drawn beside `--out` and renamed into place: a failure leaves no file.
+    let file = OutFile::create("--out", &args.out)?;
     match format {
         Format::Png => {
-            let root = BitMapBackend::new(&args.out, size).into_drawing_area();
+            let root = BitMapBackend::new(file.path(), size).into_drawing_area();
             draw(&root, daily, &quiet, title)?;
             root.present()
                 .map_err(|e| anyhow::anyhow!("writing {}: {e}", args.out.display()))?;
         }
         Format::Svg => {
-            let root = SVGBackend::new(&args.out, size).into_drawing_area();
+            let root = SVGBackend::new(file.path(), size).into_drawing_area();
             draw(&root, daily, &quiet, title)?;
             root.present()
                 .map_err(|e| anyhow::anyhow!("writing {}: {e}", args.out.display()))?;
         }
     }
+    file.commit()?;
     let times: Vec<String> = quiet.iter().map(|&m| format_t_star(m)).collect();
     println!(
         "plot: {} written; quiet times of the working day: {}",

@@ -50,7 +50,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(d) = args.duration
         && !(d.is_finite() && d > 0.0)
     {
-        anyhow::bail!("--duration: expected a number of seconds > 0, found {d}");
+        anyhow::bail!(isochron_exit::UsageError(format!(
+            "--duration: expected a number of seconds > 0, found {d}"
+        )));
     }
     let ipc = Ipc::of_site(
         &format!("isochron-record-{}", std::process::id()),
@@ -71,7 +73,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 /// The `--streams` selection, or every stream the config allows.
 pub fn streams_of(list: Option<&str>, loaded: &LoadedConfig) -> anyhow::Result<Streams> {
     match list {
-        Some(list) => Streams::parse(list, loaded).map_err(anyhow::Error::msg),
+        Some(list) => Streams::parse(list, loaded)
+            .map_err(|e| isochron_exit::UsageError(format!("--streams: {e}")).into()),
         None => Ok(Streams::all(loaded)),
     }
 }

@@ -31,7 +31,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, bail};
 use isochron_config::{Config, LoadedConfig, Speed};
-use isochron_exit::Fatal;
+use isochron_exit::{Fatal, UsageError};
 use isochron_runtime::counters::Counters;
 use isochron_runtime::health::InputCompleteness;
 use isochron_runtime::ipc::{Ipc, StatusSubscriber};
@@ -58,12 +58,13 @@ pub struct Args {
     /// Which configured camera replays the video.
     #[arg(long)]
     camera: Option<String>,
-    /// Capture time of the first frame (RFC 3339). Default: the camera's `start`, or now.
-    #[arg(long)]
+    /// Capture time of the first frame (RFC 3339, such as 2026-03-02T07:00:00Z).
+    /// Default: the camera's `start`, or now.
+    #[arg(long, value_name = "RFC3339", value_parser = crate::values::start_time)]
     start: Option<String>,
-    /// `max` (as fast as every stage keeps up, lossless) or a factor of real time.
-    #[arg(long, default_value = "max")]
-    speed: String,
+    /// `max` (as fast as every stage keeps up, lossless) or a factor of real time > 0.
+    #[arg(long, default_value = "max", value_parser = crate::values::speed)]
+    speed: Speed,
     /// Give up if no stage makes progress for this many seconds.
     #[arg(long, default_value_t = 120.0)]
     stall_timeout_s: f64,
@@ -135,7 +136,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let mut cx = Context::unreported(StageKind::View);
     stage::run_in(&ipc, &mut replay, &inputs, &mut cx)?;
     if let Some(failure) = replay.failure.take() {
-        return Err(failure);
+        return failed(replay, failure, &out, &video, started.elapsed());
     }
     if !matches!(replay.phase, Phase::Collecting) || !replay.tally.all_ended() {
         bail!("interrupted");
@@ -144,22 +145,18 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 }
 
 /// The video (canonical), the speed and the output directory (created) the
-/// arguments name.
+/// arguments name. A video that is missing or not a file (a directory) is
+/// refused here, 66, before anything is created or started.
 fn check_args(args: &Args) -> anyhow::Result<(PathBuf, Speed, PathBuf)> {
+    crate::common::input_file("the video", &args.video, "a video file")?;
     let video = args
         .video
         .canonicalize()
-        .with_context(|| format!("video file {} does not exist", args.video.display()))?;
-    let speed = Speed::parse(&args.speed).with_context(|| {
-        format!(
-            "--speed: expected `max` or a number > 0, found '{}'",
-            args.speed
-        )
-    })?;
+        .with_context(|| format!("the video {}", args.video.display()))?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let out = args.out.canonicalize()?;
-    Ok((video, speed, out))
+    Ok((video, args.speed, out))
 }
 
 /// After every stream ended: stop the services, close the recording, write the
@@ -183,7 +180,7 @@ fn finish(
         .capture_last
         .as_ref()
         .and_then(InputCompleteness::from_status);
-    replay.tally.finish(out, video, wall, input)?;
+    replay.tally.finish(out, video, wall, input, None)?;
     println!(
         "replay: {} in {:.1} s",
         replay.tally.counts_line(),
@@ -205,6 +202,64 @@ fn finish(
     Ok(ExitCode::SUCCESS)
 }
 
+/// After a stage failed (or nothing moved): stop the services, write
+/// `summary.json` with what arrived and why the replay stopped (`failure`), and
+/// end with the failure — the stage's exit code and reason (see
+/// [`stage_failure`]).
+fn failed(
+    mut replay: ReplayStage<'_>,
+    failure: anyhow::Error,
+    out: &Path,
+    video: &Path,
+    wall: Duration,
+) -> anyhow::Result<ExitCode> {
+    replay.supervisor.stop_all(Duration::from_secs(10));
+    let input = replay
+        .capture_last
+        .as_ref()
+        .and_then(InputCompleteness::from_status);
+    let reason = format!("{failure:#}");
+    if let Err(e) = replay.tally.finish(out, video, wall, input, Some(&reason)) {
+        tracing::warn!("{e:#}");
+    }
+    Err(failure)
+}
+
+/// The failure of service `name` in `state` (`when`: "during start-up", "before
+/// the end of the video"): it ends the replay with the service's exit code
+/// (65 for a video capture cannot decode), and says why, from the last error
+/// its log (`logs/<name>.log`) has.
+fn stage_failure(logs: &Path, name: &str, state: &State, when: &str) -> anyhow::Error {
+    let log = logs.join(format!("{}.log", name.replace('/', "-")));
+    let (code, how) = match state {
+        State::Failed { code } if *code > 0 => (*code, format!("exited with {code}")),
+        State::Failed { .. } => (isochron_exit::FAILURE, "was killed".to_string()),
+        _ => (isochron_exit::FAILURE, "stopped".to_string()),
+    };
+    let reason = last_error(&log).map_or_else(String::new, |r| format!(": {r}"));
+    Fatal::new(
+        code,
+        format!("{name} {how} {when}{reason} (its log: {})", log.display()),
+    )
+    .into()
+}
+
+/// The message of the last `ERROR` line of the log at `path` (a service's
+/// fatal error, which it logs as it ends), without its time and span.
+fn last_error(path: &Path) -> Option<String> {
+    let text = std::fs::read(path).ok()?;
+    let tail = &text[text.len().saturating_sub(64 * 1024)..];
+    let text = String::from_utf8_lossy(tail);
+    let line = text.lines().rev().find(|l| l.contains(" ERROR "))?;
+    let message = line.split_once(" ERROR ")?.1.trim();
+    // `camera{camera=cam01}: ...`: the span says what the message says again.
+    let message = match message.split_once("}: ") {
+        Some((span, rest)) if !span.contains(' ') => rest,
+        _ => message,
+    };
+    Some(message.to_string())
+}
+
 /// The config the group runs with: the chosen camera replays `video`, alone, under a
 /// private prefix, with its store in `out/state`.
 fn effective_config(
@@ -223,7 +278,17 @@ fn effective_config(
             .iter()
             .find(|c| &c.id == id)
             .cloned()
-            .with_context(|| format!("no camera '{id}' in the config"))?,
+            .ok_or_else(|| {
+                UsageError(format!(
+                    "--camera: no camera '{id}' in the config (configured: {})",
+                    config
+                        .cameras
+                        .iter()
+                        .map(|c| c.id.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ))
+            })?,
         None => config.cameras.first().cloned().unwrap_or_else(|| {
             toml::from_str(
                 r#"id = "replay"
@@ -316,7 +381,8 @@ impl ReplayStage<'_> {
         else {
             return Ok(());
         };
-        let missing = missing_consumers(self.ipc, &self.camera, consumers, &mut self.supervisor)?;
+        let missing = missing_consumers(self.ipc, &self.camera, consumers, &mut self.supervisor)
+            .map_err(|(name, state)| stage_failure(&self.logs, &name, &state, "during start-up"))?;
         if !missing.is_empty() {
             if Instant::now() > *deadline {
                 bail!(
@@ -358,10 +424,12 @@ impl ReplayStage<'_> {
             .filter(|(name, _)| !is_optional(name))
             .find(|(_, s)| matches!(s, State::Failed { .. }))
         {
-            bail!(
-                "{name} failed ({state:?}) before the end of the video; see {}",
-                self.logs.display()
-            );
+            return Err(stage_failure(
+                &self.logs,
+                &name,
+                &state,
+                "before the end of the video",
+            ));
         }
         let total = self.tally.total();
         if total != self.last_total {
@@ -427,13 +495,13 @@ impl Stage for ReplayStage<'_> {
 /// The streams of `camera` that some consumer of `stages` has not subscribed to
 /// yet (each stream also has the replay's own subscriber), as `stream: have/n`;
 /// an optional consumer that stopped (a bad `[mqtt]` broker URL) is not waited
-/// for. Fails if a required service stopped.
+/// for. Fails with the name and state of a required service that stopped.
 fn missing_consumers(
     ipc: &Ipc,
     camera: &str,
     stages: &[(StageKind, PathBuf)],
     supervisor: &mut Supervisor,
-) -> anyhow::Result<Vec<String>> {
+) -> Result<Vec<String>, (String, State)> {
     supervisor.poll();
     let states = supervisor.states();
     let stopped = |stage: StageKind| {
@@ -453,7 +521,7 @@ fn missing_consumers(
         .filter(|(name, _)| !is_optional(name))
         .find(|(_, s)| matches!(s, State::Failed { .. } | State::Finished))
     {
-        bail!("{name} stopped during start-up ({state:?}); see its log");
+        return Err((name.clone(), state.clone()));
     }
     Ok(expected
         .iter()

@@ -27,19 +27,21 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{Context, bail};
-use isochron_config::clock::{Cycle, format_rfc3339, format_t_star};
+use isochron_config::clock::{Cycle, NS_PER_S, format_rfc3339, timestamp};
+use isochron_exit::{Fatal, UsageError};
 use isochron_planning::profile::{ProfilePoint, daily_profile};
-use isochron_store::{FILE_SUFFIX, Model, Store};
+use isochron_store::{FILE_SUFFIX, Model, Store, StoreError};
 use serde_json::json;
 
-use crate::common::Subcommands;
+use crate::common::{OutFile, Subcommands};
 
 /// Read a camera's long-term store.
 pub type Args = Subcommands<Command>;
 
 #[derive(clap::Subcommand)]
 pub(crate) enum Command {
-    /// Write the isochronal profile as CSV `minute_of_day,mean,sigma,count`.
+    /// Write the isochronal profile as CSV `minute_of_day,mean,sigma,count`
+    /// (`minute_of_week,...` for a store of the week: weekly or day types).
     Export(ExportArgs),
     /// Show what a store holds and check all of it.
     Info(InfoArgs),
@@ -58,8 +60,8 @@ pub(crate) struct MigrateArgs {
     #[arg(long)]
     config: Option<PathBuf>,
     /// Another cycle than the config's: day_types, daily or weekly.
-    #[arg(long)]
-    cycle: Option<String>,
+    #[arg(long, value_parser = crate::values::cycle)]
+    cycle: Option<Cycle>,
 }
 
 #[derive(clap::Args)]
@@ -88,8 +90,8 @@ pub(crate) struct ExportArgs {
     #[command(flatten)]
     store: StoreArgs,
     /// One block, `X,Y` (column, row from the top left), instead of all blocks.
-    #[arg(long)]
-    block: Option<String>,
+    #[arg(long, value_name = "X,Y", value_parser = Selection::arg)]
+    block: Option<Selection>,
     /// Output file; default standard output.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -107,10 +109,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 fn migrate(args: MigrateArgs) -> anyhow::Result<ExitCode> {
     let loaded = crate::common::load_config(args.config)?;
     let mut cascade = loaded.config.cascade;
-    if let Some(name) = &args.cycle {
-        cascade.cycle = Cycle::from_name(name).with_context(|| {
-            format!("--cycle: expected day_types, daily or weekly, found '{name}'")
-        })?;
+    if let Some(cycle) = args.cycle {
+        cascade.cycle = cycle;
     }
     let path = resolve(&args.store.store, &args.store.camera)?;
     let done = isochron_store::migrate::migrate(
@@ -150,18 +150,12 @@ pub enum Selection {
 }
 
 impl Selection {
-    /// Parses `--block X,Y` (absent: all blocks).
-    pub fn parse(block: Option<&str>) -> anyhow::Result<Selection> {
-        let Some(text) = block else {
-            return Ok(Selection::All);
-        };
-        let parsed = text
-            .split_once(',')
-            .and_then(|(x, y)| Some((x.trim().parse().ok()?, y.trim().parse().ok()?)));
-        match parsed {
-            Some((x, y)) => Ok(Selection::Block(x, y)),
-            None => bail!("--block: expected X,Y (column,row), found '{text}'"),
-        }
+    /// Parses `--block X,Y` (clap's value parser of the flag).
+    pub fn arg(text: &str) -> Result<Selection, String> {
+        text.split_once(',')
+            .and_then(|(x, y)| Some((x.trim().parse().ok()?, y.trim().parse().ok()?)))
+            .map(|(x, y)| Selection::Block(x, y))
+            .ok_or_else(|| "expected X,Y (column,row from the top left, from 0)".into())
     }
 
     /// The row-major block indices of the selection on a `grid_w` × `grid_h` grid.
@@ -170,9 +164,9 @@ impl Selection {
             Selection::All => Ok((0..grid_w * grid_h).collect()),
             Selection::Block(x, y) => {
                 if x >= grid_w || y >= grid_h {
-                    bail!(
+                    bail!(UsageError(format!(
                         "--block {x},{y} is outside the store's {grid_w}x{grid_h} grid (columns 0..{grid_w}, rows 0..{grid_h})"
-                    );
+                    )));
                 }
                 Ok(vec![y * grid_w + x])
             }
@@ -197,21 +191,44 @@ pub fn profile(model: &Model, selection: &Selection) -> anyhow::Result<Vec<Profi
     ))
 }
 
-/// Opens a store read-only with the error naming the file; `path` may be the
-/// directory holding it (see [`resolve`]).
+/// Opens the store `--store PATH` names read-only; `path` may be the directory
+/// holding it (see [`resolve`]). The store is the command's input: one that is
+/// not there ends it with 66 (`NO_INPUT`), the store of another camera than
+/// `--camera` with 64 (`USAGE`: the two flags disagree) — where the services, to
+/// which the config names the store, say 69 and 78.
 pub fn open(path: &Path, camera: &str) -> anyhow::Result<Store> {
     let path = resolve(path, camera)?;
-    Ok(Store::open_read_only(&path, camera)?)
+    Store::open_read_only(&path, camera).map_err(|e| match &e {
+        StoreError::NotFound { .. } => crate::common::with_code(isochron_exit::NO_INPUT, e.into()),
+        StoreError::Camera { found, .. } => {
+            let message = format!(
+                "--store {} holds the long-term model of camera '{found}', not of --camera {camera}",
+                path.display()
+            );
+            Fatal::with_source(isochron_exit::USAGE, message, e).into()
+        }
+        _ => e.into(),
+    })
 }
 
 /// The store file `path` names: `path` itself, or for a directory
-/// `path/<camera>.isochron.sqlite`, which must exist (the error lists the stores
-/// the directory has).
+/// `path/<camera>.isochron.sqlite`. Either must exist, else 66 (`NO_INPUT`;
+/// for a directory, the error lists the stores it has).
 pub fn resolve(path: &Path, camera: &str) -> anyhow::Result<PathBuf> {
+    let expected = format!("{camera}{FILE_SUFFIX}");
     if !path.is_dir() {
+        if !path.exists() {
+            bail!(Fatal::new(
+                isochron_exit::NO_INPUT,
+                format!(
+                    "--store {}: no such file or directory; expected a store file ({expected}) or the directory that holds it",
+                    path.display()
+                ),
+            ));
+        }
         return Ok(path.to_path_buf());
     }
-    let file = path.join(format!("{camera}{FILE_SUFFIX}"));
+    let file = path.join(&expected);
     if file.is_file() {
         return Ok(file);
     }
@@ -225,22 +242,25 @@ pub fn resolve(path: &Path, camera: &str) -> anyhow::Result<PathBuf> {
         })
         .unwrap_or_default();
     found.sort();
-    bail!(
-        "--store {} is a directory without a store of camera '{camera}': expected {} ({})",
-        path.display(),
-        file.display(),
-        if found.is_empty() {
-            "it has no *.isochron.sqlite".to_string()
-        } else {
-            format!("it has {}", found.join(", "))
-        }
-    )
+    bail!(Fatal::new(
+        isochron_exit::NO_INPUT,
+        format!(
+            "--store {} is a directory without a store of camera '{camera}': expected {} ({})",
+            path.display(),
+            file.display(),
+            if found.is_empty() {
+                "it has no *.isochron.sqlite".to_string()
+            } else {
+                format!("it has {}", found.join(", "))
+            }
+        )
+    ))
 }
 
 fn export(args: ExportArgs) -> anyhow::Result<ExitCode> {
     let store = open(&args.store.store, &args.store.camera)?;
     let model = store.read_model()?;
-    let selection = Selection::parse(args.block.as_deref())?;
+    let selection = args.block.clone().unwrap_or(Selection::All);
     let points = profile(&model, &selection)?;
     let mut text = String::with_capacity(points.len() * 32);
     text += match model.meta.cycle {
@@ -255,7 +275,10 @@ fn export(args: ExportArgs) -> anyhow::Result<ExitCode> {
     }
     match &args.out {
         Some(path) => {
-            std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?
+            let file = OutFile::create("--out", path)?;
+            std::fs::write(file.path(), text)
+                .with_context(|| format!("writing {}", path.display()))?;
+            file.commit()?;
         }
         None => {
             let mut out = std::io::stdout().lock();
@@ -326,7 +349,7 @@ fn info(args: InfoArgs) -> anyhow::Result<ExitCode> {
         Some(m) => println!(
             "progress    last minute {} ({}), {} minutes learned, {} skipped",
             format_rfc3339(m * 60_000_000_000),
-            format_t_star((m.rem_euclid(meta.bins() as i64)) as u32),
+            utc_minute_label(m),
             p.committed,
             p.skipped
         ),
@@ -342,6 +365,16 @@ fn info(args: InfoArgs) -> anyhow::Result<ExitCode> {
     }
     println!("check       ok (SQLite quick_check and every checksum)");
     Ok(ExitCode::SUCCESS)
+}
+
+/// The weekday and time, UTC, of the minute `minute` since the Unix epoch (the
+/// store's `last_minute`): `Wed 07:00 UTC`. The store keeps no time zone; the
+/// bin it taught is this minute in the site's.
+fn utc_minute_label(minute: i64) -> String {
+    timestamp(minute.saturating_mul(60 * NS_PER_S))
+        .to_zoned(jiff::tz::TimeZone::UTC)
+        .strftime("%a %H:%M UTC")
+        .to_string()
 }
 
 #[cfg(test)]
@@ -371,15 +404,23 @@ mod tests {
         assert_eq!(all[5].sigma, Some(2.5f64.sqrt()));
         assert_eq!(all[5].count, 3);
         assert_eq!(all[4].mean, None);
-        let one = profile(&m, &Selection::parse(Some("1,1")).unwrap()).unwrap();
+        let one = profile(&m, &Selection::arg("1,1").unwrap()).unwrap();
         assert_eq!((one[5].mean, one[5].sigma), (Some(6.0), Some(2.0)));
         let err = profile(&m, &Selection::Block(2, 0)).unwrap_err();
         assert!(
             err.to_string().contains("outside the store's 2x2 grid"),
             "{err}"
         );
-        assert!(Selection::parse(Some("3")).is_err());
-        assert!(Selection::parse(Some("a,b")).is_err());
+        assert!(Selection::arg("3").is_err());
+        assert!(Selection::arg("a,b").is_err());
+    }
+
+    #[test]
+    fn the_last_minute_is_labelled_with_its_own_weekday() {
+        // 2026-01-07 is a Wednesday (the Unix epoch was a Thursday).
+        let ns = isochron_config::clock::parse_rfc3339("2026-01-07T07:00:00Z").unwrap();
+        assert_eq!(utc_minute_label(ns / 60 / NS_PER_S), "Wed 07:00 UTC");
+        assert_eq!(utc_minute_label(0), "Thu 00:00 UTC");
     }
 
     #[test]

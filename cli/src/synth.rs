@@ -33,6 +33,8 @@ use isochron_wire::{
     BlockMotion, CameraId, FLAG_END_OF_STREAM, MotionHeader, Preamble, Stream, is_valid_camera_id,
 };
 
+use crate::common::{input_file, with_code};
+
 /// Synthetic days of motion through a real isochron-cascade.
 #[derive(clap::Args)]
 pub struct Args {
@@ -68,8 +70,8 @@ pub struct Args {
     #[arg(long, default_value_t = 0.1)]
     standing: f64,
     /// The long-term model's cycle: day_types (the default), daily or weekly.
-    #[arg(long, default_value = "day_types")]
-    cycle: String,
+    #[arg(long, default_value = "day_types", value_parser = crate::values::cycle)]
+    cycle: isochron_config::clock::Cycle,
 }
 
 /// Block edge of the synthetic frames, pixels.
@@ -78,19 +80,21 @@ const BLOCK_PX: u32 = 16;
 const CHECK_EVERY: u64 = 256;
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    check_args(&args)?;
-    let (grid_w, grid_h) = parse_grid(&args.grid)?;
-    let start_ns = parse_start(&args.start)?;
-    let profile = Profile::load(&args.profile)?;
+    // Every argument and the profile before anything is created.
+    let usage = |e| with_code(isochron_exit::USAGE, e);
+    check_args(&args).map_err(usage)?;
+    let (grid_w, grid_h) = parse_grid(&args.grid).map_err(usage)?;
+    let start_ns = parse_start(&args.start).map_err(usage)?;
+    let cycle = args.cycle;
+    input_file(
+        "--profile",
+        &args.profile,
+        "a CSV file of `minute_of_day,activity` rows",
+    )?;
+    let profile = Profile::load(&args.profile).map_err(|e| with_code(isochron_exit::DATA, e))?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let out = args.out.canonicalize()?;
-    let cycle = isochron_config::clock::Cycle::from_name(&args.cycle).with_context(|| {
-        format!(
-            "--cycle: expected day_types, daily or weekly, found '{}'",
-            args.cycle
-        )
-    })?;
     let config_path = write_config(&out, &args.camera, cycle)?;
     let prefix = Config::load(&config_path)?.config.site.service_prefix;
 

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, bail};
+use anyhow::Context;
 use isochron_config::clock::{format_rfc3339, format_t_star};
 use isochron_runtime::ipc::{
     Activity, Detections, Events, Frames, Ipc, Motion, StreamSubscriber, StreamType,
@@ -24,10 +24,11 @@ use crate::common::load_config;
 /// Print the samples of one stream of one camera as they arrive.
 #[derive(clap::Args)]
 pub struct Args {
-    /// Camera id.
+    /// Camera id (a `[[camera]]` of the config).
     camera: String,
     /// Stream: frames, motion, activity, events or detections.
-    stream: String,
+    #[arg(value_parser = crate::values::stream)]
+    stream: Stream,
     /// Site configuration (default: $ISOCHRON_CONFIG or /etc/isochron/isochron.toml).
     #[arg(long)]
     config: Option<PathBuf>,
@@ -55,12 +56,13 @@ struct Line {
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let loaded = load_config(args.config.clone())?;
-    let Some(stream) = Stream::from_name(&args.stream) else {
-        bail!(
-            "unknown stream '{}': expected one of frames, motion, activity, events, detections",
-            args.stream
-        );
-    };
+    let stream = args.stream;
+    // A camera the config does not have (a `[[camera]]`, or one `[link]`
+    // imports) never publishes: say so now (64, naming the configured
+    // cameras) instead of waiting for it.
+    if !loaded.config.link.import.contains(&args.camera) {
+        loaded.camera(&args.camera)?;
+    }
     let camera = CameraId::new(&args.camera)
         .with_context(|| format!("'{}' is not a valid camera id", args.camera))?;
     let ipc = Ipc::of_site(

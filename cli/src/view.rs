@@ -38,7 +38,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let loaded = load_config(args.config)?;
     let listen = args.listen.as_deref().unwrap_or(&loaded.config.view.listen);
     let Ok(addr) = listen.parse::<SocketAddr>() else {
-        bail!("--listen: expected an IP address and port such as 127.0.0.1:8765, found '{listen}'");
+        bail!(isochron_exit::UsageError(format!(
+            "--listen: expected an IP address and port such as 127.0.0.1:8765, found '{listen}'"
+        )));
     };
     let ctx = Context::new();
     let channels = SiteChannels::new(&loaded, &ctx)?;

@@ -269,7 +269,7 @@ fn fourteen_simulated_days_of_an_office_are_learned() {
         &["store", "export", "--store", &dir_arg, "--camera", "cam09"],
         Duration::from_secs(60),
     );
-    assert_eq!(other.status.code(), Some(1), "{}", other.stderr);
+    assert_eq!(other.status.code(), Some(66), "{}", other.stderr);
     assert!(
         other.stderr.contains("cam09.isochron.sqlite")
             && other.stderr.contains("it has cam01.isochron.sqlite")

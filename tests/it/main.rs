@@ -46,7 +46,10 @@
 //! * operations (kill -9 under `isochron up`, SIGTERM, a hung service, a reader
 //!   that never reads, a foreign publisher of malformed samples; an ignored
 //!   30-minute soak), launcher, scale (several cameras per process), doctor,
-//!   inputs, reliability, conventions;
+//!   inputs, reliability, conventions, front_door (the `isochron` command given a
+//!   wrong flag value, a missing file, an unknown camera, too few counts: the
+//!   exit code of the shared table, one line naming the flag or file, no file
+//!   left behind);
 //! * hostile: forged link messages from an unauthenticated Cyclone DDS participant
 //!   (`tests/ros2/link_forger.py`), raw DATA_FRAG datagrams, a forged status, a
 //!   stalled subscriber, two secured links in two network namespaces; RSS bounds
@@ -94,6 +97,7 @@ mod detector;
 mod doctor;
 mod exporter;
 mod forecast;
+mod front_door;
 mod gate;
 mod hostile;
 mod inputs;

@@ -22,6 +22,29 @@ pub struct Counts {
     pub interval: u32,
     /// Per series, per day from `first`, per interval of the day: the count.
     pub values: Vec<Vec<Vec<Option<f64>>>>,
+    /// Rows the file had.
+    pub rows: usize,
+}
+
+/// Days of counts a backtest needs: a scored day and the same weekday a week
+/// before it, from which the baselines forecast it.
+pub const MIN_DAYS: usize = 8;
+
+/// Fails, saying how many rows are needed, when `counts` (read from `path`)
+/// span fewer than [`MIN_DAYS`] days: nothing could be scored.
+pub fn long_enough(counts: &Counts, path: &Path) -> anyhow::Result<()> {
+    let days = counts.days();
+    if days >= MIN_DAYS {
+        return Ok(());
+    }
+    bail!(
+        "--counts {}: {} rows over {days} day{}; a backtest needs at least {MIN_DAYS} days of counts (each scored day is forecast from the same weekday a week before): at one row per {} minutes, at least {} rows",
+        path.display(),
+        counts.rows,
+        if days == 1 { "" } else { "s" },
+        counts.interval,
+        MIN_DAYS * counts.slots()
+    )
 }
 
 impl Counts {
@@ -121,10 +144,18 @@ pub fn read(path: &Path, tz: &TimeZone) -> anyhow::Result<Counts> {
         rows.push((at, values));
     }
     if rows.len() < 2 {
-        bail!("{shown}: fewer than two rows: nothing to backtest");
+        bail!(
+            "{shown}: {} row{}; a backtest needs at least {MIN_DAYS} days of counts (at one row per hour, at least {} rows)",
+            rows.len(),
+            if rows.len() == 1 { "" } else { "s" },
+            MIN_DAYS * 24
+        );
     }
     let interval = interval_of(&rows).with_context(|| format!("{shown}"))?;
-    on_calendar(names, rows, interval, &shown.to_string())
+    let count = rows.len();
+    let mut counts = on_calendar(names, rows, interval, &shown.to_string())?;
+    counts.rows = count;
+    Ok(counts)
 }
 
 /// A `YYYY-MM-DDTHH:MM[:SS]` local time, or an RFC 3339 time in `tz`.
@@ -203,6 +234,7 @@ fn on_calendar(
         first,
         interval,
         values,
+        rows: 0,
     })
 }
 
@@ -228,6 +260,22 @@ mod tests {
         assert_eq!(c.values[1][0][6], None);
         // A repeated local hour adds to the first.
         assert_eq!(c.values[0][1][6], Some(4.0));
+    }
+
+    #[test]
+    fn fewer_than_eight_days_are_too_short_and_say_how_many_rows() {
+        let (_d, path) = write("time,a\n2026-03-02T06:00,1\n2026-03-02T07:00,2\n");
+        let c = read(&path, &TimeZone::UTC).unwrap();
+        assert_eq!(c.rows, 2);
+        let e = format!("{:#}", long_enough(&c, &path).unwrap_err());
+        assert!(
+            e.contains("2 rows over 1 day;") && e.contains("at least 192 rows"),
+            "{e}"
+        );
+        let (_d, path) =
+            write("time,a\n2026-03-02T06:00,1\n2026-03-09T06:00,2\n2026-03-09T07:00,2\n");
+        let c = read(&path, &TimeZone::UTC).unwrap();
+        assert!(long_enough(&c, &path).is_ok());
     }
 
     #[test]

@@ -261,13 +261,15 @@ impl Tally {
     }
 
     /// Writes `summary.json`; `input` is capture's account of the file (see
-    /// [`InputCompleteness`]), if it gave one.
+    /// [`InputCompleteness`]), if it gave one; `failure` why the replay stopped
+    /// before every stream ended (`null` when it did not).
     pub fn finish(
         &mut self,
         out: &Path,
         video: &Path,
         wall: Duration,
         input: Option<InputCompleteness>,
+        failure: Option<&str>,
     ) -> anyhow::Result<()> {
         self.events_out.flush()?;
         self.detections_out.flush()?;
@@ -284,6 +286,7 @@ impl Tally {
             "wall_time_s": wall.as_secs_f64(),
             "frames_per_s": frames as f64 / wall.as_secs_f64().max(1e-9),
             "gate": self.gate,
+            "failure": failure,
             "input": match input {
                 Some(i) => json!({
                     "frames_stated": (i.frames_stated > 0).then_some(i.frames_stated),

@@ -15,6 +15,20 @@ const START_MIN_NS: i64 = 31_536_000 * 1_000_000_000;
 /// overflow in 2262 however long the file plays.
 const START_MAX_NS: i64 = 7_258_118_400 * 1_000_000_000;
 
+/// Parses the `start` of a file source (the capture time of its first frame):
+/// UTC ns, or what was expected (as `Invalid::found` and `isochron replay
+/// --start` say it).
+pub fn parse_start(start: &str) -> Result<i64, &'static str> {
+    let ns = crate::clock::parse_rfc3339(start)
+        .map_err(|_| "an RFC 3339 time such as \"2026-03-02T07:00:00Z\"")?;
+    if !(START_MIN_NS..=START_MAX_NS).contains(&ns) {
+        return Err(
+            "a time from 1971-01-01 to 2200-01-01 (capture times are nanoseconds after 1970 that must not overflow)",
+        );
+    }
+    Ok(ns)
+}
+
 /// Playback speed of a file source.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Speed {
@@ -313,22 +327,10 @@ impl CameraConfig {
         if let Some(fps) = self.fps {
             check_range(&key("fps"), fps, 0.01, 1000.0)?;
         }
-        if let Some(start) = &self.start {
-            let parsed = crate::clock::parse_rfc3339(start);
-            if parsed.is_err() {
-                return Err(Invalid::found(
-                    key("start"),
-                    "an RFC 3339 time such as \"2026-03-02T07:00:00Z\"",
-                    start,
-                ));
-            }
-            if !parsed.is_ok_and(|ns| (START_MIN_NS..=START_MAX_NS).contains(&ns)) {
-                return Err(Invalid::found(
-                    key("start"),
-                    "a time from 1971-01-01 to 2200-01-01 (capture times are nanoseconds after 1970 that must not overflow)",
-                    start,
-                ));
-            }
+        if let Some(start) = &self.start
+            && let Err(expected) = parse_start(start)
+        {
+            return Err(Invalid::found(key("start"), expected, start));
         }
         self.validate_replay(i)?;
         self.validate_areas(i)?;

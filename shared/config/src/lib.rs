@@ -47,6 +47,7 @@ use serde::{Deserialize, Serialize};
 
 pub use camera::{
     CameraConfig, FloorPoint, Polygon, SourceKind, Speed, ZoneConfig, degenerate_points,
+    parse_start,
 };
 pub use cascade::{CascadeConfig, DAY_NAMES};
 use check::{check_at_least, check_dds, check_polygon};

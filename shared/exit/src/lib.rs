@@ -1,6 +1,7 @@
 //! Exit codes (sysexits.h) and the one rule that maps a library error to one.
 //! The services and the `isochron` command share this table (docs/operating.md,
-//! "Exit codes"); clap's own usage errors exit with 2.
+//! "Exit codes"); clap's own usage errors exit with 2 (the `isochron` command
+//! ends a flag value its value parsers refuse with [`USAGE`]).
 //!
 //! Every library error type implements [`Classify`]; a binary turns any of them
 //! into a [`Fatal`] with `?` (the blanket `From`), so no call site chooses an exit
