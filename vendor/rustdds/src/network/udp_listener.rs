@@ -51,6 +51,8 @@ pub struct UDPListener {
   socket: mio1::net::UdpSocket,
   receive_buffer: BytesMut,
   multicast_group: Option<Ipv4Addr>,
+  // The IPv4 interfaces the multicast group was joined on, to leave it on each.
+  joined_v4: Vec<Ipv4Addr>,
   has_multicast_join: bool,
   // Cached OS interface-index -> local interface map, used to resolve the
   // receiving interface reported by IP_PKTINFO. Built once at construction.
@@ -60,12 +62,16 @@ pub struct UDPListener {
 impl Drop for UDPListener {
   fn drop(&mut self) {
     if let Some(mcg) = self.multicast_group {
-      self
-        .socket
-        .leave_multicast_v4(&mcg, &Ipv4Addr::UNSPECIFIED)
-        .unwrap_or_else(|e| {
-          error!("leave_multicast_group: {e:?}");
-        });
+      // Left on the interfaces it was joined on: leaving on UNSPECIFIED fails
+      // with EADDRNOTAVAIL when it was joined on a given one.
+      for interface in &self.joined_v4 {
+        self
+          .socket
+          .leave_multicast_v4(&mcg, interface)
+          .unwrap_or_else(|e| {
+            error!("leave_multicast_group: {e:?}");
+          });
+      }
     }
   }
 }
@@ -195,6 +201,7 @@ impl UDPListener {
       socket: mio_socket,
       receive_buffer: BytesMut::with_capacity(MESSAGE_BUFFER_ALLOCATION_CHUNK),
       multicast_group: None,
+      joined_v4: Vec::new(),
       has_multicast_join: false,
       ifindex_map: build_ifindex_to_interface_map(),
     })
@@ -218,6 +225,7 @@ impl UDPListener {
 
     let mio_socket = Self::new_listening_socket(host, port, true, recv_buffer_size)?;
     let mut joined_multicast = false;
+    let mut joined_v4 = Vec::new();
 
     for multicast_if_ipaddr in get_local_multicast_ip_addrs_filtered(only_networks)? {
       match multicast_if_ipaddr {
@@ -225,6 +233,7 @@ impl UDPListener {
           .join_multicast_v4(&multicast_group, &a)
           .map(|()| {
             joined_multicast = true;
+            joined_v4.push(a);
           })
           .unwrap_or_else(|e| {
             warn!(
@@ -260,6 +269,7 @@ impl UDPListener {
       socket: mio_socket,
       receive_buffer: BytesMut::with_capacity(MESSAGE_BUFFER_ALLOCATION_CHUNK),
       multicast_group: Some(multicast_group),
+      joined_v4,
       has_multicast_join: joined_multicast,
       ifindex_map: build_ifindex_to_interface_map(),
     })

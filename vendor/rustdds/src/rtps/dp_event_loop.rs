@@ -305,6 +305,10 @@ impl DPEventLoop {
       let poll_timeout = timeout_until(ev_wrapper.shared_timer.borrow().next_deadline(), idle_cap);
       match ev_wrapper.poll.poll(&mut events, Some(poll_timeout)) {
         Ok(_) => {}
+        // A signal handled on this thread, or the process stopped and continued
+        // (SIGSTOP/SIGTSTP then SIGCONT: epoll_wait returns EINTR even without a
+        // handler): nothing is wrong, poll again.
+        Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
         Err(e) => {
           error!("dp_event_loop poll failed: {e:?}");
           break;
