@@ -7,6 +7,12 @@
 //! * `isochron plan now --routes A,B,... [--json]`: Cost2 = w1·Cost1(t* = now) +
 //!   w2·Σ Cost(M_p(now)) of each route, ranked, asked of the running
 //!   isochron-costmap (it has the live activity) over `<prefix>/plan`.
+//! * `isochron plan graph --from NODE --to NODE [--between ..] [--step ..] [--day ..] [--json]`:
+//!   over the route graph, for each departure the cheapest path on the forecast,
+//!   the best departure windows and the shortest path leaving now, asked of the
+//!   running isochron-costmap ([`graph`]).
+
+mod graph;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -35,6 +41,8 @@ pub(crate) enum Command {
     Offline(OfflineArgs),
     /// Which route is cheapest now? Cost2, from the running isochron-costmap.
     Now(NowArgs),
+    /// Which way through the route graph, and when? From the running isochron-costmap.
+    Graph(graph::GraphArgs),
 }
 
 #[derive(clap::Args)]
@@ -81,6 +89,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     match args.command {
         Command::Offline(a) => offline(a),
         Command::Now(a) => now(a),
+        Command::Graph(a) => graph::run(a),
     }
 }
 
@@ -114,15 +123,13 @@ pub(crate) fn parse_day(s: &str) -> Option<u32> {
         .map(|d| d as u32)
 }
 
-/// The range of an off-line plan from the arguments.
-fn day_range(args: &OfflineArgs, loaded: &LoadedConfig) -> anyhow::Result<DayRange> {
-    let step = parse_step(&args.step).with_context(|| {
-        format!(
-            "--step: expected minutes such as 5m, 15 or 1h (1 to 1440), found '{}'",
-            args.step
-        )
+/// `--between` and `--step`: the first minute, the end minute (exclusive) and
+/// the step.
+fn minutes_of(between: Option<&[String]>, step: &str) -> anyhow::Result<(u32, u32, u32)> {
+    let step = parse_step(step).with_context(|| {
+        format!("--step: expected minutes such as 5m, 15 or 1h (1 to 1440), found '{step}'")
     })?;
-    let (start, end) = match &args.between {
+    let (start, end) = match between {
         None => (0, MINUTES_PER_DAY),
         Some(v) => {
             let start = parse_time(&v[0])
@@ -137,15 +144,25 @@ fn day_range(args: &OfflineArgs, loaded: &LoadedConfig) -> anyhow::Result<DayRan
             }
         }
     };
+    Ok((start, end, step))
+}
+
+/// Refuses `--day` on a site whose model is of one day.
+fn check_day(day: Option<&str>, loaded: &LoadedConfig) -> anyhow::Result<()> {
+    if day.is_some() && loaded.config.cascade.cycle == Cycle::Daily {
+        bail!(
+            "--day is for a model of the week (cascade.cycle = \"day_types\" or \"weekly\"); this site has cascade.cycle = \"daily\""
+        );
+    }
+    Ok(())
+}
+
+/// The range of an off-line plan from the arguments.
+fn day_range(args: &OfflineArgs, loaded: &LoadedConfig) -> anyhow::Result<DayRange> {
+    let (start, end, step) = minutes_of(args.between.as_deref(), &args.step)?;
+    check_day(args.day.as_deref(), loaded)?;
     let cycle_offset = match loaded.config.cascade.cycle {
-        Cycle::Daily => {
-            if args.day.is_some() {
-                bail!(
-                    "--day is for a model of the week (cascade.cycle = \"day_types\" or \"weekly\"); this site has cascade.cycle = \"daily\""
-                );
-            }
-            0
-        }
+        Cycle::Daily => 0,
         Cycle::Weekly | Cycle::DayTypes => {
             let day = match &args.day {
                 Some(d) => parse_day(d)
