@@ -7,6 +7,12 @@
 //! * `isochron plan now --routes A,B,... [--json]`: Cost2 = w1·Cost1(t* = now) +
 //!   w2·Σ Cost(M_p(now)) of each route, ranked, asked of the running
 //!   isochron-costmap (it has the live activity) over `<prefix>/plan`.
+//! * `isochron plan graph --from NODE --to NODE [--between ..] [--step ..] [--day ..] [--json]`:
+//!   over the route graph, for each departure the cheapest path on the forecast,
+//!   the best departure windows and the shortest path leaving now, asked of the
+//!   running isochron-costmap ([`graph`]).
+
+mod graph;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -35,6 +41,8 @@ pub(crate) enum Command {
     Offline(OfflineArgs),
     /// Which route is cheapest now? Cost2, from the running isochron-costmap.
     Now(NowArgs),
+    /// Which way through the route graph, and when? From the running isochron-costmap.
+    Graph(graph::GraphArgs),
 }
 
 #[derive(clap::Args)]
@@ -81,32 +89,42 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     match args.command {
         Command::Offline(a) => offline(a),
         Command::Now(a) => now(a),
+        Command::Graph(a) => graph::run(a),
     }
 }
 
-/// The range of an off-line plan from the arguments.
-fn day_range(args: &OfflineArgs, loaded: &LoadedConfig) -> anyhow::Result<DayRange> {
-    let step = args.step;
-    let (start, end) = match args.between.as_deref() {
-        None | Some([]) | Some([_]) => (0, MINUTES_PER_DAY),
+/// `--between`: the first minute and the end minute (exclusive) of the
+/// departures.
+fn window(between: Option<&[u32]>) -> anyhow::Result<(u32, u32)> {
+    match between {
+        None | Some([]) | Some([_]) => Ok((0, MINUTES_PER_DAY)),
         Some([start, end, ..]) => {
             if *start == MINUTES_PER_DAY {
                 bail!(UsageError(
                     "--between: FROM is a time of day from 00:00 to 23:59, found '24:00'".into()
                 ));
             }
-            (*start, if *end == 0 { MINUTES_PER_DAY } else { *end })
+            Ok((*start, if *end == 0 { MINUTES_PER_DAY } else { *end }))
         }
-    };
+    }
+}
+
+/// Refuses `--day` on a site whose model is of one day.
+fn check_day(day: Option<u32>, loaded: &LoadedConfig) -> anyhow::Result<()> {
+    if day.is_some() && loaded.config.cascade.cycle == Cycle::Daily {
+        bail!(UsageError(
+            "--day is for a model of the week (cascade.cycle = \"day_types\" or \"weekly\"); this site has cascade.cycle = \"daily\"".into()
+        ));
+    }
+    Ok(())
+}
+
+/// The range of an off-line plan from the arguments.
+fn day_range(args: &OfflineArgs, loaded: &LoadedConfig) -> anyhow::Result<DayRange> {
+    let (start, end) = window(args.between.as_deref())?;
+    check_day(args.day, loaded)?;
     let cycle_offset = match loaded.config.cascade.cycle {
-        Cycle::Daily => {
-            if args.day.is_some() {
-                bail!(UsageError(
-                    "--day is for a model of the week (cascade.cycle = \"day_types\" or \"weekly\"); this site has cascade.cycle = \"daily\"".into()
-                ));
-            }
-            0
-        }
+        Cycle::Daily => 0,
         Cycle::Weekly | Cycle::DayTypes => {
             let day = match args.day {
                 Some(d) => d,
@@ -121,7 +139,7 @@ fn day_range(args: &OfflineArgs, loaded: &LoadedConfig) -> anyhow::Result<DayRan
     Ok(DayRange {
         start,
         end,
-        step,
+        step: args.step,
         cycle_offset,
     })
 }

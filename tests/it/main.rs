@@ -110,6 +110,7 @@ mod nav2;
 mod operations;
 mod package;
 mod pipeline;
+mod plan_graph;
 mod presence;
 mod rclpy;
 mod reliability;

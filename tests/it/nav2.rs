@@ -390,7 +390,7 @@ fn malformed_plan_requests_are_answered_and_floods_are_counted() {
 }
 
 /// The JSON line a peer printed on standard output.
-fn peer_json(name: &str, out: &std::process::Output) -> Value {
+pub(crate) fn peer_json(name: &str, out: &std::process::Output) -> Value {
     let stdout = String::from_utf8_lossy(&out.stdout);
     serde_json::from_str(stdout.trim()).unwrap_or_else(|e| {
         panic!(

@@ -10,7 +10,7 @@
 //! the QoS a Nav2 node asks for (the graph's view of each publisher's QoS checked
 //! against docs/robots.md, no incompatible QoS reported), every message's
 //! contents checked, a second node joining late that gets the latched grid, and
-//! both planning services called from rclpy (`wait_for_service`, good requests,
+//! the planning services called from rclpy (`wait_for_service`, good requests,
 //! malformed ones, an unknown route). Discovery: ROS 2's LOCALHOST range on
 //! loopback (the bridge bound to 127.0.0.1), and the default SUBNET range with
 //! the bridge and the node in two network namespaces joined by a veth pair.
@@ -36,7 +36,7 @@ const START: &str = "2026-03-02T11:40:00Z";
 pub(crate) const T_STAR: u32 = 700;
 
 /// The Python of the rclpy venv of `release`.
-fn rclpy_python(release: &str) -> PathBuf {
+pub(crate) fn rclpy_python(release: &str) -> PathBuf {
     setup_file(
         &format!("ISOCHRON_RCLPY_{}", release.to_uppercase()),
         &format!("target/rclpy-{release}/bin/python3"),
@@ -48,10 +48,10 @@ fn rclpy_python(release: &str) -> PathBuf {
 
 /// An rclpy node of `release` on `domain`: on loopback (LOCALHOST discovery) or
 /// in the second namespace of `netns` (SUBNET discovery).
-struct Peer<'a> {
-    python: PathBuf,
-    domain: u16,
-    netns: Option<&'a NetnsPair>,
+pub(crate) struct Peer<'a> {
+    pub(crate) python: PathBuf,
+    pub(crate) domain: u16,
+    pub(crate) netns: Option<&'a NetnsPair>,
 }
 
 impl Peer<'_> {
@@ -78,7 +78,7 @@ impl Peer<'_> {
     }
 
     /// Calls the planning services with `calls`; the node's JSON lines.
-    fn plan(&self, calls: &Value) -> Vec<Value> {
+    pub(crate) fn plan(&self, calls: &Value) -> Vec<Value> {
         let calls = calls.to_string();
         let mut node = self.spawn(&["plan", &calls]);
         let done = node.finish(Duration::from_secs(120));
@@ -473,9 +473,11 @@ fn exchange(release: &str, netns: Option<&NetnsPair>) {
         {"service": "/isochron/plan_offline", "route": "via-west", "start_minute": 1500,
          "end_minute": 1440, "step_min": 5, "weekday": 7},
         {"service": "/isochron/plan_now", "routes": ["nowhere"]},
+        {"service": "/isochron/plan_graph", "from_node": 1, "to_node": 2, "start_minute": 0,
+         "end_minute": 1440, "step_min": 5, "weekday": 7},
     ]));
     let services: Vec<&Value> = replies.iter().filter(|r| r["kind"] == "service").collect();
-    assert_eq!(services.len(), 2, "{replies:?}");
+    assert_eq!(services.len(), 3, "{replies:?}");
     assert!(
         services.iter().all(|s| s["available"] == true),
         "{replies:?}"
@@ -486,7 +488,7 @@ fn exchange(release: &str, netns: Option<&NetnsPair>) {
         .filter_map(|r| r["latency_ms"].as_f64())
         .collect();
     eprintln!("rclpy {release} ({mode}): replies in {latency:?} ms");
-    assert_eq!(replies.len(), 6, "{replies:?}");
+    assert_eq!(replies.len(), 7, "{replies:?}");
     assert!(replies.iter().all(|r| r["kind"] == "reply"), "{replies:?}");
     let (now, offline) = (replies[0], replies[1]);
     assert_eq!(
@@ -529,6 +531,16 @@ fn exchange(release: &str, netns: Option<&NetnsPair>) {
     }
     assert_eq!(replies[5]["status"], 2, "{}", replies[5]);
     assert!(replies[5]["message"].as_str().unwrap().contains("via-west"));
+    // This site has no route graph: plan_graph says so.
+    assert_eq!(replies[6]["status"], 3, "{}", replies[6]);
+    assert!(
+        replies[6]["message"]
+            .as_str()
+            .unwrap()
+            .contains("no route graph"),
+        "{}",
+        replies[6]
+    );
     // The first reply may wait for the bridge to discover the client, which
     // wait_for_service does not (Fast DDS repeats the request at its writer's
     // next heartbeat, 3 s); each after it comes within a second.

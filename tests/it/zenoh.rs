@@ -35,7 +35,7 @@ fn zenoh_python() -> PathBuf {
 }
 
 /// The `.msg`/`.srv` files the SDK reads: the rclpy Jazzy venv's `share/`.
-fn message_dir() -> PathBuf {
+pub(crate) fn message_dir() -> PathBuf {
     let srv = setup_file(
         "ISOCHRON_RCLPY_JAZZY_PLAN_NOW",
         "target/rclpy-jazzy/share/isochron_msgs/srv/PlanNow.srv",
@@ -64,7 +64,7 @@ fn rosidl_hash(release: &str, ty: &str) -> String {
 }
 
 /// The peer script with `args`.
-fn peer(args: &[&str]) -> Proc {
+pub(crate) fn peer(args: &[&str]) -> Proc {
     let script = repo_root().join("tests/zenoh/rmw_zenoh_peer.py");
     let mut all = vec![script.display().to_string()];
     all.extend(args.iter().map(|a| a.to_string()));
@@ -72,7 +72,7 @@ fn peer(args: &[&str]) -> Proc {
 }
 
 /// The JSON lines of a finished peer.
-fn lines(stdout: &str) -> Vec<Value> {
+pub(crate) fn lines(stdout: &str) -> Vec<Value> {
     stdout
         .lines()
         .filter_map(|l| serde_json::from_str(l).ok())
@@ -330,7 +330,7 @@ fn an_rmw_zenoh_robot_gets_every_topic_a_late_grid_and_plans() {
         assert!(r["s"].as_f64().unwrap() < 2.0, "{r}");
     }
 
-    // The graph: the node, eight publishers and two services, each with the
+    // The graph: the node, eight publishers and three services, each with the
     // type hash and QoS rmw_zenoh's tokens carry.
     let done = node.finish(Duration::from_secs(60));
     let tokens: Vec<String> = lines(&done.stdout)
@@ -347,7 +347,37 @@ fn an_rmw_zenoh_robot_gets_every_topic_a_late_grid_and_plans() {
             .filter(|t| t.contains(&format!("/{k}/")))
             .count()
     };
-    assert_eq!((kind("NN"), kind("MP"), kind("SS")), (1, 8, 2), "{ours:?}");
+    assert_eq!((kind("NN"), kind("MP"), kind("SS")), (1, 8, 3), "{ours:?}");
+    // Each service's type hash in its token is the one rosidl generates from
+    // ros/isochron_msgs, in Jazzy and in Kilted.
+    let mut services = Vec::new();
+    for token in ours.iter().filter(|t| t.contains("/SS/")) {
+        let parts: Vec<&str> = token.split('/').collect();
+        let at = parts
+            .iter()
+            .position(|p| p.contains("::srv::dds_::"))
+            .unwrap_or_else(|| panic!("no service type in {token}"));
+        let ty = parts[at].replace("::dds_::", "/").replace("::", "/");
+        let ty = ty.trim_end_matches('_').to_string();
+        for release in ["jazzy", "kilted"] {
+            assert_eq!(
+                parts[at + 1],
+                rosidl_hash(release, &ty),
+                "{token} ({release})"
+            );
+        }
+        services.push(ty);
+    }
+    services.sort();
+    assert_eq!(
+        services,
+        [
+            "isochron_msgs/srv/PlanGraph",
+            "isochron_msgs/srv/PlanNow",
+            "isochron_msgs/srv/PlanOffline"
+        ],
+        "{ours:?}"
+    );
     assert!(
         ours.iter().any(|t| t.ends_with(&format!(
             "/%isochron_test%activity_costmap/nav_msgs::msg::dds_::OccupancyGrid_/{GRID_HASH}/:1:,1:,:,:,,"

@@ -16,15 +16,20 @@ garbage: sends, once the service is matched,
   and prints {"kind": "garbage", "replies": {"no_nul": {"status", "message"} or
   null, "count": ...}} after waiting --wait seconds for the replies.
 
-flood N SECONDS: sends N well-formed requests for route ROUTE in SECONDS, each
+flood N SECONDS ROUTE: sends N well-formed requests for route ROUTE in SECONDS, each
 with its own sequence number, waits --wait seconds more, and prints {"kind":
 "flood", "sent": N, "replies": distinct sequence numbers answered, "statuses":
 {status: count}, "seconds": how long sending took}.
 
 DDS stays on the loopback interface, as in costmap_listener.py.
 
+With --service /isochron/plan_graph (a name ending in plan_graph), flood sends
+PlanGraph requests instead, ROUTE being "FROM,TO,START_MINUTE,END_MINUTE,STEP_MIN,WEEKDAY".
+
 Usage: plan_attacker.py --domain D --service /isochron/plan_now [--wait S] garbage
        plan_attacker.py --domain D --service /isochron/plan_now [--wait S] flood N SECONDS ROUTE
+       plan_attacker.py --domain D --service /isochron/plan_graph [--wait S] flood N SECONDS
+              FROM,TO,START,END,STEP,WEEKDAY
 """
 
 import argparse
@@ -61,6 +66,24 @@ def main():
         "isochron_msgs/srv/PlanNow_Response",
         client=uint64, seq=int64, status=uint8, message=str, t_star=uint16, routes=sequence[RouteCost],
     )
+    graph = args.service.endswith("plan_graph")
+    if graph:
+        CostPoint = ros_type("isochron_msgs/msg/CostPoint", minute=uint16, cost=float64)
+        Window = ros_type(
+            "isochron_msgs/msg/Window", start_minute=uint16, end_minute=uint16, cost=float64
+        )
+        GraphPath = ros_type(
+            "isochron_msgs/msg/GraphPath",
+            departure_minute=uint16, nodes=sequence[uint16], edges=sequence[uint16],
+            cost=float64, activity_cost=float64, length_m=float64, duration_s=float64,
+            unknown_edges=uint16,
+        )
+        Reply = ros_type(
+            "isochron_msgs/srv/PlanGraph_Response",
+            client=uint64, seq=int64, status=uint8, message=str, windows=sequence[Window],
+            window_paths=sequence[GraphPath], curve=sequence[CostPoint], best=GraphPath,
+            baseline=GraphPath,
+        )
     name = absolute(args.service)
     # Every request is kept until the bridge has it: what the bridge drops, it drops.
     qos = Qos(
@@ -123,13 +146,29 @@ def main():
         return
 
     n, seconds, route = int(args.args[0]), float(args.args[1]), args.args[2]
-    Request = ros_type("isochron_msgs/srv/PlanNow_Request", client=uint64, seq=int64, routes=sequence[str])
+    if graph:
+        Request = ros_type(
+            "isochron_msgs/srv/PlanGraph_Request",
+            client=uint64, seq=int64, from_node=uint16, to_node=uint16, start_minute=uint16,
+            end_minute=uint16, step_min=uint16, weekday=uint8,
+        )
+        fields = [int(f) for f in route.split(",")]
+
+        def request(seq):
+            return Request(client, seq, *fields)
+    else:
+        Request = ros_type(
+            "isochron_msgs/srv/PlanNow_Request", client=uint64, seq=int64, routes=sequence[str]
+        )
+
+        def request(seq):
+            return Request(client, seq, [route])
     writer = DataWriter(participant, Topic(participant, "rq" + name + "Request", Request), qos=qos)
     wait_matched(writer)
     start = time.monotonic()
     got = {}
     for k in range(n):
-        writer.write(Request(client, k + 1, [route]))
+        writer.write(request(k + 1))
         for r in reader.take(N=256):
             if r.client == client:
                 got[r.seq] = r

@@ -2,8 +2,8 @@
 """An independent ROS 2 client of isochron's planning services.
 
 Eclipse Cyclone DDS from Python (`cyclonedds` on PyPI) and nothing of isochron or
-ROS: the types are declared here (with ros2_dds.py) from ros/isochron_msgs/srv/PlanOffline.srv and
-PlanNow.srv with their DDS names (`isochron_msgs::srv::dds_::PlanNow_Request_`,
+ROS: the types are declared here (with ros2_dds.py) from ros/isochron_msgs/srv/PlanOffline.srv,
+PlanNow.srv and PlanGraph.srv with their DDS names (`isochron_msgs::srv::dds_::PlanNow_Request_`,
 ..._Response_), on the topics ROS 2 gives a service `/s`: `rq/sRequest` and
 `rr/sReply`. As rmw_cyclonedds does, each request and reply starts with the
 client's id (8 bytes) and a sequence number (8 bytes); the reply carrying our id
@@ -22,6 +22,8 @@ latency of each request, or null if none came], "statuses": {status: count}}.
 
 Usage: plan_client.py --domain D --service /isochron/plan_now [--poll N] now ROUTE [ROUTE...]
        plan_client.py --domain D --service /isochron/plan_offline offline ROUTE
+              START_MINUTE END_MINUTE STEP_MIN [WEEKDAY]
+       plan_client.py --domain D --service /isochron/plan_graph [--poll N] graph FROM TO
               START_MINUTE END_MINUTE STEP_MIN [WEEKDAY]
 """
 
@@ -47,7 +49,7 @@ def main():
     parser.add_argument("--service", required=True)
     parser.add_argument("--timeout", type=float, default=20.0)
     parser.add_argument("--poll", type=int, default=0)
-    parser.add_argument("kind", choices=["offline", "now"])
+    parser.add_argument("kind", choices=["offline", "now", "graph"])
     parser.add_argument("args", nargs="+")
     args = parser.parse_args()
     configure()
@@ -90,8 +92,54 @@ def main():
         status=uint8, message=str, t_star=uint16, routes=sequence[RouteCost],
     )
 
+    GraphPath = ros_type(
+        "isochron_msgs/msg/GraphPath",
+        departure_minute=uint16, nodes=sequence[uint16], edges=sequence[uint16], cost=float64,
+        activity_cost=float64, length_m=float64, duration_s=float64, unknown_edges=uint16,
+    )
+
+    PlanGraphRequest = service_type(
+        "isochron_msgs/srv/PlanGraph_Request",
+        from_node=uint16, to_node=uint16, start_minute=uint16, end_minute=uint16, step_min=uint16,
+        weekday=uint8,
+    )
+
+    PlanGraphResponse = service_type(
+        "isochron_msgs/srv/PlanGraph_Response",
+        status=uint8, message=str, windows=sequence[Window], window_paths=sequence[GraphPath],
+        curve=sequence[CostPoint], best=GraphPath, baseline=GraphPath,
+    )
+
+    def graph_path(p):
+        return {
+            "departure_minute": p.departure_minute, "nodes": list(p.nodes), "edges": list(p.edges),
+            "cost": cost(p.cost), "activity_cost": cost(p.activity_cost),
+            "length_m": cost(p.length_m), "duration_s": cost(p.duration_s),
+            "unknown_edges": p.unknown_edges,
+        }
+
     client = random.getrandbits(63)
-    if args.kind == "offline":
+    if args.kind == "graph":
+        start_node, goal, start, end, step = map(int, args.args[0:5])
+        weekday = int(args.args[5]) if len(args.args) > 5 else 7
+        req_type, resp_type = PlanGraphRequest, PlanGraphResponse
+
+        def request(seq):
+            return PlanGraphRequest(client, seq, start_node, goal, start, end, step, weekday)
+
+        def reply_json(r):
+            return {
+                "status": r.status,
+                "message": r.message,
+                "windows": [
+                    {"start_minute": w.start_minute, "end_minute": w.end_minute, "cost": cost(w.cost)}
+                    for w in r.windows
+                ],
+                "window_paths": [graph_path(p) for p in r.window_paths],
+                "best": graph_path(r.best),
+                "baseline": graph_path(r.baseline),
+            }
+    elif args.kind == "offline":
         route, start, end, step = args.args[0], *map(int, args.args[1:4])
         weekday = int(args.args[4]) if len(args.args) > 4 else 7
         req_type, resp_type = PlanOfflineRequest, PlanOfflineResponse

@@ -31,9 +31,11 @@ Usage: rclpy_peer.py --domain D [--subnet] listen --topic T [--updates] [--peopl
            [--mismatch] [--timeout S]
        rclpy_peer.py --domain D [--subnet] plan CALLS_JSON [--timeout S]
 
-CALLS_JSON: a list of {"service": "/isochron/plan_now", "routes": [...]} and
+CALLS_JSON: a list of {"service": "/isochron/plan_now", "routes": [...]},
 {"service": "/isochron/plan_offline", "route": R, "start_minute": M, "end_minute":
-M, "step_min": S, "weekday": W}.
+M, "step_min": S, "weekday": W} and {"service": "/isochron/plan_graph",
+"from_node": A, "to_node": B, "start_minute": M, ...} (the service's type by the
+end of its name).
 
 --subnet: ROS 2's default discovery (ROS_AUTOMATIC_DISCOVERY_RANGE unset: SUBNET,
 multicast); without it LOCALHOST, as a node on the base station itself.
@@ -223,9 +225,17 @@ def cost(v):
     return v
 
 
+def graph_path(p):
+    """An isochron_msgs/GraphPath as JSON."""
+    return {"departure_minute": p.departure_minute, "nodes": list(p.nodes),
+            "edges": list(p.edges), "cost": cost(p.cost),
+            "activity_cost": cost(p.activity_cost), "length_m": cost(p.length_m),
+            "duration_s": cost(p.duration_s), "unknown_edges": p.unknown_edges}
+
+
 def plan(args):
     import rclpy
-    from isochron_msgs.srv import PlanNow, PlanOffline
+    from isochron_msgs.srv import PlanGraph, PlanNow, PlanOffline
 
     calls = json.loads(args.calls)
     rclpy.init()
@@ -235,7 +245,8 @@ def plan(args):
         service = call["service"]
         if service in clients:
             continue
-        srv = PlanNow if service.endswith("plan_now") else PlanOffline
+        srv = (PlanNow if service.endswith("plan_now")
+               else PlanGraph if service.endswith("plan_graph") else PlanOffline)
         client = node.create_client(srv, service)
         t0 = time.monotonic()
         available = client.wait_for_service(timeout_sec=args.timeout)
@@ -267,6 +278,13 @@ def plan(args):
                  "estimated": x.estimated, "no_long_term": x.no_long_term}
                 for x in r.routes
             ]
+        elif srv is PlanGraph:
+            out["windows"] = [{"start_minute": w.start_minute, "end_minute": w.end_minute,
+                               "cost": cost(w.cost)} for w in r.windows]
+            out["window_paths"] = [graph_path(p) for p in r.window_paths]
+            out["curve"] = [{"minute": p.minute, "cost": cost(p.cost)} for p in r.curve]
+            out["best"] = graph_path(r.best)
+            out["baseline"] = graph_path(r.baseline)
         else:
             out["windows"] = [{"start_minute": w.start_minute, "end_minute": w.end_minute,
                                "cost": cost(w.cost)} for w in r.windows]

@@ -193,6 +193,7 @@ def plan(args):
         service = call["service"]
         if service not in clients:
             ty = "isochron_msgs/srv/PlanNow" if service.endswith("plan_now") else \
+                "isochron_msgs/srv/PlanGraph" if service.endswith("plan_graph") else \
                 "isochron_msgs/srv/PlanOffline"
             clients[service] = ROS2ServiceClient(
                 service_name=service, srv_type=ty, domain_id=args.domain,
@@ -209,6 +210,14 @@ def plan(args):
         if hasattr(r, "routes"):
             out["t_star"] = int(r.t_star)
             out["routes"] = [[x.route, x.cost2, bool(x.infinite)] for x in r.routes]
+        elif hasattr(r, "baseline"):
+            out["windows"] = [[w.start_minute, w.end_minute, w.cost] for w in r.windows]
+            out["window_edges"] = [list(p.edges) for p in r.window_paths]
+            out["best"] = {"departure_minute": int(r.best.departure_minute),
+                           "nodes": list(r.best.nodes), "edges": list(r.best.edges),
+                           "cost": r.best.cost}
+            out["baseline"] = {"nodes": list(r.baseline.nodes),
+                               "edges": list(r.baseline.edges), "cost": r.baseline.cost}
         else:
             out["windows"] = [[w.start_minute, w.end_minute, w.cost] for w in r.windows]
         emit(out)

@@ -6,10 +6,12 @@ use std::time::Instant;
 
 use isochron_config::LoadedConfig;
 use isochron_config::clock::{Cycle, SiteClock, format_rfc3339, timestamp, wall_now_ns};
+use isochron_planning::graph_plan::{GraphPlanError, GraphPlanRequest};
 use isochron_planning::plan::{DayRange, PlanError};
-use isochron_planning::plan_service::{answer_now, answer_offline};
+use isochron_planning::plan_service::{answer_graph, answer_now, answer_offline};
 use isochron_planning::planner::Planner;
 use isochron_planning::query::{PlanKind, PlanRequest, PlanResponse, PlanStatus};
+use isochron_planning::route_graph::RouteGraph;
 use isochron_planning::snapshot::{self, FloorPlan, Snapshot, SnapshotError};
 
 use crate::bridge::Bridge;
@@ -29,13 +31,15 @@ pub(crate) enum SnapshotFailure {
 }
 
 /// What answers planning requests and writes snapshots: the site, its long-term
-/// planner and clock, the floor plan, where snapshots go.
+/// planner and clock, the floor plan, where snapshots go, the robots' route graph.
 pub(crate) struct Planning {
     pub(crate) loaded: LoadedConfig,
     pub(crate) planner: Planner,
     pub(crate) clock: SiteClock,
     pub(crate) floor_plan: Option<FloorPlan>,
     pub(crate) snapshot_dir: PathBuf,
+    /// `costmap.route_graph`, if configured.
+    pub(crate) route_graph: Option<RouteGraph>,
 }
 
 impl Planning {
@@ -107,23 +111,7 @@ impl Planning {
         match kind {
             PlanKind::Offline => {
                 let route = request.route_names().remove(0);
-                let cycle_offset = match planner.cycle() {
-                    Cycle::Daily => 0,
-                    Cycle::Weekly | Cycle::DayTypes => {
-                        let day = if request.weekday == 7 {
-                            clock.t_star(now_ns) / 1440
-                        } else {
-                            request.weekday
-                        };
-                        day * 1440
-                    }
-                };
-                let range = DayRange {
-                    start: request.start_minute,
-                    end: request.end_minute,
-                    step: request.step_min,
-                    cycle_offset,
-                };
+                let range = day_range(request, planner.cycle(), clock.t_star(now_ns));
                 match planner.offline(&route, range) {
                     Ok(plan) => answer_offline(&plan),
                     Err(e) => failed(status_of(&e), e.to_string()),
@@ -139,6 +127,12 @@ impl Planning {
                     Err(e) => failed(status_of(&e), e.to_string()),
                 }
             }
+            PlanKind::Graph => {
+                let t_star = bridge
+                    .newest(now)
+                    .map_or_else(|| clock.t_star(now_ns), |(_, t)| t);
+                self.answer_graph(request, bridge, t_star)
+            }
             PlanKind::Snapshot => match self.write_snapshot(bridge, now) {
                 Ok(path) => {
                     *snapshots += 1;
@@ -149,5 +143,68 @@ impl Planning {
                 Err(e) => failed(PlanStatus::Failed, e.to_string()),
             },
         }
+    }
+}
+
+impl Planning {
+    /// Answers a graph request at isochronal time `now_t_star` (the baseline's
+    /// departure).
+    fn answer_graph(
+        &mut self,
+        request: &PlanRequest,
+        bridge: &Bridge,
+        now_t_star: u32,
+    ) -> PlanResponse {
+        let kind = PlanKind::Graph as u32;
+        let no_data = |m: &str| PlanResponse::new(kind, PlanStatus::NoData, m);
+        let Some(graph) = &self.route_graph else {
+            return no_data("no route graph is configured (costmap.route_graph)");
+        };
+        let Some(grid) = &bridge.grid else {
+            return no_data(
+                "no [costmap] grid (map_yaml or width_cells/height_cells) to lay the route graph on",
+            );
+        };
+        let graph_request = GraphPlanRequest {
+            from: request.from_node as u16,
+            to: request.to_node as u16,
+            range: day_range(request, self.planner.cycle(), now_t_star),
+            now_t_star,
+        };
+        match self.planner.graph(graph, grid, &graph_request) {
+            Ok(plan) => answer_graph(&plan),
+            Err(e) => {
+                let status = match e {
+                    GraphPlanError::UnknownNode(_) => PlanStatus::UnknownNode,
+                    GraphPlanError::NoPath { .. } => PlanStatus::NoPath,
+                    GraphPlanError::BadWindow(_) => PlanStatus::BadRequest,
+                    GraphPlanError::NoData(_) => PlanStatus::NoData,
+                    GraphPlanError::BadParams(_) => PlanStatus::Failed,
+                };
+                PlanResponse::new(kind, status, &e.to_string())
+            }
+        }
+    }
+}
+
+/// The departures of an off-line or graph `request`: its minutes and step, on its
+/// weekday of a weekly `cycle` (7: the day of `now_t_star`).
+fn day_range(request: &PlanRequest, cycle: Cycle, now_t_star: u32) -> DayRange {
+    let cycle_offset = match cycle {
+        Cycle::Daily => 0,
+        Cycle::Weekly | Cycle::DayTypes => {
+            let day = if request.weekday == 7 {
+                now_t_star / 1440
+            } else {
+                request.weekday
+            };
+            day * 1440
+        }
+    };
+    DayRange {
+        start: request.start_minute,
+        end: request.end_minute,
+        step: request.step_min,
+        cycle_offset,
     }
 }

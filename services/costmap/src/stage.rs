@@ -13,6 +13,7 @@ use isochron_exit::{self as exit, Fatal};
 use isochron_planning::grid::MapGrid;
 use isochron_planning::plan_service::PlanServer;
 use isochron_planning::planner::Planner;
+use isochron_planning::route_graph::RouteGraph;
 use isochron_planning::snapshot;
 use isochron_ros2::msgs::{CostmapFilterInfo, Header, RosDuration, Time};
 use isochron_ros2::spec::{GRID, Names, SPEED_MASK, UPDATES};
@@ -92,6 +93,8 @@ impl CostmapStage {
             }
         }
         let floor_plan = snapshot::floor_plan_of(loaded, bridge.grid.as_ref());
+        let route_graph =
+            RouteGraph::from_config(loaded).map_err(|e| config_error(e.to_string()))?;
         let snapshot_dir = c
             .snapshot_dir
             .as_ref()
@@ -132,6 +135,7 @@ impl CostmapStage {
                 clock,
                 floor_plan,
                 snapshot_dir,
+                route_graph,
             },
             ros,
             counters: Counters::default(),

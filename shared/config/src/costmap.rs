@@ -101,6 +101,10 @@ pub struct CostmapConfig {
     /// ROS 2 service `isochron_msgs/srv/PlanNow` (`isochron plan now` over ROS 2).
     /// Default `"/isochron/plan_now"`.
     pub plan_now_service: String,
+    /// ROS 2 service `isochron_msgs/srv/PlanGraph` (`isochron plan graph` over ROS
+    /// 2: routes across departure times over `route_graph`). Default
+    /// `"/isochron/plan_graph"`.
+    pub plan_graph_service: String,
     /// Publish rate, Hz. Default 1.
     pub publish_hz: f64,
     /// The full grid is republished at least this often, seconds, while deltas went
@@ -251,6 +255,7 @@ impl Default for CostmapConfig {
             forecast_topic: "/isochron/activity_forecast".into(),
             plan_offline_service: "/isochron/plan_offline".into(),
             plan_now_service: "/isochron/plan_now".into(),
+            plan_graph_service: "/isochron/plan_graph".into(),
             forecast_ahead_min: 15,
             forecast_every_s: 60.0,
             speed_busy_from_cost: 30,
@@ -466,6 +471,7 @@ impl CostmapConfig {
                 Some(&self.plan_offline_service),
             ),
             ("costmap.plan_now_service", Some(&self.plan_now_service)),
+            ("costmap.plan_graph_service", Some(&self.plan_graph_service)),
         ] {
             if let Some(topic) = topic
                 && !is_valid_ros_topic(topic)

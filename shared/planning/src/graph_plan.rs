@@ -148,6 +148,8 @@ pub enum GraphPlanStatus {
     BadWindow = 3,
     /// The speed or the distance weight is out of range.
     BadParams = 4,
+    /// No long-term store to forecast from.
+    NoData = 5,
 }
 
 /// Why a plan cannot be made.
@@ -170,6 +172,9 @@ pub enum GraphPlanError {
     /// A parameter is out of range.
     #[error("{0}")]
     BadParams(String),
+    /// The data to forecast from is missing (no long-term store, no grid).
+    #[error("{0}")]
+    NoData(String),
 }
 
 impl GraphPlanError {
@@ -180,6 +185,7 @@ impl GraphPlanError {
             GraphPlanError::NoPath { .. } => GraphPlanStatus::NoPath,
             GraphPlanError::BadWindow(_) => GraphPlanStatus::BadWindow,
             GraphPlanError::BadParams(_) => GraphPlanStatus::BadParams,
+            GraphPlanError::NoData(_) => GraphPlanStatus::NoData,
         }
     }
 }

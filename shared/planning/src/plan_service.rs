@@ -6,8 +6,9 @@
 //!
 //! An event service of the same name wakes the bridge when a client notifies it
 //! after sending a request ([`PlanClient`] does); clients that do not are answered
-//! within the bridge's loop period. [`answer_offline`] and [`answer_now`] turn plans
-//! into responses, [`offline_plan_of`] and [`ranking_of`] turn them back.
+//! within the bridge's loop period. [`answer_offline`], [`answer_now`] and
+//! [`answer_graph`] turn plans into responses, [`offline_plan_of`] and
+//! [`ranking_of`] turn them back (a graph answer's paths are read as they are).
 
 use std::time::{Duration, Instant};
 
@@ -21,11 +22,12 @@ use iceoryx2::service::port_factory::request_response::PortFactory;
 use isochron_runtime::ipc::{Ipc, Ipc2, IpcError};
 use isochron_wire::{WireError, fixed_str, to_fixed};
 
+use crate::graph_plan::{GraphPath, GraphPlan};
 use crate::plan::{CurvePoint, DayRange, OfflinePlan, RouteNow, Window};
 use crate::query::{
     PLAN_CURVE_LEN, PLAN_FLAG_ESTIMATED, PLAN_FLAG_INFINITE, PLAN_FLAG_NO_LONG_TERM,
-    PLAN_MAX_ROUTES, PLAN_MAX_WINDOWS, PLAN_NAME_LEN, PlanKind, PlanRequest, PlanResponse,
-    PlanRouteCost, PlanStatus, PlanWindow,
+    PLAN_GRAPH_MAX_EDGES, PLAN_MAX_ROUTES, PLAN_MAX_WINDOWS, PLAN_NAME_LEN, PlanGraphPath,
+    PlanKind, PlanRequest, PlanResponse, PlanRouteCost, PlanStatus, PlanWindow,
 };
 
 /// Most clients connected at once.
@@ -280,6 +282,76 @@ pub fn answer_offline(plan: &OfflinePlan) -> PlanResponse {
     r
 }
 
+/// The response to a graph request for `plan`: the curve, the windows with the
+/// cheapest path of each, the best departure and the baseline; `t_star` is the
+/// best departure's minute of the cycle. A path with more than
+/// [`PLAN_GRAPH_MAX_EDGES`] edges does not fit: [`PlanStatus::Failed`] says so.
+pub fn answer_graph(plan: &GraphPlan) -> PlanResponse {
+    let kind = PlanKind::Graph as u32;
+    let paths = plan.windows.iter().map(|w| &w.path);
+    if let Some(long) = paths
+        .chain(&plan.best)
+        .chain([&plan.baseline])
+        .find(|p| p.edges.len() > PLAN_GRAPH_MAX_EDGES)
+    {
+        let message = format!(
+            "a path of {} edges; at most {PLAN_GRAPH_MAX_EDGES} fit in an answer",
+            long.edges.len()
+        );
+        return PlanResponse::new(kind, PlanStatus::Failed, &message);
+    }
+    let mut r = PlanResponse::new(kind, PlanStatus::Ok, "");
+    r.t_star = plan.best.first().map_or(0, |p| p.t_star);
+    r.curve_start_minute = plan.range.start;
+    r.curve_step_min = plan.range.step;
+    r.curve_len = plan.curve.len().min(PLAN_CURVE_LEN) as u32;
+    for (slot, p) in r.curve.iter_mut().zip(&plan.curve) {
+        *slot = finite_f32(p.cost);
+    }
+    r.window_count = plan.windows.len().min(PLAN_MAX_WINDOWS) as u32;
+    for ((slot, path), w) in r
+        .windows
+        .iter_mut()
+        .zip(r.graph_windows.iter_mut())
+        .zip(&plan.windows)
+    {
+        *slot = PlanWindow {
+            start_minute: w.window.start,
+            end_minute: w.window.end,
+            cost: finite_f32(w.window.cost),
+            reserved: 0,
+        };
+        *path = graph_path(&w.path);
+    }
+    if let Some(best) = plan.best.first() {
+        r.graph_best = graph_path(best);
+    }
+    r.graph_baseline = graph_path(&plan.baseline);
+    r
+}
+
+/// `path` on the wire (at most [`PLAN_GRAPH_MAX_EDGES`] edges; checked above).
+fn graph_path(path: &GraphPath) -> PlanGraphPath {
+    let mut wire = PlanGraphPath {
+        departure_minute: path.minute,
+        node_count: path.nodes.len().min(PLAN_GRAPH_MAX_EDGES + 1) as u32,
+        edge_count: path.edges.len().min(PLAN_GRAPH_MAX_EDGES) as u32,
+        unknown_edges: path.unknown_edges as u32,
+        cost: finite_f32(path.cost),
+        activity_cost: finite_f32(path.activity_cost),
+        length_m: finite_f32(path.length_m),
+        duration_s: finite_f32(path.duration_s),
+        ..PlanGraphPath::EMPTY
+    };
+    for (slot, &id) in wire.nodes.iter_mut().zip(&path.nodes) {
+        *slot = id;
+    }
+    for (slot, &id) in wire.edges.iter_mut().zip(&path.edges) {
+        *slot = id;
+    }
+    wire
+}
+
 /// The response to a real-time request: the ranking at `t_star`.
 pub fn answer_now(ranked: &[RouteNow], t_star: u32) -> PlanResponse {
     let mut r = PlanResponse::new(PlanKind::Now as u32, PlanStatus::Ok, "");
@@ -445,5 +517,64 @@ mod tests {
         let r = answer_now(&ranked, 870);
         assert_eq!(r.t_star, 870);
         assert_eq!(ranking_of(&r), ranked);
+    }
+
+    #[test]
+    fn graph_answers_carry_the_paths_and_refuse_what_does_not_fit() {
+        use crate::graph_plan::GraphWindow;
+        let path = |minute: u32, edges: Vec<u16>, cost: f64| GraphPath {
+            t_star: minute,
+            minute,
+            nodes: std::iter::once(1)
+                .chain(edges.iter().map(|e| e + 100))
+                .collect(),
+            edges,
+            cost,
+            activity_cost: cost - 3.0,
+            length_m: 3.0,
+            duration_s: 6.0,
+            unknown_edges: 0,
+        };
+        let plan = GraphPlan {
+            range: DayRange {
+                start: 480,
+                end: 540,
+                step: 30,
+                cycle_offset: 0,
+            },
+            curve: vec![
+                CurvePoint {
+                    minute: 480,
+                    cost: 3.0,
+                },
+                CurvePoint {
+                    minute: 510,
+                    cost: 8.0,
+                },
+            ],
+            windows: vec![GraphWindow {
+                window: Window {
+                    start: 480,
+                    end: 510,
+                    cost: 3.0,
+                },
+                path: path(480, vec![11, 12], 3.0),
+            }],
+            best: vec![path(480, vec![11, 12], 3.0)],
+            baseline: path(525, vec![11, 12], 199.0),
+        };
+        let r = answer_graph(&plan);
+        assert_eq!(r.validate(), Ok(PlanStatus::Ok));
+        assert_eq!((r.t_star, r.curve_len, r.window_count), (480, 2, 1));
+        assert_eq!(r.graph_best.node_ids(), [1, 111, 112]);
+        assert_eq!(r.graph_best.edge_ids(), [11, 12]);
+        assert_eq!(r.graph_windows[0].edge_ids(), [11, 12]);
+        assert_eq!(r.graph_baseline.cost, 199.0);
+        assert_eq!(r.graph_baseline.departure_minute, 525);
+        let mut long = plan.clone();
+        long.baseline = path(0, vec![7; PLAN_GRAPH_MAX_EDGES + 1], 1.0);
+        let r = answer_graph(&long);
+        assert_eq!(r.validate(), Ok(PlanStatus::Failed));
+        assert!(r.message().contains("at most 255"), "{}", r.message());
     }
 }

@@ -23,6 +23,8 @@ use crate::plan::{
 use crate::profile::{ProfilePoint, daily_profile};
 use crate::raster::Footprint;
 
+mod graph;
+
 /// A camera's latest live activity.
 #[derive(Debug, Clone, Copy)]
 pub struct LiveCamera<'a> {

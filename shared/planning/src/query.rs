@@ -22,6 +22,9 @@ pub const PLAN_CURVE_LEN: usize = 1440;
 pub const PLAN_MAX_WINDOWS: usize = 8;
 /// Length of a planning response's text (an error, or where a snapshot went).
 pub const PLAN_MESSAGE_LEN: usize = 256;
+/// Most edges of a path in a graph answer ([`PlanGraphPath`]); a longer path is
+/// answered with [`PlanStatus::Failed`].
+pub const PLAN_GRAPH_MAX_EDGES: usize = 255;
 
 u32_enum! {
     /// What a [`PlanRequest`] asks the cost map bridge for.
@@ -32,6 +35,9 @@ u32_enum! {
         Now = 2,
         /// Write a snapshot of the current cost map (PGM + YAML + PNG).
         Snapshot = 3,
+        /// Over the route graph: for each departure of a window, the cheapest
+        /// path from one node to another on the forecast, and the best departures.
+        Graph = 4,
     }
 }
 
@@ -48,6 +54,10 @@ u32_enum! {
         NoData = 3,
         /// Something failed on the service's side; see the message.
         Failed = 4,
+        /// Graph: a node id the route graph does not have.
+        UnknownNode = 5,
+        /// Graph: no path from the start node to the goal.
+        NoPath = 6,
     }
 }
 
@@ -77,8 +87,12 @@ pub struct PlanRequest {
     pub end_minute: u32,
     /// Off-line: minutes per curve point (1..=1440).
     pub step_min: u32,
-    /// Off-line, weekly stores: the day, 0 = Monday .. 6 = Sunday; 7 = today.
+    /// Off-line and graph, weekly stores: the day, 0 = Monday .. 6 = Sunday; 7 = today.
     pub weekday: u32,
+    /// Graph: the start node's id (nav2_route, 0..=65535).
+    pub from_node: u32,
+    /// Graph: the goal node's id (nav2_route, 0..=65535).
+    pub to_node: u32,
 }
 
 impl PlanRequest {
@@ -101,7 +115,18 @@ impl PlanRequest {
             end_minute: 1440,
             step_min: 5,
             weekday: 7,
+            from_node: 0,
+            to_node: 0,
         }
+    }
+
+    /// A graph request from node `from` to node `to`, over the whole day in
+    /// steps of 5 minutes, today.
+    pub fn graph(from: u16, to: u16) -> PlanRequest {
+        let mut request = PlanRequest::new(PlanKind::Graph, &[]);
+        request.from_node = from as u32;
+        request.to_node = to as u32;
+        request
     }
 
     /// Checks magic, version, kind, counts and minutes.
@@ -125,9 +150,29 @@ impl PlanRequest {
             PlanKind::Now if self.route_count == 0 => {
                 return field("route_count", "name at least one route".into());
             }
+            PlanKind::Graph if self.route_count != 0 => {
+                return field(
+                    "route_count",
+                    format!(
+                        "graph plans take nodes, not routes: found {} routes",
+                        self.route_count
+                    ),
+                );
+            }
+            PlanKind::Graph
+                if self.from_node > u16::MAX as u32 || self.to_node > u16::MAX as u32 =>
+            {
+                return field(
+                    "from_node",
+                    format!(
+                        "nodes {} and {}: nav2_route ids are 0 to 65535",
+                        self.from_node, self.to_node
+                    ),
+                );
+            }
             _ => {}
         }
-        if kind == PlanKind::Offline {
+        if matches!(kind, PlanKind::Offline | PlanKind::Graph) {
             if self.start_minute >= 1440 || self.end_minute == 0 || self.end_minute > 1440 {
                 return field(
                     "start_minute",
@@ -205,6 +250,59 @@ pub struct PlanWindow {
     pub reserved: u32,
 }
 
+/// A path through the route graph in a [`PlanResponse`] to a graph request.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("isochron::PlanGraphPath")]
+#[repr(C)]
+pub struct PlanGraphPath {
+    /// Departure, minute of the day.
+    pub departure_minute: u32,
+    /// Number of valid entries in `nodes` (0: no path; else `edge_count + 1`).
+    pub node_count: u32,
+    /// Number of valid entries in `edges`.
+    pub edge_count: u32,
+    /// Edges without long-term data (their activity counted as 0).
+    pub unknown_edges: u32,
+    /// Total cost: distance, forecast activity and fixed edge costs.
+    pub cost: f32,
+    /// The forecast activity part.
+    pub activity_cost: f32,
+    /// Length, metres.
+    pub length_m: f32,
+    /// Travel time, seconds.
+    pub duration_s: f32,
+    /// Node ids, from the start to the goal.
+    pub nodes: [u16; PLAN_GRAPH_MAX_EDGES + 1],
+    /// Edge ids, in order (the last entry is padding).
+    pub edges: [u16; PLAN_GRAPH_MAX_EDGES + 1],
+}
+
+impl PlanGraphPath {
+    /// No path.
+    pub const EMPTY: PlanGraphPath = PlanGraphPath {
+        departure_minute: 0,
+        node_count: 0,
+        edge_count: 0,
+        unknown_edges: 0,
+        cost: 0.0,
+        activity_cost: 0.0,
+        length_m: 0.0,
+        duration_s: 0.0,
+        nodes: [0; PLAN_GRAPH_MAX_EDGES + 1],
+        edges: [0; PLAN_GRAPH_MAX_EDGES + 1],
+    };
+
+    /// The valid node ids.
+    pub fn node_ids(&self) -> &[u16] {
+        &self.nodes[..(self.node_count as usize).min(self.nodes.len())]
+    }
+
+    /// The valid edge ids.
+    pub fn edge_ids(&self) -> &[u16] {
+        &self.edges[..(self.edge_count as usize).min(PLAN_GRAPH_MAX_EDGES)]
+    }
+}
+
 /// The answer of the cost map bridge to a [`PlanRequest`].
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[type_name("isochron::PlanResponse")]
@@ -239,8 +337,15 @@ pub struct PlanResponse {
     pub curve: [f32; PLAN_CURVE_LEN],
     /// Off-line: number of valid windows.
     pub window_count: u32,
-    /// Off-line: the cheapest windows, cheapest first.
+    /// Off-line and graph: the cheapest windows, cheapest first.
     pub windows: [PlanWindow; PLAN_MAX_WINDOWS],
+    /// Graph: the cheapest path of each window, as many as `window_count`.
+    pub graph_windows: [PlanGraphPath; PLAN_MAX_WINDOWS],
+    /// Graph: the cheapest departure of all.
+    pub graph_best: PlanGraphPath,
+    /// Graph: the shortest path leaving now (the route server's without
+    /// isochron), costed the same way.
+    pub graph_baseline: PlanGraphPath,
 }
 
 impl PlanResponse {
@@ -262,6 +367,9 @@ impl PlanResponse {
             curve: [0.0; PLAN_CURVE_LEN],
             window_count: 0,
             windows: [PlanWindow::default(); PLAN_MAX_WINDOWS],
+            graph_windows: [PlanGraphPath::EMPTY; PLAN_MAX_WINDOWS],
+            graph_best: PlanGraphPath::EMPTY,
+            graph_baseline: PlanGraphPath::EMPTY,
         }
     }
 
@@ -272,6 +380,10 @@ impl PlanResponse {
         if self.route_count as usize > PLAN_MAX_ROUTES
             || self.curve_len as usize > PLAN_CURVE_LEN
             || self.window_count as usize > PLAN_MAX_WINDOWS
+            || self.graph_paths().any(|p| {
+                p.edge_count as usize > PLAN_GRAPH_MAX_EDGES
+                    || p.node_count as usize > PLAN_GRAPH_MAX_EDGES + 1
+            })
         {
             return Err(WireError::Field {
                 field: "route_count",
@@ -284,6 +396,13 @@ impl PlanResponse {
     /// The response's text.
     pub fn message(&self) -> String {
         fixed_str(&self.message)
+    }
+
+    /// Every graph path slot, valid or not.
+    fn graph_paths(&self) -> impl Iterator<Item = &PlanGraphPath> {
+        self.graph_windows
+            .iter()
+            .chain([&self.graph_best, &self.graph_baseline])
     }
 }
 
@@ -309,5 +428,15 @@ mod tests {
             PlanRequest::new(PlanKind::Now, &["x", "y"]).route_names(),
             ["x", "y"]
         );
+        let mut req = PlanRequest::graph(1, 2);
+        assert_eq!(req.validate(), Ok(PlanKind::Graph));
+        req.to_node = 70_000;
+        assert!(req.validate().is_err(), "ids are uint16");
+        let mut req = PlanRequest::graph(1, 2);
+        req.end_minute = 1441;
+        assert!(req.validate().is_err());
+        let mut req = PlanRequest::graph(1, 2);
+        req.route_count = 1;
+        assert!(req.validate().is_err(), "graph plans take no routes");
     }
 }

@@ -457,6 +457,64 @@ pub struct PlanNowResponse {
     pub routes: Vec<RouteCost>,
 }
 
+/// `isochron_msgs/msg/GraphPath`: a path through the route graph leaving at one
+/// time.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GraphPath {
+    /// Departure, minute of the day.
+    pub departure_minute: u16,
+    /// nav2_route node ids, start to goal.
+    pub nodes: Vec<u16>,
+    /// nav2_route edge ids, in order.
+    pub edges: Vec<u16>,
+    /// Total cost.
+    pub cost: f64,
+    /// Its forecast activity part.
+    pub activity_cost: f64,
+    /// Length, metres.
+    pub length_m: f64,
+    /// Travel time, seconds.
+    pub duration_s: f64,
+    /// Edges without long-term data.
+    pub unknown_edges: u16,
+}
+
+/// `isochron_msgs/srv/PlanGraph` request.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlanGraphRequest {
+    /// Start node id.
+    pub from_node: u16,
+    /// Goal node id.
+    pub to_node: u16,
+    /// First departure, 0..1440.
+    pub start_minute: u16,
+    /// End minute, exclusive, 1..=1440.
+    pub end_minute: u16,
+    /// Minutes between departures.
+    pub step_min: u16,
+    /// 0 = Monday .. 6, 7 = today.
+    pub weekday: u8,
+}
+
+/// `isochron_msgs/srv/PlanGraph` response.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlanGraphResponse {
+    /// `STATUS_*` (the values of `PlanStatus`).
+    pub status: u8,
+    /// Why not OK.
+    pub message: String,
+    /// Cheapest departure windows.
+    pub windows: Vec<Window>,
+    /// The cheapest path of each window.
+    pub window_paths: Vec<GraphPath>,
+    /// The cheapest cost per departure.
+    pub curve: Vec<CostPoint>,
+    /// The cheapest departure.
+    pub best: GraphPath,
+    /// The shortest path leaving now, costed the same way.
+    pub baseline: GraphPath,
+}
+
 #[cfg(test)]
 mod tests {
     use rustdds::CDRSerializerAdapter;

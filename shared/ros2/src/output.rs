@@ -92,8 +92,8 @@ impl RosOutput {
             Some(z) => Some(RosZenoh::open(z, "/isochron", NODE)?),
             None => None,
         };
-        // On Zenoh the services are declared first: its entity ids 1 and 2, the
-        // publishers' 3 to 10.
+        // On Zenoh the services are declared first: their entity ids 1 to 3, the
+        // publishers' 4 to 11.
         let zenoh_plans = match &zenoh {
             Some(z) => Some(PlanServices::new(
                 SERVICES

@@ -1,5 +1,5 @@
-//! The planning services over ROS 2, `isochron_msgs/srv/PlanOffline` and
-//! `PlanNow` (ros/isochron_msgs), answered with what answers `<prefix>/plan` over
+//! The planning services over ROS 2, `isochron_msgs/srv/PlanOffline`, `PlanNow`
+//! and `PlanGraph` (ros/isochron_msgs), answered with what answers `<prefix>/plan` over
 //! iceoryx2: one loop for every transport.
 //!
 //! A transport's side of a service is an [`Endpoint`]: it takes what arrived
@@ -37,7 +37,9 @@ use isochron_planning::query::{PlanKind, PlanRequest, PlanResponse, PlanStatus};
 use isochron_runtime::stage::Context;
 
 use crate::fair::{FairQueue, Pushed};
-pub use convert::{MAX_REQUEST_BYTES, now_response, offline_response, plan_request};
+pub use convert::{
+    MAX_REQUEST_BYTES, graph_response, now_response, offline_response, plan_request,
+};
 
 /// Requests a service holds for an answer, of all clients together; past it a
 /// newcomer displaces the newest request of the longest lane, if that is longer
@@ -299,6 +301,7 @@ impl<E: Endpoint> Service<E> {
     fn reply(&self, cx: &mut Context, reply: E::Reply, response: &PlanResponse) {
         let cdr = match self.kind {
             PlanKind::Now => to_vec::<_, LittleEndian>(&now_response(response)),
+            PlanKind::Graph => to_vec::<_, LittleEndian>(&graph_response(response)),
             _ => to_vec::<_, LittleEndian>(&offline_response(response)),
         };
         let cdr = match cdr {

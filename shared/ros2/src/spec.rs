@@ -27,7 +27,9 @@
 //!   latched — the cost expected `forecast_ahead_min` ahead;
 //! * [`PLAN_OFFLINE`], `costmap.plan_offline_service`, and [`PLAN_NOW`],
 //!   `costmap.plan_now_service`: the services `isochron_msgs/srv/PlanOffline` and
-//!   `PlanNow` (ros/isochron_msgs), answered by [`crate::plan`].
+//!   `PlanNow` (ros/isochron_msgs), answered by [`crate::plan`];
+//! * [`PLAN_GRAPH`], `costmap.plan_graph_service`: `isochron_msgs/srv/PlanGraph`,
+//!   planning over the route graph across departure times, answered there too.
 //!
 //! Latched is reliable, transient-local, keep last 1 ([`LATCHED`]); a stream is
 //! reliable, volatile, keep last 10 ([`STREAM`]). Each type is named by its DDS
@@ -83,6 +85,11 @@ pub mod types {
     pub const PLAN_OFFLINE: RosType = RosType {
         dds_name: "isochron_msgs::srv::dds_::PlanOffline_",
         hash: "RIHS01_842684142b8532e0527d5fa42b630f3dc55e6d5740de27bf6655d97b6d9538a1",
+    };
+    /// `isochron_msgs/srv/PlanGraph`.
+    pub const PLAN_GRAPH: RosType = RosType {
+        dds_name: "isochron_msgs::srv::dds_::PlanGraph_",
+        hash: "RIHS01_41dbd95ce2038c3547018753409eba9311f518df44b472b616fb5bc626fe8316",
     };
 }
 
@@ -246,11 +253,21 @@ pub const PLAN_NOW: ServiceSpec = ServiceSpec {
     ty: types::PLAN_NOW,
 };
 
+/// The planning service over the route graph.
+pub const PLAN_GRAPH: ServiceSpec = ServiceSpec {
+    config: ConfigKey {
+        key: "costmap.plan_graph_service",
+        value: |c| c.plan_graph_service.clone(),
+    },
+    kind: PlanKind::Graph,
+    ty: types::PLAN_GRAPH,
+};
+
 /// The planning services, in the order each transport creates and serves them.
-pub const SERVICES: [ServiceSpec; 2] = [PLAN_OFFLINE, PLAN_NOW];
+pub const SERVICES: [ServiceSpec; 3] = [PLAN_OFFLINE, PLAN_NOW, PLAN_GRAPH];
 
 /// Every key that names a topic or a service: what [`Names`] holds.
-const KEYS: [ConfigKey; 10] = [
+const KEYS: [ConfigKey; 11] = [
     GRID.config,
     UPDATES.config,
     PEOPLE.config,
@@ -261,6 +278,7 @@ const KEYS: [ConfigKey; 10] = [
     FORECAST.config,
     PLAN_OFFLINE.config,
     PLAN_NOW.config,
+    PLAN_GRAPH.config,
 ];
 
 /// The names of the bridge's topics and services, by the keys that give them.
@@ -305,6 +323,7 @@ mod tests {
             FORECAST.config,
             PLAN_OFFLINE.config,
             PLAN_NOW.config,
+            PLAN_GRAPH.config,
         ];
         for key in keys {
             assert!(names.of(&key).starts_with("/isochron/"), "{}", key.key);
@@ -315,6 +334,7 @@ mod tests {
             "/isochron/activity_costmap_updates"
         );
         assert_eq!(names.of(&PLAN_NOW.config), "/isochron/plan_now");
+        assert_eq!(names.of(&PLAN_GRAPH.config), "/isochron/plan_graph");
     }
 
     /// The DDS type names are those `ros2-client` gives `<package>/msg/<Type>`.

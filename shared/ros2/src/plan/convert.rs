@@ -7,13 +7,13 @@ use serde::de::DeserializeOwned;
 
 use isochron_planning::plan_service::{offline_plan_of, ranking_of};
 use isochron_planning::query::{
-    PLAN_FLAG_INFINITE, PLAN_MAX_ROUTES, PLAN_NAME_LEN, PlanKind, PlanRequest, PlanResponse,
-    PlanStatus,
+    PLAN_FLAG_INFINITE, PLAN_MAX_ROUTES, PLAN_NAME_LEN, PlanGraphPath, PlanKind, PlanRequest,
+    PlanResponse, PlanStatus,
 };
 
 use crate::msgs::{
-    CostPoint, PlanNowRequest, PlanNowResponse, PlanOfflineRequest, PlanOfflineResponse, RouteCost,
-    Window as WindowMsg,
+    CostPoint, GraphPath, PlanGraphRequest, PlanGraphResponse, PlanNowRequest, PlanNowResponse,
+    PlanOfflineRequest, PlanOfflineResponse, RouteCost, Window as WindowMsg,
 };
 
 /// Largest request body decoded: a `PlanNow` of 16 names of 32 bytes is < 700.
@@ -51,6 +51,15 @@ pub fn plan_request(kind: PlanKind, body: &[u8], big_endian: bool) -> Result<Pla
             }
             let names: Vec<&str> = wire.routes.iter().map(|r| r.0.as_str()).collect();
             PlanRequest::new(PlanKind::Now, &names)
+        }
+        PlanKind::Graph => {
+            let wire: PlanGraphRequest = cdr(body, big_endian)?;
+            let mut request = PlanRequest::graph(wire.from_node, wire.to_node);
+            request.start_minute = wire.start_minute as u32;
+            request.end_minute = wire.end_minute as u32;
+            request.step_min = wire.step_min as u32;
+            request.weekday = wire.weekday as u32;
+            request
         }
         _ => {
             let wire: PlanOfflineRequest = cdr(body, big_endian)?;
@@ -136,5 +145,59 @@ pub fn now_response(r: &PlanResponse) -> PlanNowResponse {
         } else {
             Vec::new()
         },
+    }
+}
+
+/// A `PlanGraph` response from the planner's answer.
+pub fn graph_response(r: &PlanResponse) -> PlanGraphResponse {
+    let empty = || graph_path(&PlanGraphPath::EMPTY);
+    let mut response = PlanGraphResponse {
+        status: r.status as u8,
+        message: r.message(),
+        windows: Vec::new(),
+        window_paths: Vec::new(),
+        curve: Vec::new(),
+        best: empty(),
+        baseline: empty(),
+    };
+    if r.status != PlanStatus::Ok as u32 {
+        return response;
+    }
+    let plan = offline_plan_of(r);
+    let windows = (r.window_count as usize).min(r.windows.len());
+    response.windows = plan
+        .windows
+        .iter()
+        .map(|w| WindowMsg {
+            start_minute: w.start as u16,
+            end_minute: w.end as u16,
+            cost: w.cost,
+        })
+        .collect();
+    response.window_paths = r.graph_windows[..windows].iter().map(graph_path).collect();
+    response.curve = plan
+        .curve
+        .iter()
+        .map(|p| CostPoint {
+            minute: p.minute as u16,
+            cost: p.cost,
+        })
+        .collect();
+    response.best = graph_path(&r.graph_best);
+    response.baseline = graph_path(&r.graph_baseline);
+    response
+}
+
+/// A `GraphPath` from its wire form.
+fn graph_path(p: &PlanGraphPath) -> GraphPath {
+    GraphPath {
+        departure_minute: p.departure_minute as u16,
+        nodes: p.node_ids().to_vec(),
+        edges: p.edge_ids().to_vec(),
+        cost: p.cost as f64,
+        activity_cost: p.activity_cost as f64,
+        length_m: p.length_m as f64,
+        duration_s: p.duration_s as f64,
+        unknown_edges: p.unknown_edges.min(u16::MAX as u32) as u16,
     }
 }

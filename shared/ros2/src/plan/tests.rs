@@ -1,6 +1,6 @@
 use std::cell::RefCell;
 
-use isochron_planning::query::PlanStatus;
+use isochron_planning::query::{PlanGraphPath, PlanStatus};
 use isochron_runtime::topology::StageKind;
 
 use super::*;
@@ -90,6 +90,93 @@ fn plan_now_requests_are_read_in_either_byte_order() {
     cdr_str(&mut b, &long, true);
     assert!(plan_request(PlanKind::Now, &b, false).is_err());
     assert!(plan_request(PlanKind::Now, &vec![0; MAX_REQUEST_BYTES + 1], false).is_err());
+}
+
+/// `PlanGraph` request fields laid out by hand: from, to, start, end, step (uint16)
+/// and the weekday (uint8), little-endian or big-endian.
+fn graph_body(fields: [u16; 5], weekday: u8, big_endian: bool) -> Vec<u8> {
+    let mut b = Vec::new();
+    for v in fields {
+        b.extend(if big_endian {
+            v.to_be_bytes()
+        } else {
+            v.to_le_bytes()
+        });
+    }
+    b.push(weekday);
+    b
+}
+
+#[test]
+fn plan_graph_requests_and_responses_convert() {
+    for big_endian in [false, true] {
+        let body = graph_body([1, 3, 480, 660, 15], 0, big_endian);
+        let r = plan_request(PlanKind::Graph, &body, big_endian).unwrap();
+        assert_eq!(
+            (
+                r.from_node,
+                r.to_node,
+                r.start_minute,
+                r.end_minute,
+                r.step_min
+            ),
+            (1, 3, 480, 660, 15)
+        );
+        assert_eq!((r.weekday, r.route_count), (0, 0));
+    }
+    let err = plan_request(
+        PlanKind::Graph,
+        &graph_body([1, 3, 2000, 660, 15], 0, false),
+        false,
+    )
+    .unwrap_err();
+    assert!(err.contains("outside the day"), "{err}");
+    assert!(
+        plan_request(
+            PlanKind::Graph,
+            &graph_body([1, 3, 0, 60, 5], 9, false),
+            false
+        )
+        .is_err()
+    );
+    assert!(plan_request(PlanKind::Graph, &[1, 0, 3], false).is_err());
+
+    let mut answer = PlanResponse::new(PlanKind::Graph as u32, PlanStatus::Ok, "");
+    answer.curve_start_minute = 480;
+    answer.curve_step_min = 15;
+    answer.curve_len = 2;
+    answer.curve[..2].copy_from_slice(&[3.0, 8.0]);
+    answer.window_count = 1;
+    answer.windows[0].start_minute = 480;
+    answer.windows[0].end_minute = 495;
+    answer.windows[0].cost = 3.0;
+    let mut path = PlanGraphPath::EMPTY;
+    path.departure_minute = 480;
+    path.node_count = 3;
+    path.edge_count = 2;
+    path.nodes[..3].copy_from_slice(&[1, 2, 3]);
+    path.edges[..2].copy_from_slice(&[11, 12]);
+    path.cost = 3.0;
+    answer.graph_windows[0] = path;
+    answer.graph_best = path;
+    answer.graph_baseline = PlanGraphPath {
+        cost: 199.0,
+        ..path
+    };
+    let msg = graph_response(&answer);
+    assert_eq!(msg.status, 0);
+    assert_eq!(msg.curve.len(), 2);
+    assert_eq!((msg.curve[1].minute, msg.curve[1].cost), (495, 8.0));
+    assert_eq!(msg.windows.len(), 1);
+    assert_eq!(msg.window_paths.len(), 1);
+    assert_eq!(msg.best.nodes, [1, 2, 3]);
+    assert_eq!(msg.best.edges, [11, 12]);
+    assert_eq!(msg.baseline.cost, 199.0);
+    // Anything but OK carries the status and the message alone.
+    let failed = PlanResponse::new(PlanKind::Graph as u32, PlanStatus::NoPath, "no way");
+    let msg = graph_response(&failed);
+    assert_eq!((msg.status, msg.message.as_str()), (6, "no way"));
+    assert!(msg.windows.is_empty() && msg.best.nodes.is_empty());
 }
 
 /// A transport in memory: what it will hand over, and the replies sent.
