@@ -510,49 +510,6 @@ fn a_ros2_subscriber_gets_the_grid_its_updates_and_late_joiners_the_last_grid() 
     assert_eq!(grids[0]["frame_id"], "test_map");
 }
 
-/// A bridge stopped and continued (SIGSTOP, SIGCONT: a debugger, `kill -STOP`, a
-/// shell's Ctrl-Z and `fg`) goes on publishing to ROS 2, and stops without an
-/// error line. RustDDS's event loop used to end on the interrupted poll that
-/// follows a SIGCONT (vendor/rustdds-poll-interrupted.patch): the process ran on,
-/// silent on DDS.
-#[test]
-fn a_bridge_stopped_and_continued_still_publishes_and_stops_cleanly() {
-    python();
-    let domain = dds_domain();
-    let site = costmap_site("costmap-sigcont", domain, "");
-    let (_ipc, mut source, mut costmap) = start_bridge(&site, "2026-03-02T11:00:00Z");
-    let mut grids = listener(domain, true, 0, 90);
-    wait_until(
-        "the quiet grid",
-        &mut grids,
-        &costmap,
-        || source.send(&[], 750),
-        Duration::from_secs(60),
-        |msgs| held_grid(msgs).is_some_and(|g| g == expected_cells(false)),
-    );
-
-    costmap.signal(libc::SIGSTOP);
-    std::thread::sleep(Duration::from_millis(500));
-    costmap.signal(libc::SIGCONT);
-
-    wait_for_hot_grid(
-        "the hot grid after SIGSTOP and SIGCONT",
-        &mut grids,
-        &costmap,
-        &mut source,
-        750,
-        Duration::from_secs(30),
-    );
-    costmap.signal(libc::SIGTERM);
-    assert!(
-        costmap.wait(Duration::from_secs(10)).is_some(),
-        "the bridge did not stop"
-    );
-    let stderr = costmap.stderr();
-    let errors: Vec<&str> = stderr.lines().filter(|l| l.contains("ERROR")).collect();
-    assert!(errors.is_empty(), "errors logged:\n{}", errors.join("\n"));
-}
-
 /// The long-term store of cam01: blocks with x < 160 px (the west half of the
 /// floor, x < 2 m) are busy except 12:00-13:00; the rest is a little busy.
 pub(crate) fn write_store(site: &TestSite) {

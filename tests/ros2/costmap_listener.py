@@ -58,6 +58,7 @@ def main():
 
     from cyclonedds.domain import DomainParticipant
     from cyclonedds.idl.types import float32, float64, int8, int32, sequence, uint8, uint32
+    from cyclonedds.internal import InvalidSample
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
 
@@ -146,6 +147,11 @@ def main():
             extra.append((kind, DataReader(participant, Topic(participant, dds(topic), cls), qos=qos)))
     emit({"kind": "ready"})
 
+    def valid(samples):
+        """The samples with data: a reader also takes instance state changes (a
+        writer gone quiet, disposed), which carry none, as rclpy skips them."""
+        return [m for m in samples if not isinstance(m, InvalidSample)]
+
     def grid_json(kind, msg):
         o = msg.info.origin
         return {
@@ -199,12 +205,12 @@ def main():
     end = time.monotonic() + args.timeout
     while time.monotonic() < end:
         got = False
-        for msg in grid_reader.take(N=16):
+        for msg in valid(grid_reader.take(N=16)):
             got = True
             grids += 1
             emit(grid_json("grid", msg))
         if updates_reader is not None:
-            for msg in updates_reader.take(N=64):
+            for msg in valid(updates_reader.take(N=64)):
                 got = True
                 emit(
                     {
@@ -219,7 +225,7 @@ def main():
                     }
                 )
         for kind, reader in extra:
-            for msg in reader.take(N=16):
+            for msg in valid(reader.take(N=16)):
                 got = True
                 emit(extra_json(kind, msg))
         if args.grids and grids >= args.grids:

@@ -211,13 +211,15 @@ def plan(args):
             out["t_star"] = int(r.t_star)
             out["routes"] = [[x.route, x.cost2, bool(x.infinite)] for x in r.routes]
         elif hasattr(r, "baseline"):
-            out["windows"] = [[w.start_minute, w.end_minute, w.cost] for w in r.windows]
-            out["window_edges"] = [list(p.edges) for p in r.window_paths]
+            ints = lambda xs: [int(x) for x in xs]  # numpy integers, as the SDK decodes arrays
+            out["windows"] = [[int(w.start_minute), int(w.end_minute), float(w.cost)]
+                              for w in r.windows]
+            out["window_edges"] = [ints(p.edges) for p in r.window_paths]
             out["best"] = {"departure_minute": int(r.best.departure_minute),
-                           "nodes": list(r.best.nodes), "edges": list(r.best.edges),
-                           "cost": r.best.cost}
-            out["baseline"] = {"nodes": list(r.baseline.nodes),
-                               "edges": list(r.baseline.edges), "cost": r.baseline.cost}
+                           "nodes": ints(r.best.nodes), "edges": ints(r.best.edges),
+                           "cost": float(r.best.cost)}
+            out["baseline"] = {"nodes": ints(r.baseline.nodes),
+                               "edges": ints(r.baseline.edges), "cost": float(r.baseline.cost)}
         else:
             out["windows"] = [[w.start_minute, w.end_minute, w.cost] for w in r.windows]
         emit(out)
