@@ -201,7 +201,11 @@ fn bridge_names(c: &isochron_config::CostmapConfig) -> (Vec<String>, Vec<String>
     .iter()
     .map(|t| format!("rt{}", absolute(t)))
     .collect();
-    let services = [&c.plan_now_service, &c.plan_offline_service];
+    let services = [
+        &c.plan_now_service,
+        &c.plan_offline_service,
+        &c.plan_graph_service,
+    ];
     let requests = services
         .iter()
         .map(|s| format!("rq{}Request", absolute(s)))
