@@ -26,7 +26,7 @@ use crate::common::config_path;
 use crate::status;
 
 mod load_checks;
-use load_checks::{check_model, check_mqtt, check_warnings};
+use load_checks::{check_model, check_mqtt, check_route_graph, check_warnings};
 
 /// Check the site's set-up and say what to fix (changes nothing without --fix).
 #[derive(clap::Args)]
@@ -150,6 +150,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     check_sources(&loaded, &mut report);
     check_model(&loaded, &mut report);
     check_map(&loaded, &mut report);
+    check_route_graph(&loaded, &mut report);
     check_state_dir(&loaded.state_dir(), &mut report);
     check_disk(&loaded.state_dir(), &mut report);
     check_stores(&loaded, &mut report);

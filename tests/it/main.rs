@@ -26,6 +26,12 @@
 //!   Jazzy and Kilted with rmw_fastrtps_cpp from PyPI (`target/rclpy-<release>`,
 //!   `tests/ros2/rclpy_peer.py`), on every topic and both services, on loopback
 //!   and across two network namespaces;
+//! * route_server: the bridge as the client of nav2_route's `DynamicEdgesScorer`
+//!   (`nav2_msgs/srv/DynamicEdges`), served by a stand-in on rclpy Jazzy and Kilted
+//!   (`tests/ros2/rclpy_peer.py route-server`) and on zenoh-ros2-sdk's
+//!   `ROS2ServiceServer` (`tests/zenoh/rmw_zenoh_peer.py route-server`): edges
+//!   costed, closed and reopened, a restarted server told everything, a server that
+//!   refuses or hangs;
 //! * view: the calibration overlay on vtest.avi with the demo calibration (a wrong
 //!   tape mark flagged, bad input); a `replay --record` of vtest read by the
 //!   Python `mcap` package; `isochron view` during a replay at speed 1 with the
@@ -114,6 +120,7 @@ mod plan_graph;
 mod presence;
 mod rclpy;
 mod reliability;
+mod route_server;
 mod scale;
 mod sros2;
 mod systemd;

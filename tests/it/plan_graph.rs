@@ -24,9 +24,9 @@ use crate::costmap::{
 };
 
 /// Monday 08:45: inside the busy hour.
-const NOW: &str = "2026-03-02T08:45:00Z";
+pub(crate) const NOW: &str = "2026-03-02T08:45:00Z";
 /// Its minute of the week.
-const NOW_T_STAR: u32 = 525;
+pub(crate) const NOW_T_STAR: u32 = 525;
 /// The busy hour on Mondays, minutes of the day.
 const BUSY: std::ops::Range<u32> = 510..570;
 /// The straight way from node 1 to node 3, and the way round.
@@ -62,7 +62,7 @@ fn graph_geojson() -> String {
 /// Whether block `b` (20 × 15 blocks of 16 px) looks at the busy zone, floor x
 /// 0..1 m, y 3.8..4.8 m: its centre mapped back with the inverse of
 /// [`crate::costmap::floor_to_image`].
-fn busy_block(b: usize) -> bool {
+pub(crate) fn busy_block(b: usize) -> bool {
     let (u, v) = ((b % 20) as f64 * 16.0 + 8.0, (b / 20) as f64 * 16.0 + 8.0);
     let y = (400.0 - v) / (60.0 + 0.05 * v);
     let x = (u * (0.05 * y + 1.0) - 10.0 * y - 20.0) / 80.0;
@@ -71,7 +71,7 @@ fn busy_block(b: usize) -> bool {
 
 /// A weekly store that learned Mondays 07:00–12:00: the busy zone at 0.2
 /// (Cost 98) from 08:30 to 09:30, everything else quiet.
-fn write_week(site: &TestSite) {
+pub(crate) fn write_week(site: &TestSite) {
     let state_dir = site.config().state_dir();
     let meta = StoreMeta::new("cam01", BlockGrid::new(320, 240, 16), Cycle::Weekly, 0);
     let mut store = Store::open_or_create(&store_path(&state_dir, "cam01"), &meta).unwrap();

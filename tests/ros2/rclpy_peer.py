@@ -26,10 +26,21 @@ calls them with the requests given as JSON (`call_async`, each sent once, as
 rclcpp and rclpy do); one JSON line per reply (the format of plan_client.py, with
 "latency_ms").
 
+route-server: a stand-in for nav2_route's route server: the node `route_server`
+serving `nav2_msgs/srv/DynamicEdges` at `route_server/<scorer>/adjust_edges`, as
+its DynamicEdgesScorer does (`dynamic_edges_scorer.cpp`: closed edges added,
+opened ones removed, each adjusted edge's cost kept). One JSON line per request:
+{"kind": "adjust_edges", "t", "closed", "opened", "adjust": [[id, cost]...],
+"state": {"closed": [...], "costs": {id: cost}}}. --answer refuse answers
+success = false; never takes the first request and answers nothing (a hung
+server).
+
 Usage: rclpy_peer.py --domain D [--subnet] listen --topic T [--updates] [--people T]
            [--markers T] [--people-markers T] [--speed-info T] [--speed-mask T] [--forecast T] [--grids N]
            [--mismatch] [--timeout S]
        rclpy_peer.py --domain D [--subnet] plan CALLS_JSON [--timeout S]
+       rclpy_peer.py --domain D [--subnet] route-server [--scorer NAME]
+           [--answer ok|refuse|never] [--timeout S]
 
 CALLS_JSON: a list of {"service": "/isochron/plan_now", "routes": [...]},
 {"service": "/isochron/plan_offline", "route": R, "start_minute": M, "end_minute":
@@ -295,6 +306,44 @@ def plan(args):
     rclpy.shutdown()
 
 
+def route_server(args):
+    import rclpy
+    from nav2_msgs.srv import DynamicEdges
+
+    rclpy.init()
+    node = rclpy.create_node("route_server")
+    start = time.monotonic()
+    closed, costs = set(), {}
+
+    def adjust_edges(request, response):
+        if args.answer == "never":
+            emit({"kind": "hung", "t": round(time.monotonic() - start, 3)})
+            time.sleep(args.timeout)
+        closed.update(request.closed_edges)
+        closed.difference_update(request.opened_edges)
+        for e in request.adjust_edges:
+            costs[e.edgeid] = e.cost
+        emit({"kind": "adjust_edges", "t": round(time.monotonic() - start, 3),
+              "closed": list(request.closed_edges), "opened": list(request.opened_edges),
+              "adjust": [[e.edgeid, e.cost] for e in request.adjust_edges],
+              "state": {"closed": sorted(closed),
+                        "costs": {str(k): v for k, v in sorted(costs.items())}}})
+        response.success = args.answer == "ok"
+        return response
+
+    # As nav2_route names it: node name, plugin name, adjust_edges.
+    name = f"{node.get_name()}/{args.scorer}/adjust_edges"
+    node.create_service(DynamicEdges, name, adjust_edges)
+    emit({"kind": "ready", "service": node.resolve_service_name(name),
+          "rmw": rclpy.utilities.get_rmw_implementation_identifier()})
+    end = start + args.timeout
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    emit({"kind": "done"})
+    node.destroy_node()
+    rclpy.shutdown()
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--domain", type=int, required=True)
@@ -313,10 +362,16 @@ def main():
     pl = sub.add_parser("plan")
     pl.add_argument("calls")
     pl.add_argument("--timeout", type=float, default=15.0)
+    rs = sub.add_parser("route-server")
+    rs.add_argument("--scorer", default="DynamicEdgesScorer")
+    rs.add_argument("--answer", choices=["ok", "refuse", "never"], default="ok")
+    rs.add_argument("--timeout", type=float, default=60.0)
     args = parser.parse_args()
     configure(args)
     if args.command == "listen":
         listen(args)
+    elif args.command == "route-server":
+        route_server(args)
     else:
         plan(args)
 

@@ -19,6 +19,11 @@ Commands (one JSON object per line on stdout, as tests/ros2/rclpy_peer.py):
   listen --router PORT --domain D ...    subscribe, report messages, then tokens
   late --router PORT --domain D --topic T   the late joiner
   plan --router PORT --domain D CALLS    call the services (CALLS: JSON list)
+  route-server --router PORT --domain D  serve nav2_msgs/srv/DynamicEdges at
+                                         /route_server/DynamicEdgesScorer/adjust_edges
+                                         as nav2_route's scorer keeps it; one
+                                         "adjust_edges" line per request, in the
+                                         format of tests/ros2/rclpy_peer.py route-server
 """
 
 import argparse
@@ -32,7 +37,7 @@ import time
 import zenoh
 import zenoh.ext
 
-from zenoh_ros2_sdk import ROS2ServiceClient, ROS2Subscriber, get_registry
+from zenoh_ros2_sdk import ROS2ServiceClient, ROS2ServiceServer, ROS2Subscriber, get_registry
 
 LOCK = threading.Lock()
 
@@ -225,9 +230,48 @@ def plan(args):
         emit(out)
 
 
+def route_server(args):
+    start = time.monotonic()
+    closed, costs = set(), {}
+    server = None
+
+    def adjust_edges(request):
+        ids = lambda xs: [int(x) for x in xs]  # numpy integers, as the SDK decodes arrays
+        closed.update(ids(request.closed_edges))
+        closed.difference_update(ids(request.opened_edges))
+        adjust = [[int(e.edgeid), float(e.cost)] for e in request.adjust_edges]
+        for edge, cost in adjust:
+            costs[edge] = cost
+        emit({"kind": "adjust_edges", "t": round(time.monotonic() - start, 3),
+              "closed": ids(request.closed_edges), "opened": ids(request.opened_edges),
+              "adjust": adjust,
+              "state": {"closed": sorted(closed),
+                        "costs": {str(k): v for k, v in sorted(costs.items())}}})
+        return server.response_msg_class(success=True)
+
+    # The SDK's type store (rosbags) resolves a .srv's same-package field type
+    # `EdgeCost` as nav2_msgs/srv/msg/EdgeCost and finds nothing there: the
+    # request failed to decode. Registered under that name too.
+    from rosbags.typesys import get_types_from_msg
+    from zenoh_ros2_sdk.session import ZenohSession
+    with open(os.path.join(args.messages, "nav2_msgs/msg/EdgeCost.msg")) as f:
+        edge_cost = f.read()
+    ZenohSession.get_instance("127.0.0.1", args.router).store.register(
+        get_types_from_msg(edge_cost, "nav2_msgs/srv/msg/EdgeCost"))
+    server = ROS2ServiceServer(
+        service_name="/route_server/DynamicEdgesScorer/adjust_edges",
+        srv_type="nav2_msgs/srv/DynamicEdges", callback=adjust_edges,
+        node_name="route_server", domain_id=args.domain, router_ip="127.0.0.1",
+        router_port=args.router,
+    )
+    emit({"kind": "ready", "service": "/route_server/DynamicEdgesScorer/adjust_edges"})
+    time.sleep(args.timeout)
+    emit({"kind": "done"})
+
+
 def main():
     parser = argparse.ArgumentParser()
-    parser.add_argument("command", choices=["router", "listen", "late", "plan"])
+    parser.add_argument("command", choices=["router", "listen", "late", "plan", "route-server"])
     parser.add_argument("calls", nargs="?")
     parser.add_argument("--listen")
     parser.add_argument("--router", type=int)
@@ -240,7 +284,8 @@ def main():
     args = parser.parse_args()
     if args.messages:
         get_registry(args.messages)
-    {"router": router, "listen": listen, "late": late, "plan": plan}[args.command](args)
+    {"router": router, "listen": listen, "late": late, "plan": plan,
+     "route-server": route_server}[args.command](args)
     # zenoh-ros2-sdk leaves threads that keep the interpreter from exiting.
     sys.stdout.flush()
     os._exit(0)

@@ -1,9 +1,11 @@
 //! The checks `isochron doctor` makes with the services' own load-time code: the
-//! settings they warn about, the MQTT broker the sink would refuse, and the people
-//! detector the gate would load.
+//! settings they warn about, the MQTT broker the sink would refuse, the people
+//! detector the gate would load, and the route graph the bridge would feed the
+//! route server.
 
 use isochron_config::LoadedConfig;
 use isochron_exit as exit;
+use isochron_planning::route_graph::RouteGraph;
 
 use super::{Level, Report};
 
@@ -109,4 +111,36 @@ pub(super) fn check_model(loaded: &LoadedConfig, report: &mut Report) {
             path.display()
         ),
     );
+}
+
+/// `costmap.route_graph`, if configured: the graph as the bridge loads it
+/// ([`RouteGraph::from_config`]; a refusal stops the bridge with exit 78) and
+/// what the bridge will tell the route server.
+pub(super) fn check_route_graph(loaded: &LoadedConfig, report: &mut Report) {
+    const WHAT: &str = "route graph";
+    let c = &loaded.config.costmap;
+    match RouteGraph::from_config(loaded) {
+        Ok(None) => {}
+        Ok(Some(graph)) => {
+            let edges = graph.edges();
+            let fixed = edges.iter().filter(|e| !e.overridable).count();
+            report.say(
+                Level::Ok,
+                WHAT,
+                format!(
+                    "{} nodes, {} edges ({fixed} not overridable, never named): every {} s the                      bridge tells {} (nav2_msgs/srv/DynamicEdges) each seen edge's cost, and                      closes an edge people stand across for {} s",
+                    graph.nodes().len(),
+                    edges.len(),
+                    c.route_update_s,
+                    c.route_adjust_edges_service(),
+                    c.route_close_after_s
+                ),
+            );
+        }
+        Err(e) => report.say(
+            Level::Fail,
+            WHAT,
+            format!("{e} (isochron-costmap exits with code {})", exit::CONFIG),
+        ),
+    }
 }

@@ -14,6 +14,8 @@
 //!   (skeletons from keypoints, else cylinders, labelled with model and score);
 //! * snapshots (`map_server` PGM + YAML and a PNG picture) are written with
 //!   `isochron_planning::snapshot`, the writer the CLI shares;
+//! * [`route_feed`]: the route server fed live: the graph's edges scored,
+//!   closed and reopened, and what changed sent to its `DynamicEdgesScorer`;
 //! * [`stage`]: the service's stage for the runtime (every camera's `activity` and
 //!   `detections` in, the cost map out on `isochron_ros2::RosOutput`, planning
 //!   requests answered), with what it publishes and counts (`publish`) and what
@@ -28,4 +30,5 @@ pub mod markers;
 pub mod people;
 mod planning;
 mod publish;
+pub mod route_feed;
 pub mod stage;

@@ -30,6 +30,7 @@ use crate::planning::Planning;
 use crate::publish::{
     Counters, Ros, geometry_key, occupancy_grid, publish, publish_people, unknown_as_free,
 };
+use crate::route_feed::{self, RouteFeed, Sight};
 
 /// How long a read long-term model is trusted before the store is checked again.
 const STORE_REFRESH: Duration = Duration::from_secs(60);
@@ -59,6 +60,8 @@ pub struct CostmapStage {
     next_publish: Instant,
     next_snapshot: Option<Instant>,
     newest_arrival: Option<(Instant, i64)>,
+    /// The route server fed live (a route graph and ROS 2).
+    route_feed: Option<RouteFeed>,
 }
 
 impl CostmapStage {
@@ -108,7 +111,7 @@ impl CostmapStage {
             .unwrap_or_else(|| loaded.state_dir().join("costmap"));
 
         let ros = match &bridge.grid {
-            Some(grid) => Some(ros_output(loaded, grid)?),
+            Some(grid) => Some(ros_output(loaded, grid, route_graph.is_some())?),
             None => {
                 tracing::warn!(
                     "no [costmap] grid (map_yaml or width_cells/height_cells): nothing is published to ROS 2; planning only"
@@ -127,6 +130,10 @@ impl CostmapStage {
         let snapshot_every =
             (c.snapshot_every_s > 0.0).then(|| Duration::from_secs_f64(c.snapshot_every_s));
         let now = Instant::now();
+        let route_feed = match (&route_graph, &ros) {
+            (Some(graph), Some(_)) => Some(RouteFeed::new(graph.clone(), c, now)),
+            _ => None,
+        };
         let stage = CostmapStage {
             bridge,
             planning: Planning {
@@ -144,6 +151,7 @@ impl CostmapStage {
             next_publish: now,
             next_snapshot: snapshot_every.map(|e| now + e),
             newest_arrival: None,
+            route_feed,
         };
         Ok((stage, inputs))
     }
@@ -230,6 +238,39 @@ impl CostmapStage {
                     ros.markers_sent = Some(key);
                 }
             }
+        }
+    }
+
+    /// Tells the route server what changed on the graph's edges, when due.
+    fn feed_route(&mut self, cx: &mut Context, now: Instant) {
+        let (Some(feed), Some(ros), Some(grid)) =
+            (&mut self.route_feed, &mut self.ros, &self.bridge.grid)
+        else {
+            return;
+        };
+        let bridge = &self.bridge;
+        let footprints: Vec<_> = bridge
+            .cameras
+            .iter()
+            .map(|c| c.footprint.as_ref())
+            .collect();
+        let now_ns = wall_now_ns();
+        let t_star = bridge
+            .newest(now)
+            .map_or_else(|| self.planning.clock.t_star(now_ns), |(_, t)| t);
+        let warning = feed.tick(
+            &mut ros.output.route_links,
+            &Sight {
+                grid,
+                footprints: &footprints,
+            },
+            &mut self.planning.planner,
+            || bridge.compose(now),
+            t_star,
+            now,
+        );
+        if let Some(warning) = warning {
+            cx.warnings.warn("route", || warning);
         }
     }
 
@@ -323,6 +364,7 @@ impl Stage for CostmapStage {
         }
         self.publish_forecast(cx, now);
         self.publish_markers();
+        self.feed_route(cx, now);
         if let Some(at) = self.next_snapshot
             && now >= at
         {
@@ -376,12 +418,24 @@ impl Stage for CostmapStage {
         c.set(costmap::PEOPLE_MARKERS, n.people_markers);
         c.set(costmap::SPEED_MASKS, n.masks);
         c.set(costmap::FORECASTS, n.forecasts);
+        let route = self
+            .ros
+            .as_ref()
+            .map(|r| route_feed::total(&r.output.route_links))
+            .unwrap_or_default();
+        c.set(costmap::ROUTE_CALLS, route.calls);
+        c.set(costmap::ROUTE_FAILURES, route.failures);
+        c.set(costmap::ROUTE_EDGES, route.edges);
+        let closed = self.route_feed.as_ref().map_or(0, RouteFeed::closed);
+        c.set(costmap::ROUTE_CLOSED, closed);
+        c.set(costmap::ROUTE_LATENCY, route.latency_ms.unwrap_or(0.0));
+        c.set(costmap::ROUTE_SERVER_UP, u64::from(route.up));
     }
 }
 
 /// The ROS 2 output of the cost map on `grid`: the participant, its topics and
 /// services, the speed filter's info (sent once, latched).
-fn ros_output(loaded: &LoadedConfig, grid: &MapGrid) -> Result<Ros, Fatal> {
+fn ros_output(loaded: &LoadedConfig, grid: &MapGrid, route_server: bool) -> Result<Ros, Fatal> {
     let c = &loaded.config.costmap;
     let domain =
         domain_id(c.ros_domain_id).map_err(|e| Fatal::from(e).context(loaded.path.display()))?;
@@ -410,6 +464,7 @@ fn ros_output(loaded: &LoadedConfig, grid: &MapGrid) -> Result<Ros, Fatal> {
                 .as_ref()
                 .map(|p| loaded.base_dir().join(p)),
         }),
+        route_server,
     };
     let settings = RosSettings {
         enclave: enclave(loaded, &settings.interfaces)?,

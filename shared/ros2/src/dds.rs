@@ -31,6 +31,7 @@
 //! overwrote in the reader's history before the bridge took them (gaps in each
 //! writer's sequence numbers) are counted as dropped.
 
+mod route;
 pub(crate) mod wire;
 
 use std::collections::{HashMap, HashSet};
@@ -50,6 +51,7 @@ use isochron_dds::{RosNode, keep_last};
 use crate::error::{RosError, topic_name};
 use crate::plan::{Endpoint, Service, Taken, WarningKinds};
 use crate::spec::{Qos, ServiceSpec, TopicSpec};
+pub use route::{DdsCaller, Layout};
 use wire::{Raw, RawReply, RawSample, ReplyTo, read_request, reply_bytes};
 
 /// How long a write waits for room in a reliable send window.

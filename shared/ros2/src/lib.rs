@@ -14,7 +14,10 @@
 //!   of rmw_cyclonedds and rmw_fastrtps) and [`zenoh::ZenohService`]
 //!   (rmw_zenoh's);
 //! * [`msgs`]: the message and service types, serde structs in CDR field order;
-//! * [`fair`]: the per-client fair queue of the planning services.
+//! * [`fair`]: the per-client fair queue of the planning services;
+//! * [`route_server`]: the bridge as the route server's client, telling its
+//!   `DynamicEdgesScorer` which edges are closed and what they cost, over a
+//!   [`route_server::Caller`] per transport ([`dds::DdsCaller`]).
 //!
 //! The transports' own crates are `isochron-dds` (the participant and node,
 //! shared with the link) and `isochron-zenoh` (the session, key expressions and
@@ -27,6 +30,7 @@ pub mod msgs;
 pub mod output;
 pub mod plan;
 pub mod publisher;
+pub mod route_server;
 pub mod spec;
 pub mod zenoh;
 

@@ -3,8 +3,9 @@
 //! them as `nav_msgs/msg/OccupancyGrid`, `map_msgs/msg/OccupancyGridUpdate`,
 //! `geometry_msgs/msg/PoseArray`, `visualization_msgs/msg/MarkerArray` and
 //! `nav2_msgs/msg/CostmapFilterInfo` (Jazzy's definition, the release
-//! `ros2-client` is built for), and the planning services' requests and
-//! responses (ros/isochron_msgs).
+//! `ros2-client` is built for), the planning services' requests and
+//! responses (ros/isochron_msgs), and the route server's
+//! `nav2_msgs/srv/DynamicEdges`, which the bridge calls.
 //!
 //! No ROS install is needed: the DDS type names are
 //! `<package>::msg::dds_::<Type>_` ([`crate::spec::types`]) and the serialised
@@ -515,6 +516,41 @@ pub struct PlanGraphResponse {
     pub baseline: GraphPath,
 }
 
+/// `nav2_msgs/msg/EdgeCost`: an edge of the route server's graph and its cost.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct EdgeCost {
+    /// The edge's id.
+    pub edgeid: u16,
+    /// Its cost, added to the route server's other scorers' as it is.
+    pub cost: f32,
+}
+
+/// `nav2_msgs/srv/DynamicEdges` request: what the route server's
+/// `DynamicEdgesScorer` is told (the bridge is its client).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct DynamicEdges {
+    /// Edges to close.
+    pub closed_edges: Vec<u16>,
+    /// Edges to reopen.
+    pub opened_edges: Vec<u16>,
+    /// Edges whose cost changed.
+    pub adjust_edges: Vec<EdgeCost>,
+}
+
+impl DynamicEdges {
+    /// How many edges the request names (in all three lists).
+    pub fn edges(&self) -> usize {
+        self.closed_edges.len() + self.opened_edges.len() + self.adjust_edges.len()
+    }
+}
+
+/// `nav2_msgs/srv/DynamicEdges` response.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct DynamicEdgesResponse {
+    /// The scorer took the request.
+    pub success: bool,
+}
+
 #[cfg(test)]
 mod tests {
     use rustdds::CDRSerializerAdapter;
@@ -565,6 +601,33 @@ mod tests {
         expected.extend(2u32.to_le_bytes()); // data length @96
         expected.extend([0xff, 100]); // data
         assert_eq!(bytes.as_ref(), expected.as_slice());
+    }
+
+    /// `uint16[] closed_edges, uint16[] opened_edges, EdgeCost[] adjust_edges`,
+    /// each sequence its length first, an `EdgeCost` a `uint16` and a `float32`
+    /// aligned to 4.
+    #[test]
+    fn dynamic_edges_cdr_layout() {
+        let request = DynamicEdges {
+            closed_edges: vec![7],
+            opened_edges: vec![],
+            adjust_edges: vec![EdgeCost {
+                edgeid: 9,
+                cost: 1.5,
+            }],
+        };
+        let bytes = CDRSerializerAdapter::<DynamicEdges>::to_bytes(&request).unwrap();
+        let mut expected: Vec<u8> = Vec::new();
+        expected.extend(1u32.to_le_bytes()); // closed_edges length @0
+        expected.extend(7u16.to_le_bytes()); // @4
+        expected.extend([0u8; 2]); // pad to 4 @6
+        expected.extend(0u32.to_le_bytes()); // opened_edges length @8
+        expected.extend(1u32.to_le_bytes()); // adjust_edges length @12
+        expected.extend(9u16.to_le_bytes()); // edgeid @16
+        expected.extend([0u8; 2]); // pad to 4 @18
+        expected.extend(1.5f32.to_le_bytes()); // cost @20
+        assert_eq!(bytes.as_ref(), expected.as_slice());
+        assert_eq!(request.edges(), 2);
     }
 
     #[test]

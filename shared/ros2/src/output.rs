@@ -1,6 +1,7 @@
 //! The bridge's ROS 2 output: the node `/isochron/costmap_bridge` with a
 //! [`Publisher`] per topic of [`crate::spec`] and the planning services, on DDS
-//! and, when configured, on Zenoh in rmw_zenoh's format.
+//! and, when configured, on Zenoh in rmw_zenoh's format; and, with a route
+//! graph, its links to the route server ([`crate::route_server`]).
 //!
 //! The DDS participant joins `costmap.ros_domain_id` (else `$ROS_DOMAIN_ID`, else 0)
 //! and uses the network interfaces of `costmap.dds_interfaces` (else all; only
@@ -22,16 +23,17 @@ use isochron_planning::query::{PlanKind, PlanRequest, PlanResponse};
 use isochron_runtime::stage::Context;
 use isochron_zenoh::RosZenoh;
 
-use crate::dds::DdsService;
+use crate::dds::{DdsCaller, DdsService};
 use crate::error::RosError;
 use crate::msgs::{CostmapFilterInfo, MarkerArray, OccupancyGrid, OccupancyGridUpdate, PoseArray};
 use crate::plan::{PlanCounts, PlanServices, Serve};
 use crate::publisher::Publisher;
+use crate::route_server::{Caller, RouteLink, RouteServerLink};
 use crate::spec::{
-    FORECAST, GRID, MARKERS, Names, PEOPLE, PEOPLE_MARKERS, SERVICES, SPEED_FILTER_INFO,
-    SPEED_MASK, UPDATES,
+    FORECAST, GRID, MARKERS, Names, PEOPLE, PEOPLE_MARKERS, ROUTE_SERVER, SERVICES,
+    SPEED_FILTER_INFO, SPEED_MASK, UPDATES,
 };
-use crate::zenoh::ZenohService;
+use crate::zenoh::{ZenohCaller, ZenohService};
 
 /// The bridge's ROS 2 node: `/isochron/<NODE>`.
 pub const NODE: &str = "costmap_bridge";
@@ -50,6 +52,9 @@ pub struct RosSettings {
     pub enclave: Option<PathBuf>,
     /// The same topics and services on Zenoh in rmw_zenoh's format, if configured.
     pub zenoh: Option<isochron_zenoh::Settings>,
+    /// Call the route server's `DynamicEdgesScorer` (a route graph is
+    /// configured).
+    pub route_server: bool,
 }
 
 /// The ROS 2 node of the bridge: its publishers and planning services.
@@ -72,6 +77,9 @@ pub struct RosOutput {
     pub forecast: Publisher<OccupancyGrid>,
     /// The planning services of each transport: DDS's, then Zenoh's.
     plans: Vec<Box<dyn Serve>>,
+    /// The links to the route server, one per transport (none without
+    /// [`RosSettings::route_server`]).
+    pub route_links: Vec<RouteLink>,
     /// The Zenoh session, open while the output is.
     _zenoh: Option<RosZenoh>,
     ros: RosNode,
@@ -124,6 +132,17 @@ impl RosOutput {
                 .map(|s| DdsService::start(&ros, s, names.of(&s.config)))
                 .collect::<Result<_, _>>()?,
         );
+        let mut route_links = Vec::new();
+        if settings.route_server {
+            let name = names.of(&ROUTE_SERVER.config);
+            let dds: Box<dyn Caller> = Box::new(DdsCaller::start(&ros, name, &ROUTE_SERVER.ty)?);
+            route_links.push(RouteServerLink::new(dds, name));
+            if let Some(z) = &zenoh {
+                let caller = ZenohCaller::start(z, name, &ROUTE_SERVER.ty)?;
+                let caller: Box<dyn Caller> = Box::new(caller);
+                route_links.push(RouteServerLink::new(caller, format!("{name} (Zenoh)")));
+            }
+        }
         let mut plans: Vec<Box<dyn Serve>> = vec![Box::new(dds_plans)];
         if let (Some(zenoh_plans), Some(z)) = (zenoh_plans, &settings.zenoh) {
             plans.push(Box::new(zenoh_plans));
@@ -139,6 +158,7 @@ impl RosOutput {
             speed_mask,
             forecast,
             plans,
+            route_links,
             _zenoh: zenoh,
             ros,
         })

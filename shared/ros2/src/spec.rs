@@ -29,7 +29,10 @@
 //!   `costmap.plan_now_service`: the services `isochron_msgs/srv/PlanOffline` and
 //!   `PlanNow` (ros/isochron_msgs), answered by [`crate::plan`];
 //! * [`PLAN_GRAPH`], `costmap.plan_graph_service`: `isochron_msgs/srv/PlanGraph`,
-//!   planning over the route graph across departure times, answered there too.
+//!   planning over the route graph across departure times, answered there too;
+//! * [`ROUTE_SERVER`], `costmap.route_server` and `costmap.route_scorer`: the
+//!   route server's `nav2_msgs/srv/DynamicEdges`, which the bridge calls
+//!   ([`crate::route_server`]).
 //!
 //! Latched is reliable, transient-local, keep last 1 ([`LATCHED`]); a stream is
 //! reliable, volatile, keep last 10 ([`STREAM`]). Each type is named by its DDS
@@ -90,6 +93,11 @@ pub mod types {
     pub const PLAN_GRAPH: RosType = RosType {
         dds_name: "isochron_msgs::srv::dds_::PlanGraph_",
         hash: "RIHS01_41dbd95ce2038c3547018753409eba9311f518df44b472b616fb5bc626fe8316",
+    };
+    /// `nav2_msgs/srv/DynamicEdges` (the route server's; the bridge calls it).
+    pub const DYNAMIC_EDGES: RosType = RosType {
+        dds_name: "nav2_msgs::srv::dds_::DynamicEdges_",
+        hash: "RIHS01_857b6e430a2aa89345e2b8bddc0a4956c425d526218ae43e636577de465da316",
     };
 }
 
@@ -266,8 +274,27 @@ pub const PLAN_GRAPH: ServiceSpec = ServiceSpec {
 /// The planning services, in the order each transport creates and serves them.
 pub const SERVICES: [ServiceSpec; 3] = [PLAN_OFFLINE, PLAN_NOW, PLAN_GRAPH];
 
+/// A service the bridge calls: where its name comes from and its type.
+#[derive(Debug, Clone, Copy)]
+pub struct ClientSpec {
+    /// The key that names it.
+    pub config: ConfigKey,
+    /// Its type.
+    pub ty: RosType,
+}
+
+/// The route server's `DynamicEdgesScorer`, told which edges people closed and
+/// what each costs ([`crate::route_server`]).
+pub const ROUTE_SERVER: ClientSpec = ClientSpec {
+    config: ConfigKey {
+        key: "costmap.route_server",
+        value: CostmapConfig::route_adjust_edges_service,
+    },
+    ty: types::DYNAMIC_EDGES,
+};
+
 /// Every key that names a topic or a service: what [`Names`] holds.
-const KEYS: [ConfigKey; 11] = [
+const KEYS: [ConfigKey; 12] = [
     GRID.config,
     UPDATES.config,
     PEOPLE.config,
@@ -279,6 +306,7 @@ const KEYS: [ConfigKey; 11] = [
     PLAN_OFFLINE.config,
     PLAN_NOW.config,
     PLAN_GRAPH.config,
+    ROUTE_SERVER.config,
 ];
 
 /// The names of the bridge's topics and services, by the keys that give them.
@@ -335,6 +363,10 @@ mod tests {
         );
         assert_eq!(names.of(&PLAN_NOW.config), "/isochron/plan_now");
         assert_eq!(names.of(&PLAN_GRAPH.config), "/isochron/plan_graph");
+        assert_eq!(
+            names.of(&ROUTE_SERVER.config),
+            "route_server/DynamicEdgesScorer/adjust_edges"
+        );
     }
 
     /// The DDS type names are those `ros2-client` gives `<package>/msg/<Type>`.

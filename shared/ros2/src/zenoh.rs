@@ -8,6 +8,10 @@
 //! one cannot be answered (rmw_zenoh's client matches a reply to its request by
 //! it) and is counted only. Requests beyond what the queryable holds between two
 //! passes of the loop ([`INBOX`]) are dropped and counted.
+//!
+//! The route server's `DynamicEdges` is called as rmw_zenoh's clients call a
+//! service ([`ZenohCaller`]): a query with the attachment, the reply matched by
+//! its sequence number.
 
 use std::fmt;
 
@@ -16,11 +20,13 @@ use rustdds::serialization::to_vec;
 use serde::Serialize;
 
 use isochron_zenoh::names::GID_LEN;
-use isochron_zenoh::{Request, RosPublisher, RosService, RosZenoh, ZenohError};
+use isochron_zenoh::{Request, RosClient, RosPublisher, RosService, RosZenoh, ZenohError};
 
 use crate::error::PublishError;
+use crate::msgs::DynamicEdges;
 use crate::plan::{Body, Endpoint, Service, Taken, WarningKinds};
-use crate::spec::ServiceSpec;
+use crate::route_server::{CALL_TIMEOUT, Caller};
+use crate::spec::{RosType, ServiceSpec};
 
 /// Requests a service's Zenoh queryable holds between two passes of the loop.
 pub const INBOX: usize = 256;
@@ -111,6 +117,53 @@ impl Endpoint for ZenohService {
     /// Replies with rmw_zenoh's attachment.
     fn reply(&self, request: Request, cdr: &[u8]) -> Result<(), String> {
         self.service.reply(request, cdr).map_err(|e| e.to_string())
+    }
+}
+
+/// The bridge's Zenoh client of one `DynamicEdges` service: the server is the
+/// first whose liveliness token is alive; a call is a query.
+pub struct ZenohCaller {
+    client: RosClient,
+}
+
+impl ZenohCaller {
+    /// The client of the service `name` of `ty` on `zenoh`'s node; a relative
+    /// name is in the root namespace, where the route server resolves it.
+    pub fn start(zenoh: &RosZenoh, name: &str, ty: &RosType) -> Result<ZenohCaller, ZenohError> {
+        let absolute = if name.starts_with('/') {
+            name.to_string()
+        } else {
+            format!("/{name}")
+        };
+        Ok(ZenohCaller {
+            client: zenoh.client(&absolute, ty, CALL_TIMEOUT)?,
+        })
+    }
+}
+
+impl Caller for ZenohCaller {
+    /// The server's token, hashed as rmw_zenoh hashes a GID.
+    fn server(&mut self) -> Option<u128> {
+        self.client
+            .server()
+            .map(|token| u128::from_le_bytes(isochron_zenoh::names::gid(&token)))
+    }
+
+    fn call(&mut self, request: &DynamicEdges) -> Result<u64, String> {
+        let cdr = to_vec::<_, LittleEndian>(request).map_err(|e| format!("encoding: {e}"))?;
+        self.client
+            .call(&cdr)
+            .map(|sequence| sequence as u64)
+            .map_err(|e| e.to_string())
+    }
+
+    /// `success` is the reply's first byte (a CDR `bool`).
+    fn answers(&mut self) -> Vec<(u64, bool)> {
+        self.client
+            .replies()
+            .into_iter()
+            .filter_map(|(sequence, fields)| Some((sequence as u64, *fields.first()? != 0)))
+            .collect()
     }
 }
 

@@ -325,6 +325,18 @@ schema! {
             "Speed filter masks published.";
         FORECASTS = "forecasts", Counter, Count, "isochron_costmap_forecasts",
             "Forecast grids published.";
+        ROUTE_CALLS = "route_calls", Counter, Count, "isochron_route_server_calls",
+            "Calls to the route server's DynamicEdgesScorer.";
+        ROUTE_FAILURES = "route_failures", Counter, Count, "isochron_route_server_failures",
+            "Calls to the route server that failed: not sent, not answered in time, or refused.";
+        ROUTE_EDGES = "route_edges", Counter, Count, "isochron_route_server_edges",
+            "Edges closed, opened or adjusted in calls the route server took.";
+        ROUTE_CLOSED = "route_closed", Gauge, Count, "isochron_route_server_closed_edges",
+            "Route graph edges closed now (people stand across them).";
+        ROUTE_LATENCY = "route_latency_ms", Gauge, Millis, "isochron_route_server_answer_seconds",
+            "How long the route server's last answer took.";
+        ROUTE_SERVER_UP = "route_server_up", Gauge, Flag, "isochron_route_server_up",
+            "1 while the route server answers.";
     }
 }
 

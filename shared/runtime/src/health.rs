@@ -477,11 +477,11 @@ mod tests {
         assert!(words.len() > 160, "{} bytes: {words}", words.len());
         let back = status_counters(h.status()).unwrap();
         assert_eq!(
-            back.get(costmap::FORECASTS),
-            1_000_000_015.0,
+            back.get(costmap::ROUTE_SERVER_UP),
+            1_000_000_021.0,
             "the last one, whole"
         );
-        assert!(words.ends_with("forecasts=1000000015"), "{words}");
+        assert!(words.ends_with("route_server_up=1000000021"), "{words}");
     }
 
     #[test]

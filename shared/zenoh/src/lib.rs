@@ -7,7 +7,9 @@
 //! data key expressions ([`RosPublisher`], an advanced publisher with a cache for
 //! transient-local topics, which rmw_zenoh's late-joining subscribers query), and
 //! answers service requests, Zenoh queries, in the order the caller takes them
-//! ([`RosService`]). The names and bytes are in [`names`].
+//! ([`RosService`]), and calls other nodes' services ([`RosClient`]: a query
+//! per call, the servers followed by their liveliness tokens). The names and
+//! bytes are in [`names`].
 //!
 //! Off unless configured; a session listens on loopback and connects to the
 //! router rmw_zenoh expects at `tcp/localhost:7447` unless told otherwise, and a
@@ -16,7 +18,7 @@
 
 pub mod names;
 
-use std::collections::VecDeque;
+use std::collections::{BTreeSet, VecDeque};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
@@ -26,7 +28,8 @@ use parking_lot::Mutex;
 use zenoh::Wait;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::qos::{CongestionControl, Reliability};
-use zenoh::query::{Query, Queryable};
+use zenoh::query::{ConsolidationMode, Query, QueryTarget, Queryable};
+use zenoh::sample::{Sample, SampleKind};
 use zenoh_ext::{AdvancedPublisher, AdvancedPublisherBuilderExt, CacheConfig, MissDetectionConfig};
 
 use names::{Attachment, EntityKind, GID_LEN, NodeInfo, Qos, RosType};
@@ -249,6 +252,137 @@ impl RosZenoh {
             _queryable: queryable,
             _token: token,
         })
+    }
+}
+
+impl RosZenoh {
+    /// A client of the service `name` (absolute) of `ty`, announced as rmw_zenoh
+    /// announces one; its calls time out after `timeout`.
+    pub fn client(
+        &self,
+        name: &str,
+        ty: &RosType,
+        timeout: std::time::Duration,
+    ) -> Result<RosClient, ZenohError> {
+        let id = self.next_id.fetch_add(1, Ordering::Relaxed);
+        let token_key = names::liveliness_keyexpr(
+            &self.node,
+            Some((id, EntityKind::Client, name, ty, Qos::SERVICES)),
+        );
+        let what = format!("declaring the client of {name}");
+        let servers = Arc::new(Mutex::new(BTreeSet::new()));
+        let seen = Arc::clone(&servers);
+        let subscriber = self
+            .session
+            .liveliness()
+            .declare_subscriber(names::servers_keyexpr(self.node.domain, name, ty))
+            .history(true)
+            .callback(move |sample: Sample| {
+                let key = sample.key_expr().as_str().to_string();
+                let mut seen = seen.lock();
+                match sample.kind() {
+                    SampleKind::Put => seen.insert(key),
+                    SampleKind::Delete => seen.remove(&key),
+                };
+            })
+            .wait()
+            .map_err(session_error(&what))?;
+        let token = self
+            .session
+            .liveliness()
+            .declare_token(token_key.clone())
+            .wait()
+            .map_err(session_error(&what))?;
+        Ok(RosClient {
+            session: self.session.clone(),
+            key: names::data_keyexpr(self.node.domain, name, ty),
+            gid: names::gid(&token_key),
+            timeout,
+            sequence: 0,
+            servers,
+            replies: Arc::new(Mutex::new(VecDeque::new())),
+            _servers: subscriber,
+            _token: token,
+        })
+    }
+}
+
+/// A ROS 2 service client on Zenoh: each call a query with rmw_zenoh's
+/// attachment, its replies kept until taken.
+pub struct RosClient {
+    session: zenoh::Session,
+    key: String,
+    gid: [u8; GID_LEN],
+    timeout: std::time::Duration,
+    sequence: i64,
+    /// The liveliness tokens of the service's servers alive now.
+    servers: Arc<Mutex<BTreeSet<String>>>,
+    /// Replies not yet taken.
+    replies: Arc<Mutex<Replies>>,
+    _servers: zenoh::pubsub::Subscriber<()>,
+    _token: LivelinessToken,
+}
+
+/// A client's replies not yet taken: each call's sequence number and the
+/// reply's CDR fields.
+type Replies = VecDeque<(i64, Vec<u8>)>;
+
+/// Replies a client keeps until they are taken; more are dropped.
+const CLIENT_REPLIES: usize = 64;
+
+impl RosClient {
+    /// The token of the first server alive (by key), if one is.
+    pub fn server(&self) -> Option<String> {
+        self.servers.lock().first().cloned()
+    }
+
+    /// Calls the service with `cdr` (little-endian CDR fields, the encapsulation
+    /// header is added); returns the call's sequence number.
+    pub fn call(&mut self, cdr: &[u8]) -> Result<i64, ZenohError> {
+        self.sequence += 1;
+        let sequence = self.sequence;
+        let mut payload = Vec::with_capacity(CDR_LE_HEADER.len() + cdr.len());
+        payload.extend(CDR_LE_HEADER);
+        payload.extend(cdr);
+        let attachment = Attachment {
+            sequence,
+            timestamp_ns: now_ns(),
+            gid: self.gid,
+        };
+        let replies = Arc::clone(&self.replies);
+        self.session
+            .get(&self.key)
+            .payload(payload)
+            .attachment(attachment.to_bytes())
+            .target(QueryTarget::AllComplete)
+            .consolidation(ConsolidationMode::None)
+            .timeout(self.timeout)
+            .callback(move |reply| {
+                let Ok(sample) = reply.result() else {
+                    return;
+                };
+                let Some(a) = sample
+                    .attachment()
+                    .and_then(|a| Attachment::from_bytes(&a.to_bytes()))
+                else {
+                    return;
+                };
+                let bytes = sample.payload().to_bytes();
+                let mut replies = replies.lock();
+                if replies.len() < CLIENT_REPLIES {
+                    let fields = bytes.get(CDR_LE_HEADER.len()..).unwrap_or_default();
+                    replies.push_back((a.sequence, fields.to_vec()));
+                }
+            })
+            .wait()
+            .map_err(|e| ZenohError::Session(format!("calling: {e}")))?;
+        Ok(sequence)
+    }
+
+    /// The replies that arrived since the last look: each call's sequence
+    /// number and the reply's CDR fields.
+    pub fn replies(&self) -> Vec<(i64, Vec<u8>)> {
+        self.replies.lock().drain(..).collect()
     }
 }
 

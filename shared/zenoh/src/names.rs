@@ -42,6 +42,8 @@ pub enum EntityKind {
     Publisher,
     /// A service server (`SS`).
     Service,
+    /// A service client (`SC`).
+    Client,
 }
 
 impl EntityKind {
@@ -50,6 +52,7 @@ impl EntityKind {
             EntityKind::Node => "NN",
             EntityKind::Publisher => "MP",
             EntityKind::Service => "SS",
+            EntityKind::Client => "SC",
         }
     }
 }
@@ -145,6 +148,18 @@ pub fn liveliness_keyexpr(
         ));
     }
     key
+}
+
+/// The key expression that matches the liveliness token of every server of the
+/// service `name` of `ty` in `domain`, whatever its session, node and QoS.
+pub fn servers_keyexpr(domain: u16, name: &str, ty: &RosType) -> String {
+    format!(
+        "{ADMIN_SPACE}/{domain}/*/*/*/{}/*/*/*/{}/{}/{}/*",
+        EntityKind::Service.code(),
+        mangle(name),
+        mangle(ty.dds_name),
+        mangle(ty.hash)
+    )
 }
 
 /// An entity's GID: XXH3-128 of its liveliness key expression.
@@ -248,6 +263,30 @@ mod tests {
             )
         );
         assert_eq!(Qos::SERVICES.token_field(), "::,10:,:,:,,");
+    }
+
+    /// The pattern matches a server's token (any session, node, QoS) and no
+    /// client's, nor another service's.
+    #[test]
+    fn the_servers_pattern_matches_every_server_of_the_service() {
+        use zenoh::key_expr::KeyExpr;
+        let route = RosType {
+            dds_name: "nav2_msgs::srv::dds_::DynamicEdges_",
+            hash: "RIHS01_857b",
+        };
+        let name = "/route_server/DynamicEdgesScorer/adjust_edges";
+        let server = NodeInfo {
+            namespace: "/".into(),
+            name: "route_server".into(),
+            ..node()
+        };
+        let token =
+            |kind, name| liveliness_keyexpr(&server, Some((4, kind, name, &route, Qos::SERVICES)));
+        let pattern = KeyExpr::try_from(servers_keyexpr(7, name, &route)).unwrap();
+        let matches = |key: String| pattern.intersects(&KeyExpr::try_from(key).unwrap());
+        assert!(matches(token(EntityKind::Service, name)));
+        assert!(!matches(token(EntityKind::Client, name)));
+        assert!(!matches(token(EntityKind::Service, "/other/adjust_edges")));
     }
 
     #[test]
