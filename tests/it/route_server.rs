@@ -5,7 +5,8 @@
 //!
 //! The server is a real rclpy node (Jazzy and Kilted, rmw_fastrtps_cpp:
 //! `tests/ros2/rclpy_peer.py route-server`) that keeps what it is told as the
-//! scorer does. It hears first within seconds, only ids of the graph and never
+//! scorer does, on loopback and (Jazzy) on another host: two network namespaces,
+//! SUBNET discovery. It hears first within seconds, only ids of the graph and never
 //! the edge that is not `overridable`; the busy way costs more than the way
 //! round; edges close while people stand across them and reopen after; a
 //! restarted server is told everything; one that refuses or never answers
@@ -14,7 +15,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
 
-use isochron_tests::{Proc, TestSite, repo_root};
+use isochron_tests::{NetnsPair, Proc, TestSite, bin, repo_root};
 use serde_json::{Value, json};
 
 use crate::costmap::{Source, camera_toml, costmap_toml, dds_domain, start_bridge};
@@ -58,40 +59,40 @@ fn graph_geojson() -> String {
 }
 
 /// The weekly test site with the graph: edges scored every half second, closed
-/// after a second of being blocked; `tail` after `[cascade]`.
-fn route_site(name: &str, domain: u16, tail: &str) -> TestSite {
+/// after a second of being blocked; `tail` after `[cascade]`; for two network
+/// namespaces the bridge on every interface (`dds_interfaces` unset).
+fn route_site(name: &str, domain: u16, tail: &str, netns: bool) -> TestSite {
     let extra = "route_graph = \"graph.geojson\"\nroute_update_s = 0.5\nroute_close_after_s = 1\n";
-    let site = TestSite::new(
-        name,
-        &format!(
-            "{}{}\n[cascade]\ncycle = \"weekly\"\n{tail}",
-            camera_toml(),
-            costmap_toml(domain, extra)
-        ),
+    let mut toml = format!(
+        "{}{}\n[cascade]\ncycle = \"weekly\"\n{tail}",
+        camera_toml(),
+        costmap_toml(domain, extra)
     );
+    if netns {
+        toml = toml.replace("dds_interfaces = [\"127.0.0.1\"]\n", "");
+    }
+    let site = TestSite::new(name, &toml);
     std::fs::write(site.path("graph.geojson"), graph_geojson()).unwrap();
     write_week(&site);
     site
 }
 
 /// A route server of rclpy `release` on `domain` answering as `answer` says
-/// (`ok`, `refuse`, `never`), once it is ready.
-fn route_server(release: &str, domain: u16, answer: &str) -> Proc {
+/// (`ok`, `refuse`, `never`), once it is ready; in the second namespace of
+/// `netns` (SUBNET discovery), if any.
+fn route_server(release: &str, domain: u16, answer: &str, netns: Option<&NetnsPair>) -> Proc {
     let script = repo_root().join("tests/ros2/rclpy_peer.py");
     let domain = domain.to_string();
-    let mut server = Proc::spawn(
-        &rclpy_python(release),
-        &[
-            script.to_str().unwrap(),
-            "--domain",
-            &domain,
-            "route-server",
-            "--answer",
-            answer,
-            "--timeout",
-            "180",
-        ],
-    );
+    let mut args = vec![script.to_str().unwrap(), "--domain", &domain];
+    if netns.is_some() {
+        args.push("--subnet");
+    }
+    args.extend(["route-server", "--answer", answer, "--timeout", "180"]);
+    let python = rclpy_python(release);
+    let mut server = match netns {
+        Some(pair) => pair.spawn(1, &python, &args),
+        None => Proc::spawn(&python, &args),
+    };
     assert!(
         server
             .wait_for_line("\"ready\"", Duration::from_secs(60))
@@ -219,14 +220,30 @@ fn zenoh_route_server(port: u16, domain: u16) -> Proc {
 }
 
 /// The route server of `start_server` (started again for step 4) fed by the
-/// bridge of `site`, `label` naming it in what the test prints.
-fn fed_live(label: &str, site: &TestSite, start_server: &dyn Fn() -> Proc) {
+/// bridge of `site` (in the first namespace of `netns`, if any), `label` naming
+/// it in what the test prints.
+fn fed_live(
+    label: &str,
+    site: &TestSite,
+    netns: Option<&NetnsPair>,
+    start_server: &dyn Fn() -> Proc,
+) {
     let release = label;
     let mut server = start_server();
 
     // 1. The first request: soon, only the graph's ids, never edge 16.
     let started = Instant::now();
-    let (_ipc, mut source, bridge) = start_bridge(site, NOW);
+    let (_ipc, mut source, bridge) = match netns {
+        None => start_bridge(site, NOW),
+        Some(pair) => {
+            let ipc = site.ipc("source");
+            let source = Source::new(&ipc, NOW);
+            let config = site.config_path().display().to_string();
+            let bridge = pair.spawn(0, &bin("isochron-costmap"), &["--config", &config]);
+            source.wait_for_subscriber(&bridge);
+            (ipc, source, bridge)
+        }
+    };
     let first = feed_until(&mut source, &busy_zone(), Duration::from_secs(30), || {
         !requests(&mut server).is_empty()
     });
@@ -348,21 +365,38 @@ fn fed_live(label: &str, site: &TestSite, start_server: &dyn Fn() -> Proc) {
     assert!(!log.contains("ERROR"), "{log}");
 }
 
-fn rclpy_fed_live(release: &str) {
+fn rclpy_fed_live(release: &str, netns: Option<&NetnsPair>) {
     crate::costmap::python();
     let domain = dds_domain();
-    let site = route_site(&format!("route-{release}"), domain, "");
-    fed_live(release, &site, &|| route_server(release, domain, "ok"));
+    let mode = if netns.is_some() { "netns" } else { "lo" };
+    let site = route_site(
+        &format!("route-{release}-{mode}"),
+        domain,
+        "",
+        netns.is_some(),
+    );
+    fed_live(release, &site, netns, &|| {
+        route_server(release, domain, "ok", netns)
+    });
 }
 
 #[test]
 fn an_rclpy_jazzy_route_server_is_fed_live() {
-    rclpy_fed_live("jazzy");
+    rclpy_fed_live("jazzy", None);
 }
 
 #[test]
 fn an_rclpy_kilted_route_server_is_fed_live() {
-    rclpy_fed_live("kilted");
+    rclpy_fed_live("kilted", None);
+}
+
+/// The same with the route server on another host: two network namespaces
+/// joined by a veth pair, default SUBNET discovery (multicast on the veth).
+#[test]
+fn an_rclpy_jazzy_route_server_on_another_host_is_fed_live() {
+    if let Some(pair) = crate::costmap::netns_pair(12) {
+        rclpy_fed_live("jazzy", Some(&pair));
+    }
 }
 
 /// The same through rmw_zenoh's format: the bridge's `[costmap.zenoh]` and
@@ -381,8 +415,8 @@ fn a_zenoh_route_server_is_fed_live() {
     let domain = dds_domain();
     let zenoh =
         format!("\n[costmap.zenoh]\nenabled = true\nconnect = [\"tcp/127.0.0.1:{port}\"]\n");
-    let site = route_site("route-zenoh", domain, &zenoh);
-    fed_live("zenoh", &site, &|| zenoh_route_server(port, domain));
+    let site = route_site("route-zenoh", domain, &zenoh, false);
+    fed_live("zenoh", &site, None, &|| zenoh_route_server(port, domain));
 }
 
 /// The activity samples the bridge took per second, as its status reported them
@@ -414,11 +448,11 @@ fn intake_rate(site: &TestSite, source: &mut Source, window: Duration) -> f64 {
 fn a_route_server_that_refuses_or_hangs_costs_the_bridge_nothing() {
     crate::costmap::python();
     let domain = dds_domain();
-    let site = route_site("route-refuse", domain, "");
+    let site = route_site("route-refuse", domain, "", false);
     let (_ipc, mut source, bridge) = start_bridge(&site, NOW);
     let before = intake_rate(&site, &mut source, Duration::from_secs(11));
 
-    let mut refusing = route_server("jazzy", domain, "refuse");
+    let mut refusing = route_server("jazzy", domain, "refuse", None);
     let failed = feed_until(&mut source, &busy_zone(), Duration::from_secs(30), || {
         counter(&counters(&site), "route_failures") >= 2.0
     });
@@ -434,7 +468,7 @@ fn a_route_server_that_refuses_or_hangs_costs_the_bridge_nothing() {
     assert_eq!(counter(&c, "route_server_up"), 0.0, "{c}");
     refusing.terminate(Duration::from_secs(20));
 
-    let mut hung = route_server("jazzy", domain, "never");
+    let mut hung = route_server("jazzy", domain, "never", None);
     assert!(
         hung.wait_for_line("\"hung\"", Duration::from_secs(30))
             .is_some(),
