@@ -30,13 +30,18 @@ pub(crate) const NOW_T_STAR: u32 = 525;
 /// The busy hour on Mondays, minutes of the day.
 const BUSY: std::ops::Range<u32> = 510..570;
 /// The straight way from node 1 to node 3, and the way round.
-const STRAIGHT: [u64; 2] = [11, 12];
-const ROUND: [u64; 3] = [13, 14, 15];
+pub(crate) const STRAIGHT: [u64; 2] = [11, 12];
+pub(crate) const ROUND: [u64; 3] = [13, 14, 15];
 
 /// The route graph, nav2_route GeoJSON in the test map's frame: from node 1 to
 /// node 3 straight north along x = 0.5 (edges 11, 12: 3 m) through the busy
 /// zone, or round it to the east (edges 13, 14, 15: 8 m). No edge leads back.
 fn graph_geojson() -> String {
+    json!({"type": "FeatureCollection", "features": graph_features()}).to_string()
+}
+
+/// The features of [`graph_geojson`]: its nodes, then its edges.
+pub(crate) fn graph_features() -> Vec<Value> {
     let nodes = [
         (1, 0.5, 2.8),
         (2, 0.5, 4.3),
@@ -56,7 +61,7 @@ fn graph_geojson() -> String {
         json!({"type": "Feature", "properties": {"id": id, "startid": a, "endid": b},
                "geometry": {"type": "MultiLineString", "coordinates": []}})
     }));
-    json!({"type": "FeatureCollection", "features": features}).to_string()
+    features
 }
 
 /// Whether block `b` (20 × 15 blocks of 16 px) looks at the busy zone, floor x

@@ -19,38 +19,15 @@ use isochron_tests::{NetnsPair, Proc, TestSite, bin, repo_root};
 use serde_json::{Value, json};
 
 use crate::costmap::{Source, camera_toml, costmap_toml, dds_domain, start_bridge};
-use crate::plan_graph::{NOW, NOW_T_STAR, busy_block, write_week};
+use crate::plan_graph::{NOW, NOW_T_STAR, ROUND, STRAIGHT, busy_block, graph_features, write_week};
 use crate::rclpy::rclpy_python;
 
 /// The graph's edges the bridge may name (edge 16 is not `overridable`).
 const MANAGED: [u64; 5] = [11, 12, 13, 14, 15];
-/// The straight way (through the busy zone) and the way round.
-const STRAIGHT: [u64; 2] = [11, 12];
-const ROUND: [u64; 3] = [13, 14, 15];
-
 /// `plan_graph.rs`'s graph and an edge from node 2 to node 4 that the route
 /// server may not override (a fixed cost of 5).
 fn graph_geojson() -> String {
-    let nodes = [
-        (1, 0.5, 2.8),
-        (2, 0.5, 4.3),
-        (3, 0.5, 5.8),
-        (4, 3.0, 2.8),
-        (5, 3.0, 5.8),
-    ];
-    let mut features: Vec<Value> = nodes
-        .iter()
-        .map(|&(id, x, y)| {
-            json!({"type": "Feature", "properties": {"id": id, "frame": "test_map"},
-                   "geometry": {"type": "Point", "coordinates": [x, y]}})
-        })
-        .collect();
-    for (id, a, b) in [(11, 1, 2), (12, 2, 3), (13, 1, 4), (14, 4, 5), (15, 5, 3)] {
-        features.push(
-            json!({"type": "Feature", "properties": {"id": id, "startid": a, "endid": b},
-                             "geometry": {"type": "MultiLineString", "coordinates": []}}),
-        );
-    }
+    let mut features = graph_features();
     features.push(json!({"type": "Feature",
                          "properties": {"id": 16, "startid": 2, "endid": 4,
                                         "overridable": false, "cost": 5.0},
