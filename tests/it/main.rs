@@ -31,7 +31,9 @@
 //!   (`tests/ros2/rclpy_peer.py route-server`) and on zenoh-ros2-sdk's
 //!   `ROS2ServiceServer` (`tests/zenoh/rmw_zenoh_peer.py route-server`): edges
 //!   costed, closed and reopened, a restarted server told everything, a server that
-//!   refuses or hangs;
+//!   refuses or hangs; route_demo: the same servers fed by `isochron up` on the
+//!   demo (vtest.avi and its graph) and on a presence clip where a person stands
+//!   across an edge;
 //! * view: the calibration overlay on vtest.avi with the demo calibration (a wrong
 //!   tape mark flagged, bad input); a `replay --record` of vtest read by the
 //!   Python `mcap` package; `isochron view` during a replay at speed 1 with the
@@ -120,6 +122,7 @@ mod plan_graph;
 mod presence;
 mod rclpy;
 mod reliability;
+mod route_demo;
 mod route_server;
 mod scale;
 mod sros2;

@@ -15,7 +15,7 @@ use std::time::Duration;
 
 use isochron_config::clock::Cycle;
 use isochron_store::{Store, StoreMeta, store_path};
-use isochron_tests::{Proc, TestSite, free_port, repo_root};
+use isochron_tests::{Proc, TestSite, repo_root};
 use isochron_wire::geometry::BlockGrid;
 use serde_json::{Value, json};
 
@@ -307,15 +307,7 @@ fn rclpy_kilted_plans_over_the_graph() {
 
 #[test]
 fn an_rmw_zenoh_robot_plans_over_the_graph() {
-    let port = free_port();
-    let mut router = crate::zenoh::peer(&["router", "--listen", &format!("tcp/127.0.0.1:{port}")]);
-    assert!(
-        router
-            .wait_for_line("\"router\"", Duration::from_secs(20))
-            .is_some(),
-        "the Zenoh router did not start: {}",
-        router.stderr()
-    );
+    let (port, router) = crate::zenoh::router();
     let domain = dds_domain();
     let zenoh =
         format!("\n[costmap.zenoh]\nenabled = true\nconnect = [\"tcp/127.0.0.1:{port}\"]\n");

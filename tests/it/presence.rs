@@ -21,7 +21,7 @@ use opencv::{imgproc, videoio};
 use serde_json::Value;
 
 /// Seconds a walk in or out takes.
-const WALK_S: f64 = 6.0;
+pub(crate) const WALK_S: f64 = 6.0;
 /// Blocks of 16 px over vtest's 768×576 frame.
 const GRID_W: usize = 48;
 /// Block edge, pixels.
@@ -191,7 +191,7 @@ fn cut(frame: &Mat, background: &Mat, b: &PersonBox) -> Cutout {
 /// or standing there from the first frame with `from_start`) to `stand_until_s`,
 /// then walking out.
 #[derive(Clone, Copy)]
-struct Actor {
+pub(crate) struct Actor {
     run: usize,
     scale: i32,
     place: Option<(i32, i32)>,
@@ -201,7 +201,7 @@ struct Actor {
 }
 
 impl Actor {
-    const fn standing(run: usize, stand_from_s: f64, stand_until_s: f64) -> Actor {
+    pub(crate) const fn standing(run: usize, stand_from_s: f64, stand_until_s: f64) -> Actor {
         Actor {
             run,
             scale: 1,
@@ -230,7 +230,7 @@ struct Prop {
 
 /// A clip: its length and frame rate, its people, its props, and the light (a
 /// gain on every pixel, by time).
-struct Clip {
+pub(crate) struct Clip {
     length_s: f64,
     fps: f64,
     actors: Vec<Actor>,
@@ -243,13 +243,13 @@ type PxBox = (i32, i32, i32, i32);
 
 /// Where things were in each frame: whether someone was in view, and each actor's
 /// box while standing.
-struct Truth {
+pub(crate) struct Truth {
     present: Vec<bool>,
-    standing: Vec<Vec<Option<PxBox>>>,
+    pub(crate) standing: Vec<Vec<Option<PxBox>>>,
 }
 
 impl Clip {
-    fn people(length_s: f64, actors: &[Actor]) -> Clip {
+    pub(crate) fn people(length_s: f64, actors: &[Actor]) -> Clip {
         Clip {
             length_s,
             fps: 10.0,
@@ -260,7 +260,7 @@ impl Clip {
     }
 
     /// Writes the clip to `path` (MJPG) and says where things were.
-    fn write(&self, path: &Path) -> Truth {
+    pub(crate) fn write(&self, path: &Path) -> Truth {
         let scene = scene();
         let bg = &scene.background;
         let (fw, fh) = (bg.cols(), bg.rows());
@@ -377,7 +377,7 @@ fn draw_box(frame: &mut Mat, p: &Prop, t: f64) {
 
 /// The camera of the clips: vtest's view as a floor of 1 cm per pixel, a cost
 /// map cell per block (cell (i, j) is block column i, row 35 − j).
-const CAMERA: &str = r#"[[camera]]
+pub(crate) const CAMERA: &str = r#"[[camera]]
 id = "cam01"
 source = "replaced-by-replay"
 floor_points = [

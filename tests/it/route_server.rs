@@ -58,13 +58,26 @@ fn route_site(name: &str, domain: u16, tail: &str, netns: bool) -> TestSite {
 /// (`ok`, `refuse`, `never`), once it is ready; in the second namespace of
 /// `netns` (SUBNET discovery), if any.
 fn route_server(release: &str, domain: u16, answer: &str, netns: Option<&NetnsPair>) -> Proc {
+    spawn_route_server(release, domain, &["--answer", answer], netns)
+}
+
+/// A route server of rclpy `release` on `domain` with `options` (those of
+/// `rclpy_peer.py route-server`), once it is ready; in the second namespace of
+/// `netns` (SUBNET discovery), if any.
+pub(crate) fn spawn_route_server(
+    release: &str,
+    domain: u16,
+    options: &[&str],
+    netns: Option<&NetnsPair>,
+) -> Proc {
     let script = repo_root().join("tests/ros2/rclpy_peer.py");
     let domain = domain.to_string();
     let mut args = vec![script.to_str().unwrap(), "--domain", &domain];
     if netns.is_some() {
         args.push("--subnet");
     }
-    args.extend(["route-server", "--answer", answer, "--timeout", "180"]);
+    args.extend(["route-server", "--timeout", "180"]);
+    args.extend(options);
     let python = rclpy_python(release);
     let mut server = match netns {
         Some(pair) => pair.spawn(1, &python, &args),
@@ -81,7 +94,7 @@ fn route_server(release: &str, domain: u16, answer: &str, netns: Option<&NetnsPa
 }
 
 /// The requests the server took so far.
-fn requests(server: &mut Proc) -> Vec<Value> {
+pub(crate) fn requests(server: &mut Proc) -> Vec<Value> {
     server
         .stdout()
         .lines()
@@ -91,7 +104,7 @@ fn requests(server: &mut Proc) -> Vec<Value> {
 }
 
 /// Every edge id a request names.
-fn named(request: &Value) -> BTreeSet<u64> {
+pub(crate) fn named(request: &Value) -> BTreeSet<u64> {
     let ids = |key: &str| -> Vec<u64> {
         request[key]
             .as_array()
@@ -113,7 +126,7 @@ fn named(request: &Value) -> BTreeSet<u64> {
 }
 
 /// The server's state after its last request: closed edges, cost per edge.
-fn state(server: &mut Proc) -> Option<(BTreeSet<u64>, BTreeMap<u64, f64>)> {
+pub(crate) fn state(server: &mut Proc) -> Option<(BTreeSet<u64>, BTreeMap<u64, f64>)> {
     let last = requests(server).pop()?;
     let closed = last["state"]["closed"]
         .as_array()?
@@ -171,11 +184,12 @@ fn counter(c: &Value, name: &str) -> f64 {
     c[name].as_f64().unwrap_or_else(|| panic!("no {name}: {c}"))
 }
 
-/// The route server of zenoh-ros2-sdk through the Zenoh router on `port`.
-fn zenoh_route_server(port: u16, domain: u16) -> Proc {
+/// The route server of zenoh-ros2-sdk through the Zenoh router on `port`, with
+/// `options` (those of `rmw_zenoh_peer.py route-server`).
+pub(crate) fn zenoh_route_server(port: u16, domain: u16, options: &[&str]) -> Proc {
     let (port, domain) = (port.to_string(), domain.to_string());
     let share = crate::zenoh::message_dir().display().to_string();
-    let mut server = crate::zenoh::peer(&[
+    let mut args = vec![
         "route-server",
         "--router",
         &port,
@@ -185,7 +199,9 @@ fn zenoh_route_server(port: u16, domain: u16) -> Proc {
         &share,
         "--timeout",
         "180",
-    ]);
+    ];
+    args.extend(options);
+    let mut server = crate::zenoh::peer(&args);
     assert!(
         server
             .wait_for_line("\"ready\"", Duration::from_secs(60))
@@ -380,96 +396,12 @@ fn an_rclpy_jazzy_route_server_on_another_host_is_fed_live() {
 /// zenoh-ros2-sdk's `ROS2ServiceServer`, through a Zenoh router.
 #[test]
 fn a_zenoh_route_server_is_fed_live() {
-    let port = isochron_tests::free_port();
-    let mut router = crate::zenoh::peer(&["router", "--listen", &format!("tcp/127.0.0.1:{port}")]);
-    assert!(
-        router
-            .wait_for_line("\"router\"", Duration::from_secs(20))
-            .is_some(),
-        "the Zenoh router did not start: {}",
-        router.stderr()
-    );
+    let (port, _router) = crate::zenoh::router();
     let domain = dds_domain();
     let zenoh =
         format!("\n[costmap.zenoh]\nenabled = true\nconnect = [\"tcp/127.0.0.1:{port}\"]\n");
     let site = route_site("route-zenoh", domain, &zenoh, false);
-    fed_live("zenoh", &site, None, &|| zenoh_route_server(port, domain));
-}
-
-/// The activity samples the bridge took per second, as its status reported them
-/// after `window` of feeding 8 a second (a status every 5 s over the 5 s before
-/// it: the window is 11 s, so that the interval of its last report lies wholly
-/// inside). A bridge blocked on its calls takes none and reports nothing.
-fn intake_rate(site: &TestSite, source: &mut Source, window: Duration) -> f64 {
-    let t0 = Instant::now();
-    let mut on = false;
-    while t0.elapsed() < window {
-        on = !on;
-        let hot = if on { busy_zone() } else { Vec::new() };
-        source.send(&hot, NOW_T_STAR);
-        std::thread::sleep(Duration::from_millis(125));
-    }
-    let row = site.status_row("costmap");
-    let age = row["age_s"].as_f64().unwrap_or(f64::INFINITY);
-    assert!(
-        age < 6.0,
-        "the bridge reported nothing for {age:.1} s: {row}"
-    );
-    row["rate_in"].as_f64().unwrap_or(0.0)
-}
-
-/// A route server that refuses every call, then one that never answers: each
-/// call counted as failed, one warning per change of state, and the bridge takes
-/// its activity at the rate it comes all along.
-#[test]
-fn a_route_server_that_refuses_or_hangs_costs_the_bridge_nothing() {
-    crate::costmap::python();
-    let domain = dds_domain();
-    let site = route_site("route-refuse", domain, "", false);
-    let (_ipc, mut source, bridge) = start_bridge(&site, NOW);
-    let before = intake_rate(&site, &mut source, Duration::from_secs(11));
-
-    let mut refusing = route_server("jazzy", domain, "refuse", None);
-    let failed = feed_until(&mut source, &busy_zone(), Duration::from_secs(30), || {
-        counter(&counters(&site), "route_failures") >= 2.0
+    fed_live("zenoh", &site, None, &|| {
+        zenoh_route_server(port, domain, &[])
     });
-    assert!(
-        failed.is_some(),
-        "{}\n{}",
-        refusing.stdout(),
-        bridge.stderr()
-    );
-    let refused = intake_rate(&site, &mut source, Duration::from_secs(11));
-    assert!(!requests(&mut refusing).is_empty());
-    let c = counters(&site);
-    assert_eq!(counter(&c, "route_server_up"), 0.0, "{c}");
-    refusing.terminate(Duration::from_secs(20));
-
-    let mut hung = route_server("jazzy", domain, "never", None);
-    assert!(
-        hung.wait_for_line("\"hung\"", Duration::from_secs(30))
-            .is_some(),
-        "{}",
-        bridge.stderr()
-    );
-    let hanging = intake_rate(&site, &mut source, Duration::from_secs(11));
-    let c = counters(&site);
-    eprintln!(
-        "activity samples taken per second: {before:.2} before, {refused:.2} while refused, {hanging:.2} while the server hangs; {c}"
-    );
-    for rate in [refused, hanging] {
-        assert!(rate >= before * 0.8, "{before:.2} before, {rate:.2}");
-    }
-    let log = bridge.stderr();
-    let warnings = log
-        .lines()
-        .filter(|l| l.contains("WARN") && l.contains("route server"))
-        .count();
-    // Waiting (the refusing server gone), failing, and failing again after the
-    // hung one was found: a line per change of state, not per call.
-    assert!(warnings <= 6, "{warnings} warnings:\n{log}");
-    assert!(
-        counter(&c, "route_calls") > counter(&c, "route_failures") - 1.0,
-        "{c}"
-    );
 }

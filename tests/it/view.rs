@@ -15,7 +15,7 @@ use serde_json::Value;
 
 /// config/demo.toml without its `[site]` section (the test site has its own), the
 /// video at its absolute path; `edit` may change the text.
-fn demo_site(name: &str, edit: impl Fn(String) -> String) -> TestSite {
+pub(crate) fn demo_site(name: &str, edit: impl Fn(String) -> String) -> TestSite {
     let text = std::fs::read_to_string(repo_root().join("config/demo.toml")).unwrap();
     let body = &text[text.find("[[camera]]").expect("demo has a camera")..];
     let body = body.replace(

@@ -71,6 +71,21 @@ pub(crate) fn peer(args: &[&str]) -> Proc {
     Proc::spawn(&zenoh_python(), &all)
 }
 
+/// A Zenoh router (eclipse-zenoh's, in router mode) on a free loopback port, once
+/// it listens: its port and process.
+pub(crate) fn router() -> (u16, Proc) {
+    let port = free_port();
+    let mut router = peer(&["router", "--listen", &format!("tcp/127.0.0.1:{port}")]);
+    assert!(
+        router
+            .wait_for_line("\"router\"", Duration::from_secs(20))
+            .is_some(),
+        "the Zenoh router did not start: {}",
+        router.stderr()
+    );
+    (port, router)
+}
+
 /// The JSON lines of a finished peer.
 pub(crate) fn lines(stdout: &str) -> Vec<Value> {
     stdout
@@ -82,15 +97,7 @@ pub(crate) fn lines(stdout: &str) -> Vec<Value> {
 #[test]
 fn an_rmw_zenoh_robot_gets_every_topic_a_late_grid_and_plans() {
     let share = message_dir();
-    let port = free_port();
-    let mut router = peer(&["router", "--listen", &format!("tcp/127.0.0.1:{port}")]);
-    assert!(
-        router
-            .wait_for_line("\"router\"", Duration::from_secs(20))
-            .is_some(),
-        "the Zenoh router did not start: {}",
-        router.stderr()
-    );
+    let (port, router) = router();
     let domain = dds_domain();
     let site = site("zenoh", domain, false);
     // The body after the `[site]` table TestSite writes.

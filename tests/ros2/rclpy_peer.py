@@ -33,14 +33,15 @@ opened ones removed, each adjusted edge's cost kept). One JSON line per request:
 {"kind": "adjust_edges", "t", "closed", "opened", "adjust": [[id, cost]...],
 "state": {"closed": [...], "costs": {id: cost}}}. --answer refuse answers
 success = false; never takes the first request and answers nothing (a hung
-server).
+server). With --grid-topic, it also subscribes to the grid (as Nav2's StaticLayer
+does) and writes {"kind": "first_grid", "t"} when the first one arrives.
 
 Usage: rclpy_peer.py --domain D [--subnet] listen --topic T [--updates] [--people T]
            [--markers T] [--people-markers T] [--speed-info T] [--speed-mask T] [--forecast T] [--grids N]
            [--mismatch] [--timeout S]
        rclpy_peer.py --domain D [--subnet] plan CALLS_JSON [--timeout S]
        rclpy_peer.py --domain D [--subnet] route-server [--scorer NAME]
-           [--answer ok|refuse|never] [--timeout S]
+           [--answer ok|refuse|never] [--grid-topic T] [--timeout S]
 
 CALLS_JSON: a list of {"service": "/isochron/plan_now", "routes": [...]},
 {"service": "/isochron/plan_offline", "route": R, "start_minute": M, "end_minute":
@@ -334,6 +335,18 @@ def route_server(args):
     # As nav2_route names it: node name, plugin name, adjust_edges.
     name = f"{node.get_name()}/{args.scorer}/adjust_edges"
     node.create_service(DynamicEdges, name, adjust_edges)
+    if args.grid_topic:
+        from nav_msgs.msg import OccupancyGrid
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        grids = []
+
+        def on_grid(msg):
+            if not grids:
+                emit({"kind": "first_grid", "t": round(time.monotonic() - start, 3)})
+            grids.append(1)
+        node.create_subscription(OccupancyGrid, args.grid_topic, on_grid, latched)
     emit({"kind": "ready", "service": node.resolve_service_name(name),
           "rmw": rclpy.utilities.get_rmw_implementation_identifier()})
     end = start + args.timeout
@@ -365,6 +378,7 @@ def main():
     rs = sub.add_parser("route-server")
     rs.add_argument("--scorer", default="DynamicEdgesScorer")
     rs.add_argument("--answer", choices=["ok", "refuse", "never"], default="ok")
+    rs.add_argument("--grid-topic")
     rs.add_argument("--timeout", type=float, default=60.0)
     args = parser.parse_args()
     configure(args)

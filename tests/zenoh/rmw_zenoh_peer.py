@@ -23,7 +23,8 @@ Commands (one JSON object per line on stdout, as tests/ros2/rclpy_peer.py):
                                          /route_server/DynamicEdgesScorer/adjust_edges
                                          as nav2_route's scorer keeps it; one
                                          "adjust_edges" line per request, in the
-                                         format of tests/ros2/rclpy_peer.py route-server
+                                         format of tests/ros2/rclpy_peer.py route-server;
+                                         with --grid, a "first_grid" line too
 """
 
 import argparse
@@ -265,6 +266,14 @@ def route_server(args):
         router_port=args.router,
     )
     emit({"kind": "ready", "service": "/route_server/DynamicEdgesScorer/adjust_edges"})
+    if args.grid:
+        grids = []
+
+        def on_grid(msg):
+            if not grids:
+                emit({"kind": "first_grid", "t": round(time.monotonic() - start, 3)})
+            grids.append(1)
+        subscriber = sdk_subscribe(args, args.topic, "nav_msgs/msg/OccupancyGrid", on_grid)
     time.sleep(args.timeout)
     emit({"kind": "done"})
 
@@ -278,6 +287,8 @@ def main():
     parser.add_argument("--domain", type=int, default=0)
     parser.add_argument("--topic", default="/isochron/activity_costmap")
     parser.add_argument("--hash", default="")
+    parser.add_argument("--grid", action="store_true",
+                        help="route-server: also note the first grid on --topic")
     parser.add_argument("--messages", help="a share/ directory with the .msg/.srv files")
     parser.add_argument("--timeout", type=float, default=30)
     parser.add_argument("--call-timeout", type=float, default=5)

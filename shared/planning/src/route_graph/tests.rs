@@ -895,7 +895,11 @@ fn the_demo_graph_lies_on_the_demo_floor_where_the_camera_sees() {
     assert_eq!(g, demo_grid());
     let frame = &loaded.config.costmap.frame_id;
     let graph = RouteGraph::load(&root.join("demo-graph.geojson"), frame).unwrap();
-    assert_eq!((graph.nodes().len(), graph.edges().len()), (11, 26));
+    assert_eq!((graph.nodes().len(), graph.edges().len()), (11, 28));
+    // The ramp from the south walk onto the crossing keeps its cost: the route
+    // server may not override it.
+    let ramp = graph.edge_index(126).unwrap();
+    assert!(!graph.edges()[ramp].overridable);
     // PETS 2009 View_001 is 768 × 576, in blocks of 16 px.
     let camera = &loaded.config.cameras[0];
     let (h, _) = Homography::of_camera(camera).unwrap().unwrap();
