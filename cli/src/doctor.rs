@@ -384,12 +384,10 @@ fn check_sources(loaded: &LoadedConfig, report: &mut Report) {
                     );
                 }
             }
-            SourceKind::Url(u) => {
-                report.say(Level::Ok, &what, format!("{u} (network: not probed)"))
+            kind @ SourceKind::Url(_) => {
+                report.say(Level::Ok, &what, format!("{kind} (network: not probed)"))
             }
-            SourceKind::GStreamer(p) => {
-                report.say(Level::Ok, &what, format!("GStreamer pipeline '{p}'"))
-            }
+            kind @ SourceKind::GStreamer(_) => report.say(Level::Ok, &what, kind.to_string()),
         }
     }
 }

@@ -184,20 +184,25 @@ fn unopenable_device_reconnects_with_backoff_until_stopped() {
     let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
     assert!(
         capture.wait_for_stderr(
-            "attempt 4 failed, retrying in 0.4 s",
+            "attempt 3 failed, retrying in 0.4 s",
             Duration::from_secs(20)
         ),
         "{}",
         capture.stderr()
     );
+    // A line when the failure starts (WARN) and when the delay grows (INFO),
+    // none per attempt after: a second more of attempts 0.4 s apart adds none.
+    std::thread::sleep(Duration::from_secs(1));
     let stderr = capture.stderr();
     for delay in [
-        "retrying in 0.1 s",
-        "retrying in 0.2 s",
-        "retrying in 0.4 s",
+        "attempt 1 failed, retrying in 0.1 s",
+        "attempt 2 failed, retrying in 0.2 s",
     ] {
         assert!(stderr.contains(delay), "{stderr}");
     }
+    assert_eq!(stderr.matches("retrying in 0.4 s").count(), 1, "{stderr}");
+    let warnings = stderr.lines().filter(|l| l.contains("WARN")).count();
+    assert_eq!(warnings, 1, "{stderr}");
     let status = capture.terminate(Duration::from_secs(5));
     assert!(status.success(), "{}", capture.stderr());
     assert!(!capture.stderr().contains("panicked"));

@@ -1,5 +1,6 @@
 //! Reliability under an operator's hands: a stop that no signal order can defeat,
-//! a camera that is unreachable at start, status that a new reader gets at once.
+//! a camera that is unreachable at start, status that a new reader gets at once,
+//! a camera's password in no output.
 
 use std::time::{Duration, Instant};
 
@@ -155,6 +156,94 @@ fn an_unreachable_camera_at_start_keeps_capture_alive_and_backing_off() {
         "backoff passed its maximum:\n{log}"
     );
     up.terminate(Duration::from_secs(20));
+}
+
+/// A camera URL's password — in its user info and as a query parameter — appears
+/// in no output while capture cannot reach it: `isochron up`'s and every
+/// service's log, `isochron status`, `doctor`, `tap` and the exporter's
+/// `/metrics`; the logs show it masked.
+#[test]
+fn a_camera_password_appears_in_no_output() {
+    const SECRET: &str = "s3cret-Pa55";
+    let port = isochron_tests::free_port();
+    let site = TestSite::new(
+        "redact",
+        &format!(
+            "[exporter]\nlisten = \"127.0.0.1:{port}\"\n\n\
+             [[camera]]\nid = \"cam01\"\n\
+             source = \"rtsp://admin:{SECRET}@127.0.0.1:9/live?user=admin&password={SECRET}\"\n\
+             reconnect_initial_s = 0.25\nreconnect_max_s = 1\n"
+        ),
+    );
+    let mut up = site.up(&[]);
+    let mut exporter = site.spawn("isochron-exporter", &[]);
+    let capture_log = site.path("logs/capture-cam01.log");
+    let tried = eventually(Duration::from_secs(30), || {
+        let log = std::fs::read_to_string(&capture_log).ok()?;
+        (log.matches("retrying in").count() >= 2).then_some(log)
+    });
+    let log = tried.unwrap_or_else(|| panic!("capture never retried:\n{}", up.stdout()));
+    assert!(
+        log.contains("rtsp://admin:***@127.0.0.1:9/live?user=admin&password=***"),
+        "the source masked in the log:\n{log}"
+    );
+    let config = site.config_path().display().to_string();
+    let mut outputs = vec![("capture log".to_string(), log)];
+    for args in [
+        vec!["status", "--config", &config],
+        vec!["status", "--config", &config, "--json"],
+        vec!["doctor", "--config", &config],
+        vec![
+            "tap",
+            "cam01",
+            "frames",
+            "--config",
+            &config,
+            "--count",
+            "1",
+            "--timeout",
+            "2",
+        ],
+    ] {
+        let done = site.isochron(&args, Duration::from_secs(60));
+        outputs.push((
+            format!("isochron {args:?}"),
+            format!("{}\n{}", done.stdout, done.stderr),
+        ));
+    }
+    let metrics = eventually(Duration::from_secs(30), || {
+        let mut stream = std::net::TcpStream::connect(("127.0.0.1", port)).ok()?;
+        use std::io::{Read, Write};
+        stream
+            .write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+            .ok()?;
+        let mut page = String::new();
+        stream.read_to_string(&mut page).ok()?;
+        page.contains("isochron_up").then_some(page)
+    });
+    outputs.push(("/metrics".into(), metrics.expect("a scrape of /metrics")));
+    up.terminate(Duration::from_secs(20));
+    exporter.terminate(Duration::from_secs(20));
+    outputs.push((
+        "isochron up".into(),
+        format!("{}\n{}", up.stdout(), up.stderr()),
+    ));
+    outputs.push(("exporter".into(), exporter.stderr()));
+    for entry in std::fs::read_dir(site.path("logs")).unwrap() {
+        let path = entry.unwrap().path();
+        outputs.push((
+            path.display().to_string(),
+            std::fs::read_to_string(&path).unwrap(),
+        ));
+    }
+    for (what, text) in &outputs {
+        assert!(!text.contains(SECRET), "the password in {what}:\n{text}");
+    }
+    eprintln!(
+        "the password in none of {} outputs ({} bytes)",
+        outputs.len(),
+        outputs.iter().map(|o| o.1.len()).sum::<usize>()
+    );
 }
 
 /// `kill -9` of `isochron up` takes its services with it (they used to run on as

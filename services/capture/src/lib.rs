@@ -73,13 +73,21 @@ impl Pacer {
     }
 }
 
-/// Exponential backoff: `initial`, doubling, capped at `max`; reset on success.
+/// How long after a streaming camera dropped it is retried every `initial`
+/// before the delays start doubling: most outages (a camera rebooting, a switch
+/// port flapping, an RTSP server restarted) end within it.
+pub const FAST_RETRY_WINDOW: Duration = Duration::from_secs(60);
+
+/// Reconnect delays: `initial`, doubling, capped at `max`; reset on success.
+/// After a camera that was streaming dropped ([`Backoff::dropped`]) the delays
+/// stay at `initial` for [`FAST_RETRY_WINDOW`] first.
 #[derive(Debug, Clone)]
 pub struct Backoff {
     initial: Duration,
     max: Duration,
     next: Duration,
     attempts: u32,
+    fast_until: Option<Instant>,
 }
 
 impl Backoff {
@@ -90,21 +98,39 @@ impl Backoff {
             max,
             next: initial,
             attempts: 0,
+            fast_until: None,
         }
     }
 
-    /// The delay before the next attempt, and the attempt's number (1-based).
-    pub fn next_delay(&mut self) -> (Duration, u32) {
+    /// The delay before the next attempt after one that failed at `now`, and
+    /// the failed attempt's number (1-based).
+    pub fn next_delay(&mut self, now: Instant) -> (Duration, u32) {
+        self.attempts += 1;
+        if self.fast_until.is_some_and(|until| now < until) {
+            return (self.initial, self.attempts);
+        }
         let delay = self.next;
         self.next = (self.next * 2).min(self.max);
-        self.attempts += 1;
         (delay, self.attempts)
+    }
+
+    /// Failed attempts since the last success.
+    pub fn attempts(&self) -> u32 {
+        self.attempts
     }
 
     /// Back to the initial delay after a success.
     pub fn reset(&mut self) {
         self.next = self.initial;
         self.attempts = 0;
+        self.fast_until = None;
+    }
+
+    /// A camera that was streaming dropped at `now`: retried every `initial`
+    /// for [`FAST_RETRY_WINDOW`], then backing off as from the start.
+    pub fn dropped(&mut self, now: Instant) {
+        self.reset();
+        self.fast_until = Some(now + FAST_RETRY_WINDOW);
     }
 }
 
@@ -165,12 +191,36 @@ mod tests {
 
     #[test]
     fn backoff_doubles_to_the_cap_and_resets() {
+        let now = Instant::now();
         let mut b = Backoff::new(Duration::from_millis(500), Duration::from_secs(3));
-        let delays: Vec<_> = (0..5).map(|_| b.next_delay().0.as_millis()).collect();
+        let delays: Vec<_> = (0..5).map(|_| b.next_delay(now).0.as_millis()).collect();
         assert_eq!(delays, [500, 1000, 2000, 3000, 3000]);
-        assert_eq!(b.next_delay().1, 6);
+        assert_eq!(b.next_delay(now).1, 6);
         b.reset();
-        assert_eq!(b.next_delay(), (Duration::from_millis(500), 1));
+        assert_eq!(b.next_delay(now), (Duration::from_millis(500), 1));
+    }
+
+    #[test]
+    fn a_dropped_camera_is_retried_every_initial_delay_for_a_minute_then_backs_off() {
+        let t0 = Instant::now();
+        let mut b = Backoff::new(Duration::from_millis(500), Duration::from_secs(30));
+        b.next_delay(t0);
+        b.dropped(t0);
+        let at = |s: u64| t0 + Duration::from_secs(s);
+        for s in [0, 10, 30, 59] {
+            assert_eq!(
+                b.next_delay(at(s)).0,
+                Duration::from_millis(500),
+                "at {s} s"
+            );
+        }
+        let after: Vec<_> = (0..3).map(|_| b.next_delay(at(61)).0.as_millis()).collect();
+        assert_eq!(after, [500, 1000, 2000]);
+        assert_eq!(b.next_delay(at(62)).1, 8);
+        // A success ends the fast window.
+        b.reset();
+        b.next_delay(at(63));
+        assert_eq!(b.next_delay(at(63)).0, Duration::from_millis(1000));
     }
 
     #[test]

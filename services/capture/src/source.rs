@@ -36,7 +36,8 @@ pub enum SourceError {
         "cannot decode video file {0}: it is corrupt or in a format the installed OpenCV backends (FFmpeg, GStreamer) cannot read"
     )]
     Undecodable(PathBuf),
-    /// A live source could not be opened (yet).
+    /// A live source could not be opened (yet); the source as shown, its
+    /// credentials masked.
     #[error("cannot open {0}")]
     Unavailable(String),
     /// OpenCV failed.
@@ -145,11 +146,16 @@ pub trait FrameSource {
 /// calling thread, once per process. A capture process already runs one thread
 /// per camera; OpenCV's own worker pool beside them only spun waiting for work
 /// (measured: one camera's pool took a tenth of a core in a 32-camera process).
+/// Also keeps OpenCV's own warnings out of the log (a line per failed open of
+/// a camera that is down): capture says why, once per change of state.
 fn single_threaded_opencv() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
         if let Err(e) = opencv::core::set_num_threads(0) {
             tracing::warn!("OpenCV threads: {e}");
+        }
+        if let Err(e) = opencv::core::set_log_level_1(opencv::core::LOG_LEVEL_ERROR) {
+            tracing::warn!("OpenCV log level: {e}");
         }
     });
 }
@@ -183,7 +189,7 @@ impl VideoSource {
             SourceKind::Device(index) => {
                 let cap = videoio::VideoCapture::new(*index, videoio::CAP_V4L2)?;
                 if !cap.is_opened()? {
-                    return Err(SourceError::Unavailable(format!("V4L2 device {index}")));
+                    return Err(SourceError::Unavailable(kind.to_string()));
                 }
                 cap
             }
@@ -202,16 +208,14 @@ impl VideoSource {
                     &timeouts,
                 )?;
                 if !cap.is_opened()? {
-                    return Err(SourceError::Unavailable(url.clone()));
+                    return Err(SourceError::Unavailable(kind.to_string()));
                 }
                 cap
             }
             SourceKind::GStreamer(pipeline) => {
                 let cap = videoio::VideoCapture::from_file(pipeline, videoio::CAP_GSTREAMER)?;
                 if !cap.is_opened()? {
-                    return Err(SourceError::Unavailable(format!(
-                        "GStreamer pipeline '{pipeline}'"
-                    )));
+                    return Err(SourceError::Unavailable(kind.to_string()));
                 }
                 cap
             }

@@ -150,6 +150,12 @@ pub struct CaptureStage<'ipc> {
     /// Flags of the next frame (a discontinuity after a reconnect).
     flags: u32,
     reconnects: u64,
+    /// While a live source cannot be opened: the last failure's message and the
+    /// delay logged with it (a line per change of either, not per attempt).
+    failing: Option<(String, Duration)>,
+    /// `index` when the source last opened: a source that published nothing
+    /// since is not "streaming" when it drops.
+    opened_at_index: u64,
     loops: u64,
     /// How much of the file was read, once it ended.
     input: Option<InputCompleteness>,
@@ -170,6 +176,8 @@ impl<'ipc> CaptureStage<'ipc> {
             index: 0,
             flags: 0,
             reconnects: 0,
+            failing: None,
+            opened_at_index: 0,
             loops: 0,
             input: None,
             ended: false,
@@ -220,6 +228,14 @@ impl<'ipc> CaptureStage<'ipc> {
     fn connect(&mut self, cx: &mut Context) -> Result<(), Fatal> {
         match (self.open)() {
             Ok(mut source) => {
+                self.opened_at_index = self.index;
+                if self.failing.take().is_some() {
+                    tracing::info!(
+                        "camera '{}' opened after {} failed attempts",
+                        self.settings.camera,
+                        self.backoff.attempts()
+                    );
+                }
                 match self.playback.is_some() {
                     true => {
                         self.reconnects += 1;
@@ -236,11 +252,21 @@ impl<'ipc> CaptureStage<'ipc> {
             }
             Err(e) if self.settings.is_file => Err(e.into()),
             Err(e) => {
-                let (delay, attempt) = self.backoff.next_delay();
-                tracing::warn!(
-                    "{e}; attempt {attempt} failed, retrying in {:.1} s",
+                let (delay, attempt) = self.backoff.next_delay(Instant::now());
+                let message = e.to_string();
+                let line = format!(
+                    "{message}; attempt {attempt} failed, retrying in {:.1} s",
                     delay.as_secs_f64()
                 );
+                // A WARN when the failure is new or another, an INFO when the
+                // delay grows, nothing more per attempt.
+                match &self.failing {
+                    Some((last, _)) if *last != message => tracing::warn!("{line}"),
+                    None => tracing::warn!("{line}"),
+                    Some((_, last_delay)) if *last_delay != delay => tracing::info!("{line}"),
+                    Some(_) => tracing::debug!("{line}"),
+                }
+                self.failing = Some((message, delay));
                 cx.alarm_in(delay);
                 Ok(())
             }
@@ -326,8 +352,9 @@ impl<'ipc> CaptureStage<'ipc> {
         cx.alarm_at(due.unwrap_or_else(Instant::now));
     }
 
-    /// A live source stopped delivering: reconnects, first at once, then after
-    /// each backoff delay.
+    /// A live source stopped delivering: reconnects, first at once; if it had
+    /// published frames since it opened, then every `reconnect_initial_s` for
+    /// [`crate::FAST_RETRY_WINDOW`], then backing off.
     fn lost(&mut self, not_sent: NotSent, cx: &mut Context) {
         if let NotSent::Failed(e) = not_sent {
             tracing::warn!("camera '{}' failed: {e}", self.settings.camera);
@@ -337,7 +364,11 @@ impl<'ipc> CaptureStage<'ipc> {
             self.settings.camera
         );
         self.source = None;
-        self.backoff.reset();
+        // Streaming before it dropped: retried fast. One that drops as soon as
+        // it opens goes on backing off.
+        if self.index > self.opened_at_index {
+            self.backoff.dropped(Instant::now());
+        }
         cx.alarm_at(Instant::now());
     }
 

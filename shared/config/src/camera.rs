@@ -143,7 +143,8 @@ pub struct CameraConfig {
     /// lockstep. Default 0.
     #[serde(default)]
     pub start_frame: u64,
-    /// First reconnect delay after a live source drops out, seconds. Default 0.5.
+    /// First reconnect delay after a live source drops out, seconds; one that
+    /// was streaming is retried this often for its first minute down. Default 0.5.
     #[serde(default = "default_reconnect_initial_s")]
     pub reconnect_initial_s: f64,
     /// Longest reconnect delay (the backoff doubles up to it), seconds. Default 30.
@@ -206,6 +207,19 @@ impl SourceKind {
     /// True for sources that run out (files).
     pub fn is_file(&self) -> bool {
         matches!(self, SourceKind::File(_))
+    }
+}
+
+impl fmt::Display for SourceKind {
+    /// The source as logs and errors show it, credentials masked
+    /// ([`crate::redact`]).
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            SourceKind::File(path) => write!(f, "{}", path.display()),
+            SourceKind::Device(index) => write!(f, "V4L2 device {index}"),
+            SourceKind::Url(url) => f.write_str(&crate::redact(url)),
+            SourceKind::GStreamer(p) => write!(f, "GStreamer pipeline '{}'", crate::redact(p)),
+        }
     }
 }
 

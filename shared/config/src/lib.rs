@@ -31,6 +31,7 @@ mod link;
 mod motion;
 mod mqtt;
 mod presence;
+pub mod redact;
 mod segments;
 mod site;
 #[cfg(test)]
@@ -60,6 +61,7 @@ pub use link::{DEFAULT_LINK_NAMESPACE, LinkConfig, MAX_BOX_ID_LEN, is_ros_token}
 pub use motion::{MotionBackend, MotionConfig};
 pub use mqtt::{Broker, DEFAULT_MQTT_PORT, DEFAULT_MQTTS_PORT, MqttConfig, is_topic_level};
 pub use presence::PresenceConfig;
+pub use redact::redact;
 pub use segments::{PLAN_NAME_LEN, RouteConfig, SegmentConfig};
 pub use site::{DEFAULT_PREFIX, SiteConfig, is_valid_prefix};
 pub use view::ViewConfig;
