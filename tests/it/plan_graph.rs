@@ -309,8 +309,7 @@ fn rclpy_kilted_plans_over_the_graph() {
 fn an_rmw_zenoh_robot_plans_over_the_graph() {
     let (port, router) = crate::zenoh::router();
     let domain = dds_domain();
-    let zenoh =
-        format!("\n[costmap.zenoh]\nenabled = true\nconnect = [\"tcp/127.0.0.1:{port}\"]\n");
+    let zenoh = crate::zenoh::costmap_section(port);
     let site = graph_site("graph-zenoh", domain, "", &zenoh);
     let (_ipc, _source, bridge) = start_bridge(&site);
     assert!(

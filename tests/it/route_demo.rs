@@ -118,9 +118,8 @@ fn walked(frames: u64) -> BTreeMap<u64, u64> {
     out
 }
 
-/// `isochron up` on the demo site feeding `server` (started with its first-grid
-/// note on), `label` naming it in what the test prints.
-fn demo_fed_live(label: &str, site: &TestSite, mut server: Proc) {
+/// `isochron up` on `site`, once capture says it is ready: the process and when.
+fn up_until_capture_ready(site: &TestSite, label: &str) -> (Proc, Instant) {
     let mut up = site.up(&[]);
     let started = eventually(Duration::from_secs(60), || {
         up.stdout()
@@ -128,6 +127,13 @@ fn demo_fed_live(label: &str, site: &TestSite, mut server: Proc) {
             .then(Instant::now)
     })
     .unwrap_or_else(|| panic!("{label}: capture never ready:\n{}", up.stdout()));
+    (up, started)
+}
+
+/// `isochron up` on the demo site feeding `server` (started with its first-grid
+/// note on), `label` naming it in what the test prints.
+fn demo_fed_live(label: &str, site: &TestSite, mut server: Proc) {
+    let (mut up, started) = up_until_capture_ready(site, label);
     // 1. The first request, after the first grid the server heard. The group
     //    starts the detector and replays from the first frame: a minute at most.
     let times = eventually(Duration::from_secs(120), || {
@@ -257,8 +263,7 @@ fn the_demo_under_isochron_up_feeds_an_rclpy_kilted_route_server() {
 fn the_demo_under_isochron_up_feeds_a_zenoh_route_server() {
     let (port, _router) = crate::zenoh::router();
     let domain = dds_domain();
-    let zenoh =
-        format!("\n[costmap.zenoh]\nenabled = true\nconnect = [\"tcp/127.0.0.1:{port}\"]\n");
+    let zenoh = crate::zenoh::costmap_section(port);
     let site = demo_route_site("route-demo-zenoh", domain, &zenoh);
     let server = zenoh_route_server(port, domain, &["--grid", "--topic", TOPIC]);
     demo_fed_live("zenoh", &site, server);
@@ -323,13 +328,7 @@ fn a_person_standing_closes_their_edge(
     std::fs::write(site.path("graph.geojson"), graph.to_string()).unwrap();
     let mut server = start_server();
     let server_t0 = Instant::now();
-    let mut up = site.up(&[]);
-    let started = eventually(Duration::from_secs(60), || {
-        up.stdout()
-            .contains("up: capture/cam01 ready")
-            .then(Instant::now)
-    })
-    .unwrap_or_else(|| panic!("{label}: capture never ready:\n{}", up.stdout()));
+    let (mut up, started) = up_until_capture_ready(&site, label);
     // Clip seconds of the server's clock.
     let offset = started.duration_since(server_t0).as_secs_f64();
     let clip_s = |t: f64| t - offset;
@@ -399,8 +398,7 @@ fn a_person_standing_closes_the_edge_under_them_for_an_rclpy_route_server() {
 fn a_person_standing_closes_the_edge_under_them_for_a_zenoh_route_server() {
     let (port, _router) = crate::zenoh::router();
     let domain = dds_domain();
-    let zenoh =
-        format!("\n[costmap.zenoh]\nenabled = true\nconnect = [\"tcp/127.0.0.1:{port}\"]\n");
+    let zenoh = crate::zenoh::costmap_section(port);
     a_person_standing_closes_their_edge("zenoh", domain, &zenoh, &|| {
         zenoh_route_server(port, domain, &[])
     });

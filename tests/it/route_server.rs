@@ -398,8 +398,7 @@ fn an_rclpy_jazzy_route_server_on_another_host_is_fed_live() {
 fn a_zenoh_route_server_is_fed_live() {
     let (port, _router) = crate::zenoh::router();
     let domain = dds_domain();
-    let zenoh =
-        format!("\n[costmap.zenoh]\nenabled = true\nconnect = [\"tcp/127.0.0.1:{port}\"]\n");
+    let zenoh = crate::zenoh::costmap_section(port);
     let site = route_site("route-zenoh", domain, &zenoh, false);
     fed_live("zenoh", &site, None, &|| {
         zenoh_route_server(port, domain, &[])

@@ -86,6 +86,11 @@ pub(crate) fn router() -> (u16, Proc) {
     (port, router)
 }
 
+/// The site's `[costmap.zenoh]`: on, through the router on `port`.
+pub(crate) fn costmap_section(port: u16) -> String {
+    format!("\n[costmap.zenoh]\nenabled = true\nconnect = [\"tcp/127.0.0.1:{port}\"]\n")
+}
+
 /// The JSON lines of a finished peer.
 pub(crate) fn lines(stdout: &str) -> Vec<Value> {
     stdout
@@ -103,9 +108,7 @@ fn an_rmw_zenoh_robot_gets_every_topic_a_late_grid_and_plans() {
     // The body after the `[site]` table TestSite writes.
     let toml = std::fs::read_to_string(site.config_path()).unwrap();
     let body = &toml[toml.find("\n\n").unwrap() + 2..];
-    site.write_config(&format!(
-        "{body}\n[costmap.zenoh]\nenabled = true\nconnect = [\"tcp/127.0.0.1:{port}\"]\n"
-    ));
+    site.write_config(&format!("{body}{}", costmap_section(port)));
     write_store(&site);
     let (ipc, mut source, bridge) = start_bridge(&site, None);
     assert!(
