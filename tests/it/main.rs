@@ -14,6 +14,10 @@
 //!   pipeline (`isochron replay` on vtest.avi), presence (a clip made from
 //!   vtest.avi — median scene, PETS09 cut-outs walking in, standing still 30–45 s,
 //!   walking out — scored on the whole group's events and recording);
+//! * live_camera: capture against a real IP camera, GStreamer's RTSP server
+//!   (`tests/rtsp/camera.py`, gst-rtsp-server from Debian): killed for 10 s,
+//!   frozen with SIGSTOP, asked with a wrong password — recovery times, the
+//!   reason in `isochron status`, one WARN per outage, no password shown;
 //! * costmap: the grid read back by an independent ROS 2 peer,
 //!   `tests/ros2/costmap_listener.py` (Eclipse Cyclone DDS from PyPI, in
 //!   `target/ros2-venv`), on loopback and a DDS domain per test; nav2: that grid
@@ -111,6 +115,7 @@ mod hostile;
 mod inputs;
 mod launcher;
 mod link;
+mod live_camera;
 mod local_users;
 mod motion;
 mod mqtt;

@@ -16,7 +16,7 @@ use anyhow::{Context, bail};
 
 /// Licences a dependency may be used under (permissive; MPL-2.0 file-level copyleft
 /// is fine for an unmodified dependency).
-const ALLOWED: [&str; 15] = [
+const ALLOWED: [&str; 16] = [
     "MIT",
     "MIT-0",
     "Apache-2.0",
@@ -34,6 +34,9 @@ const ALLOWED: [&str; 15] = [
     // Community Data License Agreement, permissive: webpki-roots (Mozilla's CA
     // list, data), which Zenoh's TLS link carries.
     "CDLA-Permissive-2.0",
+    // Do What The F*ck You Want To Public License: no conditions at all;
+    // ffmpeg-next and ffmpeg-sys-next, the bindings of FFmpeg's libraries.
+    "WTFPL",
 ];
 
 /// The only registry.

@@ -12,9 +12,19 @@ use crate::run;
 use crate::wheel::{Member, Wheel};
 
 /// System packages every build and run needs: OpenCV and the bindings' clang,
-/// and `libssl-dev` for RustDDS's DDS Security (the bridge and the link link
-/// OpenSSL).
-const RUN_PACKAGES: [&str; 4] = ["libopencv-dev", "clang", "libclang-dev", "libssl-dev"];
+/// `libssl-dev` for RustDDS's DDS Security (the bridge and the link link
+/// OpenSSL), and FFmpeg's libraries, which capture opens network cameras with
+/// (`ffmpeg-next`).
+const RUN_PACKAGES: [&str; 8] = [
+    "libopencv-dev",
+    "clang",
+    "libclang-dev",
+    "libssl-dev",
+    "libavformat-dev",
+    "libavcodec-dev",
+    "libavutil-dev",
+    "libswscale-dev",
+];
 
 /// System packages only the tests and benchmarks need: iproute2 (`ip`, `ss`) for
 /// the network-namespace and DDS socket tests; `prometheus` for promtool, which
@@ -24,8 +34,12 @@ const RUN_PACKAGES: [&str; 4] = ["libopencv-dev", "clang", "libclang-dev", "libs
 /// which makes that test's certificates and which `isochron keystore` runs;
 /// `dpkg-dev` for `dpkg-shlibdeps`, which gives the package's `Depends` (`cargo
 /// xtask deb`); eProsima Fast DDS, its IDL compiler and g++ for the Fast DDS
-/// client of the planning services' test ([`fastdds_peer`]).
-const TEST_PACKAGES: [&str; 9] = [
+/// client of the planning services' test ([`fastdds_peer`]); GStreamer's RTSP
+/// server and the plugins it encodes with (x264 in -ugly, x265 in -bad, RTP
+/// payloaders in -good, FFmpeg's decoders in -libav for a served file), for the
+/// IP camera of the live-camera tests (`tests/rtsp/camera.py` under
+/// `/usr/bin/python3`, hence `python3-gi`).
+const TEST_PACKAGES: [&str; 17] = [
     "iproute2",
     "prometheus",
     "mosquitto",
@@ -35,6 +49,14 @@ const TEST_PACKAGES: [&str; 9] = [
     "libfastrtps-dev",
     "fastddsgen",
     "g++",
+    "gstreamer1.0-rtsp",
+    "gir1.2-gst-rtsp-server-1.0",
+    "python3-gi",
+    "gstreamer1.0-plugins-base",
+    "gstreamer1.0-plugins-good",
+    "gstreamer1.0-plugins-ugly",
+    "gstreamer1.0-plugins-bad",
+    "gstreamer1.0-libav",
 ];
 
 fn is_root() -> bool {

@@ -14,6 +14,7 @@ use isochron_runtime::stage::{self, Output};
 use crate::Backoff;
 use crate::source::{FrameSource, PreloadedSource, VideoSource};
 use crate::stage::{CaptureStage, Opener, Playback, Settings};
+use crate::stream::{StreamOptions, StreamSource};
 
 /// Reads the camera of `ctx` and publishes its frames until the file ends or the
 /// process is asked to stop.
@@ -22,8 +23,17 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
     let kind = cam.source_kind(&ctx.config.base_dir());
     let settings = settings(cam, &kind)?;
     let open: Opener = {
-        let kind = kind.clone();
-        Box::new(move || Ok(Box::new(VideoSource::open(&kind)?) as Box<dyn FrameSource>))
+        let (kind, options) = (kind.clone(), stream_options(cam));
+        Box::new(move || -> Result<Box<dyn FrameSource>, _> {
+            match &kind {
+                SourceKind::Url(url) => Ok(Box::new(StreamSource::open(
+                    url,
+                    &kind.to_string(),
+                    &options,
+                )?)),
+                _ => Ok(Box::new(VideoSource::open(&kind)?)),
+            }
+        })
     };
     let output = Output::new(&ctx.ipc, &cam.id);
     let mut capture = if kind.is_file() {
@@ -50,6 +60,15 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
         CaptureStage::connecting(settings, open, output)
     };
     stage::run(&ctx.ipc, &cam.id, &mut capture, &())
+}
+
+/// How a network camera is read, from the camera's config.
+fn stream_options(cam: &CameraConfig) -> StreamOptions {
+    StreamOptions {
+        transport: cam.transport,
+        connect_timeout: Duration::from_secs_f64(cam.connect_timeout_s),
+        read_timeout: Duration::from_secs_f64(cam.read_timeout_s),
+    }
 }
 
 /// The stage's settings from the camera's config.

@@ -1,6 +1,10 @@
 //! isochron-capture: reads a camera or a video file and publishes its frames.
 //!
-//! * [`source`]: OpenCV sources, decoding straight into shared memory;
+//! * [`source`]: OpenCV sources (files, V4L2, GStreamer), decoding straight
+//!   into shared memory;
+//! * [`stream`]: network cameras through FFmpeg's libraries: transport,
+//!   deadlines, damaged frames held back, luma straight into shared memory;
+//! * [`down`]: why a live camera is down ([`down::DownReason`]);
 //! * [`Stamper`]: capture times — the wall clock for live sources, `start + i/fps`
 //!   for files so recordings replay on a simulated clock;
 //! * [`Pacer`]: real-time (or `speed`×) pacing of file playback;
@@ -10,8 +14,10 @@
 //! * [`camera`]: the service's `run`: the stage of a configured camera.
 
 pub mod camera;
+pub mod down;
 pub mod source;
 pub mod stage;
+pub mod stream;
 
 use std::time::{Duration, Instant};
 

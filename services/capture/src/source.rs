@@ -1,4 +1,5 @@
-//! Video sources through OpenCV: files, V4L2 devices, network URLs, GStreamer.
+//! Video sources through OpenCV: files, V4L2 devices, GStreamer pipelines
+//! (network cameras are [`crate::stream`]'s).
 //!
 //! [`VideoSource::read_into`] has OpenCV decode the next frame into a buffer of its
 //! own, then converts it (colour, then size) or copies it into a caller's buffer —
@@ -15,15 +16,13 @@ use std::sync::Arc;
 use parking_lot::Mutex;
 
 use isochron_config::SourceKind;
+
+use crate::down::DownReason;
 use isochron_runtime::health::InputCompleteness;
 use isochron_wire::PixelFormat;
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 use opencv::{imgproc, videoio};
-
-/// How long opening or reading a network camera may take before it counts as
-/// unavailable (well inside the watchdog's 10 s).
-const NETWORK_TIMEOUT_MS: i32 = 5000;
 
 /// Why a source could not be opened or read.
 #[derive(Debug, thiserror::Error)]
@@ -40,6 +39,17 @@ pub enum SourceError {
     /// credentials masked.
     #[error("cannot open {0}")]
     Unavailable(String),
+    /// A network camera is down: the URL as shown (credentials masked), why,
+    /// and FFmpeg's words for it.
+    #[error("{what}: {reason} ({detail})")]
+    Down {
+        /// The camera's URL, credentials masked.
+        what: String,
+        /// Why.
+        reason: DownReason,
+        /// What FFmpeg said.
+        detail: String,
+    },
     /// OpenCV failed.
     #[error("OpenCV: {0}")]
     OpenCv(#[from] opencv::Error),
@@ -51,6 +61,18 @@ pub enum SourceError {
         /// The buffer's size.
         got: usize,
     },
+}
+
+impl SourceError {
+    /// Why the source is down, as status and `/metrics` show it.
+    pub fn reason(&self) -> DownReason {
+        match self {
+            SourceError::Down { reason, .. } => *reason,
+            SourceError::Missing(_) => DownReason::NotFound,
+            SourceError::Undecodable(_) => DownReason::BadStream,
+            _ => DownReason::Other,
+        }
+    }
 }
 
 impl isochron_exit::Classify for SourceError {
@@ -100,7 +122,7 @@ impl FrameFormat {
     }
 
     /// `Ok` if `dst` holds exactly one frame.
-    fn check(&self, dst: &[MaybeUninit<u8>]) -> Result<(), SourceError> {
+    pub(crate) fn check(&self, dst: &[MaybeUninit<u8>]) -> Result<(), SourceError> {
         if dst.len() == self.bytes() {
             Ok(())
         } else {
@@ -139,6 +161,11 @@ pub trait FrameSource {
     /// it states. `None` for a source that does not end (live, preloaded).
     fn completeness(&self) -> Option<InputCompleteness> {
         None
+    }
+
+    /// Frames found damaged and not published since the source opened.
+    fn damaged_frames(&self) -> u64 {
+        0
     }
 }
 
@@ -193,24 +220,10 @@ impl VideoSource {
                 }
                 cap
             }
-            SourceKind::Url(url) => {
-                // FFmpeg waits 30 s for an unreachable host by default; give up
-                // sooner, so reconnect backoff and the watchdog keep their rhythm.
-                let timeouts = opencv::core::Vector::<i32>::from_slice(&[
-                    videoio::CAP_PROP_OPEN_TIMEOUT_MSEC,
-                    NETWORK_TIMEOUT_MS,
-                    videoio::CAP_PROP_READ_TIMEOUT_MSEC,
-                    NETWORK_TIMEOUT_MS,
-                ]);
-                let cap = videoio::VideoCapture::from_file_with_params(
-                    url,
-                    videoio::CAP_FFMPEG,
-                    &timeouts,
-                )?;
-                if !cap.is_opened()? {
-                    return Err(SourceError::Unavailable(kind.to_string()));
-                }
-                cap
+            SourceKind::Url(_) => {
+                return Err(SourceError::Unavailable(format!(
+                    "{kind}: network cameras are opened by StreamSource, not OpenCV"
+                )));
             }
             SourceKind::GStreamer(pipeline) => {
                 let cap = videoio::VideoCapture::from_file(pipeline, videoio::CAP_GSTREAMER)?;

@@ -26,6 +26,7 @@ use isochron_runtime::stage::{self, Context, Output, SendError, Stage};
 use isochron_runtime::topology::StageKind;
 use isochron_wire::{FLAG_DISCONTINUITY, FrameHeader, PixelFormat, Preamble};
 
+use crate::down::DownReason;
 use crate::source::{FrameFormat, FrameSource, ReadOutcome, SourceError};
 use crate::{Backoff, Pacer, Rescale, Stamper, rescale};
 
@@ -71,6 +72,15 @@ pub struct Playback {
     pacer: Pacer,
 }
 
+/// Logs what rescaling camera `camera`'s `native` frames to `target` means.
+fn log_rescale(camera: &str, native: (u32, u32), target: (u32, u32)) {
+    match rescale(camera, native, target) {
+        Rescale::None => {}
+        Rescale::SameAspect(line) => tracing::info!("{line}"),
+        Rescale::Stretched(line) => tracing::warn!("{line}"),
+    }
+}
+
 impl Playback {
     /// The playback of `source` as `settings` ask: the configured size (or the
     /// source's, logged if rescaled), the configured frame rate (or the file's),
@@ -88,11 +98,7 @@ impl Playback {
             )
         })?;
         if let Some(native) = native {
-            match rescale(camera, native, (width, height)) {
-                Rescale::None => {}
-                Rescale::SameAspect(line) => tracing::info!("{line}"),
-                Rescale::Stretched(line) => tracing::warn!("{line}"),
-            }
+            log_rescale(camera, native, (width, height));
         }
         let fps = settings.fps.unwrap_or_else(|| source.stated_fps());
         if settings.is_file && (fps.is_nan() || fps <= 0.0) {
@@ -156,6 +162,12 @@ pub struct CaptureStage<'ipc> {
     /// `index` when the source last opened: a source that published nothing
     /// since is not "streaming" when it drops.
     opened_at_index: u64,
+    /// Why a live source is down, once it failed (`None` while it is up).
+    down: Option<DownReason>,
+    /// The size the source last opened with, if it said.
+    native: Option<(u32, u32)>,
+    /// Damaged frames of the sources closed so far.
+    damaged: u64,
     loops: u64,
     /// How much of the file was read, once it ended.
     input: Option<InputCompleteness>,
@@ -178,6 +190,9 @@ impl<'ipc> CaptureStage<'ipc> {
             reconnects: 0,
             failing: None,
             opened_at_index: 0,
+            down: None,
+            native: None,
+            damaged: 0,
             loops: 0,
             input: None,
             ended: false,
@@ -222,6 +237,15 @@ impl<'ipc> CaptureStage<'ipc> {
         Ok(())
     }
 
+    /// Records why the source is down (`None`: up); `isochron status` shows a
+    /// change at once, not at the next report.
+    fn set_down(&mut self, down: Option<DownReason>, cx: &mut Context) {
+        if down != self.down {
+            self.down = down;
+            cx.health.report_soon();
+        }
+    }
+
     /// Opens the live source (or a file at start): on success reading starts
     /// at once; a live source that fails is tried again after the next backoff
     /// delay; a file that fails ends the process (permanent).
@@ -229,6 +253,7 @@ impl<'ipc> CaptureStage<'ipc> {
         match (self.open)() {
             Ok(mut source) => {
                 self.opened_at_index = self.index;
+                self.set_down(None, cx);
                 if self.failing.take().is_some() {
                     tracing::info!(
                         "camera '{}' opened after {} failed attempts",
@@ -236,13 +261,24 @@ impl<'ipc> CaptureStage<'ipc> {
                         self.backoff.attempts()
                     );
                 }
-                match self.playback.is_some() {
-                    true => {
+                match &self.playback {
+                    Some(playback) => {
+                        // A camera reconfigured while it was away: analysis goes
+                        // on at the size it started with, rescaled.
+                        let size = (playback.frame.width, playback.frame.height);
+                        match source.native_size() {
+                            Ok(Some(native)) if Some(native) != self.native => {
+                                log_rescale(&self.settings.camera, native, size);
+                                self.native = Some(native);
+                            }
+                            _ => {}
+                        }
                         self.reconnects += 1;
                         self.flags |= FLAG_DISCONTINUITY;
                         self.source = Some(source);
                     }
-                    false => {
+                    None => {
+                        self.native = source.native_size().ok().flatten();
                         let playback = Playback::of(&self.settings, source.as_mut())?;
                         self.start(source, playback)?;
                     }
@@ -252,6 +288,7 @@ impl<'ipc> CaptureStage<'ipc> {
             }
             Err(e) if self.settings.is_file => Err(e.into()),
             Err(e) => {
+                self.set_down(Some(e.reason()), cx);
                 let (delay, attempt) = self.backoff.next_delay(Instant::now());
                 let message = e.to_string();
                 let line = format!(
@@ -356,14 +393,19 @@ impl<'ipc> CaptureStage<'ipc> {
     /// published frames since it opened, then every `reconnect_initial_s` for
     /// [`crate::FAST_RETRY_WINDOW`], then backing off.
     fn lost(&mut self, not_sent: NotSent, cx: &mut Context) {
-        if let NotSent::Failed(e) = not_sent {
-            tracing::warn!("camera '{}' failed: {e}", self.settings.camera);
-        }
-        tracing::warn!(
-            "camera '{}' stopped delivering frames; reconnecting",
-            self.settings.camera
-        );
-        self.source = None;
+        let camera = &self.settings.camera;
+        let reason = match not_sent {
+            NotSent::Failed(e) => {
+                tracing::warn!("camera '{camera}' stopped delivering frames: {e}; reconnecting");
+                e.reason()
+            }
+            NotSent::Ended => {
+                tracing::warn!("camera '{camera}' stopped delivering frames; reconnecting");
+                DownReason::Other
+            }
+        };
+        self.set_down(Some(reason), cx);
+        self.damaged += self.source.take().map_or(0, |s| s.damaged_frames());
         // Streaming before it dropped: retried fast. One that drops as soon as
         // it opens goes on backing off.
         if self.index > self.opened_at_index {
@@ -461,6 +503,11 @@ impl Stage for CaptureStage<'_> {
         c.set(capture::LOOPS, self.loops);
         c.set(capture::SOURCE_FPS, fps);
         c.set(capture::SOURCE_UP, self.source.is_some());
+        let damaged = self.source.as_ref().map_or(0, |s| s.damaged_frames());
+        c.set(capture::DAMAGED, self.damaged + damaged);
+        for reason in DownReason::ALL {
+            c.set(reason.counter(), self.down == Some(reason));
+        }
         if let Some(input) = self.input {
             input.set(c);
         }
@@ -468,7 +515,10 @@ impl Stage for CaptureStage<'_> {
 
     fn info(&self) -> String {
         if self.source.is_none() && !self.ended {
-            "source unavailable".into()
+            match self.down {
+                Some(reason) => format!("source down: {reason}"),
+                None => "source unavailable".into(),
+            }
         } else {
             String::new()
         }

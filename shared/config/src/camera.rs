@@ -150,6 +150,21 @@ pub struct CameraConfig {
     /// Longest reconnect delay (the backoff doubles up to it), seconds. Default 30.
     #[serde(default = "default_reconnect_max_s")]
     pub reconnect_max_s: f64,
+    /// Network cameras (`rtsp://`): how the video travels, `"tcp"` (inside the
+    /// RTSP connection: no loss, passes firewalls and NAT) or `"udp"` (RTP
+    /// packets: lower latency, lost packets are lost). Default `"tcp"`.
+    #[serde(default)]
+    pub transport: Transport,
+    /// Network cameras: seconds without a frame before the camera counts as
+    /// stalled and is reconnected (never less than two of its frame intervals).
+    /// Default 5.
+    #[serde(default = "default_network_timeout_s")]
+    pub read_timeout_s: f64,
+    /// Network cameras: seconds opening may take (connecting, the RTSP
+    /// handshake, the first frames) before the attempt counts as timed out.
+    /// Default 5.
+    #[serde(default = "default_network_timeout_s")]
+    pub connect_timeout_s: f64,
     /// Regions that never matter (polygons in frame pixels); their blocks report no
     /// motion.
     #[serde(default)]
@@ -188,6 +203,30 @@ fn default_reconnect_initial_s() -> f64 {
 }
 fn default_reconnect_max_s() -> f64 {
     30.0
+}
+fn default_network_timeout_s() -> f64 {
+    5.0
+}
+
+/// How a network camera's video travels (`[[camera]].transport`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Transport {
+    /// Interleaved in the RTSP connection (TCP).
+    #[default]
+    Tcp,
+    /// RTP over UDP.
+    Udp,
+}
+
+impl Transport {
+    /// The name the config and FFmpeg's `rtsp_transport` use.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Transport::Tcp => "tcp",
+            Transport::Udp => "udp",
+        }
+    }
 }
 
 /// What kind of source a camera's `source` names.
@@ -387,6 +426,12 @@ impl CameraConfig {
             1e-3,
             3600.0,
         )?;
+        for (name, seconds) in [
+            ("read_timeout_s", self.read_timeout_s),
+            ("connect_timeout_s", self.connect_timeout_s),
+        ] {
+            check_range(&key(name), seconds, 0.1, 600.0)?;
+        }
         if self.reconnect_max_s < self.reconnect_initial_s {
             return Err(Invalid::new(
                 key("reconnect_max_s"),

@@ -47,7 +47,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 pub use camera::{
-    CameraConfig, FloorPoint, Polygon, SourceKind, Speed, ZoneConfig, degenerate_points,
+    CameraConfig, FloorPoint, Polygon, SourceKind, Speed, Transport, ZoneConfig, degenerate_points,
     parse_start,
 };
 pub use cascade::{CascadeConfig, DAY_NAMES};

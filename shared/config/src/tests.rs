@@ -522,3 +522,27 @@ fn route_graph_keys_default_and_are_checked_with_line_and_key() {
         Some(PathBuf::from("/etc/isochron/site.geojson"))
     );
 }
+
+#[test]
+fn a_network_camera_transport_and_timeouts_default_and_are_checked() {
+    let c = parse(GOOD).unwrap();
+    let cam = &c.cameras[1];
+    assert_eq!(cam.transport, Transport::Tcp);
+    assert_eq!((cam.read_timeout_s, cam.connect_timeout_s), (5.0, 5.0));
+
+    let c = parse(&format!("{GOOD}transport = \"udp\"\nread_timeout_s = 2\n")).unwrap();
+    assert_eq!(c.cameras[1].transport, Transport::Udp);
+    assert_eq!(c.cameras[1].read_timeout_s, 2.0);
+
+    let err = parse(&format!("{GOOD}transport = \"quic\"\n")).unwrap_err();
+    assert_eq!(err.key.as_deref(), Some("camera[1].transport"), "{err}");
+    assert_eq!(err.line, Some(14), "{err}");
+    assert!(err.message.contains("tcp"), "{err}");
+
+    for line in ["read_timeout_s = 0", "connect_timeout_s = 1e9"] {
+        let err = parse(&format!("{GOOD}{line}\n")).unwrap_err();
+        let key = line.split(' ').next().unwrap();
+        assert_eq!(err.key, Some(format!("camera[1].{key}")), "{err}");
+        assert_eq!(err.line, Some(14), "{err}");
+    }
+}

@@ -218,6 +218,22 @@ schema! {
             "Frames a file that ended states it holds (0 if it does not say).";
         TRUNCATED = "truncated", Gauge, Flag, "isochron_capture_file_truncated",
             "1 when a file ended well before the frame count it states.";
+        DAMAGED = "damaged_frames", Counter, Count, "isochron_capture_damaged_frames",
+            "Frames of a network camera the decoder found damaged (lost packets), and those after them until the next clean key frame: not published.";
+        DOWN_REFUSED = "down_refused", Gauge, Flag, "isochron_capture_down_refused",
+            "1 while the camera is down because nothing accepts the connection (the camera, its server or its port is off).";
+        DOWN_TIMED_OUT = "down_timed_out", Gauge, Flag, "isochron_capture_down_timed_out",
+            "1 while the camera is down because it does not answer within camera.connect_timeout_s (unplugged, unreachable, overloaded).";
+        DOWN_UNAUTHORIZED = "down_unauthorized", Gauge, Flag, "isochron_capture_down_unauthorized",
+            "1 while the camera is down because it refuses the credentials in the URL.";
+        DOWN_NOT_FOUND = "down_not_found", Gauge, Flag, "isochron_capture_down_not_found",
+            "1 while the camera is down because it has no stream at the URL's path (or the host name is unknown, or the device does not exist).";
+        DOWN_STALLED = "down_stalled", Gauge, Flag, "isochron_capture_down_stalled",
+            "1 while the camera is down because it sent no frame for camera.read_timeout_s.";
+        DOWN_BAD_STREAM = "down_bad_stream", Gauge, Flag, "isochron_capture_down_bad_stream",
+            "1 while the camera is down because what it sends cannot be decoded (no video, an unknown codec, garbage).";
+        DOWN_OTHER = "down_other", Gauge, Flag, "isochron_capture_down_other",
+            "1 while the camera is down for another reason (the log's WARN says which).";
     }
 }
 

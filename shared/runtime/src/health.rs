@@ -164,6 +164,8 @@ pub struct Health {
     stage_latency_ms: LatencyWindow,
     e2e_latency_ms: LatencyWindow,
     last_sequence: Option<u64>,
+    /// A report was asked for at the next tick ([`Health::report_soon`]).
+    report_asked: bool,
 }
 
 impl Health {
@@ -193,6 +195,7 @@ impl Health {
             stage_latency_ms: LatencyWindow::default(),
             e2e_latency_ms: LatencyWindow::default(),
             last_sequence: None,
+            report_asked: false,
         }
     }
 
@@ -205,7 +208,15 @@ impl Health {
     /// True when the first report (or the next one) is due; the first is due at
     /// the first tick, so `isochron status` sees a service as soon as it runs.
     fn report_due(&self, now: Instant) -> bool {
-        self.status.report_wall_ns == 0 || now.duration_since(self.last_report) >= self.report_every
+        self.report_asked
+            || self.status.report_wall_ns == 0
+            || now.duration_since(self.last_report) >= self.report_every
+    }
+
+    /// Reports at the next tick rather than when the next report is due: for a
+    /// change of state `isochron status` should show at once (a camera down).
+    pub fn report_soon(&mut self) {
+        self.report_asked = true;
     }
 
     /// Counts a received sample with `sequence`; a gap counts as dropped upstream.
@@ -309,6 +320,7 @@ impl Health {
         s.info = to_fixed::<STATUS_INFO_LEN>(info);
         let detail = status_detail(s);
         self.last_report = now;
+        self.report_asked = false;
         tracing::info!(
             stage = self.stage.name(),
             camera = %self.camera,

@@ -234,7 +234,7 @@ fn at_speed_max_every_frame_is_due_at_once_and_the_end_reports_the_file() {
         "{words}"
     );
     assert!(
-        words.ends_with("frames_read=3 frames_stated=3 truncated=0"),
+        words.contains("frames_read=3 frames_stated=3 truncated=0 "),
         "{words}"
     );
     assert_eq!(cx.health.status().sent, 3);
@@ -257,7 +257,7 @@ fn a_truncated_file_publishes_what_it_has_and_says_so_before_its_end() {
     run_due(&mut stage, &mut cx, 10);
     assert!(stage.finished());
     assert_eq!(queue.borrow().len(), 5);
-    assert!(words(&stage).ends_with("frames_read=4 frames_stated=10 truncated=1"));
+    assert!(words(&stage).contains("frames_read=4 frames_stated=10 truncated=1 "));
 
     // A file that breaks mid-way: what was decodable, then the end.
     let broken = Box::new(MemorySource {
@@ -366,7 +366,7 @@ fn a_camera_is_reconnected_with_backoff_alarms_and_marks_the_discontinuity() {
     // Connected: its frames are due at once (the read blocks in the source).
     run_due(&mut stage, &mut cx, 3);
     assert_eq!(queue.borrow().len(), 2);
-    assert_eq!(stage.info(), "source unavailable", "lost after two frames");
+    assert_eq!(stage.info(), "source down: other", "lost after two frames");
     // The backoff starts again from its first delay.
     step(&mut stage, &(), &mut cx).unwrap();
     let at = cx.alarm().expect("a retry");
@@ -427,4 +427,41 @@ fn a_source_of_unknown_size_without_a_configured_one_is_a_config_error() {
 /// The stage's counters as a status line shows them.
 fn words(stage: &CaptureStage) -> String {
     isochron_runtime::stage::counters_of(stage).0.words()
+}
+
+#[test]
+fn why_a_camera_is_down_shows_in_status_until_it_opens() {
+    let down = |reason| {
+        Err(SourceError::Down {
+            what: "rtsp://cam".into(),
+            reason,
+            detail: "test".into(),
+        })
+    };
+    let (open, _) = scripted(vec![
+        down(DownReason::Refused),
+        down(DownReason::Unauthorized),
+        Ok(MemorySource::camera(2)),
+    ]);
+    let (output, _queue) = Output::memory(CAMERA);
+    let mut stage = CaptureStage::connecting(settings(false, Speed::Max), open, output);
+    let mut cx = Context::new(StageKind::Capture, CAMERA, None);
+    stage.on_start(&mut cx).unwrap();
+    step(&mut stage, &(), &mut cx).unwrap();
+    assert_eq!(stage.info(), "source down: refused");
+    let status = words(&stage);
+    assert!(status.contains("down_refused=1"), "{status}");
+    assert!(status.contains("down_unauthorized=0"), "{status}");
+    step_alarm(&mut stage, &mut cx).unwrap();
+    assert_eq!(stage.info(), "source down: unauthorized");
+    let status = words(&stage);
+    assert!(status.contains("down_refused=0 "), "{status}");
+    assert!(status.contains("down_unauthorized=1"), "{status}");
+    step_alarm(&mut stage, &mut cx).unwrap();
+    assert_eq!(stage.info(), "");
+    let status = words(&stage);
+    assert!(status.contains("source_up=1"), "{status}");
+    for reason in DownReason::ALL {
+        assert!(status.contains(&format!("down_{reason}=0")), "{status}");
+    }
 }
