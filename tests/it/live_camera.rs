@@ -1,15 +1,18 @@
 //! isochron-capture against a real IP camera: GStreamer's RTSP server
 //! (`tests/rtsp/camera.py`, gst-rtsp-server from Debian, H.264 from x264, H.265
 //! from x265) killed (over TCP and UDP), frozen with SIGSTOP, restarted at another
-//! size and given a wrong password; capture read through iceoryx2 and `isochron
-//! status`, as a site would see it.
+//! size, given a wrong password, and losing 5 % of its UDP packets on the way to
+//! the whole group; capture read through iceoryx2 and `isochron status`, as a
+//! site would see it.
 
 use std::time::{Duration, Instant};
 
 use isochron_config::clock::wall_now_ns;
-use isochron_runtime::ipc::{Frames, StreamSubscriber};
-use isochron_tests::{Proc, TestSite, eventually, free_port, read_samples, repo_root};
-use isochron_wire::FLAG_DISCONTINUITY;
+use isochron_runtime::ipc::{Events, Frames, Ipc, StreamSubscriber};
+use isochron_tests::{
+    NetnsPair, Proc, TestSite, bin, eventually, free_port, read_samples, repo_root,
+};
+use isochron_wire::{CameraId, EventPhase, FLAG_DISCONTINUITY};
 
 /// GStreamer's RTSP server serving `rtsp://127.0.0.1:port/cam`, ready to answer.
 fn rtsp_camera(port: u16, options: &[&str]) -> Proc {
@@ -303,4 +306,218 @@ fn a_wrong_rtsp_password_is_unauthorized_backs_off_and_is_never_shown() {
     for (what, text) in [("capture's log", capture.stderr()), ("status", status)] {
         assert!(!text.contains(SECRET), "the password in {what}:\n{text}");
     }
+}
+
+/// How long the scene the lossy-link test serves lasts, seconds.
+const SCENE_S: f64 = 40.0;
+/// When something walks through it: (start s, end s).
+const SCENE_MOTION: [(f64, f64); 2] = [(10.3, 17.3), (26.6, 32.6)];
+
+/// One run of the whole group (`isochron up`) on a camera serving the scene:
+/// what its events were, in seconds from its first frame.
+struct SceneRun {
+    site: TestSite,
+    up: Proc,
+    frames: StreamSubscriber<Frames>,
+    events: StreamSubscriber<Events>,
+    first_frame_ns: Option<i64>,
+    /// (event id, start s, end s), the end `None` while open.
+    seen: Vec<(u64, f64, Option<f64>)>,
+    _ipc: Ipc,
+}
+
+impl SceneRun {
+    /// The group of a site named `name` on `url` over UDP, `isochron up` started
+    /// through `wrap` (such as `ip netns exec NS`), prepended to its command.
+    fn start(name: &str, url: &str, wrap: &[&str]) -> SceneRun {
+        let site = rtsp_site(name, url, "transport = \"udp\"\n");
+        let ipc = site.ipc("reader");
+        let frames = ipc.subscriber::<Frames>("cam01").unwrap();
+        let events = ipc.subscriber::<Events>("cam01").unwrap();
+        let config = site.config_path().display().to_string();
+        let logs = site.path("logs").display().to_string();
+        let isochron = bin("isochron").display().to_string();
+        let mut args: Vec<&str> = wrap.to_vec();
+        args.extend([isochron.as_str(), "up", "--config", &config]);
+        args.extend(["--status-every-s", "0", "--log-dir", &logs]);
+        let (program, rest) = args.split_first().unwrap();
+        let up = Proc::spawn(std::path::Path::new(program), rest);
+        SceneRun {
+            site,
+            up,
+            frames,
+            events,
+            first_frame_ns: None,
+            seen: Vec::new(),
+            _ipc: ipc,
+        }
+    }
+
+    /// Takes what arrived; true once the scene has played to its end.
+    fn poll(&mut self) -> bool {
+        let camera = CameraId::new("cam01").unwrap();
+        while let Some(frame) = self.frames.receive().unwrap() {
+            self.first_frame_ns
+                .get_or_insert(frame.user_header().preamble.capture_time_ns);
+        }
+        let Some(first) = self.first_frame_ns else {
+            return false;
+        };
+        let s = |ns: i64| (ns - first) as f64 / 1e9;
+        while let Some(sample) = self.events.receive().unwrap() {
+            let h = sample.user_header();
+            h.validate(&camera, sample.payload().len()).unwrap();
+            match self.seen.iter_mut().find(|e| e.0 == h.event_id) {
+                Some(event) => event.2 = Some(s(h.end_ns)),
+                None if h.phase == EventPhase::Start as u32 => {
+                    self.seen.push((h.event_id, s(h.start_ns), None));
+                }
+                None => self
+                    .seen
+                    .push((h.event_id, s(h.start_ns), Some(s(h.end_ns)))),
+            }
+        }
+        s(wall_now_ns()) > SCENE_S + 3.0
+    }
+
+    /// The events as (start s, end s), an open one ending with the scene.
+    fn events(&self) -> Vec<(f64, f64)> {
+        let events = self.seen.iter().map(|&(_, a, b)| (a, b.unwrap_or(SCENE_S)));
+        events.filter(|&(a, _)| a < SCENE_S).collect()
+    }
+}
+
+/// 5 % of the camera's UDP packets dropped by the kernel on their way (the
+/// camera in one network namespace, the whole group in another, iptables'
+/// `statistic` match; this kernel has no netem): damaged frames are counted and
+/// not published, and the group raises no event that the same scene over a
+/// clean link lacks. Skipped only where the kernel refuses `ip netns add` (not
+/// root), never in CI.
+#[test]
+fn five_percent_udp_loss_counts_damaged_frames_and_adds_no_event() {
+    let tag = format!("{}lc", std::process::id() % 100_000);
+    let Some(pair) = NetnsPair::new(&tag, 20) else {
+        return;
+    };
+    let [camera_ns, group_ns] = pair.names.clone();
+    let loss_rule = |action: &str| {
+        let out = std::process::Command::new("ip")
+            .args([
+                "netns",
+                "exec",
+                &camera_ns,
+                "iptables-legacy",
+                action,
+                "OUTPUT",
+            ])
+            .args(["-p", "udp", "-m", "statistic", "--mode", "random"])
+            .args(["--probability", "0.05", "-j", "DROP"])
+            .output()
+            .expect("iptables-legacy (cargo xtask setup --all installs iptables)");
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    loss_rule("-A");
+
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene.avi");
+    crate::pipeline::write_empty_scene_video(&scene, SCENE_S, &SCENE_MOTION);
+    let scene = scene.display().to_string();
+    let (clean_port, lossy_port) = (free_port(), free_port());
+    let _clean_camera = rtsp_camera(clean_port, &["--file", &scene, "--size", "320x240"]);
+    let camera_args = [
+        "--port",
+        &lossy_port.to_string(),
+        "--address",
+        &pair.addrs[0],
+        "--file",
+        &scene,
+        "--size",
+        "320x240",
+    ]
+    .map(str::to_string);
+    let script = repo_root().join("tests/rtsp/camera.py");
+    let mut args = vec![script.display().to_string()];
+    args.extend(camera_args);
+    let mut lossy_camera = pair.spawn(0, std::path::Path::new("/usr/bin/python3"), &args);
+    assert!(
+        lossy_camera
+            .wait_for_line("ready rtsp://", Duration::from_secs(20))
+            .is_some(),
+        "the RTSP server did not start:\n{}",
+        lossy_camera.stderr()
+    );
+
+    let mut clean = SceneRun::start(
+        "rtsp-clean",
+        &format!("rtsp://127.0.0.1:{clean_port}/cam"),
+        &[],
+    );
+    let lossy_url = format!("rtsp://{}:{lossy_port}/cam", pair.addrs[0]);
+    let mut lossy = SceneRun::start(
+        "rtsp-lossy",
+        &lossy_url,
+        &["ip", "netns", "exec", &group_ns],
+    );
+    let deadline = Instant::now() + Duration::from_secs_f64(SCENE_S + 60.0);
+    let (mut clean_done, mut lossy_done) = (false, false);
+    while !(clean_done && lossy_done) {
+        assert!(
+            Instant::now() < deadline,
+            "the scene did not play through (first frames {:?}, {:?}):\n{}",
+            clean.first_frame_ns,
+            lossy.first_frame_ns,
+            lossy.up.stderr()
+        );
+        clean_done = clean.poll() || clean_done;
+        lossy_done = lossy.poll() || lossy_done;
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let (_, damaged) = capture_status(&lossy.site, "damaged_frames");
+    let (_, clean_damaged) = capture_status(&clean.site, "damaged_frames");
+    // The rule's packet count: the last line of its listing, first column.
+    let listing = std::process::Command::new("ip")
+        .args([
+            "netns",
+            "exec",
+            &camera_ns,
+            "iptables-legacy",
+            "-L",
+            "OUTPUT",
+            "-v",
+            "-x",
+        ])
+        .output()
+        .expect("iptables-legacy -L");
+    let listing = String::from_utf8_lossy(&listing.stdout).into_owned();
+    let dropped = listing
+        .lines()
+        .last()
+        .and_then(|l| l.split_whitespace().next())
+        .unwrap_or("?");
+    let (clean_events, lossy_events) = (clean.events(), lossy.events());
+    eprintln!(
+        "5 % UDP loss ({dropped} packets dropped): {damaged} damaged frames (clean link: {clean_damaged}); events over the clean link {clean_events:.1?}, over the lossy one {lossy_events:.1?}"
+    );
+    assert!(damaged > 0.0, "no damaged frames counted under 5 % loss");
+    assert!(
+        !clean_events.is_empty(),
+        "the clean run raised no event: nothing to compare"
+    );
+    for &(start, end) in &lossy_events {
+        assert!(
+            clean_events
+                .iter()
+                .any(|&(a, b)| start < b + 1.5 && end > a - 1.5),
+            "the event {start:.1}-{end:.1} s under loss is not in the clean run's {clean_events:.1?}"
+        );
+    }
+    for run in [&mut clean, &mut lossy] {
+        let log = run.up.stderr();
+        assert!(run.up.terminate(Duration::from_secs(20)).success(), "{log}");
+    }
+    loss_rule("-D");
 }

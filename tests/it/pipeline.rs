@@ -159,9 +159,9 @@ const FPS: f64 = 10.0;
 const INTERVALS: [(f64, f64); 3] = [(15.3, 25.3), (50.6, 56.6), (80.2, 95.2)];
 const LENGTH_S: f64 = 110.0;
 
-/// An empty textured scene with a textured object walking through it during
-/// [`INTERVALS`], written as MJPG.
-fn write_empty_scene_video(path: &Path) {
+/// An empty textured scene, 320×240 at [`FPS`] for `length_s`, with a textured
+/// object walking through it during `intervals` (start s, end s), written as MJPG.
+pub(crate) fn write_empty_scene_video(path: &Path, length_s: f64, intervals: &[(f64, f64)]) {
     let (w, h) = (320, 240);
     let mut writer = mjpg_writer(path, FPS, Size::new(w, h));
     // Background: smooth noise, so edges exist everywhere but nothing moves.
@@ -179,11 +179,11 @@ fn write_empty_scene_video(path: &Path) {
     )
     .unwrap();
     // The object: a 24×56 striped figure.
-    let frames = (LENGTH_S * FPS) as i32;
+    let frames = (length_s * FPS) as i32;
     for i in 0..frames {
         let t = i as f64 / FPS;
         let mut frame = background.clone();
-        if let Some((start, end)) = INTERVALS.iter().find(|(s, e)| t >= *s && t < *e) {
+        if let Some((start, end)) = intervals.iter().find(|(s, e)| t >= *s && t < *e) {
             let progress = (t - start) / (end - start);
             let x = (10.0 + progress * (w as f64 - 44.0)) as i32;
             let y = 90 + ((t * 3.0).sin() * 20.0) as i32;
@@ -209,7 +209,7 @@ fn write_empty_scene_video(path: &Path) {
 fn an_empty_scene_raises_one_event_per_interval_of_motion_and_none_elsewhere() {
     let site = TestSite::with_source("pipeline-empty", "", "replaced-by-replay");
     let video = site.path("scene.avi");
-    write_empty_scene_video(&video);
+    write_empty_scene_video(&video, LENGTH_S, &INTERVALS);
     let summary = replay(&site, &video, "out");
     assert_eq!(
         summary["counts"]["frames"].as_u64().unwrap(),

@@ -38,8 +38,9 @@ const RUN_PACKAGES: [&str; 8] = [
 /// server and the plugins it encodes with (x264 in -ugly, x265 in -bad, RTP
 /// payloaders in -good, FFmpeg's decoders in -libav for a served file), for the
 /// IP camera of the live-camera tests (`tests/rtsp/camera.py` under
-/// `/usr/bin/python3`, hence `python3-gi`).
-const TEST_PACKAGES: [&str; 17] = [
+/// `/usr/bin/python3`, hence `python3-gi`), and `iptables`, whose `statistic`
+/// match drops a share of that camera's packets (kernels without netem).
+const TEST_PACKAGES: [&str; 18] = [
     "iproute2",
     "prometheus",
     "mosquitto",
@@ -57,6 +58,7 @@ const TEST_PACKAGES: [&str; 17] = [
     "gstreamer1.0-plugins-ugly",
     "gstreamer1.0-plugins-bad",
     "gstreamer1.0-libav",
+    "iptables",
 ];
 
 fn is_root() -> bool {
