@@ -75,8 +75,8 @@ pub(crate) struct SnapshotArgs {
     #[arg(long, requires = "at")]
     json: bool,
     /// How long to wait for isochron-costmap, seconds.
-    #[arg(long, default_value_t = 10.0)]
-    timeout: f64,
+    #[arg(long, default_value = "10", value_parser = crate::values::positive_seconds)]
+    timeout: Duration,
 }
 
 #[derive(clap::Args)]
@@ -121,7 +121,7 @@ fn snapshot(args: SnapshotArgs) -> anyhow::Result<ExitCode> {
     let client = PlanClient::new(&ipc)?;
     let response = client.request(
         PlanRequest::new(PlanKind::Snapshot, &[]),
-        Duration::from_secs_f64(args.timeout.max(0.1)),
+        args.timeout.max(Duration::from_millis(100)),
     )?;
     if response.validate()? != PlanStatus::Ok {
         bail!("isochron-costmap wrote no snapshot: {}", response.message());

@@ -81,8 +81,8 @@ pub(crate) struct NowArgs {
     #[arg(long)]
     json: bool,
     /// How long to wait for isochron-costmap's answer, seconds.
-    #[arg(long, default_value_t = 5.0)]
-    timeout: f64,
+    #[arg(long, default_value = "5", value_parser = values::positive_seconds)]
+    timeout: Duration,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -294,7 +294,7 @@ fn now(args: NowArgs) -> anyhow::Result<ExitCode> {
     let names: Vec<&str> = args.routes.iter().map(String::as_str).collect();
     let response = client.request(
         PlanRequest::new(PlanKind::Now, &names),
-        Duration::from_secs_f64(args.timeout.max(0.1)),
+        args.timeout.max(Duration::from_millis(100)),
     )?;
     match response.validate()? {
         PlanStatus::Ok => {}

@@ -40,28 +40,19 @@ pub struct Args {
     #[arg(long)]
     streams: Option<String>,
     /// Stop after this many seconds.
-    #[arg(long)]
-    duration: Option<f64>,
+    #[arg(long, value_parser = crate::values::positive_seconds)]
+    duration: Option<Duration>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let loaded = load_config(args.config)?;
     let streams = streams_of(args.streams.as_deref(), &loaded)?;
-    if let Some(d) = args.duration
-        && !(d.is_finite() && d > 0.0)
-    {
-        anyhow::bail!(isochron_exit::UsageError(format!(
-            "--duration: expected a number of seconds > 0, found {d}"
-        )));
-    }
     let ipc = Ipc::of_site(
         &format!("isochron-record-{}", std::process::id()),
         &loaded.config,
     )?;
     let until = Until {
-        deadline: args
-            .duration
-            .map(|d| Instant::now() + Duration::from_secs_f64(d)),
+        deadline: args.duration.map(|d| Instant::now() + d),
         stop: None,
         sources_end: true,
     };

@@ -66,8 +66,8 @@ pub struct Args {
     #[arg(long, default_value = "max", value_parser = crate::values::speed)]
     speed: Speed,
     /// Give up if no stage makes progress for this many seconds.
-    #[arg(long, default_value_t = 120.0)]
-    stall_timeout_s: f64,
+    #[arg(long, default_value = "120", value_parser = crate::values::positive_seconds)]
+    stall_timeout_s: Duration,
     /// Also record the run into this MCAP file, as `isochron record` does (opens in
     /// Foxglove; images only with `view.frames = true`).
     #[arg(long)]
@@ -128,7 +128,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         tally,
         capture_status: None,
         capture_last: None,
-        stall: Duration::from_secs_f64(args.stall_timeout_s),
+        stall: args.stall_timeout_s,
         last_total: 0,
         last_progress: Instant::now(),
         failure: None,

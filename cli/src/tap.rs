@@ -40,8 +40,8 @@ pub struct Args {
     count: Option<u64>,
     /// Exit with 75 (try again) if no sample (or not all of `--count`) arrived
     /// within this many seconds.
-    #[arg(long)]
-    timeout: Option<f64>,
+    #[arg(long, value_parser = crate::values::seconds)]
+    timeout: Option<Duration>,
     /// Exit 0 after the end-of-stream sample of a finite source.
     #[arg(long)]
     until_end: bool,
@@ -90,7 +90,7 @@ fn tap<S: StreamType>(
 ) -> anyhow::Result<ExitCode> {
     let subscriber: StreamSubscriber<S> = ipc.subscriber(&args.camera)?;
     let started = Instant::now();
-    let deadline = args.timeout.map(|s| started + Duration::from_secs_f64(s));
+    let deadline = args.timeout.map(|t| started + t);
     let mut seen = 0u64;
     loop {
         while let Some(sample) = subscriber.receive()? {

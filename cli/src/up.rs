@@ -18,14 +18,14 @@ pub struct Args {
     #[arg(long)]
     config: Option<PathBuf>,
     /// A service that shows no sign of life for this long is killed and restarted.
-    #[arg(long, default_value_t = 10.0)]
-    watchdog_s: f64,
+    #[arg(long, default_value = "10", value_parser = crate::values::positive_seconds)]
+    watchdog_s: Duration,
     /// Write each service's output to DIR/<service>.log instead of this terminal.
     #[arg(long)]
     log_dir: Option<PathBuf>,
     /// Print the status table this often (0 = only at exit).
-    #[arg(long, default_value_t = 30.0)]
-    status_every_s: f64,
+    #[arg(long, default_value = "30", value_parser = crate::values::seconds)]
+    status_every_s: Duration,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -40,8 +40,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             crate::launch::bin_dir().display()
         );
     }
-    let mut supervisor =
-        Supervisor::new(true, Duration::from_secs_f64(args.watchdog_s), args.log_dir)?;
+    let mut supervisor = Supervisor::new(true, args.watchdog_s, args.log_dir)?;
     for spec in specs {
         let change = supervisor.add(spec)?;
         println!("up: {} {}", change.name, change.what);
@@ -51,9 +50,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         for change in supervisor.poll() {
             println!("up: {} {}", change.name, change.what);
         }
-        if args.status_every_s > 0.0
-            && last_table.elapsed() >= Duration::from_secs_f64(args.status_every_s)
-        {
+        if !args.status_every_s.is_zero() && last_table.elapsed() >= args.status_every_s {
             print!("{}", supervisor.table());
             last_table = Instant::now();
         }

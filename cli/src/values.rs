@@ -4,6 +4,8 @@
 //! flag, the value and what is expected, and exit code 64 (`USAGE`; see
 //! `parse_error` in `lib.rs`).
 
+use std::time::Duration;
+
 use isochron_config::Speed;
 use isochron_config::clock::{Cycle, MINUTES_PER_DAY, parse_hhmm};
 use isochron_wire::Stream;
@@ -45,6 +47,28 @@ pub fn step(text: &str) -> Result<u32, String> {
     minutes
         .filter(|m| (1..=MINUTES_PER_DAY).contains(m))
         .ok_or_else(expected)
+}
+
+/// The longest time any flag takes in seconds: a year.
+pub const MAX_SECONDS: f64 = 365.0 * 86_400.0;
+
+/// Seconds from 0 to [`MAX_SECONDS`] (`2.5`, `0`), as a duration.
+pub fn seconds(text: &str) -> Result<Duration, String> {
+    seconds_in(text, 0.0, "from 0")
+}
+
+/// Seconds over 0 up to [`MAX_SECONDS`], as a duration.
+pub fn positive_seconds(text: &str) -> Result<Duration, String> {
+    seconds_in(text, f64::MIN_POSITIVE, "over 0")
+}
+
+fn seconds_in(text: &str, min: f64, range: &str) -> Result<Duration, String> {
+    let expected = || format!("expected seconds {range} to {MAX_SECONDS} (a year)");
+    let s: f64 = text.trim().parse().map_err(|_| expected())?;
+    if !(s.is_finite() && (min..=MAX_SECONDS).contains(&s)) {
+        return Err(expected());
+    }
+    Duration::try_from_secs_f64(s).map_err(|_| expected())
 }
 
 /// A playback speed: `max` or a factor of real time > 0.
@@ -113,5 +137,28 @@ mod tests {
         assert!(cycle("monthly").is_err());
         assert!(date("2026-01-07").is_ok());
         assert!(date("7.1.2026").is_err());
+    }
+
+    #[test]
+    fn seconds_are_finite_within_a_year_or_refused_without_a_panic() {
+        assert_eq!(seconds("2.5"), Ok(Duration::from_millis(2500)));
+        assert_eq!(seconds("0"), Ok(Duration::ZERO));
+        assert_eq!(seconds(" 31536000 "), Ok(Duration::from_secs(31_536_000)));
+        assert_eq!(positive_seconds("0.1"), Ok(Duration::from_millis(100)));
+        for bad in [
+            "1e30", "inf", "-inf", "NaN", "-1", "31536001", "", "5s", "1e309",
+        ] {
+            let e = seconds(bad).unwrap_err();
+            assert!(
+                e.contains("expected seconds from 0 to 31536000"),
+                "{bad}: {e}"
+            );
+        }
+        for bad in ["0", "-0", "1e30"] {
+            assert!(
+                positive_seconds(bad).unwrap_err().contains("over 0"),
+                "{bad}"
+            );
+        }
     }
 }

@@ -110,6 +110,37 @@ fn a_bad_flag_value_is_64_and_names_the_flag() {
     assert_eq!(done.status.code(), Some(2), "{}", done.stderr);
 }
 
+/// Every flag that takes seconds goes through one parser: a value that is not
+/// finite, negative, or over a year is refused with 64 naming the flag, never
+/// a panic converting it to a duration.
+#[test]
+fn a_duration_flag_out_of_range_is_64_and_never_a_panic() {
+    let site = site("front-seconds");
+    let video = vtest().display().to_string();
+    let out = site.path("out").display().to_string();
+    #[rustfmt::skip]
+    let table: &[(&[&str], &str)] = &[
+        (&["tap", "cam01", "frames", "--config", "{config}", "--timeout", "1e30"], "--timeout"),
+        (&["tap", "cam01", "frames", "--config", "{config}", "--timeout", "NaN"], "--timeout"),
+        (&["tap", "cam01", "frames", "--config", "{config}", "--timeout=-1"], "--timeout"),
+        (&["costmap", "snapshot", "--config", "{config}", "--out", "{dir}/x.png", "--timeout", "inf"], "--timeout"),
+        (&["plan", "graph", "--config", "{config}", "--from", "1", "--to", "2", "--timeout", "1e30"], "--timeout"),
+        (&["plan", "now", "--config", "{config}", "--routes", "north", "--timeout", "0"], "--timeout"),
+        (&["record", "--config", "{config}", "--out", "{dir}/r.mcap", "--duration", "1e30"], "--duration"),
+        (&["replay", &video, "--out", &out, "--stall-timeout-s", "1e30"], "--stall-timeout-s"),
+        (&["up", "--config", "{config}", "--watchdog-s", "0"], "--watchdog-s"),
+        (&["up", "--config", "{config}", "--status-every-s", "NaN"], "--status-every-s"),
+    ];
+    for (args, flag) in table {
+        fails(
+            &site,
+            args,
+            isochron_exit::USAGE,
+            &[flag, "expected seconds"],
+        );
+    }
+}
+
 #[test]
 fn a_missing_input_file_is_66_and_names_it() {
     let site = site("front-missing");

@@ -44,8 +44,8 @@ pub(crate) struct GraphArgs {
     #[arg(long)]
     json: bool,
     /// How long to wait for isochron-costmap's answer, seconds.
-    #[arg(long, default_value_t = 10.0)]
-    timeout: f64,
+    #[arg(long, default_value = "10", value_parser = values::positive_seconds)]
+    timeout: Duration,
 }
 
 /// Asks the bridge and prints its answer.
@@ -66,7 +66,7 @@ pub(crate) fn run(args: GraphArgs) -> anyhow::Result<ExitCode> {
         &loaded.config,
     )?;
     let client = PlanClient::new(&ipc)?;
-    let response = client.request(request, Duration::from_secs_f64(args.timeout.max(0.1)))?;
+    let response = client.request(request, args.timeout.max(Duration::from_millis(100)))?;
     match response.validate()? {
         PlanStatus::Ok => {}
         status => bail!(
