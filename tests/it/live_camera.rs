@@ -521,3 +521,59 @@ fn five_percent_udp_loss_counts_damaged_frames_and_adds_no_event() {
     }
     loss_rule("-D");
 }
+
+/// A camera frozen for longer than the watchdog under `isochron up`: capture
+/// waits for it as configured (read_timeout_s and connect_timeout_s 6 s, the
+/// watchdog 3 s), says it stalled, is neither killed nor restarted, and streams
+/// again once the camera wakes.
+#[test]
+fn a_camera_frozen_longer_than_the_watchdog_is_waited_for_not_killed() {
+    let port = free_port();
+    let url = format!("rtsp://127.0.0.1:{port}/cam");
+    let camera = rtsp_camera(port, &[]);
+    let site = rtsp_site(
+        "rtsp-watchdog",
+        &url,
+        "read_timeout_s = 6\nconnect_timeout_s = 6\n",
+    );
+    let ipc = site.ipc("reader");
+    let frames = ipc.subscriber::<Frames>("cam01").unwrap();
+    let mut up = site.up(&["--watchdog-s", "3"]);
+    assert!(
+        frames_arrive(&frames, 20, false, Duration::from_secs(60)).is_some(),
+        "no frames under isochron up:\n{}",
+        up.stderr()
+    );
+
+    camera.signal(libc::SIGSTOP);
+    std::thread::sleep(Duration::from_secs(15));
+    camera.signal(libc::SIGCONT);
+    let woken = Instant::now();
+    let back = frames_arrive(&frames, 5, true, Duration::from_secs(30));
+    let logs = std::fs::read_dir(site.path("logs")).unwrap();
+    let capture_log: String = logs
+        .filter_map(Result::ok)
+        .filter(|e| e.file_name().to_string_lossy().contains("capture"))
+        .map(|e| std::fs::read_to_string(e.path()).unwrap_or_default())
+        .collect();
+    let supervisor = up.stderr();
+    let back =
+        back.unwrap_or_else(|| panic!("no frames after SIGCONT:\n{supervisor}\n{capture_log}"));
+    eprintln!(
+        "frozen 15 s under a 3 s watchdog: frames again {:.2} s after SIGCONT",
+        (back - woken).as_secs_f64()
+    );
+    assert!(
+        !supervisor.contains("watchdog:") && !supervisor.contains("restarting"),
+        "capture was killed or restarted while it waited:\n{supervisor}"
+    );
+    assert!(
+        capture_log.contains("stalled (no frame for 6.0 s)"),
+        "{capture_log}"
+    );
+    assert!(back - woken < Duration::from_secs(8), "{capture_log}");
+    assert!(
+        up.terminate(Duration::from_secs(20)).success(),
+        "{supervisor}"
+    );
+}

@@ -159,20 +159,28 @@ impl StreamSource {
             settings.set("rtsp_transport", options.transport.as_str());
         }
         let interrupt = deadline.clone();
-        let input =
-            format::input_with_interrupt_and_dictionary(url, move || interrupt.passed(), settings)
-                .map_err(|e| match deadline.passed() {
-                    // Interrupted: FFmpeg's RTSP client reports a cut-off reply as
-                    // invalid data, not as the interruption.
-                    true => down(
-                        DownReason::TimedOut,
-                        format!(
-                            "no answer within {:.1} s",
-                            options.connect_timeout.as_secs_f64()
-                        ),
-                    ),
-                    false => down(classify(&e, Phase::Opening), e.to_string()),
-                })?;
+        let input = format::input_with_interrupt_and_dictionary(
+            url,
+            move || {
+                // FFmpeg asks on the stage's thread, every 100 ms while it
+                // waits: the loop is alive, waiting up to the deadline.
+                isochron_runtime::health::still_alive();
+                interrupt.passed()
+            },
+            settings,
+        )
+        .map_err(|e| match deadline.passed() {
+            // Interrupted: FFmpeg's RTSP client reports a cut-off reply as
+            // invalid data, not as the interruption.
+            true => down(
+                DownReason::TimedOut,
+                format!(
+                    "no answer within {:.1} s",
+                    options.connect_timeout.as_secs_f64()
+                ),
+            ),
+            false => down(classify(&e, Phase::Opening), e.to_string()),
+        })?;
         let stream = input
             .streams()
             .best(media::Type::Video)

@@ -63,6 +63,38 @@ fn register_heartbeat(now: Instant) -> Arc<AtomicU64> {
     beat
 }
 
+thread_local! {
+    /// The heartbeat of the loop on this thread (the last [`Health`] made here).
+    static THIS_LOOP: std::cell::RefCell<Weak<AtomicU64>> = const { std::cell::RefCell::new(Weak::new()) };
+}
+
+/// When [`still_alive`] last pinged the watchdog, ms since the epoch.
+static LAST_BLOCKED_PING_MS: AtomicU64 = AtomicU64::new(0);
+
+/// Says this thread's loop is alive from inside a call that blocks it (a
+/// library's progress or interrupt callback while it connects or reads), and
+/// feeds the systemd watchdog when due: a loop waiting up to a configured
+/// timeout in someone else's code is not hung. Cheap enough for every callback.
+pub fn still_alive() {
+    let now = Instant::now();
+    THIS_LOOP.with(|beat| {
+        if let Some(beat) = beat.borrow().upgrade() {
+            beat.store(millis_since_epoch(now), Ordering::Relaxed);
+        }
+    });
+    static WATCHDOG_EVERY: OnceLock<Option<Duration>> = OnceLock::new();
+    let Some(every) = *WATCHDOG_EVERY.get_or_init(|| sd_notify::watchdog_enabled().map(|d| d / 2))
+    else {
+        return;
+    };
+    let now_ms = millis_since_epoch(now);
+    let last = LAST_BLOCKED_PING_MS.load(Ordering::Relaxed);
+    if now_ms.saturating_sub(last) >= every.as_millis() as u64 && all_loops_alive(now, every * 2) {
+        let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+        LAST_BLOCKED_PING_MS.store(now_ms, Ordering::Relaxed);
+    }
+}
+
 /// True when every live loop of the process beat within `period` of `now`.
 fn all_loops_alive(now: Instant, period: Duration) -> bool {
     let all = HEARTBEATS.lock();
@@ -191,7 +223,11 @@ impl Health {
             watchdog_every: sd_notify::watchdog_enabled().map(|d| d / 2),
             last_watchdog: now,
             last_connect: now,
-            heartbeat: register_heartbeat(now),
+            heartbeat: {
+                let beat = register_heartbeat(now);
+                THIS_LOOP.with(|this| *this.borrow_mut() = Arc::downgrade(&beat));
+                beat
+            },
             stage_latency_ms: LatencyWindow::default(),
             e2e_latency_ms: LatencyWindow::default(),
             last_sequence: None,
