@@ -524,8 +524,8 @@ fn five_percent_udp_loss_counts_damaged_frames_and_adds_no_event() {
 
 /// A camera frozen for longer than the watchdog under `isochron up`: capture
 /// waits for it as configured (read_timeout_s and connect_timeout_s 6 s, the
-/// watchdog 3 s), says it stalled, is neither killed nor restarted, and streams
-/// again once the camera wakes.
+/// watchdog 3 s), says it stalled (in status too, while it waits), is neither
+/// killed nor restarted, and streams again once the camera wakes.
 #[test]
 fn a_camera_frozen_longer_than_the_watchdog_is_waited_for_not_killed() {
     let port = free_port();
@@ -546,7 +546,12 @@ fn a_camera_frozen_longer_than_the_watchdog_is_waited_for_not_killed() {
     );
 
     camera.signal(libc::SIGSTOP);
-    std::thread::sleep(Duration::from_secs(15));
+    let frozen = Instant::now();
+    // Stalled after 6 s; then inside an attempt to reconnect, waiting on FFmpeg:
+    // status still gets capture's report.
+    std::thread::sleep(Duration::from_secs(9));
+    let (info, up_now) = capture_status(&site, "source_up");
+    std::thread::sleep(Duration::from_secs(15).saturating_sub(frozen.elapsed()));
     camera.signal(libc::SIGCONT);
     let woken = Instant::now();
     let back = frames_arrive(&frames, 5, true, Duration::from_secs(30));
@@ -567,6 +572,8 @@ fn a_camera_frozen_longer_than_the_watchdog_is_waited_for_not_killed() {
         !supervisor.contains("watchdog:") && !supervisor.contains("restarting"),
         "capture was killed or restarted while it waited:\n{supervisor}"
     );
+    assert_eq!(up_now, 0.0, "status while capture waited: {info:?}");
+    assert!(info.starts_with("source down: "), "{info}");
     assert!(
         capture_log.contains("stalled (no frame for 6.0 s)"),
         "{capture_log}"

@@ -63,23 +63,41 @@ fn register_heartbeat(now: Instant) -> Arc<AtomicU64> {
     beat
 }
 
+/// What [`still_alive`] keeps going for the loop on its thread.
+#[derive(Default)]
+struct ThisLoop {
+    heartbeat: Weak<AtomicU64>,
+    publisher: std::rc::Weak<StatusPublisher>,
+    last_connect_ms: u64,
+}
+
 thread_local! {
-    /// The heartbeat of the loop on this thread (the last [`Health`] made here).
-    static THIS_LOOP: std::cell::RefCell<Weak<AtomicU64>> = const { std::cell::RefCell::new(Weak::new()) };
+    /// The loop on this thread: the last [`Health`] made here.
+    static THIS_LOOP: std::cell::RefCell<ThisLoop> = std::cell::RefCell::new(ThisLoop::default());
 }
 
 /// When [`still_alive`] last pinged the watchdog, ms since the epoch.
 static LAST_BLOCKED_PING_MS: AtomicU64 = AtomicU64::new(0);
 
 /// Says this thread's loop is alive from inside a call that blocks it (a
-/// library's progress or interrupt callback while it connects or reads), and
-/// feeds the systemd watchdog when due: a loop waiting up to a configured
-/// timeout in someone else's code is not hung. Cheap enough for every callback.
+/// library's progress or interrupt callback while it connects or reads): beats
+/// its heartbeat, hands its latest status report to new readers, and feeds the
+/// systemd watchdog when due, as the loop's tick does. A loop waiting up to a
+/// configured timeout in someone else's code is not hung, and `isochron
+/// status` still sees it. Cheap enough for every callback.
 pub fn still_alive() {
     let now = Instant::now();
-    THIS_LOOP.with(|beat| {
-        if let Some(beat) = beat.borrow().upgrade() {
-            beat.store(millis_since_epoch(now), Ordering::Relaxed);
+    let now_ms = millis_since_epoch(now);
+    THIS_LOOP.with(|this| {
+        let mut this = this.borrow_mut();
+        if let Some(beat) = this.heartbeat.upgrade() {
+            beat.store(now_ms, Ordering::Relaxed);
+        }
+        if now_ms.saturating_sub(this.last_connect_ms) >= CONNECT_EVERY.as_millis() as u64
+            && let Some(publisher) = this.publisher.upgrade()
+        {
+            publisher.update_connections();
+            this.last_connect_ms = now_ms;
         }
     });
     static WATCHDOG_EVERY: OnceLock<Option<Duration>> = OnceLock::new();
@@ -87,7 +105,6 @@ pub fn still_alive() {
     else {
         return;
     };
-    let now_ms = millis_since_epoch(now);
     let last = LAST_BLOCKED_PING_MS.load(Ordering::Relaxed);
     if now_ms.saturating_sub(last) >= every.as_millis() as u64 && all_loops_alive(now, every * 2) {
         let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
@@ -185,7 +202,7 @@ pub struct Health {
     stage: StageKind,
     camera: String,
     status: StageStatus,
-    publisher: Option<StatusPublisher>,
+    publisher: Option<std::rc::Rc<StatusPublisher>>,
     report_every: Duration,
     last_report: Instant,
     last_counts: (u64, u64),
@@ -204,13 +221,23 @@ impl Health {
     /// Health of `stage` for `camera`, publishing through `ipc` if given.
     pub fn new(stage: StageKind, camera: &str, ipc: Option<&Ipc>) -> Self {
         let publisher = ipc.and_then(|ipc| match ipc.status_publisher(camera, stage) {
-            Ok(p) => Some(p),
+            Ok(p) => Some(std::rc::Rc::new(p)),
             Err(e) => {
                 tracing::warn!("status will not be published: {e}");
                 None
             }
         });
         let now = Instant::now();
+        let heartbeat = register_heartbeat(now);
+        THIS_LOOP.with(|this| {
+            *this.borrow_mut() = ThisLoop {
+                heartbeat: Arc::downgrade(&heartbeat),
+                publisher: publisher
+                    .as_ref()
+                    .map_or_else(std::rc::Weak::new, std::rc::Rc::downgrade),
+                last_connect_ms: 0,
+            };
+        });
         Health {
             stage,
             camera: camera.to_string(),
@@ -223,11 +250,7 @@ impl Health {
             watchdog_every: sd_notify::watchdog_enabled().map(|d| d / 2),
             last_watchdog: now,
             last_connect: now,
-            heartbeat: {
-                let beat = register_heartbeat(now);
-                THIS_LOOP.with(|this| *this.borrow_mut() = Arc::downgrade(&beat));
-                beat
-            },
+            heartbeat,
             stage_latency_ms: LatencyWindow::default(),
             e2e_latency_ms: LatencyWindow::default(),
             last_sequence: None,
