@@ -12,7 +12,7 @@ use isochron_runtime::ipc::{Events, Frames, Ipc, StreamSubscriber};
 use isochron_tests::{
     NetnsPair, Proc, TestSite, bin, eventually, free_port, read_samples, repo_root,
 };
-use isochron_wire::{CameraId, EventPhase, FLAG_DISCONTINUITY};
+use isochron_wire::{CameraId, EventPhase};
 
 /// GStreamer's RTSP server serving `rtsp://127.0.0.1:port/cam`, ready to answer.
 fn rtsp_camera(port: u16, options: &[&str]) -> Proc {
@@ -37,6 +37,33 @@ fn rtsp_site(name: &str, url: &str, keys: &str) -> TestSite {
         name,
         &format!("[[camera]]\nid = \"cam01\"\nsource = \"{url}\"\n{keys}"),
     )
+}
+
+/// A camera on a free port (started with `options`), a site `name` whose cam01
+/// is that camera with `keys`, and a reader of cam01's frames.
+struct Rig {
+    port: u16,
+    camera: Proc,
+    frames: StreamSubscriber<Frames>,
+    _ipc: Ipc,
+    site: TestSite,
+}
+
+impl Rig {
+    fn new(name: &str, options: &[&str], keys: &str) -> Rig {
+        let port = free_port();
+        let camera = rtsp_camera(port, options);
+        let site = rtsp_site(name, &format!("rtsp://127.0.0.1:{port}/cam"), keys);
+        let ipc = site.ipc("reader");
+        let frames = ipc.subscriber::<Frames>("cam01").unwrap();
+        Rig {
+            port,
+            camera,
+            frames,
+            _ipc: ipc,
+            site,
+        }
+    }
 }
 
 /// Capture's row in `isochron status --json`: its `info` and its counter `name`.
@@ -64,39 +91,49 @@ fn capture_status_becomes(
     }
 }
 
-/// Waits for `count` frames of cam01, the first with the discontinuity flag if
-/// `after_gap`; the time the first of them arrived.
+/// Waits for `count` frames of cam01 that capture read after `since` (older
+/// ones are skipped: frames from before a gap); when capture read the first of
+/// them (its wall-clock stamp, so a test thread slow to look does not count).
+/// Not by the discontinuity flag: after a reconnect FFmpeg's probing hands
+/// capture a burst of frames, and a reader that wakes late may find the flagged
+/// one overwritten in its buffer.
 fn frames_arrive(
     frames: &StreamSubscriber<Frames>,
     count: usize,
-    after_gap: bool,
+    since: Option<Instant>,
     timeout: Duration,
 ) -> Option<Instant> {
-    let (mut seen, mut first) = (0, None);
+    let ago = |i: Instant| Instant::now().saturating_duration_since(i).as_nanos() as i64;
+    let since_ns = since.map_or(0, |i| wall_now_ns() - ago(i));
+    let (mut seen, mut first_ns) = (0, None);
     let ok = read_samples(frames, "cam01", timeout, |h, _| {
-        if seen == 0 && after_gap && h.preamble.flags & FLAG_DISCONTINUITY == 0 {
-            return true; // a frame from before the gap
+        if h.preamble.capture_time_ns < since_ns {
+            return true;
         }
-        first.get_or_insert_with(Instant::now);
+        first_ns.get_or_insert(h.preamble.capture_time_ns);
         seen += 1;
         seen < count
     });
-    ok.then_some(first).flatten()
+    let first_ns = first_ns.filter(|_| ok)?;
+    let age = Duration::from_nanos((wall_now_ns() - first_ns).max(0) as u64);
+    Some(Instant::now() - age)
 }
 
 /// The camera (`codec`, over `transport`) killed for 10 s and started again:
 /// `refused` in status meanwhile, in one WARN; frames within 3 s of its return.
 fn outage_recovers(name: &str, transport: &str, codec: &str) {
-    let port = free_port();
-    let url = format!("rtsp://127.0.0.1:{port}/cam");
     let camera_options = ["--codec", codec];
-    let mut camera = rtsp_camera(port, &camera_options);
-    let site = rtsp_site(name, &url, &format!("transport = \"{transport}\"\n"));
-    let ipc = site.ipc("reader");
-    let frames = ipc.subscriber::<Frames>("cam01").unwrap();
+    let keys = format!("transport = \"{transport}\"\n");
+    let Rig {
+        port,
+        mut camera,
+        frames,
+        site,
+        _ipc,
+    } = Rig::new(name, &camera_options, &keys);
     let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
     assert!(
-        frames_arrive(&frames, 20, false, Duration::from_secs(30)).is_some(),
+        frames_arrive(&frames, 20, None, Duration::from_secs(30)).is_some(),
         "no frames from the camera:\n{}",
         capture.stderr()
     );
@@ -114,7 +151,7 @@ fn outage_recovers(name: &str, transport: &str, codec: &str) {
 
     let restarted = Instant::now();
     let _camera = rtsp_camera(port, &camera_options);
-    let back = frames_arrive(&frames, 5, true, Duration::from_secs(20))
+    let back = frames_arrive(&frames, 5, Some(restarted), Duration::from_secs(20))
         .unwrap_or_else(|| panic!("no frames after the camera returned:\n{}", capture.stderr()));
     let recovery = back - restarted;
     eprintln!(
@@ -161,12 +198,14 @@ fn an_h265_rtsp_camera_killed_for_10_s_streams_again_within_3_s() {
 
 #[test]
 fn a_camera_that_returns_at_1280x720_is_analysed_at_the_configured_size() {
-    let port = free_port();
-    let url = format!("rtsp://127.0.0.1:{port}/cam");
-    let mut camera = rtsp_camera(port, &["--size", "768x576"]);
-    let site = rtsp_site("rtsp-resize", &url, "width = 768\nheight = 576\n");
-    let ipc = site.ipc("reader");
-    let frames = ipc.subscriber::<Frames>("cam01").unwrap();
+    let keys = "width = 768\nheight = 576\n";
+    let Rig {
+        port,
+        mut camera,
+        frames,
+        site,
+        _ipc,
+    } = Rig::new("rtsp-resize", &["--size", "768x576"], keys);
     let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
     let mut sizes = Vec::new();
     let first = read_samples(&frames, "cam01", Duration::from_secs(30), |h, pixels| {
@@ -177,8 +216,9 @@ fn a_camera_that_returns_at_1280x720_is_analysed_at_the_configured_size() {
 
     camera.signal(libc::SIGKILL);
     camera.wait(Duration::from_secs(5));
+    let restarted = Instant::now();
     let _camera = rtsp_camera(port, &["--size", "1280x720"]);
-    let after = frames_arrive(&frames, 1, true, Duration::from_secs(20));
+    let after = frames_arrive(&frames, 1, Some(restarted), Duration::from_secs(20));
     assert!(
         after.is_some(),
         "no frames after the switch:\n{}",
@@ -212,19 +252,17 @@ fn a_camera_that_returns_at_1280x720_is_analysed_at_the_configured_size() {
 
 #[test]
 fn an_rtsp_camera_frozen_for_10_s_is_stalled_then_streams_within_3_s_of_waking() {
-    let port = free_port();
-    let url = format!("rtsp://127.0.0.1:{port}/cam");
-    let camera = rtsp_camera(port, &[]);
-    let site = rtsp_site(
-        "rtsp-stall",
-        &url,
-        "read_timeout_s = 2\nconnect_timeout_s = 2\n",
-    );
-    let ipc = site.ipc("reader");
-    let frames = ipc.subscriber::<Frames>("cam01").unwrap();
+    let keys = "read_timeout_s = 2\nconnect_timeout_s = 2\n";
+    let Rig {
+        camera,
+        frames,
+        site,
+        _ipc,
+        port: _,
+    } = Rig::new("rtsp-stall", &[], keys);
     let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
     assert!(
-        frames_arrive(&frames, 20, false, Duration::from_secs(30)).is_some(),
+        frames_arrive(&frames, 20, None, Duration::from_secs(30)).is_some(),
         "no frames from the camera:\n{}",
         capture.stderr()
     );
@@ -252,7 +290,7 @@ fn an_rtsp_camera_frozen_for_10_s_is_stalled_then_streams_within_3_s_of_waking()
 
     camera.signal(libc::SIGCONT);
     let woken = Instant::now();
-    let back = frames_arrive(&frames, 5, true, Duration::from_secs(20))
+    let back = frames_arrive(&frames, 5, Some(woken), Duration::from_secs(20))
         .unwrap_or_else(|| panic!("no frames after SIGCONT:\n{}", capture.stderr()));
     let recovery = back - woken;
     eprintln!(
@@ -528,19 +566,17 @@ fn five_percent_udp_loss_counts_damaged_frames_and_adds_no_event() {
 /// killed nor restarted, and streams again once the camera wakes.
 #[test]
 fn a_camera_frozen_longer_than_the_watchdog_is_waited_for_not_killed() {
-    let port = free_port();
-    let url = format!("rtsp://127.0.0.1:{port}/cam");
-    let camera = rtsp_camera(port, &[]);
-    let site = rtsp_site(
-        "rtsp-watchdog",
-        &url,
-        "read_timeout_s = 6\nconnect_timeout_s = 6\n",
-    );
-    let ipc = site.ipc("reader");
-    let frames = ipc.subscriber::<Frames>("cam01").unwrap();
+    let keys = "read_timeout_s = 6\nconnect_timeout_s = 6\n";
+    let Rig {
+        camera,
+        frames,
+        site,
+        _ipc,
+        port: _,
+    } = Rig::new("rtsp-watchdog", &[], keys);
     let mut up = site.up(&["--watchdog-s", "3"]);
     assert!(
-        frames_arrive(&frames, 20, false, Duration::from_secs(60)).is_some(),
+        frames_arrive(&frames, 20, None, Duration::from_secs(60)).is_some(),
         "no frames under isochron up:\n{}",
         up.stderr()
     );
@@ -554,7 +590,7 @@ fn a_camera_frozen_longer_than_the_watchdog_is_waited_for_not_killed() {
     std::thread::sleep(Duration::from_secs(15).saturating_sub(frozen.elapsed()));
     camera.signal(libc::SIGCONT);
     let woken = Instant::now();
-    let back = frames_arrive(&frames, 5, true, Duration::from_secs(30));
+    let back = frames_arrive(&frames, 5, Some(woken), Duration::from_secs(30));
     let logs = std::fs::read_dir(site.path("logs")).unwrap();
     let capture_log: String = logs
         .filter_map(Result::ok)
