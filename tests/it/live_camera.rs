@@ -66,6 +66,17 @@ impl Rig {
     }
 }
 
+/// isochron-capture on `site`'s cam01, once 20 of its frames have arrived.
+fn streaming_capture(site: &TestSite, frames: &StreamSubscriber<Frames>) -> Proc {
+    let capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
+    assert!(
+        frames_arrive(frames, 20, None, Duration::from_secs(30)).is_some(),
+        "no frames from the camera:\n{}",
+        capture.stderr()
+    );
+    capture
+}
+
 /// Capture's row in `isochron status --json`: its `info` and its counter `name`.
 fn capture_status(site: &TestSite, name: &str) -> (String, f64) {
     let row = site.status_row("capture");
@@ -131,12 +142,7 @@ fn outage_recovers(name: &str, transport: &str, codec: &str) {
         site,
         _ipc,
     } = Rig::new(name, &camera_options, &keys);
-    let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
-    assert!(
-        frames_arrive(&frames, 20, None, Duration::from_secs(30)).is_some(),
-        "no frames from the camera:\n{}",
-        capture.stderr()
-    );
+    let mut capture = streaming_capture(&site, &frames);
 
     camera.signal(libc::SIGKILL);
     camera.wait(Duration::from_secs(5));
@@ -260,12 +266,7 @@ fn an_rtsp_camera_frozen_for_10_s_is_stalled_then_streams_within_3_s_of_waking()
         _ipc,
         port: _,
     } = Rig::new("rtsp-stall", &[], keys);
-    let mut capture = site.spawn("isochron-capture", &["--camera", "cam01"]);
-    assert!(
-        frames_arrive(&frames, 20, None, Duration::from_secs(30)).is_some(),
-        "no frames from the camera:\n{}",
-        capture.stderr()
-    );
+    let mut capture = streaming_capture(&site, &frames);
 
     camera.signal(libc::SIGSTOP);
     let frozen = Instant::now();
