@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 
 use isochron_config::clock::wall_now_ns;
 use isochron_runtime::ipc::{Events, Frames, Ipc, StreamSubscriber};
+use isochron_store::Store;
 use isochron_tests::{
     NetnsPair, Proc, TestSite, bin, eventually, free_port, read_samples, repo_root,
 };
@@ -620,4 +621,89 @@ fn a_camera_frozen_longer_than_the_watchdog_is_waited_for_not_killed() {
         up.terminate(Duration::from_secs(20)).success(),
         "{supervisor}"
     );
+}
+
+/// The minute (since the Unix epoch) of a wall-clock time in nanoseconds.
+fn minute_of(wall_ns: i64) -> i64 {
+    wall_ns.div_euclid(60 * 1_000_000_000)
+}
+
+/// Sleeps until `second` seconds into the next whole UTC minute; returns that
+/// minute.
+fn sleep_into_next_minute(second: u64) -> i64 {
+    let now = wall_now_ns();
+    let next = minute_of(now) + 1;
+    let at = next * 60 * 1_000_000_000 + (second * 1_000_000_000) as i64;
+    std::thread::sleep(Duration::from_nanos((at - now) as u64));
+    next
+}
+
+/// The whole motion of a learned minute (sum of its bin's block means), if the
+/// store learned it; a daily model in UTC (the site's time zone), so t* is the
+/// minute of the day.
+fn learned_motion(store: &Store, minute: i64) -> Option<f64> {
+    let bin = store.read_bin(minute.rem_euclid(1440) as u32).unwrap()?;
+    (bin.count > 0).then(|| bin.mean.iter().map(|&m| f64::from(m)).sum())
+}
+
+/// A camera frozen for 10 s inside a minute, under capture, motion and cascade
+/// with the store: the gap is no data, not an empty scene. The minute is learned
+/// from the frames it had (min_coverage 0.5 here) and its moving ball is learned
+/// as busy as in the next, clean minute; counting the gap as no motion would
+/// make it a sixth less.
+#[test]
+fn a_camera_frozen_inside_a_minute_teaches_the_store_no_empty_seconds() {
+    let keys = "read_timeout_s = 2\nconnect_timeout_s = 2\n";
+    let Rig {
+        camera,
+        frames,
+        site,
+        _ipc,
+        port: _,
+    } = Rig::new("rtsp-store-gap", &[], keys);
+    let mut config = std::fs::read_to_string(site.config_path()).unwrap();
+    config.push_str("\n[cascade]\ncycle = \"daily\"\nmin_coverage = 0.5\n");
+    std::fs::write(site.config_path(), config).unwrap();
+    let mut capture = streaming_capture(&site, &frames);
+    let mut motion = site.spawn("isochron-motion", &["--camera", "cam01"]);
+    let mut cascade = site.spawn("isochron-cascade", &["--camera", "cam01"]);
+
+    // The first whole minute streamed is frozen from its 20th to its 30th second.
+    let gap = sleep_into_next_minute(20);
+    camera.signal(libc::SIGSTOP);
+    std::thread::sleep(Duration::from_secs(10));
+    camera.signal(libc::SIGCONT);
+    let clean = gap + 1;
+    let path = isochron_store::store_path(&site.path("state"), "cam01");
+    let done = eventually(Duration::from_secs(150), || {
+        let store = Store::open_read_only(&path, "cam01").ok()?;
+        let last = store.progress().ok()?.last_minute?;
+        (last >= clean).then_some(store)
+    });
+    let logs = || {
+        format!(
+            "{}\n{}\n{}",
+            capture.stderr(),
+            motion.stderr(),
+            cascade.stderr()
+        )
+    };
+    let store = done.unwrap_or_else(|| panic!("minute {clean} never completed:\n{}", logs()));
+    let with_gap = learned_motion(&store, gap);
+    let reference = learned_motion(&store, clean)
+        .unwrap_or_else(|| panic!("the clean minute was not learned:\n{}", logs()));
+    let with_gap = with_gap.unwrap_or_else(|| {
+        panic!(
+            "the minute with 50 s of frames was not learned:\n{}",
+            logs()
+        )
+    });
+    let ratio = with_gap / reference;
+    eprintln!("motion learned of the minute frozen 10 s against the next: {ratio:.3}");
+    assert!(reference > 0.0, "nothing moved in the clean minute");
+    assert!((0.93..=1.07).contains(&ratio), "ratio {ratio}:\n{}", logs());
+    let logs = logs();
+    for p in [&mut cascade, &mut motion, &mut capture] {
+        assert!(p.terminate(Duration::from_secs(10)).success(), "{logs}");
+    }
 }

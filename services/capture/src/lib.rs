@@ -15,6 +15,7 @@
 
 pub mod camera;
 pub mod down;
+pub mod live_edge;
 pub mod source;
 pub mod stage;
 pub mod stream;

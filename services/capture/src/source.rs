@@ -167,6 +167,13 @@ pub trait FrameSource {
     fn damaged_frames(&self) -> u64 {
         0
     }
+
+    /// True if the frame just read was buffered while the stream opened and
+    /// read faster than the camera sent it ([`crate::live_edge`]): when it was
+    /// captured is not known.
+    fn behind_live_edge(&self) -> bool {
+        false
+    }
 }
 
 /// Makes OpenCV run its functions (the colour conversion, the resize) on the

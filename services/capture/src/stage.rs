@@ -13,6 +13,7 @@
 //! A file ends with its last status report (with how much of it was read,
 //! [`InputCompleteness`]) and then an end of stream; a looped one starts again.
 
+use std::cell::Cell;
 use std::mem::MaybeUninit;
 use std::time::{Duration, Instant};
 
@@ -326,15 +327,24 @@ impl<'ipc> CaptureStage<'ipc> {
         let (frame, index, flags) = (playback.frame, self.index, self.flags);
         let source_index = source.next_index();
         let mut origin_wall_ns = 0;
+        // A frame read behind the live edge has no known capture time: flagged,
+        // so that motion's run starts at the first frame read live.
+        let behind = Cell::new(false);
         let write = |dst: &mut [MaybeUninit<u8>]| match source.read_frame(dst, frame) {
-            Ok(ReadOutcome::Frame) => Ok(()),
+            Ok(ReadOutcome::Frame) => {
+                behind.set(source.behind_live_edge());
+                Ok(())
+            }
             Ok(ReadOutcome::EndOfFile | ReadOutcome::Lost) => Err(NotSent::Ended),
             Err(e) => Err(NotSent::Failed(e)),
         };
         let header = |_: &(), mut preamble: Preamble| {
             preamble.capture_time_ns = playback.stamper.stamp(index);
             preamble.origin_wall_ns = wall_now_ns();
-            preamble.flags = flags;
+            preamble.flags = match behind.get() {
+                true => flags | FLAG_DISCONTINUITY,
+                false => flags,
+            };
             origin_wall_ns = preamble.origin_wall_ns;
             FrameHeader {
                 preamble,

@@ -22,6 +22,7 @@ use isochron_config::Transport;
 use isochron_wire::PixelFormat;
 
 use crate::down::DownReason;
+use crate::live_edge::LiveEdge;
 use crate::source::{FrameFormat, FrameSource, ReadOutcome, SourceError};
 
 /// How capture talks to a network camera (the camera's config keys).
@@ -128,6 +129,13 @@ pub struct StreamSource {
     damaged: u64,
     /// Damage seen: frames are held back until a clean key frame.
     recovering: bool,
+    /// The video stream's time base (seconds per presentation-time unit).
+    time_base: (i32, i32),
+    /// When the stream opened: the clock frames are read on.
+    opened: Instant,
+    live_edge: LiveEdge,
+    /// The frame last read was behind the live edge.
+    behind: bool,
 }
 
 /// A swscale context for one conversion.
@@ -186,6 +194,7 @@ impl StreamSource {
             .best(media::Type::Video)
             .ok_or_else(|| down(DownReason::BadStream, "it sends no video".into()))?;
         let index = stream.index();
+        let time_base = stream.time_base();
         let rate = match stream.avg_frame_rate() {
             r if r.numerator() > 0 && r.denominator() > 0 => r,
             _ => stream.rate(),
@@ -202,6 +211,7 @@ impl StreamSource {
             .decoder()
             .video()
             .map_err(|e| down(DownReason::BadStream, format!("no decoder: {e}")))?;
+        let fps = if fps.is_finite() { fps.max(0.0) } else { 0.0 };
         Ok(StreamSource {
             input,
             stream: index,
@@ -210,12 +220,24 @@ impl StreamSource {
             scaler: None,
             deadline,
             read_timeout: options.read_timeout,
-            fps: if fps.is_finite() { fps.max(0.0) } else { 0.0 },
+            fps,
             shown: shown.to_string(),
             frames_read: 0,
             damaged: 0,
             recovering: false,
+            time_base: (time_base.numerator(), time_base.denominator()),
+            opened: Instant::now(),
+            live_edge: LiveEdge::new(fps),
+            behind: false,
         })
+    }
+
+    /// The decoded frame's presentation time in nanoseconds of stream time.
+    fn presented_ns(&self) -> Option<i128> {
+        let (num, den) = self.time_base;
+        let t = self.decoded.timestamp()?;
+        (num > 0 && den > 0)
+            .then(|| i128::from(t) * i128::from(num) * 1_000_000_000 / i128::from(den))
     }
 
     fn down(&self, reason: DownReason, detail: impl Into<String>) -> SourceError {
@@ -386,6 +408,8 @@ impl FrameSource for StreamSource {
                 return Err(self.down(DownReason::Stalled, detail));
             }
             if self.ready_frame()? {
+                let read_ns = self.opened.elapsed().as_nanos() as i128;
+                self.behind = self.live_edge.behind(self.presented_ns(), read_ns);
                 self.write(dst, frame)?;
                 self.frames_read += 1;
                 return Ok(ReadOutcome::Frame);
@@ -412,6 +436,10 @@ impl FrameSource for StreamSource {
 
     fn damaged_frames(&self) -> u64 {
         self.damaged
+    }
+
+    fn behind_live_edge(&self) -> bool {
+        self.behind
     }
 }
 

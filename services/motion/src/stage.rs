@@ -38,7 +38,10 @@ pub struct MotionStage<'ipc> {
     output: Output<'ipc, Motion>,
     illumination_frames: u64,
     suppressed_frames: u64,
+    /// New runs of frames (a reconnect, a restarted capture, a new size).
     restarts: u64,
+    /// The last frame started a new run (no pair yet since).
+    starting_run: bool,
 }
 
 impl<'ipc> MotionStage<'ipc> {
@@ -68,6 +71,7 @@ impl<'ipc> MotionStage<'ipc> {
             illumination_frames: 0,
             suppressed_frames: 0,
             restarts: 0,
+            starting_run: false,
         };
         tracing::info!(
             camera = %camera.id,
@@ -131,10 +135,14 @@ impl<'ipc> MotionStage<'ipc> {
         }
         let info = FrameInfo::of(&header);
         let pairing = pair(self.prev.as_ref().map(|(i, _)| i), &info);
-        if !matches!(pairing, Pairing::Pair { .. } | Pairing::First) {
+        // A run starts with its first frame: frames flagged one after another
+        // (those capture read behind a camera's live edge) are one new run.
+        let starts_run = !matches!(pairing, Pairing::Pair { .. } | Pairing::First);
+        if starts_run && !self.starting_run {
             self.restarts += 1;
             tracing::info!(camera = %self.camera, "new run of frames: {pairing:?}");
         }
+        self.starting_run = starts_run;
         if let Err(e) = self.prepare(header.width, header.height) {
             cx.health.rejected();
             self.prev = None;
