@@ -89,7 +89,7 @@ pub fn bench_secs(flag: &str, value: &str, min: f64) -> Result<Duration, String>
         .parse::<f64>()
         .ok()
         .filter(|v| v.is_finite() && *v >= min)
-        .map(Duration::from_secs_f64)
+        .and_then(|v| Duration::try_from_secs_f64(v).ok())
         .ok_or_else(|| format!("{flag}: expected seconds ≥ {min}, found '{value}'"))
 }
 

@@ -87,10 +87,46 @@ pub struct OutFile {
     temp: tempfile::TempPath,
 }
 
+/// Refuses (64) an output path `flag` names that is there but is not a regular
+/// file: a device (`/dev/full`, `/dev/stdout`), a FIFO, a socket, a directory or
+/// a symbolic link would be replaced by the file written, not written to.
+pub fn output_target(flag: &str, out: &Path) -> anyhow::Result<()> {
+    let found = match std::fs::symlink_metadata(out) {
+        Err(_) => return Ok(()),
+        Ok(m) if m.is_file() => return Ok(()),
+        Ok(m) if m.is_symlink() => match std::fs::read_link(out) {
+            Ok(target) => format!("a symbolic link (to {})", target.display()),
+            Err(_) => "a symbolic link".to_string(),
+        },
+        Ok(m) if m.is_dir() => "a directory".to_string(),
+        Ok(m) => {
+            use std::os::unix::fs::FileTypeExt;
+            let t = m.file_type();
+            match () {
+                _ if t.is_char_device() => "a character device",
+                _ if t.is_block_device() => "a block device",
+                _ if t.is_fifo() => "a FIFO",
+                _ if t.is_socket() => "a socket",
+                _ => "not a regular file",
+            }
+            .to_string()
+        }
+    };
+    Err(with_code(
+        isochron_exit::USAGE,
+        anyhow::anyhow!(
+            "{flag} {}: {found}, which writing would replace; give a new file's path or a regular file's",
+            out.display()
+        ),
+    ))
+}
+
 impl OutFile {
     /// Makes the temporary file for `out` (named by `flag`): fails at once,
-    /// before any work, when its directory cannot be written.
+    /// before any work, when `out` is there but not a regular file
+    /// ([`output_target`], 64) or its directory cannot be written.
     pub fn create(flag: &str, out: &Path) -> anyhow::Result<OutFile> {
+        output_target(flag, out)?;
         let dir = match out.parent() {
             Some(p) if !p.as_os_str().is_empty() => p,
             _ => Path::new("."),
@@ -151,6 +187,35 @@ mod tests {
         assert!(
             format!("{:#}", err.unwrap()).contains("--out /nonexistent/dir/x.png: cannot write")
         );
+    }
+
+    #[test]
+    fn an_output_path_that_is_not_a_regular_file_is_refused_and_left_alone() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("target.csv");
+        std::fs::write(&target, b"kept").unwrap();
+        let link = dir.path().join("link.csv");
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        let fifo = dir.path().join("fifo.csv");
+        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+        // SAFETY: a valid NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        let cases: [(&Path, &str); 4] = [
+            (Path::new("/dev/full"), "a character device"),
+            (&link, "a symbolic link (to "),
+            (&fifo, "a FIFO"),
+            (dir.path(), "a directory"),
+        ];
+        for (out, said) in cases {
+            let err = OutFile::create("--out", out).err().unwrap();
+            let text = format!("{err:#}");
+            assert!(text.contains(said), "{text}");
+            assert_eq!(crate::exit_code_of(&err), isochron_exit::USAGE, "{text}");
+        }
+        assert!(std::fs::symlink_metadata(&link).unwrap().is_symlink());
+        assert_eq!(std::fs::read(&target).unwrap(), b"kept");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 3);
+        assert!(output_target("--out", &target).is_ok());
     }
 
     #[test]

@@ -164,7 +164,7 @@ fn expected_snapshot(args: SnapshotArgs, minute: u32) -> anyhow::Result<ExitCode
         eprintln!("isochron: {note}");
     }
     let t_star = day.unwrap_or(0) * MINUTES_PER_DAY + minute;
-    let e = expected(&loaded, t_star)?;
+    let e = expected(&loaded, t_star, day)?;
     let when = match day {
         Some(d) => format!("{} {}", DAYS[d as usize], format_t_star(minute)),
         None => format_t_star(minute),
@@ -277,13 +277,17 @@ struct Expected {
     t_star: u32,
 }
 
-/// What the site's long-term stores expect at `t_star`; an error when no camera
-/// has a store.
-fn expected(loaded: &LoadedConfig, t_star: u32) -> anyhow::Result<Expected> {
+/// What the site's long-term stores expect at `t_star` (of `day`, for a
+/// weekly model); an error when no camera has a store, or a weekly model
+/// learned nothing on `day`.
+fn expected(loaded: &LoadedConfig, t_star: u32, day: Option<u32>) -> anyhow::Result<Expected> {
     let grid = MapGrid::from_config(loaded)?.context(
         "no [costmap] grid is configured (map_yaml, or width_cells and height_cells): nothing to draw",
     )?;
     let mut planner = Planner::new(loaded)?;
+    if let Some(day) = day {
+        planner.check_day_learned(day)?;
+    }
     let mut footprints = Vec::new();
     let cells = planner.expected_costmap(&grid, t_star, &mut footprints)?;
     let learned: Vec<bool> = planner

@@ -26,7 +26,7 @@ use crate::common::config_path;
 use crate::status;
 
 mod load_checks;
-use load_checks::{check_model, check_mqtt, check_route_graph, check_warnings};
+use load_checks::{check_model, check_mqtt, check_route_graph, check_warnings, check_zones};
 
 /// Check the site's set-up and say what to fix (changes nothing without --fix).
 #[derive(clap::Args)]
@@ -149,6 +149,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     check_mqtt(&loaded, &mut report);
     check_sources(&loaded, &mut report);
     check_model(&loaded, &mut report);
+    check_zones(&loaded, &mut report);
     check_map(&loaded, &mut report);
     check_route_graph(&loaded, &mut report);
     check_state_dir(&loaded.state_dir(), &mut report);
@@ -394,23 +395,53 @@ fn check_sources(loaded: &LoadedConfig, report: &mut Report) {
 
 fn check_state_dir(dir: &Path, report: &mut Report) {
     if !dir.exists() {
-        report.say(
-            Level::Warn,
-            "state dir",
-            format!(
-                "{} does not exist yet; the cascade creates it (it must be writable by the services' user)",
-                dir.display()
+        // The cascade creates it: in the nearest directory that exists, which
+        // must be a directory this user can write.
+        let mut base = dir.parent();
+        while let Some(b) = base.filter(|b| !b.exists()) {
+            base = b.parent();
+        }
+        let base = base.unwrap_or(Path::new("/"));
+        let (level, said) = match () {
+            _ if !base.is_dir() => (
+                Level::Fail,
+                format!(
+                    "{} cannot be created: {} is not a directory",
+                    dir.display(),
+                    base.display()
+                ),
             ),
+            _ => match write_probe(base) {
+                Ok(()) => (
+                    Level::Warn,
+                    format!(
+                        "{} does not exist yet; the cascade creates it (it must be writable by the services' user)",
+                        dir.display()
+                    ),
+                ),
+                Err(e) => (
+                    Level::Fail,
+                    format!(
+                        "{} cannot be created: {} is not writable by this user: {e}",
+                        dir.display(),
+                        base.display()
+                    ),
+                ),
+            },
+        };
+        report.say(level, "state dir", said);
+        return;
+    }
+    if !dir.is_dir() {
+        report.say(
+            Level::Fail,
+            "state dir",
+            format!("{} is not a directory", dir.display()),
         );
         return;
     }
-    // Whether the services can write here is only known by writing: a probe file
-    // that is removed at once. It changes nothing anyone relies on (no store,
-    // snapshot or setting), so doctor does it also without --fix.
-    let probe = dir.join(format!(".isochron-doctor-probe-{}", std::process::id()));
-    match std::fs::write(&probe, b"") {
+    match write_probe(dir) {
         Ok(()) => {
-            let _ = std::fs::remove_file(&probe);
             report.say(
                 Level::Ok,
                 "state dir",
@@ -423,6 +454,16 @@ fn check_state_dir(dir: &Path, report: &mut Report) {
             format!("{} is not writable by this user: {e}", dir.display()),
         ),
     }
+}
+
+/// Whether this user can write in `dir`, which is only known by writing: a
+/// probe file, removed at once. It changes nothing anyone relies on (no store,
+/// snapshot or setting), so doctor does it also without --fix.
+fn write_probe(dir: &Path) -> std::io::Result<()> {
+    let probe = dir.join(format!(".isochron-doctor-probe-{}", std::process::id()));
+    std::fs::write(&probe, b"")?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
 }
 
 /// Free space of the filesystem holding the state directory (or, before it
@@ -489,7 +530,12 @@ fn check_stores(loaded: &LoadedConfig, report: &mut Report) {
             );
             continue;
         }
-        match Store::open_read_only(&path, &cam.id).and_then(|s| s.verify().map(|v| (s, v))) {
+        // The cascade's own checks: the camera, the cycle, every row.
+        let cycle = loaded.config.cascade.cycle;
+        let opened = Store::open_read_only(&path, &cam.id)
+            .and_then(|s| s.check_cycle(cycle).map(|()| s))
+            .and_then(|s| s.verify().map(|v| (s, v)));
+        match opened {
             Ok((store, v)) => {
                 let days = store
                     .read_model()

@@ -105,10 +105,15 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             let loaded = load_config(config)?;
             let link = &loaded.config.link;
             if link.box_id.is_empty() {
-                bail!(
-                    "{}: link.box_id is not set: the enclave is named after the box",
-                    loaded.path.display()
-                );
+                // The config lacks what this command needs: a config error, 78.
+                return Err(isochron_exit::Fatal::new(
+                    isochron_exit::CONFIG,
+                    format!(
+                        "{}: link.box_id is not set: the enclave is named after the box",
+                        loaded.path.display()
+                    ),
+                )
+                .into());
             }
             let domain = link.ros_domain_id.map_or_else(env_domain, Ok)?;
             let grant = Grant {

@@ -439,17 +439,7 @@ fn spawn(m: &mut Managed, watchdog: Duration, log_dir: Option<&Path>) -> anyhow:
         .env("WATCHDOG_USEC", watchdog.as_micros().to_string())
         .env_remove("WATCHDOG_PID")
         .stdin(Stdio::null());
-    // SAFETY: prctl is async-signal-safe; nothing else runs between fork and exec.
-    unsafe {
-        cmd.pre_exec(|| {
-            // If the supervisor dies (even by SIGKILL), its services stop too
-            // instead of running on as orphans nobody restarts or stops.
-            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            Ok(())
-        });
-    }
+    held_by_this_process(&mut cmd);
     if let Some(dir) = log_dir {
         let log = std::fs::OpenOptions::new()
             .create(true)
@@ -465,4 +455,23 @@ fn spawn(m: &mut Managed, watchdog: Duration, log_dir: Option<&Path>) -> anyhow:
     m.started = Instant::now();
     m.last_ping = Instant::now();
     Ok(())
+}
+
+/// Makes `cmd`'s process one this process alone stops: in a process group of
+/// its own, so that Ctrl-C in the terminal reaches only the command, which
+/// stops its services in order (a service that got the terminal's SIGINT
+/// itself would end first, and be taken for a failure or restarted); and
+/// stopped with SIGTERM if this process dies, even by SIGKILL, instead of
+/// running on as an orphan nobody restarts or stops.
+pub(crate) fn held_by_this_process(cmd: &mut Command) {
+    cmd.process_group(0);
+    // SAFETY: prctl is async-signal-safe; nothing else runs between fork and exec.
+    unsafe {
+        cmd.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
 }

@@ -100,11 +100,16 @@ pub fn main() -> ExitCode {
         Ok(code) => code,
         Err(e) => {
             eprintln!("isochron: {e:#}");
-            // The services' table: a config error is 78 here too.
-            let chain = e.chain().map(|c| c as &(dyn std::error::Error + 'static));
-            ExitCode::from(exit::code_of_chain(chain, library_code) as u8)
+            ExitCode::from(exit_code_of(&e) as u8)
         }
     }
+}
+
+/// The code a command that failed with `e` exits with: the services' table (a
+/// config error is 78 here too).
+pub(crate) fn exit_code_of(e: &anyhow::Error) -> i32 {
+    let chain = e.chain().map(|c| c as &(dyn std::error::Error + 'static));
+    exit::code_of_chain(chain, library_code)
 }
 
 /// Ends a command line clap refused. A value that is not what its flag expects
@@ -147,10 +152,24 @@ fn library_code(e: &(dyn std::error::Error + 'static)) -> Option<i32> {
         // `--camera cam09`): the argument is wrong, 64, where a service, whose
         // unit names it, says 78.
         Some(isochron_exit::USAGE)
+    } else if let Some(e) = e.downcast_ref::<isochron_planning::plan::PlanError>() {
+        // A route or segment the command line names (`--route`, `--segment`);
+        // a day the stores never learned (`--day sun`).
+        use isochron_planning::plan::PlanError::{DayNotLearned, UnknownRoute, UnknownSegment};
+        match e {
+            UnknownRoute(..) | UnknownSegment(..) => Some(isochron_exit::USAGE),
+            DayNotLearned { .. } => Some(isochron_exit::NO_INPUT),
+            _ => None,
+        }
     } else if let Some(e) = e.downcast_ref::<isochron_store::StoreError>() {
         Some(e.exit_code())
     } else if let Some(e) = e.downcast_ref::<isochron_wire::WireError>() {
         Some(e.exit_code())
+    } else if let Some(e) = e.downcast_ref::<std::io::Error>() {
+        // The disk, not the input: a full or read-only file system.
+        use std::io::ErrorKind::{QuotaExceeded, ReadOnlyFilesystem, StorageFull};
+        matches!(e.kind(), StorageFull | ReadOnlyFilesystem | QuotaExceeded)
+            .then_some(isochron_exit::UNAVAILABLE)
     } else {
         e.downcast_ref::<isochron_runtime::ipc::IpcError>()
             .map(Classify::exit_code)

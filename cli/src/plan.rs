@@ -144,10 +144,33 @@ fn day_range(args: &OfflineArgs, loaded: &LoadedConfig) -> anyhow::Result<DayRan
     })
 }
 
+/// Refuses (64) a route `flag` names that is not a `[[costmap.route]]` of the
+/// site, naming those that are.
+fn configured_route(flag: &str, name: &str, loaded: &LoadedConfig) -> Result<(), UsageError> {
+    if loaded.config.costmap.route(name).is_some() {
+        return Ok(());
+    }
+    let known: Vec<&str> = loaded
+        .config
+        .costmap
+        .routes
+        .iter()
+        .map(|r| r.name.as_str())
+        .collect();
+    Err(UsageError(format!(
+        "{flag}: no route '{name}' in [[costmap.route]] (configured: {})",
+        known.join(", ")
+    )))
+}
+
 fn offline(args: OfflineArgs) -> anyhow::Result<ExitCode> {
     let loaded = load_config(args.config.clone())?;
+    configured_route("--route", &args.route, &loaded)?;
     let range = day_range(&args, &loaded)?;
     let mut planner = Planner::new(&loaded)?;
+    if loaded.config.cascade.cycle != Cycle::Daily {
+        planner.check_day_learned(range.cycle_offset / MINUTES_PER_DAY)?;
+    }
     let plan = planner.offline(&args.route, range)?;
     let segments = planner.route(&args.route)?.segments.clone();
     if args.json {
@@ -267,19 +290,7 @@ fn print_offline(plan: &OfflinePlan, segments: &[String], days: u32) {
 fn now(args: NowArgs) -> anyhow::Result<ExitCode> {
     let loaded = load_config(args.config.clone())?;
     for r in &args.routes {
-        if loaded.config.costmap.route(r).is_none() {
-            let known: Vec<&str> = loaded
-                .config
-                .costmap
-                .routes
-                .iter()
-                .map(|r| r.name.as_str())
-                .collect();
-            bail!(UsageError(format!(
-                "--routes: no route '{r}' in [[costmap.route]] (configured: {})",
-                known.join(", ")
-            )));
-        }
+        configured_route("--routes", r, &loaded)?;
     }
     if args.routes.len() > PLAN_MAX_ROUTES {
         bail!(UsageError(format!(

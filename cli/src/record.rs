@@ -81,6 +81,7 @@ fn open_recorder(
 ) -> anyhow::Result<(ViewStage, ViewInputs)> {
     let ctx = Context::new();
     let channels = SiteChannels::new(loaded, &ctx)?;
+    crate::common::output_target("--out", out)?;
     let recording = Recording::create(out, &ctx)?;
     let sink = Sink::Record(recording);
     Ok(ViewStage::open(

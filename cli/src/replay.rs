@@ -41,7 +41,7 @@ use isochron_wire::{StageStatus, Stream};
 
 use crate::launch::{ServiceSpec, State, Supervisor, group_specs, installed};
 use crate::record::RecorderThread;
-use tally::{ReplayInputs, Tally};
+use tally::{Ending, ReplayInputs, Tally};
 
 /// Run the whole group on a video file and write what every stage produced.
 #[derive(clap::Args)]
@@ -136,15 +136,30 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let mut cx = Context::unreported(StageKind::View);
     stage::run_in(&ipc, &mut replay, &inputs, &mut cx)?;
     if let Some(failure) = replay.failure.take() {
-        return failed(replay, failure, &out, &video, started.elapsed());
+        return failed(replay, failure, false, &out, &video, started.elapsed());
     }
     if !matches!(replay.phase, Phase::Collecting) || !replay.tally.all_ended() {
-        bail!("interrupted");
+        let stopped = Fatal::new(
+            isochron_exit::INTERRUPTED,
+            format!(
+                "interrupted (SIGINT or SIGTERM): the group is stopped; {} says what arrived",
+                out.join("summary.json").display()
+            ),
+        );
+        return failed(
+            replay,
+            stopped.into(),
+            true,
+            &out,
+            &video,
+            started.elapsed(),
+        );
     }
     finish(replay, recorder, &out, &video, started.elapsed())
 }
 
-/// The video (canonical), the speed and the output directory (created) the
+/// The video (canonical), the speed and the output directory (absolute, not
+/// yet created: [`effective_config`] makes it once the config is accepted) the
 /// arguments name. A video that is missing or not a file (a directory) is
 /// refused here, 66, before anything is created or started.
 fn check_args(args: &Args) -> anyhow::Result<(PathBuf, Speed, PathBuf)> {
@@ -153,9 +168,15 @@ fn check_args(args: &Args) -> anyhow::Result<(PathBuf, Speed, PathBuf)> {
         .video
         .canonicalize()
         .with_context(|| format!("the video {}", args.video.display()))?;
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
-    let out = args.out.canonicalize()?;
+    let out =
+        std::path::absolute(&args.out).with_context(|| format!("--out {}", args.out.display()))?;
+    if out.exists() && !out.is_dir() {
+        return Err(UsageError(format!(
+            "--out {}: not a directory; replay writes its files into a directory (a new one or one of its earlier runs)",
+            args.out.display()
+        ))
+        .into());
+    }
     Ok((video, args.speed, out))
 }
 
@@ -180,7 +201,9 @@ fn finish(
         .capture_last
         .as_ref()
         .and_then(InputCompleteness::from_status);
-    replay.tally.finish(out, video, wall, input, None)?;
+    replay
+        .tally
+        .finish(out, video, wall, input, Ending::Complete)?;
     println!(
         "replay: {} in {:.1} s",
         replay.tally.counts_line(),
@@ -202,13 +225,14 @@ fn finish(
     Ok(ExitCode::SUCCESS)
 }
 
-/// After a stage failed (or nothing moved): stop the services, write
-/// `summary.json` with what arrived and why the replay stopped (`failure`), and
-/// end with the failure — the stage's exit code and reason (see
-/// [`stage_failure`]).
+/// After a stage failed (or nothing moved, or a signal stopped it:
+/// `interrupted`): stop the services, write `summary.json` with what arrived
+/// and why the replay stopped (`failure`), and end with the failure — the
+/// stage's exit code and reason (see [`stage_failure`]), or 130.
 fn failed(
     mut replay: ReplayStage<'_>,
     failure: anyhow::Error,
+    interrupted: bool,
     out: &Path,
     video: &Path,
     wall: Duration,
@@ -219,7 +243,11 @@ fn failed(
         .as_ref()
         .and_then(InputCompleteness::from_status);
     let reason = format!("{failure:#}");
-    if let Err(e) = replay.tally.finish(out, video, wall, input, Some(&reason)) {
+    let ending = match interrupted {
+        true => Ending::Interrupted(&reason),
+        false => Ending::Failed(&reason),
+    };
+    if let Err(e) = replay.tally.finish(out, video, wall, input, ending) {
         tracing::warn!("{e:#}");
     }
     Err(failure)
@@ -261,7 +289,8 @@ fn last_error(path: &Path) -> Option<String> {
 }
 
 /// The config the group runs with: the chosen camera replays `video`, alone, under a
-/// private prefix, with its store in `out/state`.
+/// private prefix, with its store in `out/state`; written into `out`, created
+/// here once the site's config and `--camera` are accepted.
 fn effective_config(
     args: &Args,
     video: &Path,
@@ -308,6 +337,8 @@ source = """#,
     config.site.service_prefix = format!("isochron-replay-{}", std::process::id());
     config.site.state_dir = out.join("state");
     config.ipc.lossless = speed == Speed::Max;
+    // Inputs accepted: the first thing created.
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let path = out.join("config.toml");
     std::fs::write(&path, toml::to_string_pretty(&config)?)
         .with_context(|| format!("writing {}", path.display()))?;

@@ -124,7 +124,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 
     let total = (args.days * 86_400.0 * args.fps).round() as u64;
     let started = Instant::now();
-    let resent = send_days(
+    let (resent, sent) = send_days(
         &args,
         &mut pipe,
         &profile,
@@ -132,7 +132,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         start_ns,
         total,
     )?;
-    let end_ns = start_ns + (total as f64 * 1e9 / args.fps).round() as i64;
+    // Stopped early, the cascade still gets the end of stream: it stores every
+    // whole minute it was sent.
+    let end_ns = start_ns + (sent as f64 * 1e9 / args.fps).round() as i64;
     end_of_stream(&mut pipe, &activity, end_ns)?;
     let wall = started.elapsed();
     pipe.cascade.stop();
@@ -147,14 +149,24 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         format_rfc3339(start_ns)
     );
     println!(
-        "synth: {total} frames in {:.1} s ({:.0} frames/s, {:.1} simulated days per minute), {seconds} activity seconds, {} frames sent again, {} cascade restarts",
+        "synth: {sent} frames in {:.1} s ({:.0} frames/s, {:.1} simulated days per minute), {seconds} activity seconds, {} frames sent again, {} cascade restarts",
         wall.as_secs_f64(),
-        total as f64 / wall.as_secs_f64().max(1e-9),
-        args.days / wall.as_secs_f64().max(1e-9) * 60.0,
+        sent as f64 / wall.as_secs_f64().max(1e-9),
+        sent as f64 / total as f64 * args.days / wall.as_secs_f64().max(1e-9) * 60.0,
         resent,
         pipe.cascade.starts - 1
     );
     print_store(&store_path(&out, &args.camera), &args.camera)?;
+    if sent < total {
+        return Err(isochron_exit::Fatal::new(
+            isochron_exit::INTERRUPTED,
+            format!(
+                "synth: interrupted (SIGINT or SIGTERM) after {sent} of {total} frames, until {}: the store keeps every whole minute sent",
+                format_rfc3339(end_ns)
+            ),
+        )
+        .into());
+    }
     Ok(ExitCode::SUCCESS)
 }
 
@@ -197,7 +209,8 @@ struct Pipe {
 }
 
 /// Sends the `total` frames of the crowd from `start_ns`; returns how many were
-/// sent again.
+/// sent again and how many were sent (fewer than `total` when SIGINT or
+/// SIGTERM stopped it).
 fn send_days(
     args: &Args,
     pipe: &mut Pipe,
@@ -205,7 +218,7 @@ fn send_days(
     (grid_w, grid_h): (u32, u32),
     start_ns: i64,
     total: u64,
-) -> anyhow::Result<u64> {
+) -> anyhow::Result<(u64, u64)> {
     let k = (grid_w * grid_h) as usize;
     pipe.pb.set_length(total);
     let mut synth = Synth::new(
@@ -244,13 +257,16 @@ fn send_days(
             &pipe.pb,
         )?;
         if i % CHECK_EVERY == 0 {
+            if isochron_runtime::ipc::stop_signalled() {
+                return Ok((resent, i + 1));
+            }
             pipe.cascade.check(&pipe.motion, &pipe.pb)?;
             pipe.pb.set_position(i);
             pipe.pb.set_message(sim_time(start_ns, t_ns, args.days));
         }
     }
     pipe.pb.set_position(total);
-    Ok(resent)
+    Ok((resent, total))
 }
 
 /// Sends end of stream at `end_ns`, then waits until the cascade has stored

@@ -222,7 +222,9 @@ fn simulated_box(b: usize, cameras: usize, domain: u16, stop: Arc<AtomicBool>) -
         let (t0, start_ns) = (Instant::now(), wall_now_ns());
         for second in 0u64.. {
             for (k, (id, writer)) in ids.iter().zip(&writers).enumerate() {
-                let at = Duration::from_secs_f64(second as f64 + k as f64 / PER_BOX as f64);
+                let at = isochron_config::clock::saturating_secs(
+                    second as f64 + k as f64 / PER_BOX as f64,
+                );
                 if let Some(wait) = at.checked_sub(t0.elapsed()) {
                     std::thread::sleep(wait);
                 }

@@ -19,31 +19,10 @@ use isochron_wire::{
 };
 use parking_lot::Mutex;
 
-/// The office hallway of the paper's figure: activity from 6 am, a lull at lunch, the
-/// busiest time at 4:30 pm, quiet after 9 pm.
-const OFFICE: &str = "minute_of_day,activity
-0,0
-330,0
-360,0.05
-420,0.3
-480,0.7
-540,0.9
-600,0.8
-660,0.75
-720,0.55
-750,0.4
-780,0.45
-840,0.7
-900,0.85
-960,0.95
-990,1.0
-1020,0.8
-1080,0.5
-1140,0.3
-1200,0.15
-1260,0.03
-1320,0
-";
+/// The office hallway of the paper's figure (the profile the docs' `synth`
+/// commands use): activity from 6 am, a lull at lunch, the busiest time at
+/// 4:30 pm, quiet after 9 pm.
+const OFFICE: &str = include_str!("../../config/profiles/office.csv");
 
 /// The profile at `minute` (fractional), linear between rows, as synth reads it.
 fn office_at(minute: f64) -> f64 {
@@ -409,7 +388,7 @@ fn killing_the_cascade_at_random_moments_loses_at_most_the_minute_in_progress() 
         } else {
             0.2 + 1.3 * rng.f64()
         };
-        std::thread::sleep(Duration::from_secs_f64(wait));
+        std::thread::sleep(isochron_config::clock::saturating_secs(wait));
         if synth.wait(Duration::ZERO).is_some() {
             break; // the run ended before all kills
         }

@@ -334,3 +334,69 @@ fn doctor_fails_what_the_services_refuse_and_warns_what_they_warn() {
         out.stdout
     );
 }
+
+/// What the services would meet at run time, checked with their own rules: a
+/// zone wholly outside the frame (the gate warns it never raises events), a
+/// state directory that cannot be made (under a regular file, under /proc), a
+/// store of a daily model under a `day_types` config (the cascade refuses it).
+#[test]
+fn doctor_checks_zones_the_state_dir_and_the_store_s_cycle_as_the_services_do() {
+    let site = TestSite::new("doctor-zones", "");
+    let video = isochron_tests::vtest().display().to_string();
+    let camera = format!(
+        "[[camera]]\nid = \"cam01\"\nsource = \"{video}\"\n\
+         [[camera.zone]]\nname = \"door\"\npolygon = [[10, 10], [200, 10], [200, 200]]\n\
+         [[camera.zone]]\nname = \"beyond\"\npolygon = [[5000, 5000], [6000, 5000], [6000, 6000]]\n"
+    );
+    let line = |out: &Finished, start: &str, words: &[&str]| {
+        assert!(
+            out.stdout
+                .lines()
+                .any(|l| l.starts_with(start) && words.iter().all(|w| l.contains(w))),
+            "no '{start}' line with {words:?} in\n{}",
+            out.stdout
+        );
+    };
+    site.write_config(&camera);
+    let out = doctor(&site, &[]);
+    line(
+        &out,
+        "warn zones cam01:",
+        &["beyond cover no block centre", "768x576"],
+    );
+
+    std::fs::write(site.path("a-file"), b"").unwrap();
+    for state_dir in [
+        site.path("a-file").join("state"),
+        "/proc/isochron-state".into(),
+    ] {
+        let config = std::fs::read_to_string(site.config_path()).unwrap();
+        let config = config.replace(
+            "state_dir = \"state\"",
+            &format!("state_dir = \"{}\"", state_dir.display()),
+        );
+        std::fs::write(site.config_path(), config).unwrap();
+        let out = doctor(&site, &[]);
+        assert_eq!(out.status.code(), Some(1), "{}", out.stdout);
+        line(&out, "FAIL state dir:", &["cannot be created"]);
+        site.write_config(&camera);
+    }
+
+    // A daily store, then the site switched to day types.
+    let state = site.path("state");
+    std::fs::create_dir_all(&state).unwrap();
+    let meta = isochron_store::StoreMeta::new(
+        "cam01",
+        isochron_wire::geometry::BlockGrid::new(768, 576, 16),
+        isochron_config::clock::Cycle::Daily,
+        0,
+    );
+    drop(
+        isochron_store::Store::open_or_create(&isochron_store::store_path(&state, "cam01"), &meta)
+            .unwrap(),
+    );
+    site.write_config(&format!("[cascade]\ncycle = \"day_types\"\n\n{camera}"));
+    let out = doctor(&site, &[]);
+    assert_eq!(out.status.code(), Some(1), "{}", out.stdout);
+    line(&out, "FAIL store cam01:", &["day_types", "daily"]);
+}

@@ -158,6 +158,138 @@ fn a_missing_input_file_is_66_and_names_it() {
     }
 }
 
+/// `--out` naming a device, a FIFO or a symbolic link: 64 before any work, and
+/// the thing named is still what it was (writing to a temporary file and
+/// renaming it would have replaced it by a regular file).
+#[test]
+fn an_output_that_is_a_device_fifo_or_link_is_64_and_left_as_it_was() {
+    let site = site("front-out");
+    let store = site.path("cam01.isochron.sqlite");
+    wednesday_store(&store, "cam01", isochron_config::clock::Cycle::Daily);
+    let target = site.path("kept.csv");
+    std::fs::write(&target, "kept\n").unwrap();
+    std::os::unix::fs::symlink(&target, site.path("link.csv")).unwrap();
+    let fifo = site.path("fifo.csv");
+    assert!(
+        std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success()
+    );
+    let export = [
+        "store",
+        "export",
+        "--store",
+        "{dir}/cam01.isochron.sqlite",
+        "--camera",
+        "cam01",
+        "--out",
+    ];
+    #[rustfmt::skip]
+    let table: &[(&[&str], &str)] = &[
+        (&["/dev/full"], "/dev/full: a character device"),
+        (&["{dir}/link.csv"], "link.csv: a symbolic link (to "),
+        (&["{dir}/fifo.csv"], "fifo.csv: a FIFO"),
+    ];
+    for (out, said) in table {
+        let args: Vec<&str> = export.iter().chain(out.iter()).copied().collect();
+        fails(
+            &site,
+            &args,
+            isochron_exit::USAGE,
+            &["--out", said, "a new file's path"],
+        );
+    }
+    fails(
+        &site,
+        &[
+            "record",
+            "--config",
+            "{config}",
+            "--out",
+            "/dev/full",
+            "--duration",
+            "1",
+        ],
+        isochron_exit::USAGE,
+        &["--out /dev/full: a character device"],
+    );
+    use std::os::unix::fs::FileTypeExt;
+    let kind = |p: &Path| std::fs::symlink_metadata(p).unwrap().file_type();
+    assert!(kind(Path::new("/dev/full")).is_char_device());
+    assert!(kind(&site.path("link.csv")).is_symlink());
+    assert!(kind(&fifo).is_fifo());
+    assert_eq!(std::fs::read_to_string(&target).unwrap(), "kept\n");
+}
+
+/// A name the command line gives that the site does not configure is 64 for
+/// every command; a config that lacks what a command needs is 78.
+#[test]
+fn an_unconfigured_route_or_segment_is_64_and_a_config_without_a_box_id_78() {
+    let site = site("front-names");
+    #[rustfmt::skip]
+    let table: &[(&[&str], i32, &[&str])] = &[
+        (&["plan", "offline", "--config", "{config}", "--route", "zzz"], isochron_exit::USAGE, &["--route", "no route 'zzz'", "north"]),
+        (&["plan", "now", "--config", "{config}", "--routes", "zzz"], isochron_exit::USAGE, &["--routes", "no route 'zzz'", "north"]),
+        (&["plot", "daily", "--config", "{config}", "--segment", "nosuch", "--out", "{dir}/d.png"], isochron_exit::USAGE, &["no segment 'nosuch'"]),
+        (&["keystore", "enclave", "{dir}/keys", "--config", "{config}"], isochron_exit::CONFIG, &["link.box_id is not set"]),
+    ];
+    for (args, code, words) in table {
+        fails(&site, args, *code, words);
+    }
+}
+
+/// replay refusing its config or `--camera` creates nothing: not even `--out`.
+#[test]
+fn replay_refused_for_its_config_or_camera_creates_no_output_directory() {
+    let site = site("front-replay-out");
+    let video = vtest().display().to_string();
+    let broken = site.path("broken.toml");
+    std::fs::write(&broken, "[site]\nname = 3\n").unwrap();
+    let out = "{dir}/out";
+    fails(
+        &site,
+        &[
+            "replay",
+            &video,
+            "--out",
+            out,
+            "--config",
+            "{dir}/broken.toml",
+        ],
+        isochron_exit::CONFIG,
+        &["broken.toml"],
+    );
+    fails(
+        &site,
+        &[
+            "replay",
+            &video,
+            "--out",
+            out,
+            "--config",
+            "{dir}/none.toml",
+        ],
+        isochron_exit::CONFIG,
+        &["none.toml"],
+    );
+    fails(
+        &site,
+        &[
+            "replay", &video, "--out", out, "--config", "{config}", "--camera", "cam09",
+        ],
+        isochron_exit::USAGE,
+        &["--camera", "cam09"],
+    );
+    fails(
+        &site,
+        &["replay", &video, "--out", "{config}"],
+        isochron_exit::USAGE,
+        &["--out", "not a directory"],
+    );
+}
+
 #[test]
 fn a_directory_given_as_the_video_is_refused_before_anything_starts() {
     let site = site("front-dir");
@@ -363,6 +495,63 @@ fn wednesday_store(path: &Path, camera: &str, cycle: isochron_config::clock::Cyc
         .unwrap();
 }
 
+/// A store on read-only media (a tmpfs remounted read-only: a write-protected
+/// card) is read by every command that only reads: info, export, plot.
+#[test]
+fn a_store_on_read_only_media_is_read() {
+    let site = site("front-ro");
+    let card = site.path("card");
+    std::fs::create_dir(&card).unwrap();
+    let mount = |args: &[&str]| {
+        std::process::Command::new("mount")
+            .args(args)
+            .arg(&card)
+            .status()
+            .is_ok_and(|s| s.success())
+    };
+    if !mount(&["-t", "tmpfs", "-o", "size=4m", "isochron-test"]) {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "CI runs as root and must be able to mount a tmpfs"
+        );
+        eprintln!("skipped: cannot mount a tmpfs here (not root)");
+        return;
+    }
+    struct Unmount(PathBuf);
+    impl Drop for Unmount {
+        fn drop(&mut self) {
+            let _ = std::process::Command::new("umount")
+                .arg("-l")
+                .arg(&self.0)
+                .status();
+        }
+    }
+    let _unmount = Unmount(card.clone());
+    let store = card.join("cam01.isochron.sqlite");
+    wednesday_store(&store, "cam01", isochron_config::clock::Cycle::Daily);
+    assert!(mount(&["-o", "remount,ro"]), "remount read-only");
+    assert!(
+        std::fs::write(card.join("probe"), b"").is_err(),
+        "the card is read-only"
+    );
+    let arg = store.display().to_string();
+    let plot = site.path("daily.png").display().to_string();
+    for args in [
+        &["store", "info", "--store", &arg, "--camera", "cam01"][..],
+        &["store", "export", "--store", &arg, "--camera", "cam01"],
+        &[
+            "plot", "daily", "--store", &arg, "--camera", "cam01", "--out", &plot,
+        ],
+    ] {
+        let done = site.isochron(args, Duration::from_secs(60));
+        assert!(done.status.success(), "isochron {args:?}: {}", done.stderr);
+        if args[1] == "export" {
+            assert!(done.stdout.lines().count() > 120, "{}", done.stdout);
+        }
+    }
+    assert!(std::fs::metadata(&plot).unwrap().len() > 1000);
+}
+
 #[test]
 fn store_info_labels_the_last_minute_with_its_weekday() {
     let site = site("front-info");
@@ -456,4 +645,40 @@ fn a_backtest_of_too_few_counts_is_65_and_says_how_many_rows() {
             "at least 192 rows",
         ],
     );
+}
+
+/// A model of the week that learned Monday only: asked for Sunday, the map and
+/// the plan say so, 66, instead of a blank map or "no long-term data".
+#[test]
+fn a_day_the_stores_never_learned_is_66_naming_the_days_they_did() {
+    let site = site("front-day");
+    std::fs::create_dir(site.path("state")).unwrap();
+    wednesday_store(
+        &site.path("state/cam01.isochron.sqlite"),
+        "cam01",
+        isochron_config::clock::Cycle::DayTypes,
+    );
+    #[rustfmt::skip]
+    let table: &[&[&str]] = &[
+        &["costmap", "snapshot", "--config", "{config}", "--at", "07:00", "--day", "sun", "--out", "{dir}/sun.png"],
+        &["plan", "offline", "--config", "{config}", "--route", "north", "--day", "sun"],
+    ];
+    for args in table {
+        fails(
+            &site,
+            args,
+            isochron_exit::NO_INPUT,
+            &["nothing learned for sun", "learned mon"],
+        );
+    }
+    let out = site.path("mon.png").display().to_string();
+    let config = site.config_path().display().to_string();
+    let monday = site.isochron(
+        &[
+            "costmap", "snapshot", "--config", &config, "--at", "07:00", "--day", "mon", "--out",
+            &out,
+        ],
+        Duration::from_secs(60),
+    );
+    assert!(monday.status.success(), "{}", monday.stderr);
 }

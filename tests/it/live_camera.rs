@@ -502,7 +502,7 @@ fn five_percent_udp_loss_counts_damaged_frames_and_adds_no_event() {
         &lossy_url,
         &["ip", "netns", "exec", &group_ns],
     );
-    let deadline = Instant::now() + Duration::from_secs_f64(SCENE_S + 60.0);
+    let deadline = Instant::now() + isochron_config::clock::saturating_secs(SCENE_S + 60.0);
     let (mut clean_done, mut lossy_done) = (false, false);
     while !(clean_done && lossy_done) {
         assert!(

@@ -61,7 +61,11 @@
 //!   inputs, reliability, conventions, front_door (the `isochron` command given a
 //!   wrong flag value, a missing file, an unknown camera, too few counts: the
 //!   exit code of the shared table, one line naming the flag or file, no file
-//!   left behind);
+//!   left behind; an output that is a device, FIFO or link left as it was; a
+//!   store on a read-only mount read), stopping (Ctrl-C on `replay`, SIGTERM on
+//!   `synth`: 130, the group stopped, the summary and the whole minutes kept),
+//!   docs_commands (every `isochron …` command of README.md and docs/*.md: its
+//!   subcommands and flags exist, and those that need no group are run);
 //! * hostile: forged link messages from an unauthenticated Cyclone DDS participant
 //!   (`tests/ros2/link_forger.py`), raw DATA_FRAG datagrams, a forged status, a
 //!   stalled subscriber, two secured links in two network namespaces; RSS bounds
@@ -106,6 +110,7 @@ mod cascade;
 mod conventions;
 mod costmap;
 mod detector;
+mod docs_commands;
 mod doctor;
 mod exporter;
 mod forecast;
@@ -131,6 +136,7 @@ mod route_demo;
 mod route_server;
 mod scale;
 mod sros2;
+mod stopping;
 mod systemd;
 mod view;
 mod zenoh;

@@ -334,7 +334,7 @@ fn a_person_standing_closes_their_edge(
     let clip_s = |t: f64| t - offset;
 
     // Watch the server until the clip ends: when edge 10 closed and reopened.
-    let deadline = Duration::from_secs_f64(length + 10.0);
+    let deadline = isochron_config::clock::saturating_secs(length + 10.0);
     let (mut closed_at, mut reopened_at) = (None, None);
     while started.elapsed() < deadline && reopened_at.is_none() {
         std::thread::sleep(Duration::from_millis(250));

@@ -144,3 +144,56 @@ pub(super) fn check_route_graph(loaded: &LoadedConfig, report: &mut Report) {
         ),
     }
 }
+
+/// Each camera's `[[camera.zone]]`s on the block grid the gate will see (the
+/// configured analysis size, else a video file's size): a zone that covers no
+/// block centre never raises events, which the gate only warns about once it
+/// runs. A camera whose size is known only once it streams is not checked.
+pub(super) fn check_zones(loaded: &LoadedConfig, report: &mut Report) {
+    use isochron_config::SourceKind;
+    use isochron_wire::geometry::BlockGrid;
+    let block_px = loaded.config.motion.block_px;
+    for cam in loaded.config.cameras.iter().filter(|c| !c.zones.is_empty()) {
+        let size =
+            cam.width
+                .zip(cam.height)
+                .or_else(|| match cam.source_kind(&loaded.base_dir()) {
+                    SourceKind::File(p) => crate::overlay::Frame::read(&p, None)
+                        .ok()
+                        .map(|f| (f.width, f.height)),
+                    _ => None,
+                });
+        let Some((w, h)) = size else { continue };
+        let grid = BlockGrid::new(w, h, block_px);
+        let what = format!("zones {}", cam.id);
+        let empty: Vec<&str> = cam
+            .zones
+            .iter()
+            .filter(|z| grid.blocks_in(&z.polygon).is_empty())
+            .map(|z| z.name.as_str())
+            .collect();
+        if empty.is_empty() {
+            report.say(
+                Level::Ok,
+                &what,
+                format!(
+                    "{} zones on the {w}x{h} frame's {}x{} blocks",
+                    cam.zones.len(),
+                    grid.grid_w(),
+                    grid.grid_h()
+                ),
+            );
+        } else {
+            report.say(
+                Level::Warn,
+                &what,
+                format!(
+                    "{} cover no block centre of the {w}x{h} frame's {}x{} grid: they will never raise events (outside the frame, or too small; zones are in frame pixels)",
+                    empty.join(", "),
+                    grid.grid_w(),
+                    grid.grid_h()
+                ),
+            );
+        }
+    }
+}

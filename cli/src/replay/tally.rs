@@ -90,6 +90,17 @@ fn data<S: isochron_runtime::ipc::StreamType>(
     }
 }
 
+/// How a replay ended, as `summary.json` says.
+#[derive(Debug, Clone, Copy)]
+pub enum Ending<'a> {
+    /// Every stream ended.
+    Complete,
+    /// A stage failed or nothing moved: why.
+    Failed(&'a str),
+    /// SIGINT or SIGTERM stopped it: what it says.
+    Interrupted(&'a str),
+}
+
 impl Tally {
     /// A tally of `camera` for `inputs`, writing its files into `out`.
     pub fn new(camera: &str, inputs: &ReplayInputs, out: &Path) -> anyhow::Result<Self> {
@@ -261,16 +272,22 @@ impl Tally {
     }
 
     /// Writes `summary.json`; `input` is capture's account of the file (see
-    /// [`InputCompleteness`]), if it gave one; `failure` why the replay stopped
-    /// before every stream ended (`null` when it did not).
+    /// [`InputCompleteness`]), if it gave one; `ending` how the replay ended
+    /// (`"failure"`: why it stopped before every stream ended, `null` when it
+    /// did not; `"interrupted"`: stopped by SIGINT or SIGTERM).
     pub fn finish(
         &mut self,
         out: &Path,
         video: &Path,
         wall: Duration,
         input: Option<InputCompleteness>,
-        failure: Option<&str>,
+        ending: Ending<'_>,
     ) -> anyhow::Result<()> {
+        let (failure, interrupted) = match ending {
+            Ending::Complete => (None, false),
+            Ending::Failed(why) => (Some(why), false),
+            Ending::Interrupted(why) => (Some(why), true),
+        };
         self.events_out.flush()?;
         self.detections_out.flush()?;
         let counts: serde_json::Map<String, serde_json::Value> = self
@@ -287,6 +304,7 @@ impl Tally {
             "frames_per_s": frames as f64 / wall.as_secs_f64().max(1e-9),
             "gate": self.gate,
             "failure": failure,
+            "interrupted": interrupted,
             "input": match input {
                 Some(i) => json!({
                     "frames_stated": (i.frames_stated > 0).then_some(i.frames_stated),
@@ -301,9 +319,11 @@ impl Tally {
                 }),
             },
         });
+        // Whole or not at all: a full disk leaves no empty summary.
         let path = out.join("summary.json");
-        std::fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n")
+        let file = crate::common::OutFile::create("summary.json", &path)?;
+        std::fs::write(file.path(), serde_json::to_string_pretty(&summary)? + "\n")
             .with_context(|| format!("writing {}", path.display()))?;
-        Ok(())
+        file.commit()
     }
 }

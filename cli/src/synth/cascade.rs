@@ -70,14 +70,18 @@ impl CascadeProc {
             .append(true)
             .open(&self.log)
             .with_context(|| format!("opening {}", self.log.display()))?;
-        let child = Command::new(&self.program)
+        let mut command = Command::new(&self.program);
+        command
             .arg("--config")
             .arg(&self.config)
             .arg("--camera")
             .arg(&self.camera)
             .stdin(Stdio::null())
             .stdout(log.try_clone()?)
-            .stderr(log)
+            .stderr(log);
+        // Ctrl-C stops synth, which ends the cascade after what it sent.
+        crate::launch::held_by_this_process(&mut command);
+        let child = command
             .spawn()
             .with_context(|| format!("starting {}", self.program.display()))?;
         let pid = child.id();

@@ -3,8 +3,6 @@
 //! so a missing or undecodable one ends the process with its permanent code at
 //! once; a live camera is opened by the stage, which backs off while it cannot.
 
-use std::time::Duration;
-
 use isochron_config::clock::parse_rfc3339;
 use isochron_config::{CameraConfig, SourceKind};
 use isochron_exit::{self as exit, Fatal};
@@ -66,8 +64,8 @@ pub fn run(ctx: ServiceContext) -> Result<(), Fatal> {
 fn stream_options(cam: &CameraConfig) -> StreamOptions {
     StreamOptions {
         transport: cam.transport,
-        connect_timeout: Duration::from_secs_f64(cam.connect_timeout_s),
-        read_timeout: Duration::from_secs_f64(cam.read_timeout_s),
+        connect_timeout: isochron_config::clock::saturating_secs(cam.connect_timeout_s),
+        read_timeout: isochron_config::clock::saturating_secs(cam.read_timeout_s),
     }
 }
 
@@ -92,8 +90,8 @@ fn settings(cam: &CameraConfig, kind: &SourceKind) -> Result<Settings, Fatal> {
         speed: cam.speed,
         start_ns,
         backoff: Backoff::new(
-            Duration::from_secs_f64(cam.reconnect_initial_s),
-            Duration::from_secs_f64(cam.reconnect_max_s),
+            isochron_config::clock::saturating_secs(cam.reconnect_initial_s),
+            isochron_config::clock::saturating_secs(cam.reconnect_max_s),
         ),
     })
 }

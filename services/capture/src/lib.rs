@@ -62,7 +62,7 @@ impl Pacer {
     pub fn new(fps: f64, speed: Option<f64>) -> Self {
         Pacer {
             t0: Instant::now(),
-            period: speed.map(|s| Duration::from_secs_f64(1.0 / (fps * s))),
+            period: speed.map(|s| isochron_config::clock::saturating_secs(1.0 / (fps * s))),
         }
     }
 

@@ -31,7 +31,9 @@ impl LiveEdge {
     /// For a stream stating `fps` frames a second (0: unknown).
     pub fn new(fps: f64) -> Self {
         let half_interval = match fps {
-            f if f.is_finite() && f > 0.0 => Duration::from_secs_f64((0.5 / f).min(60.0)),
+            f if f.is_finite() && f > 0.0 => {
+                isochron_config::clock::saturating_secs((0.5 / f).min(60.0))
+            }
             _ => Duration::ZERO,
         };
         LiveEdge {

@@ -394,7 +394,7 @@ impl FrameSource for StreamSource {
         frame.check(dst)?;
         // Never less than two frame intervals: a slow camera is not a stalled one.
         let interval = match self.fps {
-            f if f > 0.0 => Duration::from_secs_f64(2.0 / f),
+            f if f > 0.0 => isochron_config::clock::saturating_secs(2.0 / f),
             _ => Duration::ZERO,
         };
         let timeout = self.read_timeout.max(interval);

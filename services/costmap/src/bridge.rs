@@ -146,7 +146,7 @@ impl Bridge {
             grid,
             params: CostParams::from_config(c),
             cameras,
-            stale: Duration::from_secs_f64(c.stale_s),
+            stale: isochron_config::clock::saturating_secs(c.stale_s),
             confirm_hold_ns: (c.confirm_hold_s * NS_PER_S as f64) as i64,
         })
     }

@@ -62,7 +62,7 @@ impl RouteFeed {
             graph,
             width_m: c.route_edge_width_m,
             settings: TrackerSettings::from_config(c),
-            every: Duration::from_secs_f64(c.route_update_s),
+            every: isochron_config::clock::saturating_secs(c.route_update_s),
             next: now,
             started: now,
             laid: None,

@@ -127,8 +127,8 @@ impl CostmapStage {
             detections.push(Input::open(ipc, &cam.id)?);
         }
         let inputs = (activity, detections, Notified(PlanServer::new(ipc)?));
-        let snapshot_every =
-            (c.snapshot_every_s > 0.0).then(|| Duration::from_secs_f64(c.snapshot_every_s));
+        let snapshot_every = (c.snapshot_every_s > 0.0)
+            .then(|| isochron_config::clock::saturating_secs(c.snapshot_every_s));
         let now = Instant::now();
         let route_feed = match (&route_graph, &ros) {
             (Some(graph), Some(_)) => Some(RouteFeed::new(graph.clone(), c, now)),
@@ -146,7 +146,7 @@ impl CostmapStage {
             },
             ros,
             counters: Counters::default(),
-            period: Duration::from_secs_f64(1.0 / c.publish_hz),
+            period: isochron_config::clock::saturating_secs(1.0 / c.publish_hz),
             snapshot_every,
             next_publish: now,
             next_snapshot: snapshot_every.map(|e| now + e),
@@ -194,7 +194,7 @@ impl CostmapStage {
             && now >= ros.next_forecast
         {
             let c = &self.planning.loaded.config.costmap;
-            ros.next_forecast = now + Duration::from_secs_f64(c.forecast_every_s);
+            ros.next_forecast = now + isochron_config::clock::saturating_secs(c.forecast_every_s);
             let now_ns = self.bridge.newest(now).map_or_else(wall_now_ns, |(t, _)| t);
             let t_star = self
                 .bridge
@@ -502,7 +502,7 @@ fn ros_output(loaded: &LoadedConfig, grid: &MapGrid, route_server: bool) -> Resu
     );
     Ok(Ros {
         output,
-        tracker: DeltaTracker::new(Duration::from_secs_f64(c.full_every_s)),
+        tracker: DeltaTracker::new(isochron_config::clock::saturating_secs(c.full_every_s)),
         geometry: geometry_key(grid),
         frame_id: c.frame_id.clone(),
         publish_unknown: c.publish_unknown,

@@ -76,7 +76,10 @@ impl ExporterStage {
         for s in &services {
             readers.push(ipc.status_subscriber(&s.camera, s.stage)?);
         }
-        let table = Table::new(services, Duration::from_secs_f64(config.stale_after_s));
+        let table = Table::new(
+            services,
+            isochron_config::clock::saturating_secs(config.stale_after_s),
+        );
         let mut registry = Registry::default();
         let http = HttpMetrics::default();
         http.register(&mut registry);
@@ -84,7 +87,7 @@ impl ExporterStage {
         let limits = Limits {
             max_connections: config.max_connections,
             max_header_bytes: config.max_header_bytes,
-            request_timeout: Duration::from_secs_f64(config.request_timeout_s),
+            request_timeout: isochron_config::clock::saturating_secs(config.request_timeout_s),
         };
         let server =
             Server::start(listener, limits, Arc::new(registry), http.clone()).map_err(|e| {

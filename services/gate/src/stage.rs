@@ -145,7 +145,8 @@ impl<'ipc> GateStage<'ipc> {
             ring.clone(),
             queue,
             slots,
-            (!lossless).then(|| Duration::from_secs_f64(config.gate.detector.slot_wait_s)),
+            (!lossless)
+                .then(|| isochron_config::clock::saturating_secs(config.gate.detector.slot_wait_s)),
             waker,
         )?;
         let gate = Gate::new(

@@ -85,7 +85,7 @@ impl MqttStage {
             client_id: config.client_id(site_name),
             status_topic: topics.status(),
             keepalive: Duration::from_secs(config.keepalive_s),
-            reconnect_max: Duration::from_secs_f64(config.reconnect_max_s),
+            reconnect_max: isochron_config::clock::saturating_secs(config.reconnect_max_s),
             tls: tls_config,
             login: credentials,
         };

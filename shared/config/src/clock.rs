@@ -156,6 +156,20 @@ pub fn format_rfc3339(utc_ns: i64) -> String {
     format!("{ts:.3}")
 }
 
+/// `seconds` as a [`Duration`], saturating where `Duration::from_secs_f64`
+/// would panic: NaN, zero or less is zero, more than a `Duration` holds is
+/// `Duration::MAX`. For a value already checked (a config key's range) or one
+/// from a peer or a file (a camera's stated frame rate turned into an
+/// interval); a flag a person types is refused instead
+/// (`cli/src/values.rs`).
+pub fn saturating_secs(seconds: f64) -> std::time::Duration {
+    match std::time::Duration::try_from_secs_f64(seconds) {
+        Ok(d) => d,
+        Err(_) if seconds > 0.0 => std::time::Duration::MAX,
+        Err(_) => std::time::Duration::ZERO,
+    }
+}
+
 /// The wall clock now, UTC ns. Only live sources and latency measurements use it.
 pub fn wall_now_ns() -> i64 {
     Timestamp::now().as_nanosecond() as i64
@@ -184,6 +198,18 @@ pub fn parse_hhmm(s: &str) -> Option<u32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn seconds_saturate_instead_of_panicking() {
+        use std::time::Duration;
+        assert_eq!(saturating_secs(1.5), Duration::from_millis(1500));
+        for zero in [0.0, -1.0, f64::NAN, f64::NEG_INFINITY] {
+            assert_eq!(saturating_secs(zero), Duration::ZERO, "{zero}");
+        }
+        for huge in [1e30, f64::INFINITY, 2.0 / 1e-300] {
+            assert_eq!(saturating_secs(huge), Duration::MAX, "{huge}");
+        }
+    }
 
     #[test]
     fn t_star_is_local_minute_of_day() {

@@ -32,6 +32,9 @@ pub const SOFTWARE: i32 = 70;
 pub const TEMPFAIL: i32 = 75;
 /// Configuration error.
 pub const CONFIG: i32 = 78;
+/// Stopped by SIGINT (Ctrl-C) or SIGTERM before it finished (128 + SIGINT, as
+/// shells report it); what the command had done is kept and said.
+pub const INTERRUPTED: i32 = 130;
 
 /// True for codes that restarting cannot fix.
 pub fn is_permanent(code: i32) -> bool {

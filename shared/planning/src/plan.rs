@@ -48,6 +48,16 @@ pub enum PlanError {
     /// Data is missing (a store, a camera's block grid).
     #[error("{0}")]
     NoData(String),
+    /// The stores of a weekly model learned nothing on the day asked for.
+    #[error(
+        "nothing learned for {day}: the long-term stores learned {learned} (a weekly model draws and plans a day only once that weekday was seen)"
+    )]
+    DayNotLearned {
+        /// The day asked for (`sun`).
+        day: String,
+        /// The days learned (`mon, tue, wed`).
+        learned: String,
+    },
     /// The configuration cannot be used (a camera's floor points).
     #[error("{0}")]
     Config(String),

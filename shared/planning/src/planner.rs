@@ -7,8 +7,8 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use isochron_config::clock::Cycle;
-use isochron_config::{CostmapConfig, LoadedConfig, RouteConfig};
+use isochron_config::clock::{Cycle, MINUTES_PER_DAY};
+use isochron_config::{CostmapConfig, DAY_NAMES, LoadedConfig, RouteConfig};
 use isochron_store::{Model, Store, StoreError, store_path};
 use isochron_wire::BlockActivity;
 use isochron_wire::geometry::BlockGrid;
@@ -384,6 +384,41 @@ impl Planner {
             .iter()
             .zip(&self.models)
             .map(|(c, m)| (c.config.id.as_str(), m.is_some(), c.homography.is_some()))
+    }
+
+    /// The days of the week (0 = Monday) on which some camera's long-term model
+    /// has a forecast (a row learned, or, with day types, its type's row); every
+    /// day for a daily model that learned anything.
+    pub fn learned_days(&mut self) -> Result<Vec<u32>, PlanError> {
+        self.refresh()?;
+        let models = self.loaded_models();
+        let day_has = |d: u32| {
+            let minutes = d * MINUTES_PER_DAY..(d + 1) * MINUTES_PER_DAY;
+            models
+                .iter()
+                .flatten()
+                .any(|m| minutes.clone().any(|t| m.bin(t).is_some()))
+        };
+        Ok(match self.cycle {
+            Cycle::Daily if day_has(0) => (0..7).collect(),
+            Cycle::Daily => Vec::new(),
+            Cycle::Weekly | Cycle::DayTypes => (0..7).filter(|&d| day_has(d)).collect(),
+        })
+    }
+
+    /// Refuses `day` (0 = Monday) of a weekly model when the stores learned
+    /// something but nothing for that day: a blank map or "no data" would look
+    /// like a quiet day. Nothing learned at all is for the caller's own message.
+    pub fn check_day_learned(&mut self, day: u32) -> Result<(), PlanError> {
+        let learned = self.learned_days()?;
+        if learned.is_empty() || learned.contains(&day) {
+            return Ok(());
+        }
+        let name = |d: &u32| DAY_NAMES[(*d % 7) as usize];
+        Err(PlanError::DayNotLearned {
+            day: name(&day).to_string(),
+            learned: learned.iter().map(name).collect::<Vec<_>>().join(", "),
+        })
     }
 
     /// Where the long-term stores are looked for, and what is missing, as an error.

@@ -441,6 +441,24 @@ struct Layout {
     map_bottom: usize,
 }
 
+/// `text` in lines of at most `columns` characters, broken at spaces (a word
+/// longer than a line is cut); none for an empty text.
+fn wrapped(text: &str, columns: usize) -> Vec<String> {
+    let columns = columns.max(1);
+    let mut lines: Vec<String> = Vec::new();
+    for word in text.split_whitespace() {
+        let word: String = word.chars().take(columns).collect();
+        match lines.last_mut() {
+            Some(last) if last.chars().count() + 1 + word.chars().count() <= columns => {
+                last.push(' ');
+                last.push_str(&word);
+            }
+            _ => lines.push(word),
+        }
+    }
+    lines
+}
+
 /// The picture for people, as PNG bytes.
 pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
     let (w, h) = (s.grid.width as usize, s.grid.height as usize);
@@ -449,7 +467,12 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
     // Text at twice the font's size on wide pictures.
     let ts = if iw >= 480 { 2 } else { 1 };
     let line = (font::HEIGHT + 3) * ts;
-    let top = if s.caption.is_empty() { 0 } else { line + 6 };
+    let caption = wrapped(s.caption, (iw - 8) / (font::ADVANCE * ts));
+    let top = if caption.is_empty() {
+        0
+    } else {
+        caption.len() * line + 6
+    };
     let map_bottom = top + h * scale;
     let l = Layout {
         w,
@@ -471,8 +494,8 @@ pub fn png_bytes(s: &Snapshot<'_>) -> Result<Vec<u8>, SnapshotError> {
     draw_cells(&mut img, s, &l);
     draw_coverage(&mut img, s, &l);
     draw_outlines(&mut img, s, &l);
-    if !s.caption.is_empty() {
-        img.text(4, 4, s.caption, ts);
+    for (i, text) in caption.iter().enumerate() {
+        img.text(4, 4 + i * line, text, ts);
     }
     let legend_y = draw_cost_scale(&mut img, &l);
     draw_legend(&mut img, s, &l, legend_y);

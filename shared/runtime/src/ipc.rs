@@ -321,7 +321,7 @@ impl Ipc {
             .initial_max_slice_len(max_len.max(1))
             .max_loaned_samples(MAX_LOANED);
         if self.config.lossless {
-            let timeout = Duration::from_secs_f64(self.config.lossless_timeout_s);
+            let timeout = isochron_config::clock::saturating_secs(self.config.lossless_timeout_s);
             let stream = S::STREAM;
             builder = builder
                 .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)

@@ -64,6 +64,7 @@ pub mod migrate;
 mod model;
 mod rows;
 mod spans;
+
 #[cfg(test)]
 mod tests;
 
@@ -134,15 +135,22 @@ impl Store {
     /// ([`Store::check_grid`]) once it knows it.
     pub fn open_writer(path: &Path, camera: &str, cycle: Cycle) -> Result<Store, StoreError> {
         let store = Store::open(path, camera, false)?;
-        if store.meta.cycle != cycle {
-            return Err(StoreError::Cycle {
-                file: path.to_path_buf(),
-                expected: cycle.name().into(),
-                found: store.meta.cycle.name().into(),
-            });
-        }
+        store.check_cycle(cycle)?;
         store.verify()?;
         Ok(store)
+    }
+
+    /// Refuses a store of another cycle than `cycle` (`cascade.cycle`): its rows
+    /// mean other minutes.
+    pub fn check_cycle(&self, cycle: Cycle) -> Result<(), StoreError> {
+        if self.meta.cycle == cycle {
+            return Ok(());
+        }
+        Err(StoreError::Cycle {
+            file: self.path.clone(),
+            expected: cycle.name().into(),
+            found: self.meta.cycle.name().into(),
+        })
     }
 
     /// Opens an existing store read-only, e.g. while the cascade writes it. It must
@@ -151,6 +159,12 @@ impl Store {
         Store::open(path, camera, true)
     }
 
+    /// Opens `path` (checked first: the header, then the application id,
+    /// the format version and the camera). A read-only open on read-only media
+    /// (a write-protected card, a read-only mount), where SQLite cannot make
+    /// the shared-memory file WAL mode reads through, reads the file as
+    /// immutable: what its writer last checkpointed (all of it, for a writer
+    /// that closed).
     fn open(path: &Path, camera: &str, read_only: bool) -> Result<Store, StoreError> {
         let file = path.to_path_buf();
         check_sqlite_header(path, camera)?;
@@ -159,12 +173,12 @@ impl Store {
         } else {
             OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_NO_MUTEX
         };
-        let conn = Connection::open_with_flags(path, flags).map_err(|e| sql_err(path, e))?;
-        conn.busy_timeout(BUSY_TIMEOUT)
-            .map_err(|e| sql_err(path, e))?;
-        let app: i32 = conn
-            .pragma_query_value(None, "application_id", |r| r.get(0))
-            .map_err(|e| sql_err(path, e))?;
+        let (conn, app) = match connect(path, flags) {
+            Err(_) if read_only && on_read_only_media(path) => {
+                connect_immutable(path).map_err(|e| sql_err(path, e))?
+            }
+            other => other.map_err(|e| sql_err(path, e))?,
+        };
         if app != APPLICATION_ID {
             return Err(StoreError::Foreign {
                 file,
@@ -510,4 +524,56 @@ impl Store {
         self.spans.add(commit.minute);
         Ok(())
     }
+}
+
+/// A connection to `path` with `flags`, and the file's application id (the
+/// first read: where opening a WAL database without its shared memory fails).
+fn connect(path: &Path, flags: OpenFlags) -> rusqlite::Result<(Connection, i32)> {
+    let conn = Connection::open_with_flags(path, flags)?;
+    conn.busy_timeout(BUSY_TIMEOUT)?;
+    let app = conn.pragma_query_value(None, "application_id", |r| r.get(0))?;
+    Ok((conn, app))
+}
+
+/// [`connect`] read-only to a file nothing can write (SQLite's `immutable`).
+fn connect_immutable(path: &Path) -> rusqlite::Result<(Connection, i32)> {
+    let mut uri = url_path(path);
+    uri.insert_str(0, "file:");
+    uri.push_str("?immutable=1");
+    connect(
+        Path::new(&uri),
+        OpenFlags::SQLITE_OPEN_READ_ONLY
+            | OpenFlags::SQLITE_OPEN_NO_MUTEX
+            | OpenFlags::SQLITE_OPEN_URI,
+    )
+}
+
+/// `path`, absolute, with the characters a URI reserves percent-encoded.
+fn url_path(path: &Path) -> String {
+    let absolute = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    let mut out = String::new();
+    for b in absolute.as_os_str().as_encoded_bytes() {
+        match b {
+            b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'/' | b'-' | b'_' | b'.' | b'~' => {
+                out.push(*b as char)
+            }
+            _ => out.push_str(&format!("%{b:02X}")),
+        }
+    }
+    out
+}
+
+/// True if the directory of `path` cannot be written (a read-only file system,
+/// or no write permission): no writer can be changing the file.
+fn on_read_only_media(path: &Path) -> bool {
+    use std::os::unix::ffi::OsStrExt;
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let Ok(c) = std::ffi::CString::new(dir.as_os_str().as_bytes()) else {
+        return false;
+    };
+    // SAFETY: a valid NUL-terminated path.
+    unsafe { libc::access(c.as_ptr(), libc::W_OK) != 0 }
 }

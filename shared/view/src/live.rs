@@ -125,7 +125,7 @@ impl ClientLimits {
             budget_bytes: view.client_budget_bytes(),
             memory_budget_bytes: view.memory_budget_bytes(),
             max_clients: view.max_clients as usize,
-            stall: Duration::from_secs_f64(view.client_stall_s),
+            stall: isochron_config::clock::saturating_secs(view.client_stall_s),
         }
     }
 }

@@ -99,3 +99,16 @@ fn floor_plans_load_from_pgm_and_png() {
     let p = FloorPlan::load(&png_path).unwrap();
     assert_eq!(p.grey, vec![0, 60]);
 }
+
+#[test]
+fn a_long_caption_wraps_at_spaces_and_is_never_cut() {
+    let caption = "demo: expected cost at Sun 16:30 (3 days learned)";
+    let lines = wrapped(caption, 20);
+    assert_eq!(
+        lines,
+        ["demo: expected cost", "at Sun 16:30 (3 days", "learned)"]
+    );
+    assert_eq!(lines.join(" "), caption);
+    assert!(wrapped("", 20).is_empty());
+    assert_eq!(wrapped("abcdef", 4), ["abcd"]);
+}
