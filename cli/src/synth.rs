@@ -121,6 +121,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     };
     pipe.cascade.start(&pipe.pb)?;
     pipe.cascade.wait_subscribed(&pipe.motion, &pipe.pb)?;
+    pipe.cascade.watch_status(&ipc)?;
 
     let total = (args.days * 86_400.0 * args.fps).round() as u64;
     let started = Instant::now();

@@ -53,7 +53,7 @@
 //!   synth` made from a profile busy 08:00–18:00 (cost where the camera sees at
 //!   10:00, zero at 03:00, -1 outside, the JSON grid, `--at 25:00` exits 64 with one
 //!   line; `--day` on a weekly store busy on Mondays in one half of the view and on
-//!   Tuesdays in the other: each day lights its own half, an unlearned day nothing,
+//!   Tuesdays in the other: each day lights its own half, an unlearned day 66 naming the learned ones,
 //!   `--day funday` exits 64 with one line);
 //! * operations (kill -9 under `isochron up`, SIGTERM, a hung service, a reader
 //!   that never reads, a foreign publisher of malformed samples; an ignored
@@ -64,7 +64,8 @@
 //!   left behind; an output that is a device, FIFO or link left as it was; a
 //!   store on a read-only mount read), stopping (Ctrl-C on `replay`, SIGTERM on
 //!   `synth`: 130, the group stopped, the summary and the whole minutes kept),
-//!   docs_commands (every `isochron …` command of README.md and docs/*.md: its
+//!   full_disk (`synth` and `replay` on a tmpfs that fills: 69 within seconds,
+//!   saying why, no empty summary), docs_commands (every `isochron …` command of README.md and docs/*.md: its
 //!   subcommands and flags exist, and those that need no group are run);
 //! * hostile: forged link messages from an unauthenticated Cyclone DDS participant
 //!   (`tests/ros2/link_forger.py`), raw DATA_FRAG datagrams, a forged status, a
@@ -115,6 +116,7 @@ mod doctor;
 mod exporter;
 mod forecast;
 mod front_door;
+mod full_disk;
 mod gate;
 mod hostile;
 mod inputs;

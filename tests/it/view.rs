@@ -1259,12 +1259,26 @@ fn a_snapshot_of_a_weekly_store_draws_the_day_asked_for() {
         );
         assert_eq!(lit(&rows, !west), 0, "{day}: the other half is quiet");
     }
-    // A day the store never learned: nothing expected.
-    let (wed, _) = snapshot_cells(&site, &["--at", "10:00", "--day", "wednesday"]);
-    assert_eq!(
-        (&wed["day"], &wed["cells_above_zero"]),
-        (&"wed".into(), &0.into())
+    // A day the store never learned: said, 66, and no picture (a blank map
+    // would look like a quiet day).
+    let out = site.path("wed.png");
+    let done = snapshot(
+        &site,
+        &["--at", "10:00", "--day", "wednesday"],
+        out.to_str().unwrap(),
     );
+    assert_eq!(
+        done.status.code(),
+        Some(isochron_exit::NO_INPUT),
+        "{}",
+        done.stderr
+    );
+    assert!(
+        done.stderr.contains("nothing learned for wed") && done.stderr.contains("learned mon, tue"),
+        "{}",
+        done.stderr
+    );
+    assert!(!out.exists());
 
     // A bad --day: one line, the usage exit code.
     let out = site.path("bad-day.png").display().to_string();

@@ -11,7 +11,9 @@ use anyhow::{Context, bail};
 use indicatif::ProgressBar;
 use isochron_config::IpcConfig;
 use isochron_exit as exit;
-use isochron_runtime::ipc::{Activity, Ipc, Motion, StreamPublisher};
+use isochron_runtime::counters;
+use isochron_runtime::health::status_counters;
+use isochron_runtime::ipc::{Activity, Ipc, Motion, StatusSubscriber, StreamPublisher};
 use isochron_runtime::names::ServiceNames;
 use isochron_runtime::topology::StageKind;
 
@@ -28,6 +30,8 @@ pub(super) struct CascadeProc {
     started_at: Instant,
     pub(super) starts: u32,
     quick_failures: u32,
+    /// The cascade's status, once [`CascadeProc::watch_status`] subscribed.
+    status: Option<StatusSubscriber>,
 }
 
 impl CascadeProc {
@@ -61,6 +65,7 @@ impl CascadeProc {
             started_at: Instant::now(),
             starts: 0,
             quick_failures: 0,
+            status: None,
         })
     }
 
@@ -113,13 +118,48 @@ impl CascadeProc {
         Ok(())
     }
 
+    /// Reads the cascade's status from now on, for [`CascadeProc::check`] to
+    /// see its store fail.
+    pub(super) fn watch_status(&mut self, ipc: &Ipc) -> anyhow::Result<()> {
+        self.status = Some(ipc.status_subscriber(&self.camera, StageKind::Cascade)?);
+        Ok(())
+    }
+
+    /// Errors (69) once the cascade says a store commit failed: the disk
+    /// under `DIR` is full or read-only, and nothing more would be learned (the
+    /// cascade only pauses learning, and synth would wait for it in vain).
+    fn store_failing(&self) -> anyhow::Result<()> {
+        let failed = self
+            .status
+            .as_ref()
+            .and_then(StatusSubscriber::latest)
+            .as_ref()
+            .and_then(status_counters)
+            .map_or(0.0, |c| c.get(counters::cascade::STORE_FAILURES));
+        if failed > 0.0 {
+            let dir = self.config.parent().unwrap_or(Path::new("."));
+            return Err(exit::Fatal::new(
+                exit::UNAVAILABLE,
+                format!(
+                    "the cascade cannot write its store in {} ({failed} commits failed: the disk is full or read-only); what it learned before is kept; see {}",
+                    dir.display(),
+                    self.log.display()
+                ),
+            )
+            .into());
+        }
+        Ok(())
+    }
+
     /// Checks the process; restarts it if it died of something a restart can fix.
-    /// Returns true if it was restarted.
+    /// Returns true if it was restarted. Errors if the cascade cannot write its
+    /// store.
     pub(super) fn check(
         &mut self,
         motion: &StreamPublisher<Motion>,
         pb: &ProgressBar,
     ) -> anyhow::Result<bool> {
+        self.store_failing()?;
         let Some(child) = &mut self.child else {
             return Ok(false);
         };

@@ -219,6 +219,7 @@ impl<'ipc> CascadeStage<'ipc> {
             self.output.end_of_stream(&header.preamble, |_| {})?;
             return Ok(());
         };
+        let mut failed = None;
         match c.push(header, blocks, s) {
             Ok(done) => {
                 self.grid_mismatches = 0;
@@ -253,10 +254,9 @@ impl<'ipc> CascadeStage<'ipc> {
             {
                 return Err(e.into());
             }
-            Err(PushError::Store(e)) => {
-                self.store_failed(e.into(), cx);
-                return Ok(());
-            }
+            // A failed commit (a full disk) pauses learning; an end of stream
+            // is still passed on, or everything downstream would wait for it.
+            Err(PushError::Store(e)) => failed = Some(e),
         }
         if end {
             let grid = *c.grid();
@@ -277,6 +277,9 @@ impl<'ipc> CascadeStage<'ipc> {
                 stats.minutes_sparse,
                 stats.minutes_repeated
             );
+        }
+        if let Some(e) = failed {
+            self.store_failed(e.into(), cx);
         }
         Ok(())
     }
