@@ -99,6 +99,33 @@ pub struct ZoneConfig {
     pub polygon: Polygon,
 }
 
+/// Which side of a counting line is "in" (`[[camera.line]].in`), seen walking
+/// along the line from its first point to its last.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LineSide {
+    /// The walker's left.
+    Left,
+    /// The walker's right.
+    Right,
+}
+
+/// A counting line of a camera's view, whose crossings the people census
+/// counts in and out (`[[camera.line]]`; checked at load, not counted yet).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LineConfig {
+    /// Line name (at most 32 bytes), unique per camera.
+    pub name: String,
+    /// The line in frame pixels at the analysis size: 2 or more points, inside
+    /// the frame.
+    pub points: Vec<[f64; 2]>,
+    /// Which side is `in`, walking from the first point to the last: `left` or
+    /// `right`.
+    #[serde(rename = "in")]
+    pub in_side: LineSide,
+}
+
 /// `[[camera]]`: one fixed camera.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -172,6 +199,10 @@ pub struct CameraConfig {
     /// Zones for events; default one zone `"all"` covering the whole view.
     #[serde(default, rename = "zone")]
     pub zones: Vec<ZoneConfig>,
+    /// Counting lines of the people census: crossings in and out per track.
+    /// Checked at load; the gate does not count them yet. Default: none.
+    #[serde(default, rename = "line")]
+    pub lines: Vec<LineConfig>,
     /// Where the view lies on the floor: at least 4 pairs of an image point and the
     /// same point on the floor, `{ image_px = [x, y], floor_m = [x, y] }`; the cost
     /// map bridge fits a homography to them (least squares for more than 4). Image
@@ -464,6 +495,52 @@ impl CameraConfig {
                 ));
             }
             check_polygon(&format!("{zkey}.polygon"), &zone.polygon)?;
+        }
+        for (j, line) in self.lines.iter().enumerate() {
+            let key = format!("camera[{i}].line[{j}]");
+            if line.name.is_empty() || line.name.len() > isochron_wire::ZONE_NAME_LEN {
+                return Err(Invalid::new(
+                    format!("{key}.name"),
+                    "expected a name of 1 to 32 bytes",
+                ));
+            }
+            if self.lines[..j].iter().any(|l| l.name == line.name) {
+                return Err(Invalid::new(
+                    format!("{key}.name"),
+                    format!("line name \"{}\" is used twice", line.name),
+                ));
+            }
+            self.check_line_points(&format!("{key}.points"), &line.points)?;
+        }
+        Ok(())
+    }
+
+    /// A counting line's points: at least 2, finite, inside the frame (within
+    /// `width` × `height` where they are configured), no two alike in a row.
+    fn check_line_points(&self, key: &str, points: &[[f64; 2]]) -> Result<(), Invalid> {
+        check_at_least(key, points.len(), 2, "a line of at least 2 [x, y] points")?;
+        let (w, h) = (
+            self.width.map_or(f64::INFINITY, f64::from),
+            self.height.map_or(f64::INFINITY, f64::from),
+        );
+        if let Some(p) = points.iter().find(|p| {
+            !(p[0].is_finite() && p[1].is_finite())
+                || p[0] < 0.0
+                || p[1] < 0.0
+                || p[0] > w
+                || p[1] > h
+        }) {
+            let frame = match (self.width, self.height) {
+                (Some(w), Some(h)) => format!("the {w}x{h} frame"),
+                _ => "the frame (x and y from 0)".to_string(),
+            };
+            return Err(Invalid::new(
+                key,
+                format!("expected points inside {frame}, found {p:?}"),
+            ));
+        }
+        if points.windows(2).any(|w| w[0] == w[1]) {
+            return Err(Invalid::new(key, "expected no point repeated in a row"));
         }
         Ok(())
     }

@@ -47,8 +47,8 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 pub use camera::{
-    CameraConfig, FloorPoint, Polygon, SourceKind, Speed, Transport, ZoneConfig, degenerate_points,
-    parse_start,
+    CameraConfig, FloorPoint, LineConfig, LineSide, Polygon, SourceKind, Speed, Transport,
+    ZoneConfig, degenerate_points, parse_start,
 };
 pub use cascade::{CascadeConfig, DAY_NAMES};
 use check::{check_at_least, check_dds, check_polygon};

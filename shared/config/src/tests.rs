@@ -546,3 +546,55 @@ fn a_network_camera_transport_and_timeouts_default_and_are_checked() {
         assert_eq!(err.line, Some(14), "{err}");
     }
 }
+
+#[test]
+fn counting_lines_are_parsed_and_bad_ones_refused_naming_the_key() {
+    let camera =
+        "id = \"cam02\"\nsource = \"rtsp://127.0.0.1/stream\"\nwidth = 640\nheight = 480\n";
+    let with = |lines: &str| {
+        GOOD.replace(
+            "id = \"cam02\"\nsource = \"rtsp://127.0.0.1/stream\"\n",
+            &format!("{camera}{lines}"),
+        )
+    };
+    let good =
+        "[[camera.line]]\nname = \"door\"\npoints = [[10, 200], [300, 200]]\nin = \"left\"\n";
+    let c = parse(&with(good)).unwrap();
+    assert_eq!(c.cameras[1].lines[0].in_side, LineSide::Left);
+    assert_eq!(
+        c.cameras[1].lines[0].points,
+        [[10.0, 200.0], [300.0, 200.0]]
+    );
+    for (lines, key, said) in [
+        (
+            "[[camera.line]]\nname = \"a\"\npoints = [[1, 2]]\nin = \"left\"\n",
+            "camera[1].line[0].points",
+            "at least 2",
+        ),
+        (
+            &format!("{good}{good}"),
+            "camera[1].line[1].name",
+            "used twice",
+        ),
+        (
+            "[[camera.line]]\nname = \"a\"\npoints = [[1, 2], [700, 2]]\nin = \"left\"\n",
+            "camera[1].line[0].points",
+            "inside the 640x480 frame",
+        ),
+        (
+            "[[camera.line]]\nname = \"a\"\npoints = [[1, 2], [-1, 2]]\nin = \"left\"\n",
+            "camera[1].line[0].points",
+            "inside",
+        ),
+    ] {
+        let err = parse(&with(lines)).unwrap_err();
+        assert_eq!(err.key.as_deref(), Some(key), "{err}");
+        assert!(err.message.contains(said), "{err}");
+        assert!(err.line.is_some(), "{err}");
+    }
+    let err = parse(&with(
+        "[[camera.line]]\nname = \"a\"\npoints = [[1, 2], [3, 4]]\nin = \"up\"\n",
+    ))
+    .unwrap_err();
+    assert!(err.to_string().contains("in"), "{err}");
+}
