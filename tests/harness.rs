@@ -22,6 +22,7 @@ mod bench;
 mod netns;
 mod peers;
 mod process;
+mod tmpfs;
 
 pub use bench::{
     bench_args, bench_count, bench_options, bench_secs, clock_ticks_per_s, cpu_ticks, rss_bytes,
@@ -29,6 +30,7 @@ pub use bench::{
 pub use netns::{NetnsPair, ip};
 pub use peers::{node_modules, venv_python};
 pub use process::{Finished, Proc, eventually, named_thread, pid_in};
+pub use tmpfs::Tmpfs;
 
 /// The directory holding the built binaries: `$ISOCHRON_BIN_DIR`, else
 /// `target/<profile>` of the test or bench that calls it.
@@ -421,4 +423,29 @@ pub fn vtest_camera(speed: &str, start: &str) -> String {
         "[[camera]]\nid = \"cam01\"\nsource = \"{}\"\nspeed = \"{speed}\"\nstart = \"{start}\"\n",
         vtest().display()
     )
+}
+
+/// `isochron synth` of cam01 on the office profile the docs use
+/// (`config/profiles/office.csv`) for `days` days into `out`, at 1 fps on 16x12
+/// blocks (`fps` overrides the rate).
+pub fn office_synth_args(out: &Path, days: &str, fps: &str) -> Vec<String> {
+    let profile = repo_root().join("config/profiles/office.csv");
+    let (profile, out) = (profile.display().to_string(), out.display().to_string());
+    [
+        "synth",
+        "--camera",
+        "cam01",
+        "--profile",
+        &profile,
+        "--days",
+        days,
+        "--out",
+        &out,
+        "--fps",
+        fps,
+        "--grid",
+        "16x12",
+    ]
+    .map(str::to_string)
+    .to_vec()
 }

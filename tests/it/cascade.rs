@@ -821,36 +821,9 @@ impl<'a> MinuteDamage<'a> {
 fn a_full_disk_pauses_learning_and_it_resumes_when_space_returns() {
     let site = TestSite::with_source("cascade-full", "[ipc]\nlossless = true", "unused.avi");
     let state = site.path("state");
-    std::fs::create_dir_all(&state).unwrap();
-    let mounted = std::process::Command::new("mount")
-        .args([
-            "-t",
-            "tmpfs",
-            "-o",
-            "size=2m",
-            "isochron-test",
-            &state.display().to_string(),
-        ])
-        .status()
-        .is_ok_and(|s| s.success());
-    if !mounted {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "CI runs as root and must be able to mount a tmpfs"
-        );
-        eprintln!("skipped: cannot mount a tmpfs here (not root)");
+    let Some(_disk) = isochron_tests::Tmpfs::mount(&state, "2m") else {
         return;
-    }
-    struct Unmount(PathBuf);
-    impl Drop for Unmount {
-        fn drop(&mut self) {
-            let _ = std::process::Command::new("umount")
-                .arg("-l")
-                .arg(&self.0)
-                .status();
-        }
-    }
-    let _unmount = Unmount(state.clone());
+    };
     let store = store_path(&state, "cam01");
     let ipc = site.ipc("feeder");
     let publisher = ipc.publisher::<Motion>("cam01", 8).unwrap();

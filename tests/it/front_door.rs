@@ -245,49 +245,21 @@ fn an_unconfigured_route_or_segment_is_64_and_a_config_without_a_box_id_78() {
 fn replay_refused_for_its_config_or_camera_creates_no_output_directory() {
     let site = site("front-replay-out");
     let video = vtest().display().to_string();
-    let broken = site.path("broken.toml");
-    std::fs::write(&broken, "[site]\nname = 3\n").unwrap();
-    let out = "{dir}/out";
-    fails(
-        &site,
-        &[
-            "replay",
-            &video,
-            "--out",
-            out,
-            "--config",
-            "{dir}/broken.toml",
-        ],
-        isochron_exit::CONFIG,
-        &["broken.toml"],
-    );
-    fails(
-        &site,
-        &[
-            "replay",
-            &video,
-            "--out",
-            out,
-            "--config",
-            "{dir}/none.toml",
-        ],
-        isochron_exit::CONFIG,
-        &["none.toml"],
-    );
-    fails(
-        &site,
-        &[
-            "replay", &video, "--out", out, "--config", "{config}", "--camera", "cam09",
-        ],
-        isochron_exit::USAGE,
-        &["--camera", "cam09"],
-    );
-    fails(
-        &site,
-        &["replay", &video, "--out", "{config}"],
-        isochron_exit::USAGE,
-        &["--out", "not a directory"],
-    );
+    std::fs::write(site.path("broken.toml"), "[site]\nname = 3\n").unwrap();
+    #[rustfmt::skip]
+    let table: &[(&[&str], i32, &str)] = &[
+        (&["--out", "{dir}/out", "--config", "{dir}/broken.toml"], isochron_exit::CONFIG, "broken.toml"),
+        (&["--out", "{dir}/out", "--config", "{dir}/none.toml"], isochron_exit::CONFIG, "none.toml"),
+        (&["--out", "{dir}/out", "--config", "{config}", "--camera", "cam09"], isochron_exit::USAGE, "cam09"),
+        (&["--out", "{config}"], isochron_exit::USAGE, "not a directory"),
+    ];
+    for (flags, code, said) in table {
+        let args: Vec<&str> = ["replay", video.as_str()]
+            .into_iter()
+            .chain(flags.iter().copied())
+            .collect();
+        fails(&site, &args, *code, &[said]);
+    }
 }
 
 #[test]
@@ -501,35 +473,12 @@ fn wednesday_store(path: &Path, camera: &str, cycle: isochron_config::clock::Cyc
 fn a_store_on_read_only_media_is_read() {
     let site = site("front-ro");
     let card = site.path("card");
-    std::fs::create_dir(&card).unwrap();
-    let mount = |args: &[&str]| {
-        std::process::Command::new("mount")
-            .args(args)
-            .arg(&card)
-            .status()
-            .is_ok_and(|s| s.success())
-    };
-    if !mount(&["-t", "tmpfs", "-o", "size=4m", "isochron-test"]) {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "CI runs as root and must be able to mount a tmpfs"
-        );
-        eprintln!("skipped: cannot mount a tmpfs here (not root)");
+    let Some(disk) = isochron_tests::Tmpfs::mount(&card, "4m") else {
         return;
-    }
-    struct Unmount(PathBuf);
-    impl Drop for Unmount {
-        fn drop(&mut self) {
-            let _ = std::process::Command::new("umount")
-                .arg("-l")
-                .arg(&self.0)
-                .status();
-        }
-    }
-    let _unmount = Unmount(card.clone());
+    };
     let store = card.join("cam01.isochron.sqlite");
     wednesday_store(&store, "cam01", isochron_config::clock::Cycle::Daily);
-    assert!(mount(&["-o", "remount,ro"]), "remount read-only");
+    assert!(disk.remount_read_only(), "remount read-only");
     assert!(
         std::fs::write(card.join("probe"), b"").is_err(),
         "the card is read-only"

@@ -3,48 +3,9 @@
 //! cascade passes its end of stream on though its last minute could not be
 //! stored.
 
-use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use isochron_tests::{Proc, TestSite, bin, repo_root, vtest};
-
-/// A `size` tmpfs mounted on `dir` until dropped; `None` where this user
-/// cannot mount (not root: CI is).
-struct Tmpfs(PathBuf);
-
-impl Tmpfs {
-    fn mount(dir: &Path, size: &str) -> Option<Tmpfs> {
-        std::fs::create_dir_all(dir).unwrap();
-        let mounted = std::process::Command::new("mount")
-            .args([
-                "-t",
-                "tmpfs",
-                "-o",
-                &format!("size={size}"),
-                "isochron-test",
-            ])
-            .arg(dir)
-            .status()
-            .is_ok_and(|s| s.success());
-        if !mounted {
-            assert!(
-                std::env::var_os("CI").is_none(),
-                "CI runs as root and must be able to mount a tmpfs"
-            );
-            eprintln!("skipped: cannot mount a tmpfs here (not root)");
-        }
-        mounted.then(|| Tmpfs(dir.to_path_buf()))
-    }
-}
-
-impl Drop for Tmpfs {
-    fn drop(&mut self) {
-        let _ = std::process::Command::new("umount")
-            .arg("-l")
-            .arg(&self.0)
-            .status();
-    }
-}
+use isochron_tests::{Proc, TestSite, Tmpfs, bin, vtest};
 
 /// Runs `isochron args` to its end (within `timeout`): its exit code, stderr,
 /// and how long it took.
@@ -66,26 +27,8 @@ fn synth_on_a_full_disk_is_69_within_seconds_saying_why() {
     let Some(_disk) = Tmpfs::mount(&site.path("disk"), "300k") else {
         return;
     };
-    let out = site.path("disk/run").display().to_string();
-    let profile = repo_root()
-        .join("config/profiles/office.csv")
-        .display()
-        .to_string();
-    let args = [
-        "synth",
-        "--camera",
-        "cam01",
-        "--profile",
-        &profile,
-        "--days",
-        "3",
-        "--out",
-        &out,
-        "--fps",
-        "1",
-        "--grid",
-        "16x12",
-    ];
+    let args = isochron_tests::office_synth_args(&site.path("disk/run"), "3", "1");
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let (code, stderr, took) = run(&args, Duration::from_secs(90));
     eprintln!(
         "synth on a full disk ended with {code:?} after {:.1} s",

@@ -653,18 +653,16 @@ fn learned_motion(store: &Store, minute: i64) -> Option<f64> {
 /// make it a sixth less.
 #[test]
 fn a_camera_frozen_inside_a_minute_teaches_the_store_no_empty_seconds() {
-    let keys = "read_timeout_s = 2\nconnect_timeout_s = 2\n";
-    let Rig {
-        camera,
-        frames,
-        site,
-        _ipc,
-        port: _,
-    } = Rig::new("rtsp-store-gap", &[], keys);
+    let rig = Rig::new(
+        "rtsp-store-gap",
+        &[],
+        "read_timeout_s = 2\nconnect_timeout_s = 2\n",
+    );
+    let (camera, site) = (&rig.camera, &rig.site);
     let mut config = std::fs::read_to_string(site.config_path()).unwrap();
     config.push_str("\n[cascade]\ncycle = \"daily\"\nmin_coverage = 0.5\n");
     std::fs::write(site.config_path(), config).unwrap();
-    let mut capture = streaming_capture(&site, &frames);
+    let mut capture = streaming_capture(site, &rig.frames);
     let mut motion = site.spawn("isochron-motion", &["--camera", "cam01"]);
     let mut cascade = site.spawn("isochron-cascade", &["--camera", "cam01"]);
 

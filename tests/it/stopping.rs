@@ -64,27 +64,9 @@ fn ctrl_c_on_replay_stops_its_group_and_writes_the_summary() {
 #[test]
 fn sigterm_on_synth_ends_the_cascade_and_keeps_the_whole_minutes() {
     let site = TestSite::new("stop-synth", "");
-    let profile = isochron_tests::repo_root().join("config/profiles/office.csv");
     let out = site.path("run");
-    let (profile, out_arg) = (profile.display().to_string(), out.display().to_string());
-    let mut synth = Proc::spawn(
-        &bin("isochron"),
-        &[
-            "synth",
-            "--camera",
-            "cam01",
-            "--profile",
-            &profile,
-            "--days",
-            "365",
-            "--out",
-            &out_arg,
-            "--fps",
-            "2",
-            "--grid",
-            "16x12",
-        ],
-    );
+    let args = isochron_tests::office_synth_args(&out, "365", "2");
+    let mut synth = Proc::spawn(&bin("isochron"), &args);
     assert!(
         synth
             .wait_for_line("cascade started", Duration::from_secs(60))

@@ -981,23 +981,9 @@ fn a_recorder_whose_disk_fills_closes_the_file_cleanly() {
     // A 5 MiB file system: the recorder stops at 4 MiB free, with ~1 MiB written.
     let site = demo_site("record-full", |b| format!("{b}\n[view]\nframes = true\n"));
     let mnt = site.path("small");
-    std::fs::create_dir(&mnt).unwrap();
-    let mounted = std::process::Command::new("mount")
-        .args(["-t", "tmpfs", "-o", "size=5m", "tmpfs"])
-        .arg(&mnt)
-        .status()
-        .is_ok_and(|s| s.success());
-    if !mounted {
-        eprintln!("SKIPPED: mounting a tmpfs needs root");
+    let Some(_disk) = isochron_tests::Tmpfs::mount(&mnt, "5m") else {
         return;
-    }
-    struct Unmount(PathBuf);
-    impl Drop for Unmount {
-        fn drop(&mut self) {
-            let _ = std::process::Command::new("umount").arg(&self.0).status();
-        }
-    }
-    let _unmount = Unmount(mnt.clone());
+    };
     let file = mnt.join("run.mcap");
     let done = replay_recorded(&site, &file, &[]);
     assert_eq!(
